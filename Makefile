@@ -1,0 +1,28 @@
+# goflow: `make demo` and `make test` need nothing but python3 (>= 3.10) on the machine.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test venv models clean
+
+venv: $(STAMP)
+
+# (Re)create .venv whenever pyproject.toml changes. torch goes first so that the CPU build is taken
+# where one exists (a local +cpu wheel, then PyTorch's CPU index); plain PyPI torch is the fallback.
+$(STAMP): pyproject.toml tools/setup_env.sh
+	bash tools/setup_env.sh $(PYTHON) $(VENV)
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/goflow demo --scripted
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+# Regenerate every committed model file (bit-identical for the same code).
+models: $(STAMP)
+	$(BIN)/python -m assembly.generate_models
+
+clean:
+	rm -rf $(VENV) build *.egg-info

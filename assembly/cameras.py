@@ -1,0 +1,98 @@
+"""RGB-D cameras of the station: a fixed scene camera and a wrist camera on the Panda's hand."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import (
+    ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, FrameId,
+    MakeRenderEngineVtk, RenderCameraCore, RenderEngineVtkParams, SceneGraph,
+)
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.sensors import CameraInfo, RgbdSensor
+
+RENDERER = "vtk"
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])
+            ) -> RigidTransform:
+    """Pose of a camera at `eye` whose optical axis (+z) points at `target`; image rows (+y) point
+    down, i.e. away from `up`."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return RigidTransform(RotationMatrix(np.column_stack([x, y, z])), eye)
+
+
+@dataclass
+class CameraConfig:
+    """A pinhole RGB-D camera rigidly attached to a parent frame (the world or a body)."""
+
+    name: str
+    X_PC: RigidTransform
+    width: int = 640
+    height: int = 480
+    fov_y: float = np.deg2rad(45.0)
+    near: float = 0.02
+    far: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera {self.name!r}: image size {self.width}x{self.height}; "
+                             "expected positive width and height in pixels")
+        if not 0 < self.fov_y < np.pi:
+            raise ValueError(f"camera {self.name!r}: fov_y = {self.fov_y}; expected (0, pi) rad")
+        if not 0 < self.near < self.far:
+            raise ValueError(f"camera {self.name!r}: near {self.near}, far {self.far}; "
+                             "expected 0 < near < far [m]")
+
+    def info(self) -> CameraInfo:
+        return CameraInfo(self.width, self.height, self.fov_y)
+
+
+def default_scene_camera() -> CameraConfig:
+    """Above the table in front of the robot, looking down at the plate and the gears."""
+    return CameraConfig("scene", look_at([0.85, 0.25, 0.55], [0.47, -0.03, 0.0]))
+
+
+def default_wrist_camera() -> CameraConfig:
+    """On the hand, beside the fingers, looking along the approach direction (hand +z)."""
+    # Hand frame: z along the fingers, y the closing direction. Mounted 6 cm off-axis along hand x,
+    # tilted 15 degrees toward the fingertips so the grasp region sits mid-image.
+    X_HC = RigidTransform(RotationMatrix.MakeYRotation(-np.deg2rad(15.0)), [0.06, 0.0, 0.04])
+    return CameraConfig("wrist", X_HC, fov_y=np.deg2rad(60.0), near=0.01, far=1.5)
+
+
+@dataclass
+class CamerasConfig:
+    """Which cameras the station carries."""
+
+    scene: CameraConfig | None = field(default_factory=default_scene_camera)
+    wrist: CameraConfig | None = field(default_factory=default_wrist_camera)
+
+
+def add_renderer(scene_graph: SceneGraph) -> None:
+    """Register Drake's VTK renderer (headless through EGL/OSMesa) once."""
+    if not scene_graph.HasRenderer(RENDERER):
+        scene_graph.AddRenderer(RENDERER, MakeRenderEngineVtk(RenderEngineVtkParams()))
+
+
+def add_camera(builder: DiagramBuilder, scene_graph: SceneGraph, parent: FrameId,
+               config: CameraConfig) -> RgbdSensor:
+    """Add an RgbdSensor named config.name attached to `parent`, rendering with the VTK engine."""
+    add_renderer(scene_graph)
+    core = RenderCameraCore(RENDERER, config.info(), ClippingRange(config.near, config.far),
+                            RigidTransform())
+    sensor = builder.AddSystem(RgbdSensor(
+        parent, config.X_PC, ColorRenderCamera(core, False),
+        DepthRenderCamera(core, DepthRange(config.near, config.far))))
+    sensor.set_name(f"camera_{config.name}")
+    builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())
+    return sensor

@@ -1,0 +1,195 @@
+"""A scripted pick-and-insert skill: approach, grasp a gear from the table, transport, align above
+its shaft, insert under impedance, release, retreat.
+
+The skill is open loop: it plans tool-frame keyframes from where it *believes* the gear is and
+plays them through the impedance controller. Compliance and the chamfers absorb small errors;
+larger ones make it fail, which is what learned skills are for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.common.eigen_geometry import AngleAxis
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import Context, LeafSystem
+
+from assembly.gearset import GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
+from assembly.panda_model import FINGER_MAX_WIDTH
+from assembly.world import validate_tool_target
+
+
+@dataclass
+class InsertSkillConfig:
+    """Geometry and timing of the scripted skill (SI units)."""
+
+    grasp_depth: float = 0.006  # tool frame this far below the gear's top face when grasping
+    approach_height: float = 0.08  # above the gear top before descending to grasp
+    transport_clearance: float = 0.03  # gear bottom above the shaft tops while moving
+    align_height: float = 0.004  # gear bottom above the shaft top before inserting
+    insert_overshoot: float = 0.006  # insertion target below seated: the impedance pushes down
+    open_margin: float = 0.012  # open width beyond the gear's tip diameter
+    squeeze: float = 0.02  # commanded width below the tip diameter: sets the grasp force
+    speed: float = 0.15  # mean free-space speed of the tool [m/s] (min-jerk peak is 1.9x)
+    insert_speed: float = 0.01  # mean speed while inserting [m/s]
+    min_segment: float = 0.5  # shortest free-space move [s]
+    pause: float = 0.4  # rest before descending, before grasping and before inserting [s]
+    gripper_time: float = 0.5  # to open or close [s]
+    settle_time: float = 0.3  # pause after arriving at the insertion target [s]
+    retreat_height: float = 0.08
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"InsertSkillConfig.{name} = {value}; expected a finite value >= 0")
+        for name in ("speed", "insert_speed", "gripper_time"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"InsertSkillConfig.{name} must be > 0")
+
+
+@dataclass
+class Keyframe:
+    """A tool pose and gripper width to reach at time t."""
+
+    t: float
+    X_WT: RigidTransform
+    width: float
+    label: str
+
+
+@dataclass
+class SkillPlan:
+    """Keyframes of one or more pick-and-insert skills, and per gear the [start, release] times."""
+
+    keyframes: list[Keyframe] = field(default_factory=list)
+    gear_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    @property
+    def end_time(self) -> float:
+        return self.keyframes[-1].t if self.keyframes else 0.0
+
+    def append(self, duration: float, X_WT: RigidTransform, width: float, label: str) -> None:
+        """Reach X_WT and `width` `duration` seconds after the last keyframe."""
+        validate_tool_target(X_WT)
+        self.keyframes.append(Keyframe(self.end_time + duration, X_WT, width, label))
+
+
+def down_pose(p: np.ndarray, yaw: float) -> RigidTransform:
+    """Tool pose at p with the approach axis (tool z) pointing down, rotated by yaw about world z."""
+    return RigidTransform(RotationMatrix.MakeZRotation(yaw) @ RotationMatrix.MakeXRotation(np.pi), p)
+
+
+def _grasp_yaw(current: RigidTransform) -> float:
+    """Fingers close along world x (the tip circle is round, so any direction grasps it); of the
+    two symmetric yaws pick the one nearest the hand's current yaw so the wrist does not wind up."""
+    current_yaw = np.arctan2(current.rotation().matrix()[1, 0], current.rotation().matrix()[0, 0])
+    candidates = np.array([np.pi / 2, -np.pi / 2])
+    diffs = np.abs(np.angle(np.exp(1j * (candidates - current_yaw))))
+    return float(candidates[np.argmin(diffs)])
+
+
+def plan_pick_and_insert(plan: SkillPlan, gear: str, X_WG_believed: RigidTransform,
+                         X_WS: RigidTransform, config: InsertSkillConfig) -> None:
+    """Append one pick-and-insert of `gear` to `plan`, starting from its last keyframe.
+
+    X_WG_believed: where the skill thinks the gear is (frame G at the bore axis, bottom face).
+    X_WS: the shaft frame (on the axis at the plate top).
+    """
+    if not plan.keyframes:
+        raise ValueError("plan has no start keyframe; begin it with start_plan(X_WT_now, width)")
+    spec = gear_spec(gear)
+    c = config
+    start = plan.end_time
+    yaw = _grasp_yaw(plan.keyframes[-1].X_WT)
+    open_w = min(2 * spec.tip_radius + c.open_margin, FINGER_MAX_WIDTH)
+    closed_w = 2 * spec.tip_radius - c.squeeze
+    grasp_z = GEAR_THICKNESS - c.grasp_depth  # tool height above the gear bottom
+
+    p_G = X_WG_believed.translation()
+    p_S = X_WS.translation()
+    above_gear = down_pose(p_G + [0, 0, GEAR_THICKNESS + c.approach_height], yaw)
+    at_gear = down_pose(p_G + [0, 0, grasp_z], yaw)
+    carry_z = p_S[2] + SHAFT_HEIGHT + c.transport_clearance + grasp_z
+    lifted = down_pose(np.array([p_G[0], p_G[1], carry_z]), yaw)
+    above_shaft = down_pose(np.array([p_S[0], p_S[1], carry_z]), yaw)
+    aligned = down_pose(p_S + [0, 0, SHAFT_HEIGHT + c.align_height + grasp_z], yaw)
+    pushed = down_pose(p_S + [0, 0, grasp_z - c.insert_overshoot], yaw)
+    retreat = down_pose(p_S + [0, 0, grasp_z + c.retreat_height], yaw)
+
+    def move(target: RigidTransform, width: float, label: str, speed: float = c.speed) -> None:
+        d = np.linalg.norm(target.translation() - plan.keyframes[-1].X_WT.translation())
+        plan.append(max(d / speed, c.min_segment), target, width, label)
+
+    move(above_gear, open_w, f"{gear}: approach")
+    plan.append(c.pause, above_gear, open_w, f"{gear}: steady above gear")
+    move(at_gear, open_w, f"{gear}: descend")
+    plan.append(c.pause, at_gear, open_w, f"{gear}: steady at gear")
+    plan.append(c.gripper_time, at_gear, closed_w, f"{gear}: grasp")
+    plan.append(0.2, at_gear, closed_w, f"{gear}: hold")
+    move(lifted, closed_w, f"{gear}: lift")
+    move(above_shaft, closed_w, f"{gear}: transport")
+    move(aligned, closed_w, f"{gear}: align")
+    plan.append(c.pause, aligned, closed_w, f"{gear}: steady above shaft")
+    move(pushed, closed_w, f"{gear}: insert", speed=c.insert_speed)
+    plan.append(c.settle_time, pushed, closed_w, f"{gear}: settle")
+    plan.append(c.gripper_time, pushed, open_w, f"{gear}: release")
+    plan.gear_intervals[gear] = (start, plan.end_time)
+    move(retreat, open_w, f"{gear}: retreat")
+
+
+def start_plan(X_WT_now: RigidTransform, width_now: float) -> SkillPlan:
+    """A plan whose first keyframe holds the current tool pose and gripper width at t = 0."""
+    return SkillPlan([Keyframe(0.0, X_WT_now, width_now, "start")])
+
+
+def min_jerk(tau: float) -> tuple[float, float, float]:
+    """Minimum-jerk progress s(tau) and its first two derivatives on [0, 1] (rest at both ends)."""
+    tau = min(max(tau, 0.0), 1.0)
+    return (tau ** 3 * (10 - 15 * tau + 6 * tau ** 2), 30 * tau ** 2 * (1 - tau) ** 2,
+            60 * tau * (1 - tau) * (1 - 2 * tau))
+
+
+class PlanSource(LeafSystem):
+    """Plays a SkillPlan: outputs "X_WT_desired" (abstract RigidTransform), its velocity
+    "V_WT_desired" and acceleration "A_WT_desired" (6 each, [w; v] in W) and "gripper_width" (1). Each segment between keyframes is a
+    minimum-jerk move (straight line, slerp for rotation) that starts and ends at rest; the last
+    keyframe is held."""
+
+    def __init__(self, plan: SkillPlan) -> None:
+        super().__init__()
+        if len(plan.keyframes) < 2:
+            raise ValueError("a SkillPlan needs at least two keyframes to play")
+        self.plan = plan
+        self._times = np.array([k.t for k in plan.keyframes])
+        if np.any(np.diff(self._times) <= 0):
+            raise ValueError("SkillPlan keyframe times must increase strictly")
+        self.DeclareAbstractOutputPort(
+            "X_WT_desired", lambda: AbstractValue.Make(RigidTransform()), self._calc_pose)
+        self.DeclareVectorOutputPort(
+            "V_WT_desired", 6, lambda c, o: o.SetFromVector(self.sample(c.get_time())[1]))
+        self.DeclareVectorOutputPort(
+            "A_WT_desired", 6, lambda c, o: o.SetFromVector(self.sample(c.get_time())[2]))
+        self.DeclareVectorOutputPort(
+            "gripper_width", 1, lambda c, o: o.SetFromVector([self.sample(c.get_time())[3]]))
+
+    def sample(self, t: float) -> tuple[RigidTransform, np.ndarray, np.ndarray, float]:
+        """Desired tool pose, spatial velocity and acceleration ([w; v], [alpha; a] in W) and
+        gripper width at time t."""
+        k = int(np.clip(np.searchsorted(self._times, t, side="right") - 1, 0, len(self._times) - 2))
+        a, b = self.plan.keyframes[k], self.plan.keyframes[k + 1]
+        duration = b.t - a.t
+        s, ds, dds = min_jerk((t - a.t) / duration)
+        R_ab = a.X_WT.rotation().inverse() @ b.X_WT.rotation()
+        aa = R_ab.ToAngleAxis()
+        R = a.X_WT.rotation() @ RotationMatrix(AngleAxis(s * aa.angle(), aa.axis()))
+        dp = b.X_WT.translation() - a.X_WT.translation()
+        p = a.X_WT.translation() + s * dp
+        w = a.X_WT.rotation() @ (aa.axis() * aa.angle())
+        twist = np.concatenate([w, dp])
+        width = a.width + min(max((t - a.t) / duration, 0.0), 1.0) * (b.width - a.width)
+        return RigidTransform(R, p), twist * ds / duration, twist * dds / duration ** 2, width
+
+    def _calc_pose(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self.sample(context.get_time())[0])

@@ -1,0 +1,188 @@
+"""The station Diagram: plant + scene graph (hydroelastic), impedance-controlled Panda, gripper,
+RGB-D cameras and, optionally, Meshcat.
+
+Exported ports of `Station.diagram`:
+  inputs  "X_WT_desired" (abstract RigidTransform) hand-tool target; "V_WT_desired" and
+          "A_WT_desired" (6 each, optional) its velocity and acceleration feedforward [w; v],
+          [alpha; a]; "gripper_width" (1) [m].
+  outputs "arm_state" (14), "hand_state" (4), "X_WT" (abstract RigidTransform), "wrench" (6),
+          "torque" (7), "body_poses", "contact_results", and per camera "<name>_rgb",
+          "<name>_depth" (32-bit float metres), "<name>_label".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import (
+    Meshcat, MeshcatParams, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialVelocity
+from pydrake.multibody.plant import (
+    AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig,
+)
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder
+from pydrake.systems.sensors import RgbdSensor
+
+from assembly.cameras import CamerasConfig, add_camera
+from assembly.gearset import gear_spec
+from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
+from assembly.impedance import CartesianImpedanceController, ImpedanceGains
+from assembly.panda_model import Q_HOME, TAU_MAX
+from assembly.world import WorldConfig, WorldModels, add_panda, add_world, gear_body, tool_frame
+
+# Seated criterion (IsaacLab Factory, REFERENCES.md): lateral error < 2.5 mm, height error < 1 mm.
+SEATED_LATERAL_TOL = 0.0025
+SEATED_HEIGHT_TOL = 0.001
+
+
+@dataclass
+class StationConfig:
+    """Everything that shapes the station. Time step and contact approximation were chosen by the
+    measurement in docs/station.md (benchmarks/sim_speed.py)."""
+
+    world: WorldConfig = field(default_factory=WorldConfig)
+    time_step: float = 0.002
+    contact_model: str = "hydroelastic_with_fallback"
+    discrete_contact_approximation: str = "lagged"
+    gains: ImpedanceGains = field(default_factory=ImpedanceGains)
+    gripper: GripperGains = field(default_factory=GripperGains)
+    cameras: CamerasConfig = field(default_factory=CamerasConfig)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.time_step) and 0 < self.time_step <= 0.02):
+            raise ValueError(f"time_step = {self.time_step}; expected a discrete step in (0, 0.02] s")
+        allowed = ("hydroelastic_with_fallback", "hydroelastic", "point")
+        if self.contact_model not in allowed:
+            raise ValueError(f"contact_model = {self.contact_model!r}; expected one of {allowed}")
+        approx = ("lagged", "similar", "sap", "tamsi")
+        if self.discrete_contact_approximation not in approx:
+            raise ValueError(f"discrete_contact_approximation = "
+                             f"{self.discrete_contact_approximation!r}; expected one of {approx}")
+
+
+@dataclass
+class InsertionError:
+    """Where a gear is relative to its shaft's seated pose."""
+
+    lateral_m: float
+    height_m: float  # signed: positive above the seated height
+
+    @property
+    def inserted(self) -> bool:
+        return self.lateral_m < SEATED_LATERAL_TOL and abs(self.height_m) < SEATED_HEIGHT_TOL
+
+
+@dataclass
+class Station:
+    """A built station and handles into it."""
+
+    diagram: Diagram
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    models: WorldModels
+    controller: CartesianImpedanceController
+    cameras: dict[str, RgbdSensor]
+    config: StationConfig
+    meshcat_visualizer: MeshcatVisualizer | None = None
+
+    def plant_context(self, root: Context) -> Context:
+        return self.plant.GetMyContextFromRoot(root)
+
+    def gear_pose(self, root: Context, gear: str) -> RigidTransform:
+        """World pose X_WG of a gear's frame."""
+        return gear_body(self.plant, self._gear(gear)).EvalPoseInWorld(self.plant_context(root))
+
+    def set_gear_pose(self, root: Context, gear: str, X_WG: RigidTransform) -> None:
+        """Place a gear (zero velocity)."""
+        body = gear_body(self.plant, self._gear(gear))
+        pc = self.plant.GetMyMutableContextFromRoot(root)
+        self.plant.SetFreeBodyPose(pc, body, X_WG)
+        self.plant.SetFreeBodySpatialVelocity(body, SpatialVelocity(), pc)
+
+    def insertion_error(self, root: Context, gear: str) -> InsertionError:
+        """Lateral and height error of a gear's frame from its seated pose on its shaft."""
+        p_SG = self.models.X_WS(gear).inverse() @ self.gear_pose(root, gear).translation()
+        return InsertionError(float(np.hypot(p_SG[0], p_SG[1])), float(p_SG[2]))
+
+    def tool_pose(self, root: Context) -> RigidTransform:
+        """Measured pose X_WT of the hand's tool frame."""
+        return self.diagram.GetOutputPort("X_WT").Eval(self.diagram.GetMyContextFromRoot(root))
+
+    def _gear(self, gear: str):
+        gear_spec(gear)
+        if gear not in self.models.gears:
+            raise ValueError(f"gear {gear!r} is not in this station; it has {sorted(self.models.gears)}")
+        return self.models.gears[gear]
+
+
+def make_controller_plant() -> tuple[MultibodyPlant, object, object]:
+    """A continuous plant holding only the Panda (arm + hand) for the controller's kinematics and
+    gravity model. Returns (plant, arm instance, tool frame)."""
+    plant = MultibodyPlant(0.0)
+    arm, hand = add_panda(plant)
+    plant.Finalize()
+    return plant, arm, tool_frame(plant, hand)
+
+
+def build_station(config: StationConfig | None = None, meshcat: Meshcat | None = None) -> Station:
+    """Build the station Diagram described by `config`; attach Meshcat if one is given."""
+    config = config or StationConfig()
+    builder = DiagramBuilder()
+    plant_config = MultibodyPlantConfig(
+        time_step=config.time_step, contact_model=config.contact_model,
+        discrete_contact_approximation=config.discrete_contact_approximation)
+    plant, scene_graph = AddMultibodyPlant(plant_config, builder)
+    plant.set_name("plant")
+    models = add_world(plant, scene_graph, config.world)
+    set_gripper_gains(plant, models.hand, config.gripper)
+    plant.Finalize()
+
+    ctrl_plant, ctrl_arm, ctrl_tool = make_controller_plant()
+    controller = builder.AddSystem(CartesianImpedanceController(
+        ctrl_plant, ctrl_arm, ctrl_tool, config.gains, TAU_MAX, Q_HOME))
+    controller.set_name("impedance_controller")
+    builder.Connect(plant.get_state_output_port(models.arm), controller.get_input_port(0))
+    builder.Connect(controller.GetOutputPort("torque"), plant.get_actuation_input_port(models.arm))
+    gripper = builder.AddSystem(GripperCommand())
+    gripper.set_name("gripper_command")
+    builder.Connect(gripper.get_output_port(0), plant.get_desired_state_input_port(models.hand))
+
+    builder.ExportInput(controller.GetInputPort("X_WT_desired"), "X_WT_desired")
+    builder.ExportInput(controller.GetInputPort("V_WT_desired"), "V_WT_desired")
+    builder.ExportInput(controller.GetInputPort("A_WT_desired"), "A_WT_desired")
+    builder.ExportInput(gripper.GetInputPort("width"), "gripper_width")
+    builder.ExportOutput(plant.get_state_output_port(models.arm), "arm_state")
+    builder.ExportOutput(plant.get_state_output_port(models.hand), "hand_state")
+    builder.ExportOutput(controller.GetOutputPort("X_WT"), "X_WT")
+    builder.ExportOutput(controller.GetOutputPort("wrench"), "wrench")
+    builder.ExportOutput(controller.GetOutputPort("torque"), "torque")
+    builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
+    builder.ExportOutput(plant.get_contact_results_output_port(), "contact_results")
+
+    cameras: dict[str, RgbdSensor] = {}
+    hand_body = plant.GetBodyByName("panda_hand", models.hand)
+    for cam, parent in ((config.cameras.scene, scene_graph.world_frame_id()),
+                        (config.cameras.wrist, plant.GetBodyFrameIdOrThrow(hand_body.index()))):
+        if cam is None:
+            continue
+        sensor = add_camera(builder, scene_graph, parent, cam)
+        cameras[cam.name] = sensor
+        builder.ExportOutput(sensor.color_image_output_port(), f"{cam.name}_rgb")
+        builder.ExportOutput(sensor.depth_image_32F_output_port(), f"{cam.name}_depth")
+        builder.ExportOutput(sensor.label_image_output_port(), f"{cam.name}_label")
+
+    visualizer = None
+    if meshcat is not None:
+        visualizer = MeshcatVisualizer.AddToBuilder(
+            builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+    diagram = builder.Build()
+    diagram.set_name("station")
+    return Station(diagram, plant, scene_graph, models, controller, cameras, config, visualizer)
+
+
+def make_meshcat() -> Meshcat:
+    """A Meshcat server bound to localhost only."""
+    return Meshcat(MeshcatParams(host="localhost"))

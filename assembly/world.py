@@ -1,0 +1,231 @@
+"""The physical scene: table, gear plate with shafts, three gears and the Panda, added to a plant.
+
+World frame W: origin at the Panda's base on the table top, z up, x pointing away from the robot.
+Gear start poses and the plate pose are planar (x, y, yaw) on the table top.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, SceneGraph
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex, RigidBody
+
+from assembly.gear_meshes import gearset_model_paths
+from assembly.gearset import GEAR_NAMES, PLATE_SIZE, gear_spec, shaft_position_in_plate
+from assembly.panda_model import (
+    FINGER_MAX_WIDTH, HAND_FLANGE_YAW, HAND_TCP_OFFSET, Q_HOME, panda_model_paths,
+)
+
+# Table top extents in W [m] (the table model is 1.2 x 1.0 m centred at x = 0.35).
+TABLE_X = (-0.25, 0.95)
+TABLE_Y = (-0.5, 0.5)
+# Where the Panda can place its hand above the table: radial distance from the base axis [m].
+REACH_RADIUS = (0.25, 0.80)
+REACH_HEIGHT = (0.0, 0.80)
+# The hand is mounted on the flange rotated -pi/4 about the flange z axis (Franka's convention).
+X_FLANGE_HAND = RigidTransform(RotationMatrix.MakeZRotation(HAND_FLANGE_YAW), np.zeros(3))
+
+
+def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> RigidTransform:
+    """RigidTransform of a frame at (x, y, z) rotated by yaw about world z."""
+    return RigidTransform(RotationMatrix.MakeZRotation(yaw), [x, y, z])
+
+
+@dataclass
+class WorldConfig:
+    """Where things stand on the table. Poses are (x [m], y [m], yaw [rad]) in W."""
+
+    plate_pose: tuple[float, float, float] = (0.55, 0.0, np.pi / 2)
+    gear_start_poses: dict[str, tuple[float, float, float]] = field(default_factory=lambda: {
+        "large": (0.40, -0.15, 0.0),
+        "medium": (0.40, -0.03, 0.0),
+        "small": (0.40, 0.07, 0.0),
+    })
+    gears: tuple[str, ...] = GEAR_NAMES
+    q_arm_start: np.ndarray = field(default_factory=lambda: Q_HOME.copy())
+    finger_width_start: float = FINGER_MAX_WIDTH
+
+    def __post_init__(self) -> None:
+        for name in self.gears:
+            gear_spec(name)
+            if name not in self.gear_start_poses:
+                raise ValueError(f"gear {name!r} has no start pose; gear_start_poses has "
+                                 f"{sorted(self.gear_start_poses)}")
+        for name in self.gear_start_poses:
+            gear_spec(name)
+        validate_plate_pose(self.plate_pose)
+        for name in self.gears:
+            validate_gear_pose(name, self.gear_start_poses[name], self.plate_pose,
+                               {k: v for k, v in self.gear_start_poses.items()
+                                if k != name and k in self.gears})
+
+
+def _in_reach(x: float, y: float) -> bool:
+    return REACH_RADIUS[0] <= np.hypot(x, y) <= REACH_RADIUS[1]
+
+
+def validate_plate_pose(pose: tuple[float, float, float]) -> None:
+    """ValueError unless the plate lies on the table and within the Panda's reach."""
+    x, y, yaw = _finite_pose("plate_pose", pose)
+    half = 0.5 * np.hypot(PLATE_SIZE[0], PLATE_SIZE[1])
+    if not (TABLE_X[0] + half <= x <= TABLE_X[1] - half and TABLE_Y[0] + half <= y <= TABLE_Y[1] - half):
+        raise ValueError(f"plate_pose {tuple(pose)} puts the plate off the table; expected x in "
+                         f"[{TABLE_X[0] + half:.3f}, {TABLE_X[1] - half:.3f}] and y in "
+                         f"[{TABLE_Y[0] + half:.3f}, {TABLE_Y[1] - half:.3f}] m")
+    for g in GEAR_NAMES:
+        p = planar_pose(x, y, yaw) @ shaft_position_in_plate(g)
+        if not _in_reach(p[0], p[1]):
+            raise ValueError(f"plate_pose {tuple(pose)} puts the {g} shaft at distance "
+                             f"{np.hypot(p[0], p[1]):.3f} m from the robot base; expected "
+                             f"{REACH_RADIUS[0]}..{REACH_RADIUS[1]} m")
+
+
+def validate_gear_pose(name: str, pose: tuple[float, float, float],
+                       plate_pose: tuple[float, float, float],
+                       others: dict[str, tuple[float, float, float]] | None = None) -> None:
+    """ValueError unless gear `name` at `pose` lies on the table, within reach, clear of the plate
+    and of the other gears."""
+    spec = gear_spec(name)
+    x, y, _ = _finite_pose(f"{name} gear pose", pose)
+    r = spec.tip_radius
+    if not (TABLE_X[0] + r <= x <= TABLE_X[1] - r and TABLE_Y[0] + r <= y <= TABLE_Y[1] - r):
+        raise ValueError(f"{name} gear pose {tuple(pose)} is outside the table; expected x in "
+                         f"[{TABLE_X[0] + r:.3f}, {TABLE_X[1] - r:.3f}] and y in "
+                         f"[{TABLE_Y[0] + r:.3f}, {TABLE_Y[1] - r:.3f}] m")
+    if not _in_reach(x, y):
+        raise ValueError(f"{name} gear pose {tuple(pose)} is {np.hypot(x, y):.3f} m from the robot "
+                         f"base; expected {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m (the Panda's reach)")
+    # Clearance to the plate: distance from the gear centre to the plate rectangle > radius + gripper.
+    X_WP = planar_pose(*plate_pose)
+    p_P = X_WP.inverse() @ np.array([x, y, 0.0])
+    dx = max(abs(p_P[0]) - PLATE_SIZE[0] / 2, 0.0)
+    dy = max(abs(p_P[1]) - PLATE_SIZE[1] / 2, 0.0)
+    if np.hypot(dx, dy) < r + 0.02:
+        raise ValueError(f"{name} gear pose {tuple(pose)} overlaps the gear plate; keep the gear "
+                         f"at least {r + 0.02:.3f} m (radius + 2 cm) from the plate's edge")
+    for other, q in (others or {}).items():
+        d = np.hypot(x - q[0], y - q[1])
+        need = r + gear_spec(other).tip_radius + 0.05
+        if d < need:
+            raise ValueError(f"{name} gear pose {tuple(pose)} is {d:.3f} m from the {other} gear; "
+                             f"expected at least {need:.3f} m so the open gripper fits between")
+
+
+def validate_tool_target(X_WT: RigidTransform) -> None:
+    """ValueError unless a hand (tool) target lies inside the Panda's workspace above the table."""
+    p = X_WT.translation()
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"tool target position {p} is not finite")
+    r = np.hypot(p[0], p[1])
+    if not (REACH_RADIUS[0] <= r <= REACH_RADIUS[1] and REACH_HEIGHT[0] <= p[2] <= REACH_HEIGHT[1]):
+        raise ValueError(f"tool target {np.round(p, 4).tolist()} is outside the workspace; expected "
+                         f"radial distance {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m from the base and "
+                         f"height {REACH_HEIGHT[0]}..{REACH_HEIGHT[1]} m above the table")
+
+
+def _finite_pose(what: str, pose) -> np.ndarray:
+    arr = np.asarray(pose, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} = {pose!r}; expected three finite numbers (x [m], y [m], yaw [rad])")
+    return arr
+
+
+@dataclass
+class WorldModels:
+    """Handles to what `add_world` put into the plant."""
+
+    arm: ModelInstanceIndex
+    hand: ModelInstanceIndex
+    table: ModelInstanceIndex
+    plate: ModelInstanceIndex
+    gears: dict[str, ModelInstanceIndex]
+    X_WP: RigidTransform  # plate pose
+
+    def X_WS(self, gear: str) -> RigidTransform:
+        """Pose of gear's shaft frame: on the shaft axis at the plate top, axes parallel to the plate."""
+        return self.X_WP @ RigidTransform(shaft_position_in_plate(gear))
+
+
+def add_panda(plant: MultibodyPlant, X_WBase: RigidTransform | None = None
+              ) -> tuple[ModelInstanceIndex, ModelInstanceIndex]:
+    """Add the Panda arm (welded at X_WBase) and its hand (welded to the flange); returns both."""
+    arm_urdf, hand_urdf = panda_model_paths()
+    parser = Parser(plant)
+    arm = parser.AddModels(str(arm_urdf))[0]
+    hand = parser.AddModels(str(hand_urdf))[0]
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", arm),
+                     X_WBase or RigidTransform())
+    plant.WeldFrames(plant.GetFrameByName("panda_link8", arm),
+                     plant.GetFrameByName("panda_hand", hand), X_FLANGE_HAND)
+    return arm, hand
+
+
+def tool_frame(plant: MultibodyPlant, hand: ModelInstanceIndex):
+    """The tool-centre-point frame T: between the finger pads, z along the approach direction."""
+    return plant.GetFrameByName("panda_hand_tcp", hand)
+
+
+def add_world(plant: MultibodyPlant, scene_graph: SceneGraph | None, config: WorldConfig) -> WorldModels:
+    """Add table, plate, gears and Panda to an unfinalized plant; set their default poses."""
+    paths = gearset_model_paths()
+    parser = Parser(plant)
+    table = parser.AddModels(str(paths["table"]))[0]
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("table", table), RigidTransform())
+    plate = parser.AddModels(str(paths["plate"]))[0]
+    X_WP = planar_pose(*config.plate_pose)
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("gear_plate", plate), X_WP)
+    gears = {}
+    for name in config.gears:
+        gears[name] = parser.AddModels(str(paths[name]))[0]
+        body = gear_body(plant, gears[name])
+        plant.SetDefaultFloatingBaseBodyPose(body, planar_pose(*config.gear_start_poses[name]))
+    arm, hand = add_panda(plant)
+    w = float(np.clip(config.finger_width_start, 0.0, FINGER_MAX_WIDTH))
+    _set_default_joint_positions(plant, arm, np.asarray(config.q_arm_start, dtype=float))
+    _set_default_joint_positions(plant, hand, np.array([w / 2, w / 2]))
+    if scene_graph is not None:
+        _filter_collisions(plant, scene_graph, arm, hand, gears)
+    return WorldModels(arm=arm, hand=hand, table=table, plate=plate, gears=gears, X_WP=X_WP)
+
+
+def _set_default_joint_positions(plant: MultibodyPlant, instance: ModelInstanceIndex,
+                                 q: np.ndarray) -> None:
+    """Default positions of an instance's one-dof joints, in joint order (works pre-finalize)."""
+    joints = [plant.get_joint(j) for j in plant.GetJointIndices(instance)
+              if plant.get_joint(j).num_positions() == 1]
+    if len(q) != len(joints):
+        raise ValueError(f"{len(q)} positions given for {len(joints)} joints "
+                         f"{[j.name() for j in joints]}")
+    for joint, value in zip(joints, q):
+        joint.set_default_positions([float(value)])
+
+
+def gear_body(plant: MultibodyPlant, instance: ModelInstanceIndex) -> RigidBody:
+    """The single rigid body of a gear model instance (its frame is the gear frame G)."""
+    (index,) = plant.GetBodyIndices(instance)
+    return plant.get_body(index)
+
+
+def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, arm, hand, gears) -> None:
+    """No robot self-collision; gears never touch each other (two rigid meshes: REFERENCES.md)."""
+    def geometries(instances) -> GeometrySet:
+        ids = []
+        for inst in instances:
+            for b in plant.GetBodyIndices(inst):
+                ids += plant.GetCollisionGeometriesForBody(plant.get_body(b))
+        return GeometrySet(ids)
+
+    manager = scene_graph.collision_filter_manager()
+    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(geometries([arm, hand])))
+    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(geometries(list(gears.values()))))
+
+
+__all__ = [
+    "HAND_TCP_OFFSET", "WorldConfig", "WorldModels", "add_world", "add_panda", "gear_body",
+    "planar_pose", "tool_frame", "validate_gear_pose", "validate_plate_pose", "validate_tool_target",
+]
