@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
 from tqdm import tqdm
 
 from assembly.gearset import gear_spec
 from assembly.scripted_skill import InsertSkillConfig, PlanSource, SkillPlan, plan_pick_and_insert, start_plan
-from assembly.station import Station, StationConfig, build_station
+from assembly.station import Station, StationConfig, build_station, drive_station
 from assembly.world import planar_pose
 
 
@@ -63,15 +62,7 @@ def build_assembly(config: AssemblyConfig, meshcat: Meshcat | None = None) -> As
         dx, dy = config.belief_offsets.get(gear, (0.0, 0.0))
         plan_pick_and_insert(plan, gear, planar_pose(x + dx, y + dy, yaw),
                              station.models.X_WS(gear), config.skill)
-    builder = DiagramBuilder()
-    builder.AddSystem(station.diagram)
-    source = builder.AddSystem(PlanSource(plan))
-    builder.Connect(source.GetOutputPort("X_WT_desired"), station.diagram.GetInputPort("X_WT_desired"))
-    for port in ("V_WT_desired", "A_WT_desired"):
-        builder.Connect(source.GetOutputPort(port), station.diagram.GetInputPort(port))
-    builder.Connect(source.GetOutputPort("gripper_width"), station.diagram.GetInputPort("gripper_width"))
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    simulator = Simulator(drive_station(station, PlanSource(plan)))
     simulator.Initialize()
     return AssemblyRun(station, plan, simulator)
 

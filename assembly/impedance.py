@@ -1,10 +1,14 @@
 """Cartesian impedance control of the Panda's hand frame, as a Drake LeafSystem.
 
-tau = J^T (Lambda A_d + K e + D (V_d - V)) + g(q) + (I - J^T J^{+T}) (k_n (q_n - q) - d_n v),
+tau = J^T (Lambda (A_d - Jdot v) + K e + D (V_d - V)) + g(q) + C(q, v) v + b v
+      + N^T (k_n (q_n - q) - d_n v),
 clipped to the torque limits, where e stacks the rotation error (axis-angle of R_WTd R_WT^T, world
 frame) and the position error of the tool frame T, V is T's spatial velocity in the world, J its
-spatial-velocity Jacobian, and Lambda = (J M^-1 J^T)^-1 the operational-space inertia. The
-feedforward Lambda A_d only makes a planned trajectory's accelerations happen on time; the static
+spatial-velocity Jacobian, Lambda = (J M^-1 J^T)^-1 the operational-space inertia and
+N^T = I - J^T Lambda J M^-1 the dynamically consistent null-space projector (Khatib 1987), and
+g, C v, b v the model's gravity, Coriolis/centripetal and viscous joint-friction torques. The
+feedforward Lambda (A_d - Jdot v) makes a planned trajectory's accelerations happen on time and
+keeps null-space motion from pushing the tool; the static
 behaviour is the 6-D spring K, so a contact force equals K times the commanded offset.
 """
 
@@ -96,6 +100,8 @@ class CartesianImpedanceController(LeafSystem):
         self._q_nominal = np.asarray(q_nominal, dtype=float)
         if self._tau_max.shape != (self._n,) or self._q_nominal.shape != (self._n,):
             raise ValueError(f"torque_limits and q_nominal must have {self._n} entries")
+        self._joint_damping = np.concatenate([
+            plant.get_joint(j).default_damping_vector() for j in plant.GetJointIndices(arm)])
         # Columns of the full-plant Jacobian that belong to the arm.
         self._v_idx = np.array([
             plant.get_joint(j).velocity_start() + k
@@ -158,17 +164,23 @@ class CartesianImpedanceController(LeafSystem):
                                 X_WTd.translation() - X_WT.translation()])
         g = self._gains
         wrench = g.stiffness * error + g.damping * (self._optional(self._velocity_port, context) - V)
+        # Operational-space inertia; the reflected rotor inertia is part of M.
+        M = plant.CalcMassMatrix(pc)[np.ix_(self._v_idx, self._v_idx)]
+        M_inv_JT = np.linalg.solve(M, J.T)
+        Lambda = np.linalg.inv(J @ M_inv_JT + 1e-6 * np.eye(6))
+        # Desired tool acceleration minus the part J-dot v that joint velocities already produce.
+        Jdot_v = plant.CalcBiasSpatialAcceleration(
+            pc, JacobianWrtVariable.kV, self._tool, np.zeros(3),
+            plant.world_frame(), plant.world_frame()).get_coeffs()
         A_desired = self._optional(self._acceleration_port, context)
-        if np.any(A_desired):
-            M = plant.CalcMassMatrix(pc)[np.ix_(self._v_idx, self._v_idx)]
-            Lambda = np.linalg.inv(J @ np.linalg.solve(M, J.T) + 1e-6 * np.eye(6))
-            wrench = wrench + Lambda @ A_desired
-        tau = J.T @ wrench
-        # Null-space posture: project joint-space spring-damper through (I - J^T J^{+T}).
-        J_pinv = np.linalg.pinv(J, rcond=1e-3)
-        N = np.eye(n) - J.T @ J_pinv.T
-        tau += N @ (g.nullspace_stiffness * (self._q_nominal - q) - g.nullspace_damping * v)
+        tau = J.T @ (wrench + Lambda @ (A_desired - Jdot_v))
+        # Null-space posture through Khatib's dynamically consistent projector
+        # N^T = I - J^T Lambda J M^-1: it produces no acceleration of the tool frame.
+        N_T = np.eye(n) - J.T @ Lambda @ M_inv_JT.T
+        tau += N_T @ (g.nullspace_stiffness * (self._q_nominal - q) - g.nullspace_damping * v)
+        # Model compensation: gravity, Coriolis/centripetal terms and viscous joint friction.
         tau -= plant.CalcGravityGeneralizedForces(pc)[self._v_idx]
+        tau += plant.CalcBiasTerm(pc)[self._v_idx] + self._joint_damping * v
         out.torque = np.clip(tau, -self._tau_max, self._tau_max)
         out.wrench = wrench
 

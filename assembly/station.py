@@ -23,7 +23,7 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import (
     AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig,
 )
-from pydrake.systems.framework import Context, Diagram, DiagramBuilder
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.sensors import RgbdSensor
 
 from assembly.cameras import CamerasConfig, add_camera
@@ -44,7 +44,7 @@ class StationConfig:
     measurement in docs/station.md (benchmarks/sim_speed.py)."""
 
     world: WorldConfig = field(default_factory=WorldConfig)
-    time_step: float = 0.002
+    time_step: float = 0.005
     contact_model: str = "hydroelastic_with_fallback"
     discrete_contact_approximation: str = "lagged"
     gains: ImpedanceGains = field(default_factory=ImpedanceGains)
@@ -181,6 +181,26 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
     diagram = builder.Build()
     diagram.set_name("station")
     return Station(diagram, plant, scene_graph, models, controller, cameras, config, visualizer)
+
+
+COMMAND_PORTS = ("X_WT_desired", "V_WT_desired", "A_WT_desired", "gripper_width")
+
+
+def drive_station(station: Station, source: LeafSystem) -> Diagram:
+    """A Diagram of `station` commanded by `source`: each of the station's command inputs
+    (COMMAND_PORTS) is connected to the source's output port of the same name, if it has one."""
+    if not source.HasOutputPort("X_WT_desired") or not source.HasOutputPort("gripper_width"):
+        raise ValueError(f"{source.get_name()!r} must output 'X_WT_desired' and 'gripper_width' "
+                         f"(optionally 'V_WT_desired', 'A_WT_desired') to drive the station")
+    builder = DiagramBuilder()
+    builder.AddSystem(station.diagram)
+    builder.AddSystem(source)
+    for name in COMMAND_PORTS:
+        if source.HasOutputPort(name):
+            builder.Connect(source.GetOutputPort(name), station.diagram.GetInputPort(name))
+    diagram = builder.Build()
+    diagram.set_name("commanded_station")
+    return diagram
 
 
 def make_meshcat() -> Meshcat:

@@ -26,7 +26,8 @@ TABLE_X = (-0.25, 0.95)
 TABLE_Y = (-0.5, 0.5)
 # Where the Panda can place its hand above the table: radial distance from the base axis [m].
 REACH_RADIUS = (0.25, 0.80)
-REACH_HEIGHT = (0.0, 0.80)
+# Targets may lie a little below the table top: the impedance then presses on it.
+REACH_HEIGHT = (-0.05, 0.80)
 # The hand is mounted on the flange rotated -pi/4 about the flange z axis (Franka's convention).
 X_FLANGE_HAND = RigidTransform(RotationMatrix.MakeZRotation(HAND_FLANGE_YAW), np.zeros(3))
 
@@ -125,7 +126,7 @@ def validate_tool_target(X_WT: RigidTransform) -> None:
     if not (REACH_RADIUS[0] <= r <= REACH_RADIUS[1] and REACH_HEIGHT[0] <= p[2] <= REACH_HEIGHT[1]):
         raise ValueError(f"tool target {np.round(p, 4).tolist()} is outside the workspace; expected "
                          f"radial distance {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m from the base and "
-                         f"height {REACH_HEIGHT[0]}..{REACH_HEIGHT[1]} m above the table")
+                         f"height {REACH_HEIGHT[0]}..{REACH_HEIGHT[1]} m relative to the table top")
 
 
 def _finite_pose(what: str, pose) -> np.ndarray:

@@ -1,0 +1,66 @@
+"""The scripted pick-and-insert seats real gears on real shafts, through `goflow demo`."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from assembly.demo import AssemblyConfig, run_assembly
+from assembly.gearset import GEAR_NAMES
+from assembly.station import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL
+
+GOFLOW = Path(sys.executable).parent / "goflow"
+
+
+@pytest.fixture(scope="module")
+def demo_summary(tmp_path_factory):
+    """`goflow demo --scripted --json PATH`, run as a user would."""
+    out = tmp_path_factory.mktemp("demo") / "summary.json"
+    proc = subprocess.run([str(GOFLOW), "demo", "--scripted", "--quiet", "--json", str(out)],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return json.loads(out.read_text()), proc.stdout
+
+
+def test_demo_json_schema(demo_summary):
+    summary, _ = demo_summary
+    assert set(summary) == {"gears", "sim_time_s", "wall_time_s"}
+    assert set(summary["gears"]) == set(GEAR_NAMES)
+    for gear in summary["gears"].values():
+        assert set(gear) == {"inserted", "lateral_error_m", "height_error_m", "time_s"}
+        assert isinstance(gear["inserted"], bool)
+        assert gear["time_s"] > 0
+    assert summary["sim_time_s"] > sum(g["time_s"] for g in summary["gears"].values())
+    assert summary["wall_time_s"] > 0
+
+
+def test_scripted_skill_seats_every_gear(demo_summary):
+    summary, stdout = demo_summary
+    for name, gear in summary["gears"].items():
+        assert gear["inserted"], (name, gear)
+        assert gear["lateral_error_m"] < SEATED_LATERAL_TOL
+        assert gear["height_error_m"] < SEATED_HEIGHT_TOL
+    for name in GEAR_NAMES:  # the printed per-gear table
+        assert name in stdout
+
+
+def test_grasp_error_beyond_capture_range_does_not_seat():
+    # The skill believes the medium gear is 4 mm further along world y than it is: the fingers
+    # close along x, so the gear ends up 4 mm off-centre in the hand, beyond the chamfers'
+    # capture range (0.5 mm clearance + 1 mm bore chamfer + 1 mm shaft chamfer). Nothing
+    # corrects it, so the bore lands on the shaft top and the gear cannot go down.
+    summary = run_assembly(AssemblyConfig(order=("medium",), belief_offsets={"medium": (0.0, 0.004)}),
+                           progress=False)
+    gear = summary["gears"]["medium"]
+    assert "sim_error" not in summary
+    assert not gear["inserted"]
+    assert gear["height_error_m"] > 0.005  # held up by the shaft, not seated
+
+
+def test_gripper_centres_error_along_closing_direction():
+    # The same 4 mm error along the fingers' closing direction is removed by the grasp itself.
+    summary = run_assembly(AssemblyConfig(order=("small",), belief_offsets={"small": (0.004, 0.0)}),
+                           progress=False)
+    assert summary["gears"]["small"]["inserted"], summary
