@@ -58,8 +58,9 @@ class CameraConfig:
 
 
 def default_scene_camera() -> CameraConfig:
-    """Above the table in front of the robot, looking down at the plate and the gears."""
-    return CameraConfig("scene", look_at([0.85, 0.25, 0.55], [0.47, -0.03, 0.0]))
+    """Above the table, from the robot's right-front, looking down at the plate and the gears;
+    from this side the arm does not hide the plate while it inserts."""
+    return CameraConfig("scene", look_at([0.78, -0.42, 0.45], [0.48, -0.04, 0.0]))
 
 
 def default_wrist_camera() -> CameraConfig:

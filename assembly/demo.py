@@ -12,7 +12,9 @@ from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
 from assembly.gearset import gear_spec
-from assembly.scripted_skill import InsertSkillConfig, PlanSource, SkillPlan, plan_pick_and_insert, start_plan
+from assembly.scripted_skill import (
+    InsertSkillConfig, PlanSource, SkillPlan, plan_pick_and_insert, plan_return, start_plan,
+)
 from assembly.station import Station, StationConfig, build_station, drive_station
 from assembly.world import planar_pose
 
@@ -62,6 +64,7 @@ def build_assembly(config: AssemblyConfig, meshcat: Meshcat | None = None) -> As
         dx, dy = config.belief_offsets.get(gear, (0.0, 0.0))
         plan_pick_and_insert(plan, gear, planar_pose(x + dx, y + dy, yaw),
                              station.models.X_WS(gear), config.skill)
+    plan_return(plan, X_WT0, config.skill)
     simulator = Simulator(drive_station(station, PlanSource(plan)))
     simulator.Initialize()
     return AssemblyRun(station, plan, simulator)

@@ -139,6 +139,13 @@ def plan_pick_and_insert(plan: SkillPlan, gear: str, X_WG_believed: RigidTransfo
     move(retreat, open_w, f"{gear}: retreat")
 
 
+def plan_return(plan: SkillPlan, X_WT: RigidTransform, config: InsertSkillConfig) -> None:
+    """Append a free-space move back to X_WT (e.g. the start pose), keeping the gripper as is."""
+    last = plan.keyframes[-1]
+    d = np.linalg.norm(X_WT.translation() - last.X_WT.translation())
+    plan.append(max(d / config.speed, config.min_segment), X_WT, last.width, "return")
+
+
 def start_plan(X_WT_now: RigidTransform, width_now: float) -> SkillPlan:
     """A plan whose first keyframe holds the current tool pose and gripper width at t = 0."""
     return SkillPlan([Keyframe(0.0, X_WT_now, width_now, "start")])

@@ -44,7 +44,7 @@ class StationConfig:
     measurement in docs/station.md (benchmarks/sim_speed.py)."""
 
     world: WorldConfig = field(default_factory=WorldConfig)
-    time_step: float = 0.005
+    time_step: float = 0.008
     contact_model: str = "hydroelastic_with_fallback"
     discrete_contact_approximation: str = "lagged"
     gains: ImpedanceGains = field(default_factory=ImpedanceGains)

@@ -9,7 +9,7 @@ import pytest
 
 from assembly.demo import AssemblyConfig, run_assembly
 from assembly.gearset import GEAR_NAMES
-from assembly.station import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL
+from assembly.station import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, make_meshcat
 
 GOFLOW = Path(sys.executable).parent / "goflow"
 
@@ -59,8 +59,16 @@ def test_grasp_error_beyond_capture_range_does_not_seat():
     assert gear["height_error_m"] > 0.005  # held up by the shaft, not seated
 
 
-def test_gripper_centres_error_along_closing_direction():
+def test_gripper_centres_error_along_closing_direction(tmp_path):
     # The same 4 mm error along the fingers' closing direction is removed by the grasp itself.
+    # (Also records the run for Meshcat, as `goflow demo --record FILE.html` does.)
+    record = tmp_path / "insert_small.html"
     summary = run_assembly(AssemblyConfig(order=("small",), belief_offsets={"small": (0.004, 0.0)}),
-                           progress=False)
+                           meshcat=make_meshcat(), record=record, progress=False)
     assert summary["gears"]["small"]["inserted"], summary
+    assert record.stat().st_size > 100_000 and "meshcat" in record.read_text()[:100_000].lower()
+
+
+def test_demo_without_scripted_flag_explains():
+    proc = subprocess.run([str(GOFLOW), "demo"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--scripted" in proc.stderr
