@@ -1,0 +1,16 @@
+"""Gymnasium environments with per-episode parameters xi; importing this registers the goflow/ ids.
+
+Keep this module light: it imports only gymnasium. Each entry point is a string, so an
+environment's module (and anything heavy it needs, e.g. pydrake) loads only when it is made.
+"""
+
+import gymnasium
+
+_ENVS = {
+    # id: (entry point, default kwargs)
+    "goflow/Toy2D-v0": ("assembly.envs.toy2d:Toy2DEnv", {"layout": "circle"}),
+}
+
+for _env_id, (_entry_point, _kwargs) in _ENVS.items():
+    if _env_id not in gymnasium.registry:  # importing twice (e.g. importlib test mode) must not warn
+        gymnasium.register(id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs))

@@ -1,0 +1,245 @@
+"""goflow/Toy2D-v0: the GoFlow paper's illustrative 2-D domain, with an analytic feasible set.
+
+Source: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
+Skills", ICML 2025 (arXiv:2502.01800), the 2-D illustrative example: the randomized parameter xi
+is the agent's position in a 2-D box; an energy function made of Gaussians laid out in a circular
+or a linear array sets how precisely the agent observes its position (high energy, precise
+observation); the agent cannot move and is rewarded for guessing where it is. The authors' public
+code (github.com/aidan-curtis/goflow) does not include this domain, so the functional forms and
+numbers below are ours, chosen so that the feasible set has a closed form:
+
+    energy      E(p)     = sum_k exp(-||p - c_k||^2 / (2 w_k^2))                 (dimensionless, ~1 at a centre)
+    noise scale sigma(p) = sigma_max * (sigma_min / sigma_max) ** min(E(p), 1)   [m] (log-linear in E)
+    observation o        = xi + sigma(xi) * N(0, I_2)                             [m]
+    action      a        = the guess of xi                                        [m]
+    reward      r        = 1 if ||a - xi|| < tolerance else 0;  success: return >= J_T = 1
+
+The episode is a single step (nothing moves, so a longer horizon adds nothing): reset gives the
+observation, step scores the guess and terminates. control_dt (1 s by default) is the nominal
+duration of that one decision; no dynamics are simulated.
+
+Feasible set. The guesser that reports its observation (the maximum-likelihood estimate from one
+observation, and what a policy trained on the feasible set learns) misses by e = sigma(xi) * z with
+z ~ N(0, I_2), so ||e|| / sigma is Rayleigh distributed and
+
+    P(success | xi) = 1 - exp(-tolerance^2 / (2 sigma(xi)^2)),
+
+exactly (actions are scored as given, never clipped). The feasible set is {xi : P(success | xi) >=
+feasible_level} (0.9 by default), i.e. sigma(xi) <= tolerance / sqrt(-2 ln(1 - feasible_level)).
+With the defaults that is sigma <= 4.66 cm, i.e. E >= 0.607, about one width w around each
+centre: 8 disjoint disks of radius ~0.12 m on a circle of radius 0.6 m (circle layout, 9.2% of the
+box) or 4 disjoint disks on the x axis (line layout, 4.5%). A learned sampler should put its mass
+on these modes and cover all of them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+from assembly.params import Param, ParamSpace
+from assembly.samplers import FullDR, Sampler
+
+__all__ = ["Toy2DConfig", "Toy2DEnv"]
+
+LAYOUTS = ("circle", "line")
+_DEFAULT_N_GAUSSIANS = {"circle": 8, "line": 4}
+
+
+@dataclass(frozen=True)
+class Toy2DConfig:
+    """Geometry, noise and success settings of the 2-D position-guessing domain (SI units)."""
+
+    layout: str = "circle"  # "circle": centres on a circle; "line": centres along the x axis
+    n_gaussians: int | None = None  # None: 8 for "circle", 4 for "line"
+    radius: float = 0.6  # [m] circle radius (circle layout)
+    spacing: float = 0.5  # [m] distance between neighbouring centres (line layout)
+    # [m] std of each Gaussian: one value or one per Gaussian. 0.12 keeps the feasible disks of
+    # neighbouring Gaussians apart (at 0.15 the 8 circle modes merge into one ring).
+    width: float | tuple[float, ...] = 0.12
+    sigma_min: float = 0.01  # [m] observation noise std where E >= 1
+    sigma_max: float = 0.5  # [m] observation noise std where E = 0
+    tolerance: float = 0.1  # [m] a guess closer than this to xi earns reward 1
+    feasible_level: float = 0.9  # success probability that defines the feasible set
+    half_extent: float = 1.0  # [m] the box is [-half_extent, half_extent]^2
+    control_dt: float = 1.0  # [s] nominal duration of the single decision
+
+    def __post_init__(self) -> None:
+        if self.layout not in LAYOUTS:
+            raise ValueError(f"Toy2D: layout must be one of {LAYOUTS}, got {self.layout!r}")
+        n = self.num_gaussians()
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"Toy2D: n_gaussians must be a positive integer, got {n!r}")
+        for name in ("radius", "spacing", "sigma_min", "sigma_max", "tolerance", "half_extent", "control_dt"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"Toy2D: {name} must be a finite positive number, got {value!r}")
+        widths = (self.width,) * n if isinstance(self.width, (int, float)) else tuple(self.width)
+        if len(widths) != n or not all(isinstance(w, (int, float)) and math.isfinite(w) and w > 0 for w in widths):
+            raise ValueError(f"Toy2D: width must be a positive number or {n} positive numbers, got {self.width!r}")
+        if not self.sigma_min < self.sigma_max:
+            raise ValueError(f"Toy2D: need sigma_min < sigma_max, got {self.sigma_min} >= {self.sigma_max} m")
+        if not 0.0 < self.feasible_level < 1.0:
+            raise ValueError(f"Toy2D: feasible_level must be in (0, 1), got {self.feasible_level!r}")
+
+    def num_gaussians(self) -> int:
+        """K: n_gaussians, or the layout's default when it is None (kept None so replace(layout=...) re-resolves)."""
+        return _DEFAULT_N_GAUSSIANS[self.layout] if self.n_gaussians is None else self.n_gaussians
+
+    def widths(self) -> NDArray[np.float64]:
+        """Per-Gaussian std, shape (K,) [m]."""
+        w = self.width
+        if isinstance(w, (int, float)):
+            return np.full(self.num_gaussians(), float(w))
+        return np.asarray(w, dtype=np.float64)
+
+    def centers(self) -> NDArray[np.float64]:
+        """Gaussian centres, shape (K, 2) [m]."""
+        n = self.num_gaussians()
+        k = np.arange(n)
+        if self.layout == "circle":
+            angle = 2.0 * np.pi * k / n
+            return self.radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        x = (k - (n - 1) / 2.0) * self.spacing
+        return np.stack([x, np.zeros_like(x)], axis=1)
+
+
+class Toy2DEnv(gymnasium.Env):
+    """Guess your own 2-D position from one observation whose noise grows as the energy falls."""
+
+    metadata = {"render_modes": []}
+    success_threshold: float = 1.0  # J_T: undiscounted return >= J_T counts as success (reward is 0 or 1)
+
+    def __init__(self, config: Toy2DConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
+        known = {f.name for f in dataclasses.fields(Toy2DConfig)}
+        unknown = sorted(set(overrides) - known)
+        if unknown:
+            raise TypeError(f"Toy2DEnv: unknown option(s) {unknown}; known: {sorted(known)}")
+        self.config = dataclasses.replace(config or Toy2DConfig(), **overrides)
+        h = self.config.half_extent
+        self.space = ParamSpace((Param("x", -h, h, "m"), Param("y", -h, h, "m")))
+        self._centers = self.config.centers()
+        if np.any(np.abs(self._centers) > h):
+            raise ValueError(
+                f"Toy2D: every Gaussian centre must lie inside the box [-{h:g}, {h:g}]^2 m; the farthest is at "
+                f"{np.abs(self._centers).max():g} m (layout={self.config.layout!r}, n_gaussians={self.config.num_gaussians()})"
+            )
+        self._inv_two_w2 = 1.0 / (2.0 * self.config.widths() ** 2)
+        if sampler is None:
+            sampler = FullDR(self.space)
+        if not isinstance(sampler, Sampler):
+            raise TypeError(f"Toy2DEnv: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}")
+        if sampler.space != self.space:
+            raise ValueError(
+                "Toy2DEnv: the sampler's ParamSpace differs from the environment's (env vs sampler): "
+                + "; ".join(self.space.diff(sampler.space))
+            )
+        self.sampler = sampler
+        self.control_dt = float(self.config.control_dt)
+        # Observations are clipped to the box grown by 10 sigma_max: a finite space for the checker and
+        # for normalizers, reached with probability < 1e-22 per episode; clipping toward a box that
+        # contains xi never increases the guess error, so the analytic feasible set stays exact.
+        self._obs_bound = h + 10.0 * self.config.sigma_max
+        self.observation_space = spaces.Box(-self._obs_bound, self._obs_bound, shape=(2,), dtype=np.float32)
+        self.action_space = spaces.Box(-h, h, shape=(2,), dtype=np.float32)
+        self._xi: NDArray[np.float64] | None = None
+        self._obs: NDArray[np.float32] | None = None
+        self._done = True
+
+    # -- analytic quantities (points: (2,) -> scalar, (n, 2) -> (n,)) ----------------------------
+
+    @property
+    def centers(self) -> NDArray[np.float64]:
+        """Gaussian centres, shape (K, 2) [m]."""
+        return self._centers.copy()
+
+    def _apply(self, points: ArrayLike, fn) -> Any:
+        """Evaluate fn on a (n, 2) batch; return a scalar for a single (2,) point."""
+        arr = np.asarray(points, dtype=np.float64)
+        out = fn(self.space.as_batch(arr, "points"))
+        return out[0] if arr.ndim == 1 else out
+
+    def _energy(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        d2 = np.sum((p[:, None, :] - self._centers[None, :, :]) ** 2, axis=-1)
+        return np.exp(-d2 * self._inv_two_w2).sum(axis=1)
+
+    def _sigma(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        c = self.config
+        return c.sigma_max * (c.sigma_min / c.sigma_max) ** np.minimum(self._energy(p), 1.0)
+
+    def _p_success(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return -np.expm1(-self.config.tolerance**2 / (2.0 * self._sigma(p) ** 2))
+
+    def energy(self, points: ArrayLike) -> Any:
+        """Energy E at points [dimensionless]; ~1 on a centre, -> 0 far from all."""
+        return self._apply(points, self._energy)
+
+    def noise_scale(self, points: ArrayLike) -> Any:
+        """Observation noise std sigma at points [m], per axis."""
+        return self._apply(points, self._sigma)
+
+    def success_probability(self, points: ArrayLike) -> Any:
+        """P(success) of the guesser that reports its observation: 1 - exp(-tol^2 / (2 sigma^2))."""
+        return self._apply(points, self._p_success)
+
+    def feasible_set(self, points: ArrayLike) -> Any:
+        """Whether each point is feasible: success_probability >= config.feasible_level."""
+        return self._apply(points, lambda p: self._p_success(p) >= self.config.feasible_level)
+
+    # -- gymnasium API -------------------------------------------------------------------------
+
+    def _info(self) -> dict[str, Any]:
+        assert self._xi is not None and self._obs is not None
+        critic = np.concatenate([self._obs, self.space.normalize(self._xi).astype(np.float32)])
+        return {"xi": self._xi.copy(), "critic_obs": critic}
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Start an episode at options["xi"] if given (validated), else at a draw from the sampler."""
+        super().reset(seed=seed)
+        options = options or {}
+        unknown = sorted(set(options) - {"xi"})
+        if unknown:
+            raise ValueError(f"Toy2DEnv.reset: unknown options {unknown}; the only option is 'xi'")
+        if "xi" in options:
+            xi = np.asarray(options["xi"], dtype=np.float64)
+            if xi.shape != (self.space.dim,):
+                raise ValueError(
+                    f"reset options['xi'] has shape {xi.shape}, expected shape ({self.space.dim},) for parameters {self.space.names}"
+                )
+            xi = self.space.validate(xi, what="reset options['xi']")
+        else:
+            xi = self.space.validate(self.sampler.sample(1, self.np_random), what="sampler output")[0]
+        sigma = float(self._sigma(xi[None, :])[0])
+        self._xi = xi
+        noisy = xi + sigma * self.np_random.standard_normal(2)
+        self._obs = np.clip(noisy, -self._obs_bound, self._obs_bound).astype(np.float32)
+        self._done = False
+        info = self._info()
+        info["noise_scale"] = sigma
+        return self._obs.copy(), info
+
+    def step(self, action: ArrayLike) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        """Score the guess `action` (2,) [m]; the episode always terminates after this step."""
+        if self._done or self._xi is None:
+            raise RuntimeError("Toy2DEnv.step called on a finished episode: call reset() first")
+        guess = np.asarray(action, dtype=np.float64)
+        if guess.shape != (2,):
+            raise ValueError(f"Toy2DEnv.step: action has shape {guess.shape}, expected (2,): the guessed (x, y) in m")
+        if not np.all(np.isfinite(guess)):
+            raise ValueError(f"Toy2DEnv.step: action must be finite, got {guess.tolist()}")
+        error = float(np.linalg.norm(guess - self._xi))
+        reward = 1.0 if error < self.config.tolerance else 0.0
+        self._done = True
+        info = self._info()
+        info["error"] = error
+        info["success"] = reward >= self.success_threshold
+        return self._obs.copy(), reward, True, False, info
