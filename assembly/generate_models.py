@@ -23,8 +23,9 @@ def generate_all(models_dir: Path = MODELS_DIR) -> list[Path]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", type=Path, default=MODELS_DIR, help="models directory")
-    paths = generate_all(parser.parse_args().out)
-    print(f"wrote {len(paths)} files under {paths[0].parents[1] if paths else MODELS_DIR}")
+    out = parser.parse_args().out
+    paths = generate_all(out)
+    print(f"wrote {len(paths)} files under {out}")
 
 
 if __name__ == "__main__":
