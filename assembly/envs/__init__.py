@@ -9,6 +9,11 @@ import gymnasium
 _ENVS = {
     # id: (entry point, default kwargs)
     "goflow/Toy2D-v0": ("assembly.envs.toy2d:Toy2DEnv", {"layout": "circle"}),
+    "goflow/Cartpole-v0": ("assembly.envs.cartpole:CartpoleEnv", {}),
+    "goflow/Quadrotor-v0": ("assembly.envs.quadrotor:QuadrotorEnv", {}),
+    "goflow/Ant-v0": ("assembly.envs.ant:AntEnv", {}),
+    "goflow/GearInsertion-v0": ("assembly.envs.gear_insertion:GearInsertionEnv",
+                                {"gear": "medium", "variant": "fast"}),
 }
 
 for _env_id, (_entry_point, _kwargs) in _ENVS.items():

@@ -39,13 +39,13 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import gymnasium
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
-from assembly.samplers import FullDR, Sampler
+from assembly.envs.base import ParamEnv
+from assembly.samplers import Sampler
 
 __all__ = ["Toy2DConfig", "Toy2DEnv"]
 
@@ -111,10 +111,9 @@ class Toy2DConfig:
         return np.stack([x, np.zeros_like(x)], axis=1)
 
 
-class Toy2DEnv(gymnasium.Env):
+class Toy2DEnv(ParamEnv):
     """Guess your own 2-D position from one observation whose noise grows as the energy falls."""
 
-    metadata = {"render_modes": []}
     success_threshold: float = 1.0  # J_T: undiscounted return >= J_T counts as success (reward is 0 or 1)
 
     def __init__(self, config: Toy2DConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
@@ -132,16 +131,7 @@ class Toy2DEnv(gymnasium.Env):
                 f"{np.abs(self._centers).max():g} m (layout={self.config.layout!r}, n_gaussians={self.config.num_gaussians()})"
             )
         self._inv_two_w2 = 1.0 / (2.0 * self.config.widths() ** 2)
-        if sampler is None:
-            sampler = FullDR(self.space)
-        if not isinstance(sampler, Sampler):
-            raise TypeError(f"Toy2DEnv: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}")
-        if sampler.space != self.space:
-            raise ValueError(
-                "Toy2DEnv: the sampler's ParamSpace differs from the environment's (env vs sampler): "
-                + "; ".join(self.space.diff(sampler.space))
-            )
-        self.sampler = sampler
+        super().__init__(self.space, sampler)
         self.control_dt = float(self.config.control_dt)
         # Observations are clipped to the box grown by 10 sigma_max: a finite space for the checker and
         # for normalizers, reached with probability < 1e-22 per episode; clipping toward a box that
@@ -149,9 +139,6 @@ class Toy2DEnv(gymnasium.Env):
         self._obs_bound = h + 10.0 * self.config.sigma_max
         self.observation_space = spaces.Box(-self._obs_bound, self._obs_bound, shape=(2,), dtype=np.float32)
         self.action_space = spaces.Box(-h, h, shape=(2,), dtype=np.float32)
-        self._xi: NDArray[np.float64] | None = None
-        self._obs: NDArray[np.float32] | None = None
-        self._done = True
 
     # -- analytic quantities (points: (2,) -> scalar, (n, 2) -> (n,)) ----------------------------
 
@@ -195,51 +182,22 @@ class Toy2DEnv(gymnasium.Env):
 
     # -- gymnasium API -------------------------------------------------------------------------
 
-    def _info(self) -> dict[str, Any]:
-        assert self._xi is not None and self._obs is not None
-        critic = np.concatenate([self._obs, self.space.normalize(self._xi).astype(np.float32)])
-        return {"xi": self._xi.copy(), "critic_obs": critic}
+    def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
+        """Observe the position once, with noise sigma(xi)."""
+        self._noise_scale = float(self._sigma(xi[None, :])[0])
+        noisy = xi + self._noise_scale * self.np_random.standard_normal(2)
+        return np.clip(noisy, -self._obs_bound, self._obs_bound).astype(np.float32)
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Start an episode at options["xi"] if given (validated), else at a draw from the sampler."""
-        super().reset(seed=seed)
-        options = options or {}
-        unknown = sorted(set(options) - {"xi"})
-        if unknown:
-            raise ValueError(f"Toy2DEnv.reset: unknown options {unknown}; the only option is 'xi'")
-        if "xi" in options:
-            xi = np.asarray(options["xi"], dtype=np.float64)
-            if xi.shape != (self.space.dim,):
-                raise ValueError(
-                    f"reset options['xi'] has shape {xi.shape}, expected shape ({self.space.dim},) for parameters {self.space.names}"
-                )
-            xi = self.space.validate(xi, what="reset options['xi']")
-        else:
-            xi = self.space.validate(self.sampler.sample(1, self.np_random), what="sampler output")[0]
-        sigma = float(self._sigma(xi[None, :])[0])
-        self._xi = xi
-        noisy = xi + sigma * self.np_random.standard_normal(2)
-        self._obs = np.clip(noisy, -self._obs_bound, self._obs_bound).astype(np.float32)
-        self._done = False
-        info = self._info()
-        info["noise_scale"] = sigma
-        return self._obs.copy(), info
+        obs, info = super().reset(seed=seed, options=options)
+        info["noise_scale"] = self._noise_scale
+        return obs, info
 
-    def step(self, action: ArrayLike) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         """Score the guess `action` (2,) [m]; the episode always terminates after this step."""
-        if self._done or self._xi is None:
-            raise RuntimeError("Toy2DEnv.step called on a finished episode: call reset() first")
-        guess = np.asarray(action, dtype=np.float64)
-        if guess.shape != (2,):
-            raise ValueError(f"Toy2DEnv.step: action has shape {guess.shape}, expected (2,): the guessed (x, y) in m")
-        if not np.all(np.isfinite(guess)):
-            raise ValueError(f"Toy2DEnv.step: action must be finite, got {guess.tolist()}")
-        error = float(np.linalg.norm(guess - self._xi))
+        error = float(np.linalg.norm(action - self._xi))
         reward = 1.0 if error < self.config.tolerance else 0.0
-        self._done = True
-        info = self._info()
-        info["error"] = error
-        info["success"] = reward >= self.success_threshold
-        return self._obs.copy(), reward, True, False, info
+        return self._obs, reward, True, {"error": error}

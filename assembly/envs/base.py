@@ -1,0 +1,141 @@
+"""ParamEnv: the gymnasium.Env base of every environment whose physical parameters xi are drawn
+per episode by a Sampler.
+
+The contract every goflow env keeps (subclasses implement only `_reset_model` and `_step_model`):
+- reset(seed, options={"xi": ...}) uses the given xi (validated against the env's ParamSpace),
+  else draws xi from the env's sampler with the env's own np_random (same seed, same xi).
+- info["xi"] is the episode's xi (parameter units); info["critic_obs"] = concat(obs, normalized xi)
+  so a privileged critic sees xi while the policy sees obs only.
+- Actions of the wrong shape or with non-finite entries raise ValueError.
+- An episode ends terminated by the task, or truncated at `max_episode_steps` (the time limit
+  t_max / control_dt): a time limit is truncation, never termination.
+- A failed physics step (SimulationError) ends the episode truncated, with info["sim_error"]; it
+  never crashes a run.
+- When an episode ends, info["episode_return"] is its undiscounted return and info["success"] is
+  return >= success_threshold (J_T).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from assembly.params import ParamSpace
+from assembly.samplers import FullDR, Sampler
+
+__all__ = ["ParamEnv", "SimulationError"]
+
+
+class SimulationError(RuntimeError):
+    """A physics step failed (solver divergence, non-finite state): the episode cannot go on."""
+
+
+class ParamEnv(gymnasium.Env):
+    """Base for environments with per-episode parameters xi drawn from a Sampler."""
+
+    metadata = {"render_modes": []}
+    success_threshold: float = np.inf  # J_T, set by each environment
+    control_dt: float = np.nan  # simulated seconds per step, set by each environment
+    max_episode_steps: int | None = None  # t_max / control_dt; None: the task ends episodes
+
+    def __init__(self, space: ParamSpace, sampler: Sampler | None) -> None:
+        self.space = space
+        sampler = FullDR(space) if sampler is None else sampler
+        if not isinstance(sampler, Sampler):
+            raise TypeError(f"{type(self).__name__}: sampler must implement assembly.samplers.Sampler, "
+                            f"got {type(sampler).__name__}")
+        if sampler.space != space:
+            raise ValueError(f"{type(self).__name__}: the sampler's ParamSpace differs from the "
+                             "environment's (env vs sampler): " + "; ".join(space.diff(sampler.space)))
+        self.sampler = sampler
+        self._xi: NDArray[np.float64] | None = None
+        self._obs: NDArray[np.float32] | None = None
+        self._steps = 0
+        self._return = 0.0
+        self._done = True
+
+    # -- to implement --------------------------------------------------------------------------
+
+    def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
+        """Put the model in its initial state for parameters xi; return the first observation."""
+        raise NotImplementedError
+
+    def _step_model(self, action: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+        """Apply a validated action for control_dt; return (obs, reward, terminated, extra info).
+        Raise SimulationError if the physics step fails."""
+        raise NotImplementedError
+
+    # -- the shared contract -------------------------------------------------------------------
+
+    @property
+    def xi(self) -> NDArray[np.float64] | None:
+        """The current episode's parameters (None before the first reset)."""
+        return None if self._xi is None else self._xi.copy()
+
+    def _info(self) -> dict[str, Any]:
+        critic = np.concatenate([self._obs, self.space.normalize(self._xi).astype(np.float32)])
+        return {"xi": self._xi.copy(), "critic_obs": critic.astype(np.float32)}
+
+    def _choose_xi(self, options: dict[str, Any] | None) -> NDArray[np.float64]:
+        options = options or {}
+        unknown = sorted(set(options) - {"xi"})
+        if unknown:
+            raise ValueError(f"{type(self).__name__}.reset: unknown options {unknown}; "
+                             "the only option is 'xi'")
+        if "xi" in options:
+            xi = np.asarray(options["xi"], dtype=np.float64)
+            if xi.shape != (self.space.dim,):
+                raise ValueError(f"reset options['xi'] has shape {xi.shape}, expected shape "
+                                 f"({self.space.dim},) for parameters {self.space.names}")
+            return self.space.validate(xi, what="reset options['xi']")
+        return self.space.validate(self.sampler.sample(1, self.np_random), what="sampler output")[0]
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Start an episode at options["xi"] if given (validated), else at a draw from the sampler."""
+        super().reset(seed=seed)
+        self._xi = self._choose_xi(options)
+        self._obs = np.asarray(self._reset_model(self._xi), dtype=np.float32)
+        self._steps, self._return, self._done = 0, 0.0, False
+        return self._obs.copy(), self._info()
+
+    def _check_action(self, action: ArrayLike) -> NDArray[np.float64]:
+        a = np.asarray(action, dtype=np.float64)
+        shape = self.action_space.shape
+        if a.shape != shape:
+            raise ValueError(f"{type(self).__name__}.step: action has shape {a.shape}, expected {shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{type(self).__name__}.step: action must be finite, got {a.tolist()}")
+        return a
+
+    def step(self, action: ArrayLike
+             ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        """Advance one control step; see the module docstring for the ending rules."""
+        if self._done or self._xi is None:
+            raise RuntimeError(f"{type(self).__name__}.step called on a finished episode: "
+                               "call reset() first")
+        a = self._check_action(action)
+        try:
+            obs, reward, terminated, extra = self._step_model(a)
+        except SimulationError as exc:
+            self._done = True
+            info = self._info()
+            info.update(sim_error=str(exc), episode_return=self._return,
+                        success=self._return >= self.success_threshold)
+            return self._obs.copy(), 0.0, False, True, info
+        self._obs = np.asarray(obs, dtype=np.float32)
+        self._steps += 1
+        self._return += float(reward)
+        truncated = (not terminated and self.max_episode_steps is not None
+                     and self._steps >= self.max_episode_steps)
+        info = self._info()
+        info.update(extra)
+        if terminated or truncated:
+            self._done = True
+            info["episode_return"] = self._return
+            info["success"] = bool(self._return >= self.success_threshold)
+        return self._obs.copy(), float(reward), bool(terminated), bool(truncated), info
