@@ -29,6 +29,10 @@ GEAR_BORE_CHAMFER = 0.001
 # Module 1 mm: tip radii 11/21/31 mm give pitch radii 10/20/30 mm and 20/40/60 teeth. The shaft
 # spacing (50.5 and 30.5 mm) is 0.5 mm wider than the pitch-circle sums: that is the backlash.
 GEAR_MODULE = 0.001
+# Seated criterion (IsaacLab Factory, REFERENCES.md): a gear is inserted when its frame is within
+# 2.5 mm laterally and 1 mm in height of its seated pose on the shaft.
+SEATED_LATERAL_TOL = 0.0025
+SEATED_HEIGHT_TOL = 0.001
 # Gear material: 3D-printed PLA, density 1240 kg/m^3 (typical datasheet value).
 GEAR_DENSITY = 1240.0
 

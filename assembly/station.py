@@ -27,15 +27,12 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSyst
 from pydrake.systems.sensors import RgbdSensor
 
 from assembly.cameras import CamerasConfig, add_camera
-from assembly.gearset import gear_spec
+from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, gear_spec
 from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
 from assembly.impedance import CartesianImpedanceController, ImpedanceGains
 from assembly.panda_model import Q_HOME, TAU_MAX
 from assembly.world import WorldConfig, WorldModels, add_panda, add_world, gear_body, tool_frame
 
-# Seated criterion (IsaacLab Factory, REFERENCES.md): lateral error < 2.5 mm, height error < 1 mm.
-SEATED_LATERAL_TOL = 0.0025
-SEATED_HEIGHT_TOL = 0.001
 
 
 @dataclass
@@ -111,8 +108,17 @@ class Station:
         """Measured pose X_WT of the hand's tool frame."""
         return self.diagram.GetOutputPort("X_WT").Eval(self.diagram.GetMyContextFromRoot(root))
 
+    def set_grasp(self, root: Context, X_TG: RigidTransform) -> None:
+        """Set the held gear's pose in the tool frame (WorldConfig.held_gear)."""
+        if self.models.held is None:
+            raise ValueError("this station holds no gear; build it with WorldConfig(held_gear=...)")
+        self.models.held.grasp_frame.SetPoseInParentFrame(
+            self.plant.GetMyMutableContextFromRoot(root), X_TG)
+
     def _gear(self, gear: str):
         gear_spec(gear)
+        if self.models.held is not None and gear == self.models.held.name:
+            return self.models.held.instance
         if gear not in self.models.gears:
             raise ValueError(f"gear {gear!r} is not in this station; it has {sorted(self.models.gears)}")
         return self.models.gears[gear]

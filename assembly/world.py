@@ -13,10 +13,10 @@ from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, SceneGraph
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import ModelInstanceIndex, RigidBody
+from pydrake.multibody.tree import FixedOffsetFrame, Frame, ModelInstanceIndex, RigidBody
 
 from assembly.gear_meshes import gearset_model_paths
-from assembly.gearset import GEAR_NAMES, PLATE_SIZE, gear_spec, shaft_position_in_plate
+from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS, PLATE_SIZE, gear_spec, shaft_position_in_plate
 from assembly.panda_model import (
     FINGER_MAX_WIDTH, HAND_FLANGE_YAW, HAND_TCP_OFFSET, Q_HOME, panda_model_paths,
 )
@@ -48,10 +48,18 @@ class WorldConfig:
         "small": (0.40, 0.07, 0.0),
     })
     gears: tuple[str, ...] = GEAR_NAMES
+    # A gear already in the hand (welded to a grasp frame on the tool frame whose pose is a
+    # Context parameter: Station.set_grasp). It must not also be in `gears`.
+    held_gear: str | None = None
     q_arm_start: np.ndarray = field(default_factory=lambda: Q_HOME.copy())
     finger_width_start: float = FINGER_MAX_WIDTH
 
     def __post_init__(self) -> None:
+        if self.held_gear is not None:
+            gear_spec(self.held_gear)
+            if self.held_gear in self.gears:
+                raise ValueError(f"held_gear {self.held_gear!r} is also in gears {self.gears}; a gear "
+                                 "is either on the table or in the hand")
         for name in self.gears:
             gear_spec(name)
             if name not in self.gear_start_poses:
@@ -137,6 +145,40 @@ def _finite_pose(what: str, pose) -> np.ndarray:
 
 
 @dataclass
+class HeldGear:
+    """A gear welded to the hand through `grasp_frame`, whose pose in the tool frame (X_TG) is a
+    Context parameter: the grasp, with its error, can change per episode without a rebuild."""
+
+    name: str
+    instance: ModelInstanceIndex
+    grasp_frame: FixedOffsetFrame
+
+
+def nominal_grasp(gear: str, grasp_depth: float = 0.006) -> RigidTransform:
+    """X_TG of a centred grasp: the tool `grasp_depth` below the gear's top face, gear z up
+    (the tool's z points down)."""
+    gear_spec(gear)
+    return RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.0, 0.0, GEAR_THICKNESS - grasp_depth])
+
+
+def grasp_with_error(gear: str, x: float, y: float, yaw: float) -> RigidTransform:
+    """X_TG of a grasp off the nominal one by (x, y) along the tool's x and y axes [m] and by yaw
+    about the gear's axis [rad]."""
+    X = nominal_grasp(gear)
+    return RigidTransform(X.rotation() @ RotationMatrix.MakeZRotation(yaw),
+                          X.translation() + np.array([x, y, 0.0]))
+
+
+def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame) -> HeldGear:
+    """Add gear `gear` welded to a new grasp frame on `tool` (initially the nominal grasp)."""
+    instance = Parser(plant).AddModels(str(gearset_model_paths()[gear]))[0]
+    grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", tool, nominal_grasp(gear)))
+    (index,) = plant.GetBodyIndices(instance)
+    plant.WeldFrames(grasp, plant.get_body(index).body_frame(), RigidTransform())
+    return HeldGear(gear, instance, grasp)
+
+
+@dataclass
 class WorldModels:
     """Handles to what `add_world` put into the plant."""
 
@@ -146,6 +188,7 @@ class WorldModels:
     plate: ModelInstanceIndex
     gears: dict[str, ModelInstanceIndex]
     X_WP: RigidTransform  # plate pose
+    held: HeldGear | None = None
 
     def X_WS(self, gear: str) -> RigidTransform:
         """Pose of gear's shaft frame: on the shaft axis at the plate top, axes parallel to the plate."""
@@ -186,12 +229,16 @@ def add_world(plant: MultibodyPlant, scene_graph: SceneGraph | None, config: Wor
         body = gear_body(plant, gears[name])
         plant.SetDefaultFloatingBaseBodyPose(body, planar_pose(*config.gear_start_poses[name]))
     arm, hand = add_panda(plant)
+    held = None
+    if config.held_gear is not None:
+        held = add_held_gear(plant, config.held_gear, tool_frame(plant, hand))
     w = float(np.clip(config.finger_width_start, 0.0, FINGER_MAX_WIDTH))
     _set_default_joint_positions(plant, arm, np.asarray(config.q_arm_start, dtype=float))
     _set_default_joint_positions(plant, hand, np.array([w / 2, w / 2]))
     if scene_graph is not None:
-        _filter_collisions(plant, scene_graph, arm, hand, gears)
-    return WorldModels(arm=arm, hand=hand, table=table, plate=plate, gears=gears, X_WP=X_WP)
+        extra = [held.instance] if held is not None else []
+        _filter_collisions(plant, scene_graph, [arm, hand] + extra, list(gears.values()) + extra)
+    return WorldModels(arm=arm, hand=hand, table=table, plate=plate, gears=gears, X_WP=X_WP, held=held)
 
 
 def _set_default_joint_positions(plant: MultibodyPlant, instance: ModelInstanceIndex,
@@ -212,8 +259,9 @@ def gear_body(plant: MultibodyPlant, instance: ModelInstanceIndex) -> RigidBody:
     return plant.get_body(index)
 
 
-def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, arm, hand, gears) -> None:
-    """No robot self-collision; gears never touch each other (two rigid meshes: REFERENCES.md)."""
+def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, gears) -> None:
+    """No robot self-collision (a held gear counts as part of the robot: its grasp is ideal);
+    gears never touch each other (two rigid meshes: REFERENCES.md)."""
     def geometries(instances) -> GeometrySet:
         ids = []
         for inst in instances:
@@ -222,11 +270,12 @@ def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, arm, hand
         return GeometrySet(ids)
 
     manager = scene_graph.collision_filter_manager()
-    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(geometries([arm, hand])))
-    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(geometries(list(gears.values()))))
+    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(geometries(robot)))
+    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(geometries(gears)))
 
 
 __all__ = [
-    "HAND_TCP_OFFSET", "WorldConfig", "WorldModels", "add_world", "add_panda", "gear_body",
+    "HAND_TCP_OFFSET", "HeldGear", "WorldConfig", "WorldModels", "add_held_gear", "add_world",
+    "add_panda", "gear_body", "grasp_with_error", "nominal_grasp",
     "planar_pose", "tool_frame", "validate_gear_pose", "validate_plate_pose", "validate_tool_target",
 ]

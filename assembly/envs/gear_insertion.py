@@ -1,0 +1,278 @@
+"""goflow/GearInsertion-v0: insert a gear held with a grasp error onto its shaft.
+
+xi = (x, y, yaw): the grasp error, the gear's offset in the hand from the nominal centred grasp,
+along the tool's x and y axes [m] and about the gear's axis [rad]. The default box is the GoFlow
+seed's (x, y in +-5 cm, yaw in +-0.393 rad; REFERENCES.md, appendix A.1; the authors' code used
++-2 cm and +-pi); much of it is infeasible (the bore cannot find the shaft), and finding the
+feasible part is the learned sampler's job. The grasp is ideal (the gear does not slip) in both
+variants, through a grasp frame whose pose is set per episode.
+
+Each episode starts with the tool at the pre-insertion pose: where a centred gear would hover
+`start_height` above its shaft's top. The policy never sees xi.
+
+- action (4,) in [-1, 1]: pose offsets (dx, dy, dz, dyaw) scaled by `action_scale`, applied to
+  the *measured* tool pose to make the impedance target (as IndustReal does), at `control_dt`
+  (25 Hz by default). The target is kept within `workspace` of the seated tool pose.
+- observation (80,): the last `history` (10) tool poses (x, y, z, yaw) relative to the seated
+  tool pose and their finite-difference velocities, newest first (zeros before the first step).
+- reward per step: 1 while the gear is seated (assembly.station criterion: lateral < 2.5 mm,
+  |height| < 1 mm) plus 0.1 (1 - tanh(d / 1 cm)), d the gear's distance to its seated pose.
+- success: return >= J_T = 50 (the seed's J_T). With our reward (at most 1.1 per step, 100 steps
+  in t_max = 4 s) that means the gear is seated for at least ~45 of the 100 steps, i.e. it was
+  inserted within ~2 s and stayed; the seed's reward differs, so 50 is kept as a threshold of the
+  same meaning (seated for the second half of the episode) rather than of the same units.
+
+Variants:
+- "fast": assembly.insertion_model (tool on x-y-z-yaw joints under the same impedance law with
+  the Panda's apparent inertia, shafts hydroelastic, plate point contact), 40 ms physics steps
+- "panda": the full station (assembly.station) with the gear held in the Panda's hand, 8 ms
+  steps, the arm starting at an inverse-kinematics solution of the pre-insertion pose.
+docs/envs.md measures how far the two variants' outcomes differ for the same xi and actions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+
+from assembly.envs.base import ParamEnv, SimulationError
+from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, SHAFT_HEIGHT, gear_spec
+from assembly.params import Param, ParamSpace
+from assembly.samplers import Sampler
+from assembly.world import grasp_with_error, nominal_grasp
+
+VARIANTS = ("fast", "panda")
+
+
+@dataclass(frozen=True)
+class GearInsertionConfig:
+    """Task settings (SI units)."""
+
+    gear: str = "medium"
+    variant: str = "fast"
+    grasp_xy: float = 0.05  # [m] half-width of the grasp-error box in x and y
+    grasp_yaw: float = 0.393  # [rad] half-width of the grasp-error box in yaw
+    control_dt: float = 0.04  # [s] policy period (25 Hz; REFERENCES: 15-60 Hz)
+    t_max: float = 4.0  # [s]
+    start_height: float = 0.005  # [m] centred gear's bottom above the shaft top at the start
+    # Per step. The impedance target is the measured pose plus this, so the pushing force stays
+    # below K times it (3 N at K = 300 N/m) and free motion is at most K/D times it per second.
+    action_scale: tuple[float, float, float, float] = (0.01, 0.01, 0.01, 0.1)
+    workspace: tuple[float, float, float, float] = (0.06, 0.06, 0.06, 0.6)  # |target - seated|
+    history: int = 10
+    success_threshold: float = 50.0  # J_T
+    fast_time_step: float = 0.04  # [s] physics step of the fast variant (docs/envs.md)
+    panda_time_step: float = 0.008  # [s] physics step of the panda variant (the station's)
+
+    def __post_init__(self) -> None:
+        gear_spec(self.gear)
+        if self.variant not in VARIANTS:
+            raise ValueError(f"GearInsertion: variant {self.variant!r}; expected one of {VARIANTS}")
+        for name in ("grasp_xy", "grasp_yaw", "control_dt", "t_max", "start_height"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"GearInsertion: {name} = {value!r}; expected a finite value > 0")
+        for name in ("fast_time_step", "panda_time_step"):
+            dt = getattr(self, name)
+            steps = self.control_dt / dt
+            if not (dt > 0 and abs(steps - round(steps)) < 1e-9):
+                raise ValueError(f"GearInsertion: {name} = {dt} must divide control_dt = "
+                                 f"{self.control_dt} into whole physics steps")
+        if self.history < 2:
+            raise ValueError(f"GearInsertion: history = {self.history}; expected >= 2")
+
+
+def _yaw(R: RotationMatrix) -> float:
+    """Yaw of a tool frame pointing down (its x axis's heading in the world)."""
+    m = R.matrix()
+    return float(np.arctan2(m[1, 0], m[0, 0]))
+
+
+def _down(p: np.ndarray, yaw: float) -> RigidTransform:
+    return RigidTransform(RotationMatrix.MakeZRotation(yaw) @ RotationMatrix.MakeXRotation(np.pi), p)
+
+
+class GearInsertionEnv(ParamEnv):
+    """Insert a gear held with grasp error xi = (x, y, yaw) onto its shaft."""
+
+    def __init__(self, config: GearInsertionConfig | None = None, *, sampler: Sampler | None = None,
+                 **overrides: Any) -> None:
+        known = {f.name for f in dataclasses.fields(GearInsertionConfig)}
+        unknown = sorted(set(overrides) - known)
+        if unknown:
+            raise TypeError(f"GearInsertionEnv: unknown option(s) {unknown}; known: {sorted(known)}")
+        self.config = c = dataclasses.replace(config or GearInsertionConfig(), **overrides)
+        space = ParamSpace((Param("x", -c.grasp_xy, c.grasp_xy, "m"),
+                            Param("y", -c.grasp_xy, c.grasp_xy, "m"),
+                            Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))
+        super().__init__(space, sampler)
+        self.control_dt = c.control_dt
+        self.max_episode_steps = int(round(c.t_max / c.control_dt))
+        self.success_threshold = c.success_threshold
+        self._scale = np.asarray(c.action_scale, dtype=float)
+        self._workspace = np.asarray(c.workspace, dtype=float)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        # Bounds: poses within 1 m / pi of the seated pose, velocities within 10 m/s / 100 rad/s
+        # (far beyond what the impedance allows; a simulation that leaves them has failed).
+        bound = np.tile(np.r_[1.0, 1.0, 1.0, np.pi, 10.0, 10.0, 10.0, 100.0], c.history)
+        self.observation_space = spaces.Box(-bound.astype(np.float32), bound.astype(np.float32),
+                                            dtype=np.float32)
+        self._sim = _FastSim(c) if c.variant == "fast" else _PandaSim(c)
+        # Seated tool pose: the tool where a centred gear sits on its shaft.
+        self._X_WT_seated = self._sim.X_WS @ nominal_grasp(c.gear).inverse()
+        self._seated = np.array([*self._X_WT_seated.translation(), _yaw(self._X_WT_seated.rotation())])
+        self._start = self._seated + [0.0, 0.0, SHAFT_HEIGHT + c.start_height, 0.0]
+        self._sim.prepare(_down(self._start[:3], self._start[3]))
+        self._poses = np.zeros((c.history, 4))
+
+    # -- task quantities -------------------------------------------------------------------
+
+    def insertion_error(self) -> tuple[float, float]:
+        """(lateral, signed height) of the gear frame from its seated pose on the shaft [m]."""
+        p = self._sim.X_WS.inverse() @ self._sim.gear_pose().translation()
+        return float(np.hypot(p[0], p[1])), float(p[2])
+
+    def tool_pose(self) -> np.ndarray:
+        """Measured tool pose (x, y, z, yaw) in the world."""
+        return self._sim.tool_pose()
+
+    def _relative(self, pose: np.ndarray) -> np.ndarray:
+        rel = pose - self._seated
+        rel[3] = np.angle(np.exp(1j * rel[3]))
+        return rel
+
+    def _observation(self) -> NDArray[np.float32]:
+        """Rows newest first: (pose, (pose - previous pose) / control_dt); the oldest row's
+        velocity is zero."""
+        velocities = np.zeros_like(self._poses)
+        velocities[:-1] = (self._poses[:-1] - self._poses[1:]) / self.control_dt
+        obs = np.concatenate([self._poses, velocities], axis=1).reshape(-1).astype(np.float32)
+        if not np.all(np.abs(obs) <= self.observation_space.high):
+            raise SimulationError(f"observation left its bounds: tool pose {self._poses[0]}")
+        return obs
+
+    # -- ParamEnv hooks --------------------------------------------------------------------
+
+    def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
+        self._sim.reset(grasp_with_error(self.config.gear, *xi))
+        self._poses[:] = 0.0
+        self._poses[0] = self._relative(self._sim.tool_pose())
+        return self._observation()
+
+    def _step_model(self, action: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+        a = np.clip(action, -1.0, 1.0) * self._scale
+        target = self._relative(self._sim.tool_pose()) + a
+        target = np.clip(target, -self._workspace, self._workspace) + self._seated
+        self._sim.advance(target, self.control_dt)
+        pose = self._sim.tool_pose()
+        if not np.all(np.isfinite(pose)):
+            raise SimulationError(f"non-finite tool pose {pose} after the step")
+        self._poses = np.roll(self._poses, 1, axis=0)
+        self._poses[0] = self._relative(pose)
+        lateral, height = self.insertion_error()
+        seated = lateral < SEATED_LATERAL_TOL and abs(height) < SEATED_HEIGHT_TOL
+        d = float(np.hypot(lateral, height))
+        reward = float(seated) + 0.1 * (1.0 - np.tanh(d / 0.01))
+        return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
+                                                    "height_error": height}
+
+
+class _FastSim:
+    """The reduced model behind variant "fast"."""
+
+    def __init__(self, c: GearInsertionConfig) -> None:
+        from assembly.insertion_model import (
+            FastInsertionConfig, build_fast_insertion, gravity_feedforward,
+        )
+        self.model = build_fast_insertion(FastInsertionConfig(gear=c.gear, time_step=c.fast_time_step))
+        self.X_WS = self.model.X_WS(c.gear)
+        self._gear = c.gear
+        self.context = self.model.diagram.CreateDefaultContext()
+        self._pc = self.model.plant.GetMyMutableContextFromRoot(self.context)
+        self._desired = self.model.diagram.GetInputPort("desired_state")
+        self.model.diagram.GetInputPort("feedforward").FixValue(self.context, gravity_feedforward(self.model))
+        self.simulator = Simulator(self.model.diagram, self.context)
+        self._body = self.model.plant.get_body(self.model.plant.GetBodyIndices(self.model.held.instance)[0])
+
+    def prepare(self, X_WT_start: RigidTransform) -> None:
+        self._q_start = self.model.joint_positions_for(X_WT_start)
+
+    def reset(self, X_TG: RigidTransform) -> None:
+        self.context.SetTime(0.0)
+        self.model.plant.SetPositions(self._pc, self._q_start)
+        self.model.plant.SetVelocities(self._pc, np.zeros(4))
+        self.model.held.grasp_frame.SetPoseInParentFrame(self._pc, X_TG)
+        self._desired.FixValue(self.context, np.concatenate([self._q_start, np.zeros(4)]))
+        self.simulator.Initialize()
+
+    def advance(self, target: np.ndarray, duration: float) -> None:
+        self._desired.FixValue(self.context, np.concatenate([target, np.zeros(4)]))
+        try:
+            self.simulator.AdvanceTo(self.context.get_time() + duration)
+        except RuntimeError as exc:
+            raise SimulationError(str(exc)) from exc
+
+    def tool_pose(self) -> np.ndarray:
+        return self.model.plant.GetPositions(self._pc).copy()
+
+    def gear_pose(self) -> RigidTransform:
+        return self._body.EvalPoseInWorld(self._pc)
+
+
+class _PandaSim:
+    """The full station behind variant "panda"."""
+
+    def __init__(self, c: GearInsertionConfig) -> None:
+        from assembly.cameras import CamerasConfig
+        from assembly.station import StationConfig, build_station
+        from assembly.world import WorldConfig
+        self.station = build_station(StationConfig(
+            world=WorldConfig(gears=(), held_gear=c.gear), time_step=c.panda_time_step,
+            cameras=CamerasConfig(scene=None, wrist=None)))
+        self.X_WS = self.station.models.X_WS(c.gear)
+        self._gear = c.gear
+        self.context = self.station.diagram.CreateDefaultContext()
+        self._pc = self.station.plant.GetMyMutableContextFromRoot(self.context)
+        self._target = self.station.diagram.GetInputPort("X_WT_desired")
+        width = 2 * gear_spec(c.gear).tip_radius
+        self.station.diagram.GetInputPort("gripper_width").FixValue(self.context, [width])
+        self._hand_q = np.array([width / 2, width / 2])
+        self.simulator = Simulator(self.station.diagram, self.context)
+
+    def prepare(self, X_WT_start: RigidTransform) -> None:
+        from assembly.panda_ik import solve_tool_ik
+        self._q_start = solve_tool_ik(X_WT_start)
+        self._X_start = X_WT_start
+
+    def reset(self, X_TG: RigidTransform) -> None:
+        plant, models = self.station.plant, self.station.models
+        self.context.SetTime(0.0)
+        plant.SetPositions(self._pc, models.arm, self._q_start)
+        plant.SetVelocities(self._pc, models.arm, np.zeros(7))
+        plant.SetPositions(self._pc, models.hand, self._hand_q)
+        plant.SetVelocities(self._pc, models.hand, np.zeros(2))
+        self.station.set_grasp(self.context, X_TG)
+        self._target.FixValue(self.context, self._X_start)
+        self.simulator.Initialize()
+
+    def advance(self, target: np.ndarray, duration: float) -> None:
+        self._target.FixValue(self.context, _down(target[:3], target[3]))
+        try:
+            self.simulator.AdvanceTo(self.context.get_time() + duration)
+        except RuntimeError as exc:
+            raise SimulationError(str(exc)) from exc
+
+    def tool_pose(self) -> np.ndarray:
+        X = self.station.tool_pose(self.context)
+        return np.array([*X.translation(), _yaw(X.rotation())])
+
+    def gear_pose(self) -> RigidTransform:
+        return self.station.gear_pose(self.context, self._gear)
