@@ -77,8 +77,8 @@ class ParamEnv(gymnasium.Env):
         return None if self._xi is None else self._xi.copy()
 
     def _info(self) -> dict[str, Any]:
-        critic = np.concatenate([self._obs, self.space.normalize(self._xi).astype(np.float32)])
-        return {"xi": self._xi.copy(), "critic_obs": critic.astype(np.float32)}
+        critic = np.concatenate([self._obs, self._xi_normalized])
+        return {"xi": self._xi.copy(), "critic_obs": critic}
 
     def _choose_xi(self, options: dict[str, Any] | None) -> NDArray[np.float64]:
         options = options or {}
@@ -99,6 +99,7 @@ class ParamEnv(gymnasium.Env):
         """Start an episode at options["xi"] if given (validated), else at a draw from the sampler."""
         super().reset(seed=seed)
         self._xi = self._choose_xi(options)
+        self._xi_normalized = self.space.normalize(self._xi).astype(np.float32)
         self._obs = np.asarray(self._reset_model(self._xi), dtype=np.float32)
         self._steps, self._return, self._done = 0, 0.0, False
         return self._obs.copy(), self._info()

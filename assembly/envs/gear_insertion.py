@@ -33,6 +33,7 @@ docs/envs.md measures how far the two variants' outcomes differ for the same xi 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -125,6 +126,7 @@ class GearInsertionEnv(ParamEnv):
         self.observation_space = spaces.Box(-bound.astype(np.float32), bound.astype(np.float32),
                                             dtype=np.float32)
         self._sim = _FastSim(c) if c.variant == "fast" else _PandaSim(c)
+        self._X_SW = self._sim.X_WS.inverse()
         # Seated tool pose: the tool where a centred gear sits on its shaft.
         self._X_WT_seated = self._sim.X_WS @ nominal_grasp(c.gear).inverse()
         self._seated = np.array([*self._X_WT_seated.translation(), _yaw(self._X_WT_seated.rotation())])
@@ -136,7 +138,7 @@ class GearInsertionEnv(ParamEnv):
 
     def insertion_error(self) -> tuple[float, float]:
         """(lateral, signed height) of the gear frame from its seated pose on the shaft [m]."""
-        p = self._sim.X_WS.inverse() @ self._sim.gear_pose().translation()
+        p = self._X_SW @ self._sim.gear_pose().translation()
         return float(np.hypot(p[0], p[1])), float(p[2])
 
     def tool_pose(self) -> np.ndarray:
@@ -145,7 +147,7 @@ class GearInsertionEnv(ParamEnv):
 
     def _relative(self, pose: np.ndarray) -> np.ndarray:
         rel = pose - self._seated
-        rel[3] = np.angle(np.exp(1j * rel[3]))
+        rel[3] = (rel[3] + np.pi) % (2 * np.pi) - np.pi
         return rel
 
     def _observation(self) -> NDArray[np.float32]:
@@ -158,6 +160,20 @@ class GearInsertionEnv(ParamEnv):
             raise SimulationError(f"observation left its bounds: tool pose {self._poses[0]}")
         return obs
 
+    def bare_rollout(self, xi: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Run the same control law through the bare simulator, without the gym wrapper
+        (no observation, reward or validation); return the final tool pose. For measuring the
+        wrapper's overhead: env.reset + env.step over `actions` ends in the same pose."""
+        self._sim.reset(grasp_with_error(self.config.gear, *xi))
+        for a in np.asarray(actions, dtype=float):
+            self._sim.advance(self._target(a), self.control_dt)
+        return self._sim.tool_pose()
+
+    def _target(self, action: np.ndarray) -> np.ndarray:
+        """Impedance target: the measured tool pose plus the scaled action, kept in the workspace."""
+        offset = self._relative(self._sim.tool_pose()) + np.clip(action, -1.0, 1.0) * self._scale
+        return np.clip(offset, -self._workspace, self._workspace) + self._seated
+
     # -- ParamEnv hooks --------------------------------------------------------------------
 
     def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
@@ -168,19 +184,15 @@ class GearInsertionEnv(ParamEnv):
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
-        a = np.clip(action, -1.0, 1.0) * self._scale
-        target = self._relative(self._sim.tool_pose()) + a
-        target = np.clip(target, -self._workspace, self._workspace) + self._seated
-        self._sim.advance(target, self.control_dt)
+        self._sim.advance(self._target(action), self.control_dt)
         pose = self._sim.tool_pose()
         if not np.all(np.isfinite(pose)):
             raise SimulationError(f"non-finite tool pose {pose} after the step")
-        self._poses = np.roll(self._poses, 1, axis=0)
+        self._poses[1:] = self._poses[:-1]
         self._poses[0] = self._relative(pose)
         lateral, height = self.insertion_error()
         seated = lateral < SEATED_LATERAL_TOL and abs(height) < SEATED_HEIGHT_TOL
-        d = float(np.hypot(lateral, height))
-        reward = float(seated) + 0.1 * (1.0 - np.tanh(d / 0.01))
+        reward = float(seated) + 0.1 * (1.0 - math.tanh(math.hypot(lateral, height) / 0.01))
         return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
                                                     "height_error": height}
 

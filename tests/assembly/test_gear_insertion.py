@@ -122,3 +122,14 @@ def test_nodr_sampler_fixes_xi():
     env.sampler = NoDR(env.space)
     _, info = env.reset(seed=5)
     np.testing.assert_array_equal(info["xi"], [0.0, 0.0, 0.0])
+
+
+def test_bare_rollout_matches_env(fast):
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, size=(15, 4))
+    xi = np.array([0.001, -0.002, 0.1])
+    fast.reset(seed=0, options={"xi": xi})
+    for a in actions:
+        fast.step(a)
+    via_env = fast.tool_pose()
+    np.testing.assert_allclose(fast.bare_rollout(xi, actions), via_env, atol=1e-12)

@@ -1,0 +1,137 @@
+"""Speed of every goflow environment: steps per second single and vectorized, and the wrapper's
+overhead against advancing the bare Drake simulator through the same steps.
+
+    .venv/bin/python benchmarks/env_speed.py [--steps 400] [--workers 2] [--json docs/results/env_speed.json]
+
+Columns: steps/s and real-time factor (simulated s per wall s) in one process; steps/s of an
+AsyncVectorEnv with `--workers` processes (one env each); wrapper overhead = env.step time over
+bare-simulator time for the same xi and actions, minus 1 (envs with a bare_rollout method).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+
+import assembly  # noqa: F401  (registers the ids)
+
+ENVS = {
+    "goflow/Toy2D-v0": {},
+    "goflow/Cartpole-v0": {},
+    "goflow/Quadrotor-v0": {},
+    "goflow/Ant-v0": {},
+    "goflow/GearInsertion-v0 fast": {"variant": "fast"},
+    "goflow/GearInsertion-v0 panda": {"variant": "panda"},
+}
+
+
+def actions_for(name: str, space: gymnasium.spaces.Box, n: int, rng: np.random.Generator) -> np.ndarray:
+    """The workload: uniform random actions, except for gear insertion, where the tool pushes
+    down while wandering a little (the gear is on or in its shaft most of the episode, as when a
+    policy inserts; uniform actions would mostly fly it around in free space)."""
+    a = rng.uniform(space.low, space.high, size=(n, *space.shape))
+    if name.startswith("goflow/GearInsertion"):
+        a[:, :2] *= 0.3
+        a[:, 2] = -1.0
+    return a
+
+
+def _env_id(name: str) -> str:
+    return name.split(" ")[0]
+
+
+def single(name: str, kwargs: dict, steps: int, seed: int) -> tuple[float, float]:
+    """(steps per second, real-time factor) of env.step in this process, random actions."""
+    env = gymnasium.make(_env_id(name), **kwargs).unwrapped
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    wall = 0.0
+    for action in actions_for(name, env.action_space, steps, rng):
+        t0 = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(action)
+        wall += time.perf_counter() - t0
+        if terminated or truncated:
+            env.reset(seed=int(rng.integers(1 << 31)))
+    return steps / wall, steps * env.control_dt / wall
+
+
+def vectorized(name: str, kwargs: dict, steps: int, workers: int, seed: int) -> float:
+    """Steps per second (summed over envs) of an AsyncVectorEnv with `workers` processes."""
+    env_id = _env_id(name)
+    vec = gymnasium.vector.AsyncVectorEnv(
+        [lambda: gymnasium.make(env_id, **kwargs) for _ in range(workers)])
+    vec.reset(seed=seed)
+    n = max(steps // workers, 1)
+    rng = np.random.default_rng(seed)
+    actions = np.stack([actions_for(name, vec.single_action_space, n, rng) for _ in range(workers)], 1)
+    t0 = time.perf_counter()
+    for a in actions:
+        vec.step(a)
+    wall = time.perf_counter() - t0
+    vec.close()
+    return n * workers / wall
+
+
+def overhead(name: str, kwargs: dict, steps: int, seed: int) -> float | None:
+    """env.step time / bare_rollout time - 1, over the same xi and actions (None if no bare)."""
+    env = gymnasium.make(_env_id(name), **kwargs).unwrapped
+    if not hasattr(env, "bare_rollout"):
+        return None
+    rng = np.random.default_rng(seed)
+    n = min(steps, env.max_episode_steps or steps)
+    actions = actions_for(name, env.action_space, n, rng)
+    xi = env.space.nominal()
+    best_env, best_bare = np.inf, np.inf
+    for _ in range(3):  # best of three: the machine is shared and noisy
+        env.reset(seed=seed, options={"xi": xi})
+        t0 = time.perf_counter()
+        for a in actions:
+            env.step(a)
+        best_env = min(best_env, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        env.bare_rollout(xi, actions)
+        best_bare = min(best_bare, time.perf_counter() - t0)
+    return best_env / best_bare - 1.0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--only", nargs="*", help="names from ENVS to run")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    rows = []
+    header = (f"{'env':<32} {'steps/s':>9} {'RTF':>7} {f'steps/s x{args.workers}':>12} "
+              f"{'overhead':>9}")
+    print(header)
+    print("-" * len(header))
+    for name, kwargs in ENVS.items():
+        if args.only and name not in args.only:
+            continue
+        steps = args.steps if "panda" not in name else max(args.steps // 4, 25)
+        try:
+            sps, rtf = single(name, kwargs, steps, args.seed)
+        except (ImportError, ModuleNotFoundError) as exc:
+            print(f"{name:<32} not available: {exc}")
+            continue
+        vps = vectorized(name, kwargs, steps, args.workers, args.seed)
+        ovh = overhead(name, kwargs, steps, args.seed)
+        rows.append({"env": name, "steps_per_s": sps, "real_time_factor": rtf,
+                     "vector_workers": args.workers, "vector_steps_per_s": vps,
+                     "wrapper_overhead": ovh})
+        ovh_text = "n/a" if ovh is None else f"{100 * ovh:.1f}%"
+        print(f"{name:<32} {sps:>9.1f} {rtf:>7.1f} {vps:>12.1f} {ovh_text:>9}", flush=True)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"rows": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
