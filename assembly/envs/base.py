@@ -17,7 +17,8 @@ The contract every goflow env keeps (subclasses implement only `_reset_model` an
 
 from __future__ import annotations
 
-from typing import Any
+import dataclasses
+from typing import Any, TypeVar
 
 import gymnasium
 import numpy as np
@@ -26,7 +27,20 @@ from numpy.typing import ArrayLike, NDArray
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 
-__all__ = ["ParamEnv", "SimulationError"]
+__all__ = ["ParamEnv", "SimulationError", "config_with_overrides"]
+
+C = TypeVar("C")
+
+
+def config_with_overrides(config_type: type[C], config: C | None, overrides: dict[str, Any],
+                          owner: str) -> C:
+    """`config` (or the type's defaults) with keyword overrides of its fields applied; TypeError
+    naming any keyword that is not a field."""
+    known = {f.name for f in dataclasses.fields(config_type)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise TypeError(f"{owner}: unknown option(s) {unknown}; known: {sorted(known)}")
+    return dataclasses.replace(config or config_type(), **overrides)
 
 
 class SimulationError(RuntimeError):

@@ -32,7 +32,6 @@ docs/envs.md measures how far the two variants' outcomes differ for the same xi 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -43,7 +42,7 @@ from numpy.typing import NDArray
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
-from assembly.envs.base import ParamEnv, SimulationError
+from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
 from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, SHAFT_HEIGHT, gear_spec
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -105,11 +104,8 @@ class GearInsertionEnv(ParamEnv):
 
     def __init__(self, config: GearInsertionConfig | None = None, *, sampler: Sampler | None = None,
                  **overrides: Any) -> None:
-        known = {f.name for f in dataclasses.fields(GearInsertionConfig)}
-        unknown = sorted(set(overrides) - known)
-        if unknown:
-            raise TypeError(f"GearInsertionEnv: unknown option(s) {unknown}; known: {sorted(known)}")
-        self.config = c = dataclasses.replace(config or GearInsertionConfig(), **overrides)
+        self.config = c = config_with_overrides(GearInsertionConfig, config, overrides,
+                                                "GearInsertionEnv")
         space = ParamSpace((Param("x", -c.grasp_xy, c.grasp_xy, "m"),
                             Param("y", -c.grasp_xy, c.grasp_xy, "m"),
                             Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))

@@ -34,7 +34,6 @@ on these modes and cover all of them.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -44,7 +43,7 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
-from assembly.envs.base import ParamEnv
+from assembly.envs.base import ParamEnv, config_with_overrides
 from assembly.samplers import Sampler
 
 __all__ = ["Toy2DConfig", "Toy2DEnv"]
@@ -117,11 +116,7 @@ class Toy2DEnv(ParamEnv):
     success_threshold: float = 1.0  # J_T: undiscounted return >= J_T counts as success (reward is 0 or 1)
 
     def __init__(self, config: Toy2DConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
-        known = {f.name for f in dataclasses.fields(Toy2DConfig)}
-        unknown = sorted(set(overrides) - known)
-        if unknown:
-            raise TypeError(f"Toy2DEnv: unknown option(s) {unknown}; known: {sorted(known)}")
-        self.config = dataclasses.replace(config or Toy2DConfig(), **overrides)
+        self.config = config_with_overrides(Toy2DConfig, config, overrides, "Toy2DEnv")
         h = self.config.half_extent
         self.space = ParamSpace((Param("x", -h, h, "m"), Param("y", -h, h, "m")))
         self._centers = self.config.centers()

@@ -1,0 +1,495 @@
+"""goflow/Ant-v0: a torque-controlled quadruped (MuJoCo-Ant layout) built in Drake; xi = torso mass.
+
+Task (GoFlow paper appendix A.1, ../shared/REFERENCES.md): run forward (+x) for t_max = 2 s; the
+randomized parameter is the torso mass in [0.01, 20] kg; success is an undiscounted return >= J_T
+(700 in the seed, re-derived for our reward below).
+
+The seed's task, as read from the authors' public code (github.com/aidan-curtis/goflow, commit
+294d0ee3):
+- goflow/environments/ant/ant_env.py: an Isaac Lab DirectRLEnv (the Isaac Lab "Ant" locomotion
+  task) with sim dt = 1/120 s and decimation 2, i.e. a 60 Hz policy; episode_length_s = 2.0, and
+  Isaac Lab times out when episode_length_buf >= max_episode_length - 1, so an episode that does
+  not fall has 119 rewarded steps (119/60 = 1.983 s). Torques = action_scale (0.5) * joint_gears
+  (15) * action, actions clipped to [-1, 1] (agents/*.yaml: clip_actions 1.0), i.e. 7.5 N m per
+  joint. Termination (death) when the torso height < 0.31 m. No initial-state noise: every episode
+  starts from the asset's default pose (torso at z = 0.5 m, hips 0, ankles +-0.785 rad).
+  Per-step reward:
+      progress  = (potential - prev_potential), potential = -|target - torso|_xy / sim_dt with the
+                  target 1000 m ahead on +x: i.e. 120 * (forward progress in metres) per step
+      alive     = 0.5
+      up        = 0.1 if the torso's up axis has z-component > 0.93
+      heading   = 0.5 if heading_proj > 0.8 else 0.5 * heading_proj / 0.8
+      - 0.005 * sum(a^2)                          (actions cost)
+      - 0.05 * sum(|a * qdot * 0.2|)              (electricity cost)
+      - number of joints with scaled position > 0.98 ("dof at limit" cost)
+      and the whole step's reward is replaced by death_cost = -2 on the step that falls.
+  There is no contact-force cost. dr_ranges there is torso_mass (0.01, 30) with midpoint 0.4839 kg
+  (the asset's torso: the sphere plus the four fixed "aux" capsules at density 5 kg/m^3); the
+  paper's box is [0.01, 20] kg, which we use.
+- goflow/environments/ant/agents/GOFLOW.yaml (and ADR.yaml): success_threshold 650 in the code,
+  while the paper reports J_T = 700; we follow the paper (REFERENCES.md).
+- goflow/rl_components/my_a2c_common.py (play_steps): the return compared with the threshold is
+  the plain sum of the environment's (unshaped) per-step rewards over the episode.
+- The robot is the IsaacGymEnvs nv_ant.xml (read at assets/mjcf/nv_ant.xml in erush91/IsaacGymEnvs):
+  torso sphere r = 0.25 m and four aux capsules (r = 0.08 m, to (+-0.2, +-0.2, 0)); per leg a hip
+  (yaw, axis z, +-40 deg) carrying a 0.2*sqrt(2) m thigh capsule and an ankle (pitch, axis
+  (-+1, 1, 0), 30..100 deg in magnitude) carrying a 0.4*sqrt(2) m shin capsule; density 5 kg/m^3,
+  joint damping 0.1 N m s/rad, armature 0.01 kg m^2, motor gear 15. Our model below is built from
+  these numbers with MultibodyPlant API calls (no files, no downloads).
+
+Our task. Same robot, torques, termination height, reward terms and weights, with these choices:
+- Simulation: discrete MultibodyPlant, point contact, `lagged` approximation, time step
+  1/128 s (7.8 ms), 2 substeps per action: control_dt = 1/64 s (64 Hz, the nearest rate to the
+  seed's 60 Hz whose step is an exact binary fraction, so Simulator.AdvanceTo(k * control_dt) never
+  meets a rounding ambiguity with the plant's periodic update), max_episode_steps = 128.
+  Time-step measurement (this machine, one core, 2 s rollouts with random torques, deviation of
+  the final torso position from a 1 ms reference with the same contact parameters): see
+  AntConfig.time_step. Point contact is used because hydroelastic gives no benefit for capsules
+  on a plane and costs more.
+- Rates: every per-step term except progress and the death cost is multiplied by
+  control_dt / (1/60 s), so each term of the return is a time integral of the seed's rate and the
+  return does not depend on the control rate (at 64 Hz the factor is 0.9375).
+- Progress is forward displacement along +x (the seed's target is 1000 m ahead on +x; its
+  potential difference equals 120 * dx up to O(y^2 / 1000) terms).
+- The joint-limit cost counts joints within 2 % of EITHER limit (|scaled q| > 0.98); the seed's
+  one-sided test (> 0.98) depends on the sign convention of each joint axis in its USD asset.
+- Initial state: the seed's default pose, plus optional uniform noise of +-reset_noise_scale on
+  the joint positions and on the torso's height offset and Gaussian noise of that std on all
+  velocities (Gymnasium Ant's form), drawn from self.np_random; default 0.01 (small: the seed
+  starts noise-free; set 0 to reproduce that exactly).
+- Observation (27, float32): torso height z, torso quaternion (w, x, y, z), 8 joint angles,
+  torso linear velocity (world frame), torso angular velocity (world frame), 8 joint rates; like
+  Gymnasium's Ant without x, y and contact forces. Joint order: hip_1, ankle_1, ..., hip_4,
+  ankle_4 for the legs front-left, front-right, back-left, back-right (the action uses the same
+  order). Actions are normalized torques in [-1, 1]^8 (finite values outside are clipped, as the
+  seed's rl_games wrapper does), scaled by the effort limit 7.5 N m.
+
+J_T derivation. In the seed, every term of the return accrues per 1/60 s of an episode that lasts
+119/60 s; in ours each term accrues at the same rate per second (the rate scaling above; progress is
+a displacement) over t_max = 2 s. The same behaviour (same average forward speed, uprightness,
+heading and costs) therefore earns (2.0 / (119/60)) = 120/119 times the seed's return, and the
+seed's threshold 700 becomes J_T = 700 * 120 / 119 = 705.9. (Matching the same forward distance
+instead of the same speed would give 700 + 1.1 * (128 * 0.9375 - 119) = 701.1: within 0.7 %.)
+What the threshold demands: an upright, heading-aligned ant collects (0.5 + 0.1 + 0.5) * 120 = 132
+in bonuses, so it must cover about (706 - 132 + costs) / 120 = 4.8 m + costs/120 in 2 s (~2.4 m/s).
+
+Speed. The diagram (plant + scene graph) is built once; Simulator and Context are reused; each
+step fixes the actuation input port and calls AdvanceTo; there are no Python systems in the loop.
+Measured on this machine (one process, 20 episodes of random torques over the whole mass box):
+~2100 env steps/s (33x real time); the bare simulator through the same actions (bare_rollout)
+~2360 steps/s (37x), i.e. ~12 % wrapper overhead, about half of it in ParamEnv.step/_info.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.params import Param, ParamSpace
+from assembly.samplers import Sampler
+
+__all__ = ["AntConfig", "AntEnv", "NOMINAL_TORSO_MASS", "SEED_J_T"]
+
+# -- the seed's task (see the module docstring for the files these come from) -------------------
+SEED_J_T = 700.0  # paper appendix A.1 (the code's yaml says 650)
+SEED_CONTROL_DT = 1.0 / 60.0  # [s] Isaac Lab sim dt 1/120 s x decimation 2
+SEED_EPISODE_STEPS = 119  # rewarded steps before Isaac Lab's time-out (max_episode_length - 1)
+
+# -- the robot (IsaacGymEnvs nv_ant.xml numbers) ------------------------------------------------
+DENSITY = 5.0  # [kg/m^3] every geom
+TORSO_RADIUS = 0.25  # [m]
+LIMB_RADIUS = 0.08  # [m] every capsule
+AUX = 0.2  # [m] torso centre -> hip, per axis
+THIGH = 0.2  # [m] hip -> ankle, per axis
+SHIN = 0.4  # [m] ankle -> foot tip (capsule axis end), per axis
+HIP_LIMIT = math.radians(40.0)  # [rad] |hip yaw|
+ANKLE_RANGE = (math.radians(30.0), math.radians(100.0))  # [rad] ankle magnitude range
+JOINT_DAMPING = 0.1  # [N m s/rad]
+ARMATURE = 0.01  # [kg m^2] reflected rotor inertia per joint
+# legs and the signs (x, y) of their direction from the torso centre
+LEGS = ("front_left", "front_right", "back_left", "back_right")
+_LEG_SIGNS = {"front_left": (1.0, 1.0), "front_right": (-1.0, 1.0),
+              "back_left": (-1.0, -1.0), "back_right": (1.0, -1.0)}
+# nv_ant: ankle_1 axis (-1, 1, 0) range [30, 100]; ankle_2 (1, 1, 0) [-100, -30];
+# ankle_3 (-1, 1, 0) [-100, -30]; ankle_4 (1, 1, 0) [30, 100] deg.
+_ANKLE = {"front_left": ((-1.0, 1.0, 0.0), 1.0), "front_right": ((1.0, 1.0, 0.0), -1.0),
+          "back_left": ((-1.0, 1.0, 0.0), -1.0), "back_right": ((1.0, 1.0, 0.0), 1.0)}
+INITIAL_ANKLE = 0.785  # [rad] magnitude (Isaac Lab ANT_CFG default joint_pos)
+
+
+def _torso_mass_nominal() -> float:
+    sphere = 4.0 / 3.0 * math.pi * TORSO_RADIUS**3
+    length = AUX * math.sqrt(2.0)
+    capsule = math.pi * LIMB_RADIUS**2 * length + 4.0 / 3.0 * math.pi * LIMB_RADIUS**3
+    return DENSITY * (sphere + 4.0 * capsule)
+
+
+NOMINAL_TORSO_MASS = _torso_mass_nominal()  # [kg] 0.4839, the seed's "midpoint"
+
+
+@dataclass(frozen=True)
+class AntConfig:
+    """Simulation, actuation, reward and episode settings of the Drake ant (SI units)."""
+
+    # Time step, measured on this machine (one core; lagged unless noted; reference 1/1024 s; 12
+    # rollouts: zero torque for 2 s, and 0.25 s of random torques, at torso masses 0.48, 5, 20 kg):
+    #   step      bare real-time factor   standing height error   0.25 s position error
+    #   1/512 s   14x                     1.3 mm                  16 mm
+    #   1/256 s   14-22x                  18 mm (similar: 2.7)    25 mm
+    #   1/128 s   35-38x                  8 mm                    35 mm
+    #   1/64 s    57x                     20 mm                   50 mm
+    # 1/128 s keeps the errors at the level of the random-torque rollouts' own sensitivity (even
+    # 1/512 s differs by 16 mm) at 2.5x the speed of 1/256 s; "similar" is ~10 % faster, equally
+    # accurate. Random-torque rollouts are chaotic over 2 s (flips), so only short horizons compare.
+    time_step: float = 1.0 / 128.0  # [s] plant discrete step
+    control_dt: float = 1.0 / 64.0  # [s] one action; an integer multiple of time_step
+    t_max: float = 2.0  # [s] episode length (seed: 2 s)
+    contact_approximation: str = "lagged"  # "lagged" | "similar" | "sap" | "tamsi"
+    friction: float = 1.0  # Coulomb friction, static = dynamic (seed ground: 1.0)
+    point_stiffness: float = 5.0e4  # [N/m] point-contact stiffness (about 4 mm sag for a 20 kg torso)
+    hunt_crossley_dissipation: float = 10.0  # [s/m]
+    effort_limit: float = 7.5  # [N m] seed: action_scale 0.5 x joint gear 15
+    initial_height: float = 0.5  # [m] torso centre at reset (seed: 0.5)
+    reset_noise_scale: float = 0.01  # joint angles [rad], height [m] (uniform); velocities (normal)
+    termination_height: float = 0.31  # [m] unhealthy below this torso height (seed: 0.31)
+    terminate_when_unhealthy: bool = True
+    # reward (seed weights, per 1/60 s; scaled by control_dt * 60 except progress and death)
+    progress_weight: float = 120.0  # [1/m] seed: 1 / sim_dt per metre
+    alive_reward: float = 0.5
+    up_weight: float = 0.1
+    heading_weight: float = 0.5
+    actions_cost: float = 0.005
+    energy_cost: float = 0.05
+    dof_vel_scale: float = 0.2
+    joint_limit_cost: float = 1.0
+    death_cost: float = -2.0
+    success_threshold: float | None = None  # J_T; None: the seed's 700 re-derived (see module doc)
+
+    def __post_init__(self) -> None:
+        for name in ("time_step", "control_dt", "t_max", "point_stiffness", "effort_limit", "initial_height"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"Ant: {name} must be a finite positive number, got {value!r}")
+        for name in ("friction", "hunt_crossley_dissipation", "reset_noise_scale", "termination_height"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"Ant: {name} must be a finite non-negative number, got {value!r}")
+        ratio = self.control_dt / self.time_step
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(f"Ant: control_dt ({self.control_dt:g} s) must be an integer multiple of "
+                             f"time_step ({self.time_step:g} s)")
+        if self.contact_approximation not in ("lagged", "similar", "sap", "tamsi"):
+            raise ValueError("Ant: contact_approximation must be 'lagged', 'similar', 'sap' or 'tamsi', "
+                             f"got {self.contact_approximation!r}")
+        if self.initial_height <= self.termination_height:
+            raise ValueError(f"Ant: initial_height {self.initial_height} m must exceed termination_height "
+                             f"{self.termination_height} m")
+
+    @property
+    def rate_scale(self) -> float:
+        """control_dt / the seed's 1/60 s: the factor on every per-step reward rate."""
+        return self.control_dt / SEED_CONTROL_DT
+
+    def j_t(self) -> float:
+        """J_T for this config: the seed's 700 scaled to our episode length (module docstring)."""
+        if self.success_threshold is not None:
+            return float(self.success_threshold)
+        return SEED_J_T * self.t_max / (SEED_EPISODE_STEPS * SEED_CONTROL_DT)
+
+
+def _build(config: AntConfig):
+    """The Drake diagram (plant + scene graph) of the ant on a ground plane; returns handles."""
+    from pydrake.geometry import (AddContactMaterial, Box, Capsule, CollisionFilterDeclaration,
+                                  GeometrySet, HalfSpace, ProximityProperties, Sphere)
+    from pydrake.math import RigidTransform, RotationMatrix
+    from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig)
+    from pydrake.multibody.tree import RevoluteJoint, SpatialInertia
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(
+        MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
+                             discrete_contact_approximation=config.contact_approximation),
+        builder)
+
+    friction = CoulombFriction(config.friction, config.friction)
+
+    def props() -> ProximityProperties:
+        p = ProximityProperties()
+        AddContactMaterial(dissipation=config.hunt_crossley_dissipation,
+                           point_stiffness=config.point_stiffness, friction=friction, properties=p)
+        return p
+
+    def capsule_pose(end: np.ndarray) -> RigidTransform:
+        """Pose of a Drake capsule (axis z) spanning the segment from the origin to `end`."""
+        z = end / np.linalg.norm(end)
+        return RigidTransform(RotationMatrix.MakeFromOneVector(z, 2), 0.5 * end)
+
+    def capsule_inertia(end: np.ndarray) -> SpatialInertia:
+        """Spatial inertia about the body origin of a solid capsule from the origin to `end`."""
+        length = float(np.linalg.norm(end))
+        m_cm = SpatialInertia.SolidCapsuleWithDensity(DENSITY, LIMB_RADIUS, length, end / length)
+        return m_cm.Shift(-0.5 * end)
+
+    # Torso: sphere + four fixed aux capsules (one rigid body, as in the seed's asset).
+    aux_ends = [np.array([sx * AUX, sy * AUX, 0.0]) for sx, sy in (_LEG_SIGNS[leg] for leg in LEGS)]
+    m_torso = SpatialInertia.SolidSphereWithDensity(DENSITY, TORSO_RADIUS)
+    for end in aux_ends:
+        m_torso += capsule_inertia(end)
+    torso = plant.AddRigidBody("torso", m_torso)
+    plant.RegisterCollisionGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso", props())
+    plant.RegisterVisualGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso", [0.9, 0.4, 0.1, 1])
+    for i, end in enumerate(aux_ends):
+        shape = Capsule(LIMB_RADIUS, float(np.linalg.norm(end)))
+        plant.RegisterCollisionGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}", props())
+        plant.RegisterVisualGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}", [0.2, 0.8, 0.2, 1])
+
+    joints, actuators = [], []
+    for i, leg in enumerate(LEGS):
+        sx, sy = _LEG_SIGNS[leg]
+        thigh_end = np.array([sx * THIGH, sy * THIGH, 0.0])
+        shin_end = np.array([sx * SHIN, sy * SHIN, 0.0])
+        thigh = plant.AddRigidBody(f"{leg}_thigh", capsule_inertia(thigh_end))
+        shin = plant.AddRigidBody(f"{leg}_shin", capsule_inertia(shin_end))
+        for body, end in ((thigh, thigh_end), (shin, shin_end)):
+            shape = Capsule(LIMB_RADIUS, float(np.linalg.norm(end)))
+            plant.RegisterCollisionGeometry(body, capsule_pose(end), shape, body.name(), props())
+            plant.RegisterVisualGeometry(body, capsule_pose(end), shape, body.name(), [0.8, 0.2, 0.2, 1])
+        hip_frame = plant.AddFrame(_fixed_frame(f"{leg}_hip_parent", torso.body_frame(),
+                                                RigidTransform(aux_ends[i])))
+        hip = plant.AddJoint(RevoluteJoint(f"hip_{i + 1}", hip_frame, thigh.body_frame(),
+                                           [0.0, 0.0, 1.0], -HIP_LIMIT, HIP_LIMIT, JOINT_DAMPING))
+        axis, sign = _ANKLE[leg]
+        lo, hi = (ANKLE_RANGE if sign > 0 else (-ANKLE_RANGE[1], -ANKLE_RANGE[0]))
+        ankle_frame = plant.AddFrame(_fixed_frame(f"{leg}_ankle_parent", thigh.body_frame(),
+                                                  RigidTransform(thigh_end)))
+        ankle = plant.AddJoint(RevoluteJoint(f"ankle_{i + 1}", ankle_frame, shin.body_frame(),
+                                             np.asarray(axis), lo, hi, JOINT_DAMPING))
+        for joint in (hip, ankle):
+            act = plant.AddJointActuator(f"{joint.name()}_motor", joint, config.effort_limit)
+            act.set_default_rotor_inertia(ARMATURE)
+            act.set_default_gear_ratio(1.0)
+            joints.append(joint)
+            actuators.append(act)
+
+    ground = plant.world_body()
+    plant.RegisterCollisionGeometry(ground, RigidTransform(), HalfSpace(), "ground", props())
+    plant.RegisterVisualGeometry(ground, RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
+                                 [0.5, 0.5, 0.5, 1])
+    plant.Finalize()
+
+    # Only the ground touches the ant: no self-collisions (legs may pass through each other).
+    robot_bodies = [torso] + [plant.GetBodyByName(f"{leg}_{part}") for leg in LEGS for part in ("thigh", "shin")]
+    robot_geoms = [g for b in robot_bodies for g in plant.GetCollisionGeometriesForBody(b)]
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geoms)))
+    diagram = builder.Build()
+    return diagram, plant, torso, joints, actuators, m_torso
+
+
+def _fixed_frame(name, parent_frame, X):
+    from pydrake.multibody.tree import FixedOffsetFrame
+    return FixedOffsetFrame(name, parent_frame, X)
+
+
+class AntEnv(ParamEnv):
+    """Run forward for 2 s with a quadruped whose torso mass xi is drawn per episode."""
+
+    def __init__(self, config: AntConfig | None = None, *, sampler: Sampler | None = None,
+                 **overrides: Any) -> None:
+        self.config = cfg = config_with_overrides(AntConfig, config, overrides, "AntEnv")
+        self.space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))
+        super().__init__(self.space, sampler)
+        self.control_dt = float(cfg.control_dt)
+        self.max_episode_steps = int(round(cfg.t_max / cfg.control_dt))
+        self.success_threshold = cfg.j_t()
+
+        from pydrake.systems.analysis import Simulator
+
+        # Silence Drake's "half spaces are not supported for deformable contact" (we have none).
+        drake_log = logging.getLogger("drake")
+        level = drake_log.level
+        drake_log.setLevel(logging.ERROR)
+        try:
+            (self._diagram, self._plant, self._torso, self._joints, self._actuators,
+             m_torso) = _build(cfg)
+            self._simulator = Simulator(self._diagram)
+            self._simulator.Initialize()
+        finally:
+            drake_log.setLevel(level)
+        plant = self._plant
+        self._com0 = np.asarray(m_torso.get_com())
+        self._unit_inertia0 = m_torso.get_unit_inertia()
+        self._context = self._simulator.get_mutable_context()
+        self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        self._actuation_port = plant.get_actuation_input_port()
+        self._nq, self._nv = plant.num_positions(), plant.num_velocities()
+        # Index maps into the plant's q and v (the floating torso: quaternion wxyz, position xyz;
+        # angular then linear velocity, both in the world frame).
+        self._q_joint = np.array([j.position_start() for j in self._joints])
+        self._v_joint = np.array([j.velocity_start() for j in self._joints])
+        fb_q = self._torso.floating_positions_start()
+        fb_v = self._torso.floating_velocities_start_in_v()
+        self._q_quat = np.arange(fb_q, fb_q + 4)
+        self._q_pos = np.arange(fb_q + 4, fb_q + 7)
+        self._v_ang = np.arange(fb_v, fb_v + 3)
+        self._v_lin = np.arange(fb_v + 3, fb_v + 6)
+        # The actuation vector is ordered by actuator index; map action i (joint i) onto it.
+        self._u_index = np.array([a.input_start() for a in self._actuators])
+        lower = np.array([j.position_lower_limit() for j in self._joints])
+        upper = np.array([j.position_upper_limit() for j in self._joints])
+        self._q_mid, self._q_half = 0.5 * (upper + lower), 0.5 * (upper - lower)
+        self._q_default = np.zeros(len(self._joints))
+        for i, leg in enumerate(LEGS):
+            self._q_default[2 * i + 1] = _ANKLE[leg][1] * INITIAL_ANKLE
+        # Indices into the state x = [q; v] used every step.
+        nq = self._nq
+        self._ix, self._iz = int(self._q_pos[0]), int(self._q_pos[2])
+        self._iquat = self._q_quat.copy()
+        self._x_joint = self._q_joint.copy()
+        self._x_jointvel = nq + self._v_joint
+        self._obs_index = np.concatenate([[self._iz], self._q_quat, self._q_joint, nq + self._v_lin,
+                                          nq + self._v_ang, nq + self._v_joint])
+        self._u = np.zeros(plant.num_actuated_dofs())
+        self._k = 0  # control steps taken in this episode (time = k * control_dt)
+        self._state = np.zeros(self._nq + self._nv)
+
+        obs_dim = 1 + 4 + 8 + 3 + 3 + 8
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(8,), dtype=np.float32)
+
+    # -- model ----------------------------------------------------------------------------------
+
+    @property
+    def plant(self):
+        """The Drake MultibodyPlant (read-only use)."""
+        return self._plant
+
+    def state(self) -> NDArray[np.float64]:
+        """The plant's full state [q; v] (torso quaternion wxyz, position, joints; velocities)."""
+        return np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
+
+    def torso_mass(self) -> float:
+        """The torso mass currently set in the Context [kg]."""
+        return float(self._torso.get_mass(self._plant_context))
+
+    def _set_initial_state(self, xi: NDArray[np.float64]) -> None:
+        """Set the torso mass and the (noisy) default pose in the reused Context; time 0."""
+        from pydrake.multibody.tree import SpatialInertia
+
+        cfg = self.config
+        mass = float(xi[0])
+        # Mass and rotational inertia scale together (same unit inertia, same COM).
+        self._torso.SetSpatialInertiaInBodyFrame(
+            self._plant_context, SpatialInertia(mass, self._com0, self._unit_inertia0))
+        self._context.SetTime(0.0)
+        s = cfg.reset_noise_scale
+        rng = self.np_random
+        q = np.zeros(self._nq)
+        v = np.zeros(self._nv)
+        q[self._q_quat] = [1.0, 0.0, 0.0, 0.0]
+        q[self._q_pos] = [0.0, 0.0, cfg.initial_height]
+        q[self._q_joint] = self._q_default
+        if s > 0:
+            q[self._q_joint] += rng.uniform(-s, s, size=len(self._joints))
+            q[self._q_pos[2]] += rng.uniform(-s, s)
+            v += s * rng.standard_normal(self._nv)
+        lo, hi = self._q_mid - self._q_half, self._q_mid + self._q_half
+        q[self._q_joint] = np.clip(q[self._q_joint], lo, hi)
+        self._plant.SetPositionsAndVelocities(self._plant_context, np.concatenate([q, v]))
+        self._u[:] = 0.0
+        self._actuation_port.FixValue(self._plant_context, self._u)
+        self._simulator.Initialize()
+        self._k = 0
+        self._state = np.concatenate([q, v])
+
+    def _advance(self, action: NDArray[np.float64], clipped: bool = False) -> NDArray[np.float64]:
+        """Apply normalized torques (clipped to [-1, 1]) for one control step; return [q; v]."""
+        self._u[self._u_index] = (action if clipped else np.clip(action, -1.0, 1.0)) * self.config.effort_limit
+        self._actuation_port.FixValue(self._plant_context, self._u)
+        self._k += 1
+        try:
+            self._simulator.AdvanceTo(self._k * self.control_dt)
+        except RuntimeError as exc:
+            raise SimulationError(f"AntEnv: Drake failed to advance to t = {self._k * self.control_dt:g} s "
+                                  f"(torso mass {self._xi_value():g} kg): {exc}") from exc
+        x = np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
+        if not np.all(np.isfinite(x)):
+            raise SimulationError(f"AntEnv: non-finite state at t = {self._k * self.control_dt:g} s "
+                                  f"(torso mass {self._xi_value():g} kg)")
+        return x
+
+    def _xi_value(self) -> float:
+        return float("nan") if self._xi is None else float(self._xi[0])
+
+    def _observe(self, x: NDArray[np.float64]) -> NDArray[np.float32]:
+        obs = x[self._obs_index]  # one gather: z, quat, joints, v_lin, w, joint rates
+        obs[1:5] /= math.sqrt(float(obs[1:5] @ obs[1:5]))
+        return obs.astype(np.float32)
+
+    # -- ParamEnv -------------------------------------------------------------------------------
+
+    def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
+        self._set_initial_state(xi)
+        return self._observe(self._state)
+
+    def _step_model(self, action: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+        cfg = self.config
+        a = np.clip(action, -1.0, 1.0)
+        x_before = self._state[self._ix]
+        x = self._advance(a, clipped=True)
+        self._state = x
+        w, qx, qy, qz = x[self._iquat]
+        n2 = w * w + qx * qx + qy * qy + qz * qz
+        # z-component of the torso's z axis; x-component of its x axis (heading toward the +x target).
+        up_proj = 1.0 - 2.0 * (qx * qx + qy * qy) / n2
+        heading_proj = 1.0 - 2.0 * (qy * qy + qz * qz) / n2
+        height = float(x[self._iz])
+        dx = float(x[self._ix] - x_before)
+        at_limit = int(np.count_nonzero(np.abs(x[self._x_joint] - self._q_mid) > 0.98 * self._q_half))
+        heading = cfg.heading_weight * (1.0 if heading_proj > 0.8 else heading_proj / 0.8)
+        rate = (cfg.alive_reward + (cfg.up_weight if up_proj > 0.93 else 0.0) + heading
+                - cfg.actions_cost * float(a @ a)
+                - cfg.energy_cost * cfg.dof_vel_scale * float(np.abs(a * x[self._x_jointvel]).sum())
+                - cfg.joint_limit_cost * at_limit)
+        reward = cfg.progress_weight * dx + cfg.rate_scale * rate
+        unhealthy = height < cfg.termination_height
+        terminated = unhealthy and cfg.terminate_when_unhealthy
+        if terminated:
+            reward = cfg.death_cost
+        info = {"x_position": float(x[self._ix]), "forward_progress": dx, "torso_height": height,
+                "healthy": not unhealthy}
+        return self._observe(x), float(reward), terminated, info
+
+    # -- benchmark helper ----------------------------------------------------------------------
+
+    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike, seed: int | None = None) -> NDArray[np.float64]:
+        """Reset to xi (as reset(seed=seed, options={"xi": xi}) would) and advance the bare Drake
+        simulator through `actions` (n, 8), without rewards, observations or gym bookkeeping.
+        Returns the final plant state [q; v]; equal to env.state() after the same reset and steps.
+        Stops early (like the env would not) only on a SimulationError, which propagates.
+        The env's episode is finished afterwards: call reset() before step()."""
+        import gymnasium
+
+        xi_arr = np.asarray(xi, dtype=np.float64)
+        if xi_arr.shape != (self.space.dim,):
+            raise ValueError(f"bare_rollout: xi has shape {xi_arr.shape}, expected ({self.space.dim},)")
+        xi_arr = self.space.validate(xi_arr, what="bare_rollout xi")
+        acts = np.asarray(actions, dtype=np.float64)
+        if acts.ndim != 2 or acts.shape[1] != 8 or not np.all(np.isfinite(acts)):
+            raise ValueError(f"bare_rollout: actions must be a finite (n, 8) array, got shape {acts.shape}")
+        gymnasium.Env.reset(self, seed=seed)
+        self._done = True  # the gym episode (if any) is over
+        self._xi = xi_arr
+        self._set_initial_state(xi_arr)
+        for a in acts:
+            self._advance(a)
+        return self.state()
