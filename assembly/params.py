@@ -11,7 +11,7 @@ order of `ParamSpace.params`. Values are in the parameters' own units (SI, radia
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 

@@ -92,6 +92,7 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.envs.drake_sim import advance
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -307,9 +308,7 @@ class AntEnv(ParamEnv):
         self.config = cfg = config_with_overrides(AntConfig, config, overrides, "AntEnv")
         self.space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))
         super().__init__(self.space, sampler)
-        self.control_dt = float(cfg.control_dt)
-        self.max_episode_steps = int(round(cfg.t_max / cfg.control_dt))
-        self.success_threshold = cfg.j_t()
+        self._set_timing(cfg.control_dt, cfg.t_max, cfg.j_t())
 
         from pydrake.systems.analysis import Simulator
 
@@ -415,11 +414,7 @@ class AntEnv(ParamEnv):
         self._u[self._u_index] = (action if clipped else np.clip(action, -1.0, 1.0)) * self.config.effort_limit
         self._actuation_port.FixValue(self._plant_context, self._u)
         self._k += 1
-        try:
-            self._simulator.AdvanceTo(self._k * self.control_dt)
-        except RuntimeError as exc:
-            raise SimulationError(f"AntEnv: Drake failed to advance to t = {self._k * self.control_dt:g} s "
-                                  f"(torso mass {self._xi_value():g} kg): {exc}") from exc
+        advance(self._simulator, self._k * self.control_dt, f"AntEnv (torso mass {self._xi_value():g} kg)")
         x = np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
         if not np.all(np.isfinite(x)):
             raise SimulationError(f"AntEnv: non-finite state at t = {self._k * self.control_dt:g} s "
@@ -479,10 +474,7 @@ class AntEnv(ParamEnv):
         The env's episode is finished afterwards: call reset() before step()."""
         import gymnasium
 
-        xi_arr = np.asarray(xi, dtype=np.float64)
-        if xi_arr.shape != (self.space.dim,):
-            raise ValueError(f"bare_rollout: xi has shape {xi_arr.shape}, expected ({self.space.dim},)")
-        xi_arr = self.space.validate(xi_arr, what="bare_rollout xi")
+        xi_arr = self.validate_xi(xi, what="bare_rollout xi")
         acts = np.asarray(actions, dtype=np.float64)
         if acts.ndim != 2 or acts.shape[1] != 8 or not np.all(np.isfinite(acts)):
             raise ValueError(f"bare_rollout: actions must be a finite (n, 8) array, got shape {acts.shape}")

@@ -94,6 +94,20 @@ class ParamEnv(gymnasium.Env):
         critic = np.concatenate([self._obs, self._xi_normalized])
         return {"xi": self._xi.copy(), "critic_obs": critic}
 
+    def _set_timing(self, control_dt: float, t_max: float, success_threshold: float) -> None:
+        """control_dt [s], the time limit t_max [s] as max_episode_steps, and J_T."""
+        self.control_dt = float(control_dt)
+        self.max_episode_steps = int(round(t_max / control_dt))
+        self.success_threshold = float(success_threshold)
+
+    def validate_xi(self, xi: ArrayLike, what: str = "xi") -> NDArray[np.float64]:
+        """xi as a float array of shape (d,) inside the box; ValueError naming the problem."""
+        arr = np.asarray(xi, dtype=np.float64)
+        if arr.shape != (self.space.dim,):
+            raise ValueError(f"{what} has shape {arr.shape}, expected shape ({self.space.dim},) for "
+                             f"parameters {self.space.names}")
+        return self.space.validate(arr, what=what)
+
     def _choose_xi(self, options: dict[str, Any] | None) -> NDArray[np.float64]:
         options = options or {}
         unknown = sorted(set(options) - {"xi"})
@@ -101,11 +115,7 @@ class ParamEnv(gymnasium.Env):
             raise ValueError(f"{type(self).__name__}.reset: unknown options {unknown}; "
                              "the only option is 'xi'")
         if "xi" in options:
-            xi = np.asarray(options["xi"], dtype=np.float64)
-            if xi.shape != (self.space.dim,):
-                raise ValueError(f"reset options['xi'] has shape {xi.shape}, expected shape "
-                                 f"({self.space.dim},) for parameters {self.space.names}")
-            return self.space.validate(xi, what="reset options['xi']")
+            return self.validate_xi(options["xi"], what="reset options['xi']")
         return self.space.validate(self.sampler.sample(1, self.np_random), what="sampler output")[0]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None

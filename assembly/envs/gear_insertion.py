@@ -43,6 +43,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.envs.drake_sim import advance
 from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, SHAFT_HEIGHT, gear_spec
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -110,9 +111,7 @@ class GearInsertionEnv(ParamEnv):
                             Param("y", -c.grasp_xy, c.grasp_xy, "m"),
                             Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))
         super().__init__(space, sampler)
-        self.control_dt = c.control_dt
-        self.max_episode_steps = int(round(c.t_max / c.control_dt))
-        self.success_threshold = c.success_threshold
+        self._set_timing(c.control_dt, c.t_max, c.success_threshold)
         self._scale = np.asarray(c.action_scale, dtype=float)
         self._workspace = np.asarray(c.workspace, dtype=float)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
@@ -223,10 +222,7 @@ class _FastSim:
 
     def advance(self, target: np.ndarray, duration: float) -> None:
         self._desired.FixValue(self.context, np.concatenate([target, np.zeros(4)]))
-        try:
-            self.simulator.AdvanceTo(self.context.get_time() + duration)
-        except RuntimeError as exc:
-            raise SimulationError(str(exc)) from exc
+        advance(self.simulator, self.context.get_time() + duration, "GearInsertion")
 
     def tool_pose(self) -> np.ndarray:
         return self.model.plant.GetPositions(self._pc).copy()
@@ -273,10 +269,7 @@ class _PandaSim:
 
     def advance(self, target: np.ndarray, duration: float) -> None:
         self._target.FixValue(self.context, _down(target[:3], target[3]))
-        try:
-            self.simulator.AdvanceTo(self.context.get_time() + duration)
-        except RuntimeError as exc:
-            raise SimulationError(str(exc)) from exc
+        advance(self.simulator, self.context.get_time() + duration, "GearInsertion")
 
     def tool_pose(self) -> np.ndarray:
         X = self.station.tool_pose(self.context)

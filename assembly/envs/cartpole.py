@@ -1,0 +1,306 @@
+"""goflow/Cartpole-v0: balance a pole on a cart, with randomized pole mass, cart mass and slider friction.
+
+A Drake MultibodyPlant built in code (discrete, SAP "lagged" contact), simulated with one Simulator and one Context
+reused for every episode; the per-episode parameters xi are written into that Context.
+
+The seed's task (read from the authors' code, github.com/aidan-curtis/goflow, commit 294d0ee,
+files `goflow/environments/cartpole/cartpole_env.py` and
+`goflow/environments/cartpole/agents/GOFLOW.yaml`; the robot is Isaac Lab's CARTPOLE_CFG, whose
+model is IsaacGymEnvs' `assets/urdf/cartpole.urdf`):
+
+- Task: balance (not swing-up). Reset: cart at 0 m, all velocities 0, pole angle uniform in
+  [-0.25 pi, 0.25 pi] rad from upright (`initial_pole_angle_range` is multiplied by pi there).
+  No early termination (their out-of-bounds checks are commented out); the episode lasts
+  `episode_length_s = 2.0` s.
+- Control: physics dt 1/120 s, decimation 2, so the policy acts at 60 Hz (control_dt = 1/60 s);
+  action in [-1, 1] (rl_games clips it) times `action_scale = 100` N, applied as the slider force.
+- Reward per step: +1 alive, -1 * theta^2, -0.01 * |cart velocity|, -0.005 * |pole angular
+  velocity|; in their code the time-out is also reported as `terminated`, so the last step earns
+  -2 instead of +1.
+- Success: undiscounted return >= `success_threshold: 50` (GOFLOW.yaml; paper appendix A.1 J_T = 50).
+- Randomized: pole mass [0.01, 20] kg, cart mass [0.01, 20] kg, `slider_to_cart` friction [0, 1]
+  set through PhysX `set_dof_friction_coefficients`. A PhysX articulation joint friction
+  coefficient is unitless: the friction force resisting the joint's motion is at most the
+  coefficient times the force the joint transmits, i.e. a Coulomb coefficient.
+- Robot: cart 1 kg, pole 1 kg with its centre of mass 0.47 m above the pivot, a 0.04 x 0.06 x 1.0 m
+  box; slider limits +-4 m. Isaac Lab's cart actuator is an implicit PD with stiffness 0 and
+  damping 10, i.e. a 10 N s/m viscous damper on the slider that is always on.
+
+Our model of it:
+
+- Slider friction is a Coulomb coefficient mu (as in the seed). Drake joints have no Coulomb
+  friction, so the cart runs on a frictional contact: the cart is on a prismatic x joint followed
+  by a free vertical prismatic z joint (no rotation), and a sphere under the cart rests on a ground
+  box. The normal force is the true vertical reaction ((m_cart + m_pole) g plus the pole's dynamic
+  load), the friction force is at most mu times it, static and kinetic mu equal. mu is written into
+  SceneGraph's Context (proximity properties of both geometries, combined mu = mu), so the diagram
+  is built once. With mu = 1 and heavy masses the friction (up to ~390 N) exceeds the 100 N
+  actuator: the cart cannot move, which is part of the infeasible region a sampler should find.
+- Masses are set with RigidBody.SetMass in the plant Context; Drake keeps each body's unit inertia,
+  so a heavier pole is a denser pole of the same shape (the inertia scales with the mass). PhysX's
+  set_masses in the seed changes the mass only, not the rotational inertia.
+- The 10 N s/m slider damping is the prismatic joint's damping (default, not randomized); the
+  +-4 m slider limits are joint limits.
+- The pole angle theta (0 upright, positive leaning toward +x) is wrapped to [-pi, pi) in the reward
+  and observed as (cos, sin): the seed uses the raw, unwrapped joint angle, which only differs once
+  the pole has turned over, i.e. in failed episodes.
+
+Horizon and J_T: max_episode_steps = round(2 s / (1/60 s)) = 120 steps, every step rewarded as above
+with no last-step penalty. The seed's episode has 119 steps (`time_out = episode_length_buf >=
+max_episode_length - 1` with max_episode_length = 120) and its last step earns -2 instead of +1, so
+for the same trajectory our return = seed return + 3 + r_120, where r_120 is our 120th reward, ~1
+for a pole still balanced at the end (the episodes near the threshold). Hence J_T = 50 + 3 + 1 = 54
+(the best possible return is 120 here vs 116 in the seed).
+
+Observation (5,): cart position [m], cart velocity [m/s], cos theta, sin theta, pole angular
+velocity [rad/s]. Action (1,): normalized slider force in [-1, 1] (clipped), times max_force = 100 N.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.envs.drake_sim import advance, rollout_fixed_inputs
+from assembly.params import Param, ParamSpace
+from assembly.samplers import Sampler
+
+__all__ = ["CartpoleConfig", "CartpoleEnv", "CARTPOLE_SPACE"]
+
+#: Paper appendix A.1 DR box (REFERENCES.md "DR boxes"); the nominal point is the box centre (NoDR's default).
+CARTPOLE_SPACE = ParamSpace((
+    Param("pole_mass", 0.01, 20.0, "kg"),
+    Param("cart_mass", 0.01, 20.0, "kg"),
+    Param("slider_friction", 0.0, 1.0, "1"),  # Coulomb coefficient of the cart on its rail
+))
+
+
+@dataclass(frozen=True)
+class CartpoleConfig:
+    """Task, model and reward settings (SI units). Defaults follow the seed (see the module docstring)."""
+
+    t_max: float = 2.0  # [s] episode length
+    control_dt: float = 1.0 / 60.0  # [s] policy period (seed: sim dt 1/120, decimation 2)
+    sim_dt: float = 1.0 / 120.0  # [s] discrete plant step; control_dt must be a multiple of it
+    max_force: float = 100.0  # [N] slider force at action 1 (seed action_scale)
+    slider_damping: float = 10.0  # [N s/m] viscous damping of the slider (seed cart actuator damping)
+    slider_limit: float = 4.0  # [m] cart position limits +-slider_limit
+    initial_pole_angle: float = 0.25 * math.pi  # [rad] pole angle drawn uniformly in +-this at reset
+    pole_length: float = 1.0  # [m] pole box length (0.04 x 0.06 x pole_length)
+    pole_com: float = 0.47  # [m] pole centre of mass above the pivot
+    cart_size: tuple[float, float, float] = (0.2, 0.25, 0.2)  # [m] cart box (sets its unit inertia)
+    wheel_radius: float = 0.05  # [m] contact sphere under the cart
+    contact_stiffness: float = 1e6  # [N/m] point-contact stiffness of the wheel on the ground
+    contact_dissipation: float = 20.0  # [s/m] Hunt-Crossley dissipation of the wheel contacts
+    rew_alive: float = 1.0
+    rew_pole_angle: float = -1.0  # times theta^2 [rad^2]
+    rew_cart_vel: float = -0.01  # times |cart velocity| [m/s]
+    rew_pole_vel: float = -0.005  # times |pole angular velocity| [rad/s]
+    success_threshold: float = 54.0  # J_T, re-derived from the seed's 50 (module docstring)
+
+    def __post_init__(self) -> None:
+        for name in ("t_max", "control_dt", "sim_dt", "max_force", "slider_limit", "pole_length", "wheel_radius",
+                     "contact_stiffness", "contact_dissipation"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"Cartpole: {name} must be a finite positive number, got {value!r}")
+        for name in ("slider_damping", "initial_pole_angle"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"Cartpole: {name} must be a finite number >= 0, got {value!r}")
+        ratio = self.control_dt / self.sim_dt
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(f"Cartpole: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
+                             f"of sim_dt ({self.sim_dt:g} s)")
+        if not 0 < self.pole_com <= self.pole_length:
+            raise ValueError(f"Cartpole: pole_com must be in (0, pole_length={self.pole_length:g}] m, got {self.pole_com!r}")
+        if len(self.cart_size) != 3 or not all(s > 0 for s in self.cart_size):
+            raise ValueError(f"Cartpole: cart_size must be three positive lengths [m], got {self.cart_size!r}")
+
+
+def _proximity(mu: float, cfg: CartpoleConfig):
+    from pydrake.geometry import AddContactMaterial, ProximityProperties
+    from pydrake.multibody.plant import CoulombFriction
+
+    props = ProximityProperties()
+    AddContactMaterial(dissipation=cfg.contact_dissipation, point_stiffness=cfg.contact_stiffness,
+                       friction=CoulombFriction(mu, mu), properties=props)
+    return props
+
+
+class CartpoleEnv(ParamEnv):
+    """Balance a pole on a force-driven cart; xi = (pole mass, cart mass, slider Coulomb friction)."""
+
+    def __init__(self, config: CartpoleConfig | None = None, *, sampler: Sampler | None = None,
+                 **overrides: Any) -> None:
+        self.config = config_with_overrides(CartpoleConfig, config, overrides, "CartpoleEnv")
+        super().__init__(CARTPOLE_SPACE, sampler)
+        cfg = self.config
+        self._set_timing(cfg.control_dt, cfg.t_max, cfg.success_threshold)
+        # Finite bounds (observations are clipped to them): the slider limits (+1 m of slack), cos/sin,
+        # and speeds far above what the 100 N force against the 10 N s/m damper reaches.
+        self._obs_high = np.array([cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0])
+        self.observation_space = spaces.Box(-self._obs_high.astype(np.float32), self._obs_high.astype(np.float32),
+                                            dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        self._build()
+
+    # -- Drake model ---------------------------------------------------------------------------
+
+    def _build(self) -> None:
+        from pydrake.geometry import Box, Sphere
+        from pydrake.math import RigidTransform
+        from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+        from pydrake.multibody.tree import PrismaticJoint, RevoluteJoint, SpatialInertia, UnitInertia
+        from pydrake.systems.analysis import Simulator
+        from pydrake.systems.framework import DiagramBuilder
+
+        cfg = self.config
+        builder = DiagramBuilder()
+        plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=cfg.sim_dt)
+        # Massless carriage between the x slider and the vertical joint; the cart and pole above it
+        # give both joints positive inertia.
+        carriage = plant.AddRigidBody("carriage", SpatialInertia(0.0, np.zeros(3), UnitInertia(0.0, 0.0, 0.0)))
+        cart = plant.AddRigidBody("cart", SpatialInertia(1.0, np.zeros(3), UnitInertia.SolidBox(*cfg.cart_size)))
+        g_pole = UnitInertia.SolidBox(0.04, 0.06, cfg.pole_length).ShiftFromCenterOfMass([0.0, 0.0, -cfg.pole_com])
+        pole = plant.AddRigidBody("pole", SpatialInertia(1.0, [0.0, 0.0, cfg.pole_com], g_pole))
+        slider = plant.AddJoint(PrismaticJoint("slider_to_cart", plant.world_frame(), carriage.body_frame(),
+                                               [1.0, 0.0, 0.0], -cfg.slider_limit, cfg.slider_limit,
+                                               cfg.slider_damping))
+        plant.AddJoint(PrismaticJoint("cart_vertical", carriage.body_frame(), cart.body_frame(), [0.0, 0.0, 1.0]))
+        plant.AddJoint(RevoluteJoint("cart_to_pole", cart.body_frame(), pole.body_frame(), [0.0, 1.0, 0.0]))
+        plant.AddJointActuator("slider_force", slider)
+        # The wheel touches the ground top (z = 0) when the cart origin is at z = cart_height.
+        self._cart_height = 0.5 * cfg.cart_size[2] + cfg.wheel_radius
+        wheel = plant.RegisterCollisionGeometry(cart, RigidTransform([0.0, 0.0, -0.5 * cfg.cart_size[2]]),
+                                                Sphere(cfg.wheel_radius), "wheel", _proximity(0.0, cfg))
+        # A box, not a HalfSpace (which makes Drake warn about deformable contact).
+        ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]),
+                                                 Box(4.0 * cfg.slider_limit + 2.0, 2.0, 1.0), "ground",
+                                                 _proximity(0.0, cfg))
+        # SAP with its default "lagged" approximation: it enforces the slider limits, and stays stable
+        # for 0.02 kg carts hitting them; TAMSI (~4x faster) ignores joint limits and diverges on stiff
+        # end stops, and SAP's "sap"/"similar" approximations make a sliding cart float (normal
+        # velocity ~ mu * slip speed).
+        plant.Finalize()
+        self._diagram = builder.Build()
+        self._plant, self._scene_graph = plant, scene_graph
+        self._cart, self._pole = cart, pole
+        self._geometries = (wheel, ground)
+        self._simulator = Simulator(self._diagram)
+        self._context = self._simulator.get_mutable_context()
+        self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        self._sg_context = scene_graph.GetMyMutableContextFromRoot(self._context)
+        self._actuation = plant.get_actuation_input_port()
+        self._actuation.FixValue(self._plant_context, np.zeros(1))
+        self._initial_state: NDArray[np.float64] | None = None
+        self._friction_set: float | None = None
+        self._k = 0  # control steps since reset (simulated time = k * control_dt)
+
+    def _apply_xi(self, xi: NDArray[np.float64]) -> None:
+        """Write xi into the Context: body masses and the wheel/ground Coulomb coefficient."""
+        from pydrake.geometry import RoleAssign
+
+        pole_mass, cart_mass, mu = (float(v) for v in xi)
+        self._pole.SetMass(self._plant_context, pole_mass)
+        self._cart.SetMass(self._plant_context, cart_mass)
+        if mu != self._friction_set:
+            source = self._plant.get_source_id()
+            for gid in self._geometries:  # equal coefficients combine to the same mu
+                self._scene_graph.AssignRole(self._sg_context, source, gid, _proximity(mu, self.config),
+                                             RoleAssign.kReplace)
+            self._friction_set = mu
+
+    def _start(self, xi: NDArray[np.float64], state: NDArray[np.float64]) -> None:
+        self._apply_xi(xi)
+        self._context.SetTime(0.0)
+        self._plant.SetPositionsAndVelocities(self._plant_context, state)
+        self._actuation.FixValue(self._plant_context, np.zeros(1))
+        self._simulator.Initialize()
+        self._k = 0
+
+    def _advance(self, force: float) -> NDArray[np.float64]:
+        """Hold `force` [N] for one control period; return the plant state (q, v) after it."""
+        self._actuation.FixValue(self._plant_context, [force])
+        self._k += 1
+        advance(self._simulator, self._k * self.control_dt, "Cartpole")
+        state = self._plant.GetPositionsAndVelocities(self._plant_context)
+        if not math.isfinite(float(state.sum())):  # NaN or inf anywhere (cheaper than np.isfinite().all())
+            raise SimulationError(f"Cartpole: non-finite state at t = {self._k * self.control_dt:.4f} s: "
+                                  f"{state.tolist()}")
+        return state
+
+    def _initial_plant_state(self, xi: NDArray[np.float64], theta0: float) -> NDArray[np.float64]:
+        """(x, z, theta, xdot, zdot, thetadot) at rest, the wheel pressed to its static penetration."""
+        penetration = (xi[0] + xi[1]) * 9.81 / self.config.contact_stiffness
+        return np.array([0.0, self._cart_height - penetration, theta0, 0.0, 0.0, 0.0])
+
+    # -- observation and reward ----------------------------------------------------------------
+
+    @staticmethod
+    def _wrap(theta: float) -> float:
+        return (theta + math.pi) % (2.0 * math.pi) - math.pi
+
+    def _observe(self, state: NDArray[np.float64]) -> NDArray[np.float32]:
+        theta = float(state[2])
+        obs = np.array([state[0], state[3], math.cos(theta), math.sin(theta), state[5]])
+        return np.clip(obs, -self._obs_high, self._obs_high).astype(np.float32)
+
+    def _reward(self, state: NDArray[np.float64]) -> float:
+        cfg = self.config
+        theta = self._wrap(float(state[2]))
+        return (cfg.rew_alive + cfg.rew_pole_angle * theta * theta + cfg.rew_cart_vel * abs(float(state[3]))
+                + cfg.rew_pole_vel * abs(float(state[5])))
+
+    # -- ParamEnv ------------------------------------------------------------------------------
+
+    def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
+        a = self.config.initial_pole_angle
+        theta0 = float(self.np_random.uniform(-a, a)) if a > 0 else 0.0
+        state = self._initial_plant_state(xi, theta0)
+        self._initial_state = state.copy()
+        self._start(xi, state)
+        return self._observe(state)
+
+    def _step_model(self, action: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+        force = self.config.max_force * min(1.0, max(-1.0, float(action[0])))
+        state = self._advance(force)
+        return self._observe(state), self._reward(state), False, {}
+
+    # -- tools ---------------------------------------------------------------------------------
+
+    @property
+    def plant_state(self) -> NDArray[np.float64]:
+        """The plant state (x, z, theta, xdot, zdot, thetadot) [m, m, rad, m/s, m/s, rad/s], a copy."""
+        return self._plant.GetPositionsAndVelocities(self._plant_context).copy()
+
+    @property
+    def initial_state(self) -> NDArray[np.float64] | None:
+        """The plant state the last reset started from (None before the first reset)."""
+        return None if self._initial_state is None else self._initial_state.copy()
+
+    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike,
+                     initial_state: ArrayLike | None = None) -> NDArray[np.float64]:
+        """Advance the bare Drake simulator through `actions` (T, 1) with no gym wrapper.
+
+        Starts from `initial_state` (default: the state the last reset started from, else the pole
+        upright at rest) with parameters xi, and returns the plant state after every step, shape
+        (T, 6), equal to `plant_state` after each env.step of the same actions. It ends the current
+        episode: call reset() before stepping the env again.
+        """
+        xi = self.validate_xi(xi, what="bare_rollout xi")
+        forces = self.config.max_force * np.clip(np.asarray(actions, dtype=np.float64).reshape(-1), -1.0, 1.0)
+        if initial_state is None:
+            initial_state = self._initial_state if self._initial_state is not None else self._initial_plant_state(xi, 0.0)
+        self._done = True
+        self._start(xi, np.asarray(initial_state, dtype=np.float64))
+        return rollout_fixed_inputs(
+            self._simulator, self._actuation, self._plant_context, forces[:, None], self.control_dt,
+            lambda: self._plant.GetPositionsAndVelocities(self._plant_context), "Cartpole.bare_rollout")

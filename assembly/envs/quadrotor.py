@@ -1,0 +1,318 @@
+"""goflow/Quadrotor-v0: fly a quadrotor of randomized mass to a random goal.
+
+A Drake MultibodyPlant free body (discrete, SAP "lagged" contact) driven by Drake's `Propeller` system (four
+rotor thrusts and their drag moments, a C++ LeafSystem: no Python in the simulation loop), above a
+ground box; one Simulator and one Context are reused for every episode.
+
+The seed's task (read from the authors' code, github.com/aidan-curtis/goflow, commit 294d0ee,
+file `goflow/environments/quadcopter/quadcopter_env.py`, Isaac Lab's quadcopter direct env with
+its CRAZYFLIE_CFG robot):
+
+- Physics dt 1/100 s, decimation 2: the policy acts at 50 Hz (control_dt = 0.02 s); episode 2 s;
+  no early termination (their crash check is commented out); ground plane at z = 0.
+- Reset: the drone at (0, 0, 0.5) m, level, at rest; goal uniform in x, y in [-2, 2] m and
+  z in [0.5, 1.5] m.
+- Action (4,) clipped to [-1, 1]: a[0] maps to a body-z collective thrust in
+  [0, thrust_to_weight * nominal weight] with thrust_to_weight = 1.9 (the weight of the default
+  model, computed once: the thrust limit does NOT follow the randomized mass), a[1:4] to body
+  moments of 0.01 N m each.
+- Observation (12,): body-frame linear velocity, body-frame angular velocity, gravity direction in
+  the body frame, goal position in the body frame.
+- Reward per step: dt * (-0.05 |v_b|^2 - 0.01 |w_b|^2 + 15 (1 - tanh(d / 0.8))), d the distance to
+  the goal, dt = 0.02 s; at most 0.3 per step, 30 per episode.
+- Randomized: mass only. Their code's box is (0.001, 0.4) kg for a ~0.03 kg Crazyflie; the paper's
+  appendix A.1 (REFERENCES.md) states [0.01, 20] kg, which we use. Success: return >= J_T = 15
+  (paper A.1; their agents/*.yaml carry the threshold per method).
+
+Our model of it:
+
+- Airframe: the parameters of Drake's own quadrotor example (pydrake.examples.QuadrotorPlant
+  defaults): nominal mass 0.775 kg, arm length 0.15 m, inertia diag(0.0015, 0.0025, 0.0035) kg m^2,
+  rotor drag moment / thrust 0.0245 m; rotors in "+" layout at +x, +y, -x, -y, spinning
+  alternately. QuadrotorPlant keeps its mass in the system, not in the Context, so the same body is
+  built as a MultibodyPlant free body whose mass is set per episode with RigidBody.SetMass; Drake
+  keeps the unit inertia, so a heavier drone is a denser one of the same shape (the seed's PhysX
+  set_masses changed the mass only).
+- Action: four normalized rotor thrusts a_i in [-1, 1] (clipped), thrust_i = T_max (a_i + 1) / 2,
+  T_max = thrust_to_weight * nominal_mass * g / 4 = 1.9 * 0.775 * 9.81 / 4 = 3.61 N per rotor
+  (14.4 N in all). As in the seed, the limit is that of the physical rotors, fixed: a drone heavier
+  than 1.9 * 0.775 = 1.47 kg cannot hover, and a very light one has a huge thrust-to-weight ratio
+  and a tiny inertia (hard to control at 50 Hz). That is the infeasible region a learned sampler
+  should find; with the box [0.01, 20] kg the hoverable masses are about 7 % of it. (The seed's
+  action is a collective thrust plus three body moments; ours are the rotor thrusts the issue
+  asks for.)
+- Rotational damping 0.01 N m s on the body (rotor aerodynamic drag against body rotation; the
+  seed's PhysX body is damped and its angular velocity capped by PhysX): it keeps a light drone under
+  bang-bang thrusts from spinning up until the discrete step's explicit gyroscopic term diverges.
+- The drone carries a collision sphere of radius 0.05 m and rests on a ground box (top at z = 0)
+  when it cannot lift off.
+- Observation and reward as in the seed (above), horizon 100 steps. The seed's episode has 99
+  steps (`time_out = episode_length_buf >= max_episode_length - 1`) with no last-step term, so our
+  extra step adds at most 0.3 to the return: J_T = 15 is kept.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.envs.drake_sim import advance, rollout_fixed_inputs
+from assembly.params import Param, ParamSpace
+from assembly.samplers import Sampler
+
+__all__ = ["QuadrotorConfig", "QuadrotorEnv", "QUADROTOR_SPACE"]
+
+#: Paper appendix A.1 DR box (REFERENCES.md "DR boxes"); the nominal point is the box centre (NoDR's default).
+QUADROTOR_SPACE = ParamSpace((Param("mass", 0.01, 20.0, "kg"),))
+
+GRAVITY = 9.81  # [m/s^2] Drake's default gravity magnitude
+
+
+@dataclass(frozen=True)
+class QuadrotorConfig:
+    """Task, airframe and reward settings (SI units). Defaults follow the seed (see the module docstring)."""
+
+    t_max: float = 2.0  # [s] episode length
+    control_dt: float = 0.02  # [s] policy period (seed: sim dt 1/100, decimation 2)
+    sim_dt: float = 0.01  # [s] discrete plant step; control_dt must be a multiple of it
+    nominal_mass: float = 0.775  # [kg] mass the rotors are sized for (Drake QuadrotorPlant default)
+    thrust_to_weight: float = 1.9  # all rotors at full thrust / nominal weight (seed)
+    arm_length: float = 0.15  # [m] rotor distance from the centre
+    inertia: tuple[float, float, float] = (0.0015, 0.0025, 0.0035)  # [kg m^2] at nominal_mass
+    moment_ratio: float = 0.0245  # [m] rotor drag moment per unit thrust
+    collision_radius: float = 0.05  # [m] sphere used for ground contact
+    # [N m s] rotational damping torque per body angular velocity: limits |w| to ~55 rad/s at the
+    # largest rotor-thrust difference; 0.25 s time constant at the nominal inertia.
+    angular_damping: float = 0.01
+    start_position: tuple[float, float, float] = (0.0, 0.0, 0.5)  # [m]
+    goal_xy_range: float = 2.0  # [m] goal x, y uniform in +-this
+    goal_z_range: tuple[float, float] = (0.5, 1.5)  # [m] goal z uniform in this interval
+    rew_lin_vel: float = -0.05  # times |v_b|^2 dt
+    rew_ang_vel: float = -0.01  # times |w_b|^2 dt
+    rew_distance: float = 15.0  # times (1 - tanh(d / distance_scale)) dt
+    distance_scale: float = 0.8  # [m]
+    success_threshold: float = 15.0  # J_T (paper appendix A.1)
+
+    def __post_init__(self) -> None:
+        for name in ("t_max", "control_dt", "sim_dt", "nominal_mass", "thrust_to_weight", "arm_length",
+                     "collision_radius", "distance_scale", "angular_damping"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"Quadrotor: {name} must be a finite positive number, got {value!r}")
+        ratio = self.control_dt / self.sim_dt
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(f"Quadrotor: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
+                             f"of sim_dt ({self.sim_dt:g} s)")
+        if len(self.inertia) != 3 or not all(i > 0 for i in self.inertia):
+            raise ValueError(f"Quadrotor: inertia must be three positive moments [kg m^2], got {self.inertia!r}")
+        lo, hi = self.goal_z_range
+        if not lo <= hi:
+            raise ValueError(f"Quadrotor: goal_z_range must be (low, high) with low <= high, got {self.goal_z_range!r}")
+
+    @property
+    def max_rotor_thrust(self) -> float:
+        """T_max [N]: one rotor's thrust at action +1."""
+        return self.thrust_to_weight * self.nominal_mass * GRAVITY / 4.0
+
+    @property
+    def max_hover_mass(self) -> float:
+        """[kg] the heaviest drone all four rotors at full thrust can hold up."""
+        return self.thrust_to_weight * self.nominal_mass
+
+
+class QuadrotorEnv(ParamEnv):
+    """Fly to a random goal in 2 s; xi = (mass,); actions are four normalized rotor thrusts."""
+
+    def __init__(self, config: QuadrotorConfig | None = None, *, sampler: Sampler | None = None,
+                 **overrides: Any) -> None:
+        self.config = config_with_overrides(QuadrotorConfig, config, overrides, "QuadrotorEnv")
+        super().__init__(QUADROTOR_SPACE, sampler)
+        cfg = self.config
+        self._set_timing(cfg.control_dt, cfg.t_max, cfg.success_threshold)
+        # Finite bounds (observations are clipped to them): speeds far beyond what 2 s of flight reach
+        # at the lowest mass, the unit gravity direction, and the farthest goal after such a flight.
+        self._obs_high = np.array([200.0] * 3 + [500.0] * 3 + [1.0] * 3 + [500.0] * 3)
+        self.observation_space = spaces.Box(-self._obs_high.astype(np.float32), self._obs_high.astype(np.float32),
+                                            dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self._build()
+
+    # -- Drake model ---------------------------------------------------------------------------
+
+    def _build(self) -> None:
+        from pydrake.geometry import AddContactMaterial, Box, ProximityProperties, Sphere
+        from pydrake.math import RigidTransform
+        from pydrake.multibody.plant import (AddMultibodyPlantSceneGraph, CoulombFriction, DiscreteContactApproximation,
+                                             Propeller, PropellerInfo)
+        from pydrake.multibody.tree import QuaternionFloatingJoint, SpatialInertia, UnitInertia
+        from pydrake.systems.analysis import Simulator
+        from pydrake.systems.framework import DiagramBuilder
+
+        cfg = self.config
+        builder = DiagramBuilder()
+        plant, _ = AddMultibodyPlantSceneGraph(builder, time_step=cfg.sim_dt)
+        unit = UnitInertia(*(np.asarray(cfg.inertia) / cfg.nominal_mass))
+        body = plant.AddRigidBody("body", SpatialInertia(cfg.nominal_mass, np.zeros(3), unit))
+        # Rotor aerodynamic damping of the body rotation, applied implicitly by the discrete solver. Without
+        # it a light drone under bang-bang thrusts spins up without bound and the explicit gyroscopic
+        # term diverges (NaN within 0.2 s at 0.05 kg); PhysX (the seed) damps and caps angular velocity.
+        plant.AddJoint(QuaternionFloatingJoint("body_free", plant.world_frame(), body.body_frame(),
+                                               angular_damping=cfg.angular_damping, translational_damping=0.0))
+        props = ProximityProperties()
+        AddContactMaterial(dissipation=20.0, point_stiffness=1e5, friction=CoulombFriction(1.0, 1.0),
+                           properties=props)
+        plant.RegisterCollisionGeometry(body, RigidTransform(), Sphere(cfg.collision_radius), "body", props)
+        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]), Box(200.0, 200.0, 1.0),
+                                        "ground", props)
+        # SAP "lagged" (Drake's default, explicit here): TAMSI is ~3.5x faster while the drone rests on
+        # the ground but failed (NaN) in 31 of 90 bang-bang episodes across the mass box; lagged in none.
+        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+        plant.Finalize()
+        L = cfg.arm_length
+        # "+" layout, alternate spin: rotor i's drag moment about body z is sign_i * moment_ratio * thrust_i.
+        self._rotor_positions = np.array([[L, 0, 0], [0, L, 0], [-L, 0, 0], [0, -L, 0]], dtype=np.float64)
+        self._rotor_spin = np.array([1.0, -1.0, 1.0, -1.0])
+        infos = [PropellerInfo(body.index(), RigidTransform(p), 1.0, s * cfg.moment_ratio)
+                 for p, s in zip(self._rotor_positions, self._rotor_spin)]
+        propellers = builder.AddSystem(Propeller(infos))
+        builder.Connect(propellers.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
+        builder.Connect(plant.get_body_poses_output_port(), propellers.get_body_poses_input_port())
+        self._diagram = builder.Build()
+        self._plant, self._body = plant, body
+        self._simulator = Simulator(self._diagram)
+        self._context = self._simulator.get_mutable_context()
+        self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        self._prop_context = propellers.GetMyMutableContextFromRoot(self._context)
+        self._command = propellers.get_command_input_port()
+        self._command.FixValue(self._prop_context, np.zeros(4))
+        self._initial_state: NDArray[np.float64] | None = None
+        self._goal = np.array([0.0, 0.0, 1.0])
+        self._k = 0
+
+    def _start(self, xi: NDArray[np.float64], state: NDArray[np.float64]) -> None:
+        self._body.SetMass(self._plant_context, float(xi[0]))
+        self._context.SetTime(0.0)
+        self._plant.SetPositionsAndVelocities(self._plant_context, state)
+        self._command.FixValue(self._prop_context, np.zeros(4))
+        self._simulator.Initialize()
+        self._k = 0
+
+    def thrusts(self, action: ArrayLike) -> NDArray[np.float64]:
+        """Rotor thrusts [N] for normalized actions (..., 4): T_max (clip(a, -1, 1) + 1) / 2."""
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        return 0.5 * self.config.max_rotor_thrust * (a + 1.0)
+
+    def _advance(self, thrusts: NDArray[np.float64]) -> NDArray[np.float64]:
+        self._command.FixValue(self._prop_context, thrusts)
+        self._k += 1
+        advance(self._simulator, self._k * self.control_dt, "Quadrotor")
+        state = self._plant.GetPositionsAndVelocities(self._plant_context)
+        if not math.isfinite(float(state.sum())):  # NaN or inf anywhere
+            raise SimulationError(f"Quadrotor: non-finite state at t = {self._k * self.control_dt:.4f} s: "
+                                  f"{state.tolist()}")
+        return state
+
+    # -- observation and reward ----------------------------------------------------------------
+    # Drake's free-body state: q = (qw, qx, qy, qz, x, y, z), v = (w_WB in world, v_WB in world).
+
+    @staticmethod
+    def _rotation(q: NDArray[np.float64]) -> NDArray[np.float64]:
+        """R_WB from a (possibly slightly unnormalized) quaternion (w, x, y, z)."""
+        w, x, y, z = q / math.sqrt(float(q @ q))
+        return np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ])
+
+    def _observe_and_reward(self, state: NDArray[np.float64]) -> tuple[NDArray[np.float32], float]:
+        cfg = self.config
+        R = self._rotation(state[0:4])
+        p = state[4:7]
+        w_b = R.T @ state[7:10]
+        v_b = R.T @ state[10:13]
+        g_b = -R[2]  # R^T (0, 0, -1)
+        goal_b = R.T @ (self._goal - p)
+        obs = np.clip(np.concatenate([v_b, w_b, g_b, goal_b]), -self._obs_high, self._obs_high).astype(np.float32)
+        d = math.sqrt(float(goal_b @ goal_b))
+        reward = self.control_dt * (cfg.rew_lin_vel * float(v_b @ v_b) + cfg.rew_ang_vel * float(w_b @ w_b)
+                                    + cfg.rew_distance * (1.0 - math.tanh(d / cfg.distance_scale)))
+        return obs, reward
+
+    # -- ParamEnv ------------------------------------------------------------------------------
+
+    def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
+        cfg = self.config
+        r = cfg.goal_xy_range
+        gx, gy = self.np_random.uniform(-r, r, size=2)
+        gz = self.np_random.uniform(*cfg.goal_z_range)
+        self._goal = np.array([gx, gy, gz], dtype=np.float64)
+        state = np.zeros(13)
+        state[0] = 1.0
+        state[4:7] = cfg.start_position
+        self._initial_state = state.copy()
+        self._start(xi, state)
+        return self._observe_and_reward(state)[0]
+
+    def _step_model(self, action: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+        state = self._advance(self.thrusts(action))
+        obs, reward = self._observe_and_reward(state)
+        return obs, reward, False, {}
+
+    # -- tools ---------------------------------------------------------------------------------
+
+    @property
+    def goal(self) -> NDArray[np.float64]:
+        """The episode's goal position in the world [m]."""
+        return self._goal.copy()
+
+    @property
+    def plant_state(self) -> NDArray[np.float64]:
+        """The plant state (qw, qx, qy, qz, x, y, z, w_WB (world), v_WB (world)), a copy."""
+        return self._plant.GetPositionsAndVelocities(self._plant_context).copy()
+
+    @property
+    def initial_state(self) -> NDArray[np.float64] | None:
+        """The plant state the last reset started from (None before the first reset)."""
+        return None if self._initial_state is None else self._initial_state.copy()
+
+    @property
+    def rotor_positions(self) -> NDArray[np.float64]:
+        """Rotor positions in the body frame [m], shape (4, 3)."""
+        return self._rotor_positions.copy()
+
+    @property
+    def rotor_spin(self) -> NDArray[np.float64]:
+        """Sign of each rotor's drag moment about body z per unit thrust (times moment_ratio), shape (4,)."""
+        return self._rotor_spin.copy()
+
+    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike,
+                     initial_state: ArrayLike | None = None) -> NDArray[np.float64]:
+        """Advance the bare Drake simulator through `actions` (T, 4) with no gym wrapper.
+
+        Starts from `initial_state` (default: the state the last reset started from, else the start
+        position at rest) with parameters xi, and returns the plant state after every step, shape
+        (T, 13), equal to `plant_state` after each env.step of the same actions. It ends the current
+        episode: call reset() before stepping the env again.
+        """
+        xi = self.validate_xi(xi, what="bare_rollout xi")
+        thrusts = self.thrusts(np.asarray(actions, dtype=np.float64).reshape(-1, 4))
+        if initial_state is None:
+            if self._initial_state is not None:
+                initial_state = self._initial_state
+            else:
+                initial_state = np.zeros(13)
+                initial_state[0] = 1.0
+                initial_state[4:7] = self.config.start_position
+        self._done = True
+        self._start(xi, np.asarray(initial_state, dtype=np.float64))
+        return rollout_fixed_inputs(
+            self._simulator, self._command, self._prop_context, thrusts, self.control_dt,
+            lambda: self._plant.GetPositionsAndVelocities(self._plant_context), "Quadrotor.bare_rollout")
