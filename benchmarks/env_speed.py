@@ -3,6 +3,7 @@ overhead against advancing the bare Drake simulator through the same steps.
 
     .venv/bin/python benchmarks/env_speed.py [--steps 400] [--workers 2] [--json docs/results/env_speed.json]
 
+Every env runs at its nominal xi (a NoDR sampler), so all columns do the same physics.
 Columns: steps/s and real-time factor (simulated s per wall s) in one process; steps/s of an
 AsyncVectorEnv with `--workers` processes (one env each); wrapper overhead = env.step time over
 bare-simulator time for the same xi and actions, minus 1 (envs with a bare_rollout method).
@@ -19,6 +20,7 @@ import gymnasium
 import numpy as np
 
 import assembly  # noqa: F401  (registers the ids)
+from assembly.samplers import NoDR
 
 ENVS = {
     "goflow/Toy2D-v0": {},
@@ -45,9 +47,17 @@ def _env_id(name: str) -> str:
     return name.split(" ")[0]
 
 
+def make_nominal(name: str, kwargs: dict) -> gymnasium.Env:
+    """The env with a NoDR sampler: every episode at the nominal xi, so that single-process,
+    vectorized and bare runs do the same physics."""
+    env = gymnasium.make(_env_id(name), **kwargs)
+    env.unwrapped.sampler = NoDR(env.unwrapped.space)
+    return env
+
+
 def single(name: str, kwargs: dict, steps: int, seed: int) -> tuple[float, float]:
     """(steps per second, real-time factor) of env.step in this process, random actions."""
-    env = gymnasium.make(_env_id(name), **kwargs).unwrapped
+    env = make_nominal(name, kwargs).unwrapped
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
     wall = 0.0
@@ -62,9 +72,7 @@ def single(name: str, kwargs: dict, steps: int, seed: int) -> tuple[float, float
 
 def vectorized(name: str, kwargs: dict, steps: int, workers: int, seed: int) -> float:
     """Steps per second (summed over envs) of an AsyncVectorEnv with `workers` processes."""
-    env_id = _env_id(name)
-    vec = gymnasium.vector.AsyncVectorEnv(
-        [lambda: gymnasium.make(env_id, **kwargs) for _ in range(workers)])
+    vec = gymnasium.vector.AsyncVectorEnv([lambda: make_nominal(name, kwargs) for _ in range(workers)])
     vec.reset(seed=seed)
     n = max(steps // workers, 1)
     rng = np.random.default_rng(seed)
@@ -79,7 +87,7 @@ def vectorized(name: str, kwargs: dict, steps: int, workers: int, seed: int) -> 
 
 def overhead(name: str, kwargs: dict, steps: int, seed: int) -> float | None:
     """env.step time / bare_rollout time - 1, over the same xi and actions (None if no bare)."""
-    env = gymnasium.make(_env_id(name), **kwargs).unwrapped
+    env = make_nominal(name, kwargs).unwrapped
     if not hasattr(env, "bare_rollout"):
         return None
     rng = np.random.default_rng(seed)
