@@ -32,6 +32,106 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 1 if "sim_error" in summary else 0
 
 
+def _key_values(pairs: list[str] | None, flag: str) -> dict:
+    """["a=1", "b=x"] -> {"a": 1, "b": "x"} (values parsed as JSON when they are JSON)."""
+    out = {}
+    for pair in pairs or []:
+        if "=" not in pair:
+            raise SystemExit(f"goflow: {flag} {pair!r}: expected KEY=VALUE")
+        key, value = pair.split("=", 1)
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def _ppo_config(args: argparse.Namespace):
+    import dataclasses
+    from learning.ppo import PPOConfig
+    overrides = _key_values(args.ppo, "--ppo")
+    known = {f.name for f in dataclasses.fields(PPOConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise SystemExit(f"goflow: unknown --ppo option(s) {unknown}; known: {sorted(known)}")
+    return PPOConfig(**overrides)
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from learning.experiment import TrainConfig, train
+    out = Path(args.out) if args.out else Path("runs") / args.env.replace("/", "_") / args.sampler / f"seed{args.seed}"
+    config = TrainConfig(env=args.env, env_kwargs=_key_values(args.env_kwarg, "--env-kwarg"),
+                         method=args.sampler, sampler_kwargs=_key_values(args.sampler_kwarg, "--sampler-kwarg"),
+                         seed=args.seed, total_steps=args.steps,
+                         iterations_per_round=args.iterations_per_round,
+                         eval_episodes=args.eval_episodes, ppo=_ppo_config(args), out=out)
+    log = train(config)
+    step, success, ret = log["curve"][-1]
+    print(f"{args.sampler} seed {args.seed}: success {success:.3f} on the uniform box, mean return "
+          f"{ret:.2f} after {step} steps; log {out / 'log.json'}, checkpoint {out / 'checkpoint.pt'}")
+    return 0
+
+
+def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, name=None):
+    from learning.experiment import ExperimentConfig
+    return ExperimentConfig(env=args.env, env_kwargs=_key_values(args.env_kwarg, "--env-kwarg"),
+                            methods=tuple(methods), seeds=args.seeds, total_steps=args.steps,
+                            iterations_per_round=args.iterations_per_round,
+                            eval_episodes=args.eval_episodes, ppo=_ppo_config(args),
+                            sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
+                            out=Path(args.out), results=Path(args.results), name=name or args.name)
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    import os
+    from learning.experiment import format_summary, run_experiment
+    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    summary = run_experiment(_experiment_config(args, args.methods))
+    print(format_summary(summary))
+    return 0
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    import os
+    from learning.experiment import format_summary, run_experiment
+    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    stem = args.name or f"sweep-{args.env.split('/')[-1].lower()}-{args.method}-{args.param}"
+    rows = []
+    for value in args.values:
+        v = json.loads(value) if value[:1].isdigit() or value[:1] in "-[" else value
+        summary = run_experiment(_experiment_config(
+            args, [args.method], {args.method: {args.param: v}}, name=f"{stem}-{value}"))
+        print(format_summary(summary))
+        res = summary["methods"][args.method]
+        rows.append({"value": v, "final_success_mean": res["final_success_mean"],
+                     "final_success_se": res["final_success_se"]})
+    Path(args.results).mkdir(parents=True, exist_ok=True)
+    (Path(args.results) / f"{stem}.json").write_text(json.dumps(
+        {"env": args.env, "method": args.method, "param": args.param, "rows": rows,
+         "command": os.environ["GOFLOW_COMMAND"]}, indent=2))
+    best = max(rows, key=lambda r: r["final_success_mean"])
+    print(f"best {args.param} = {best['value']} (success {best['final_success_mean']:.3f})")
+    return 0
+
+
+def _add_run_flags(p: argparse.ArgumentParser, steps: int) -> None:
+    p.add_argument("--env", required=True, help="environment id, e.g. goflow/Toy2D-v0")
+    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE", help="environment option")
+    p.add_argument("--steps", type=int, default=steps, help="training environment steps per run")
+    p.add_argument("--iterations-per-round", type=int, default=2,
+                   help="PPO iterations between validation + sampler update")
+    p.add_argument("--eval-episodes", type=int, default=64, help="validation episodes per round")
+    p.add_argument("--ppo", action="append", metavar="KEY=VALUE", help="PPOConfig field")
+
+
+def _add_experiment_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--workers", type=int, default=2, help="parallel processes")
+    p.add_argument("--out", default="runs", help="folder for run checkpoints and logs")
+    p.add_argument("--results", default="docs/results", help="folder for the result JSON and plot")
+    p.add_argument("--name", help="result file stem (default from the env id)")
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="goflow", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -43,6 +143,29 @@ def make_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", metavar="PATH", help="write the per-gear summary as JSON")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(func=_cmd_demo)
+
+    from learning.methods import METHODS
+    train = sub.add_parser("train", help="train a policy with a DR sampler (GoFlow protocol)")
+    _add_run_flags(train, 200_000)
+    train.add_argument("--sampler", required=True, choices=METHODS)
+    train.add_argument("--sampler-kwarg", action="append", metavar="KEY=VALUE")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--out", help="run folder (resumes from its checkpoint)")
+    train.set_defaults(func=_cmd_train)
+
+    experiment = sub.add_parser("experiment", help="methods x seeds; writes docs/results/<env>.json")
+    _add_run_flags(experiment, 200_000)
+    experiment.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    _add_experiment_flags(experiment)
+    experiment.set_defaults(func=_cmd_experiment)
+
+    sweep = sub.add_parser("sweep", help="a hyperparameter sweep of one method (appendix A.2)")
+    _add_run_flags(sweep, 200_000)
+    sweep.add_argument("--method", required=True, choices=METHODS)
+    sweep.add_argument("--param", required=True, help="sampler option to sweep, e.g. alpha")
+    sweep.add_argument("--values", nargs="+", required=True)
+    _add_experiment_flags(sweep)
+    sweep.set_defaults(func=_cmd_sweep)
     return parser
 
 

@@ -1,0 +1,294 @@
+"""The GoFlow protocol: alternate PPO on samples of the sampler with sampler updates.
+
+Each round:
+  1. training phase: PPO iterations on environments whose xi is drawn from the current sampler;
+  2. validation phase: episodes on the *uniform* box with the current policy and no policy update;
+     their success rate (return >= J_T) is the reported metric;
+  3. the sampler is updated with the batch its method learns from: the validation batch (xi,
+     returns) for GoFlow, LSDR and DORAEMON (told that its proposal is the uniform box, so its
+     importance weights are right), and for ADR its own training-phase episodes (ADR learns only
+     from episodes it pinned to a bound, which a uniform batch almost never contains).
+A run writes `log.json` (config, curve, timings) and `checkpoint.pt` (policy, value function,
+optimizer, normalizers, sampler, ParamSpace, round, RNG) into its folder after every round; a run
+started on a folder that holds a checkpoint resumes from it, and reproduces the uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from tqdm import tqdm
+
+import assembly  # noqa: F401  (registers the environment ids)
+from assembly.params import ParamSpace
+from assembly.samplers import FullDR, NoDR, Sampler
+from learning.methods import METHODS
+from learning.ppo import PPO, PPOConfig
+
+
+
+
+def make_sampler(method: str, space: ParamSpace, success_threshold: float, **kwargs: Any) -> Sampler:
+    """The sampler called `method` over `space`, with its options (for GoFlow and LSDR: alpha,
+    beta, and their config fields); ValueError naming the known methods otherwise."""
+    if method == "nodr":
+        return NoDR(space, **kwargs)
+    if method == "fulldr":
+        return FullDR(space, **kwargs)
+    if method == "adr":
+        from learning.samplers.adr import ADRSampler
+        return ADRSampler(space, success_threshold, **kwargs)
+    if method == "lsdr":
+        from learning.samplers.lsdr import LSDRSampler
+        alpha = kwargs.pop("alpha", 1.0)  # the rest are LSDRConfig fields
+        return LSDRSampler(space, alpha=alpha, config=kwargs or None)
+    if method == "doraemon":
+        from learning.samplers.doraemon import DORAEMONSampler
+        # The protocol updates it with the uniform validation batch: importance weights p'/U.
+        return DORAEMONSampler(space, success_threshold, **{"proposal": "uniform", **kwargs})
+    if method == "goflow":
+        from learning.samplers.goflow import GoFlowSampler
+        alpha, beta = kwargs.pop("alpha", 1.0), kwargs.pop("beta", 1.0)  # the rest: GoFlowConfig
+        return GoFlowSampler(space, alpha=alpha, beta=beta, config=kwargs or None)
+    raise ValueError(f"unknown sampler {method!r}; expected one of {list(METHODS)}")
+
+
+@dataclass
+class TrainConfig:
+    """One training run. Every `goflow train` flag maps to a field."""
+
+    env: str = "goflow/Toy2D-v0"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    method: str = "goflow"
+    sampler_kwargs: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+    total_steps: int = 200_000  # environment steps in training phases
+    iterations_per_round: int = 2  # PPO iterations between validations
+    eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    out: Path | None = None  # run folder (log.json, checkpoint.pt); None: nothing written
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"unknown sampler {self.method!r}; expected one of {list(METHODS)}")
+        for name in ("total_steps", "iterations_per_round", "eval_episodes"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"TrainConfig.{name} = {getattr(self, name)}; expected >= 1")
+        if self.out is not None:
+            self.out = Path(self.out)
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["out"] = None if self.out is None else str(self.out)
+        return d
+
+
+def _make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
+    """n environments in this process (runs parallelize across processes, one per run)."""
+    return gymnasium.vector.SyncVectorEnv(
+        [lambda: gymnasium.make(config.env, **config.env_kwargs) for _ in range(n)],
+        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _atomic_json(obj: Any, path: Path) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    os.replace(tmp, path)
+
+
+def train(config: TrainConfig, progress: bool = True) -> dict:
+    """Run (or resume) the GoFlow protocol; return the log {"config", "curve": [[step, success,
+    mean_return], ...], "seconds", "sampler_seconds", "rounds"}."""
+    torch.manual_seed(config.seed)
+    probe = gymnasium.make(config.env, **config.env_kwargs).unwrapped
+    space, J_T = probe.space, float(probe.success_threshold)
+    obs_dim = int(np.prod(probe.observation_space.shape))
+    critic_dim = obs_dim + space.dim
+    sampler = make_sampler(config.method, space, J_T, **config.sampler_kwargs)
+    ppo_config = dataclasses.replace(config.ppo, seed=config.seed)
+    agent = PPO(obs_dim, critic_dim, probe.action_space, ppo_config)
+    train_envs = _make_vector_env(config, ppo_config.num_envs)
+    val_envs = _make_vector_env(config, ppo_config.num_envs)
+    val_envs.set_attr("sampler", FullDR(space))
+    log = {"config": config.to_json(), "env": config.env, "method": config.method,
+           "success_threshold": J_T, "curve": [], "seconds": 0.0, "sampler_seconds": 0.0,
+           "rounds": 0}
+    checkpoint = config.out / "checkpoint.pt" if config.out else None
+    if checkpoint is not None and checkpoint.exists():
+        state = torch.load(checkpoint, weights_only=False)
+        if ParamSpace.from_dict(state["space"]) != space:
+            raise ValueError(f"checkpoint {checkpoint} was trained on another ParamSpace: "
+                             + "; ".join(space.diff(ParamSpace.from_dict(state["space"]))))
+        agent.load_state_dict(state["agent"])
+        sampler.load_state_dict(state["sampler"])
+        log = state["log"]
+    steps_per_round = config.iterations_per_round * ppo_config.num_envs * ppo_config.num_steps
+    rounds = max(1, config.total_steps // steps_per_round)
+    bar = tqdm(total=rounds, initial=log["rounds"], disable=not progress,
+               desc=f"{config.method} seed {config.seed}", unit="round")
+    while log["rounds"] < rounds:
+        r = log["rounds"]
+        t0 = time.perf_counter()
+        train_envs.set_attr("sampler", sampler)
+        episodes = []
+        for _ in range(config.iterations_per_round):
+            stats, _ = agent.train_iteration(train_envs)
+            episodes.append(stats)
+        xi, returns, successes = agent.evaluate(val_envs, config.eval_episodes,
+                                                seed=config.seed * 100_003 + r)
+        t1 = time.perf_counter()
+        if config.method == "adr":
+            train_xi = np.concatenate([e.xi for e in episodes])
+            train_returns = np.concatenate([e.episode_returns for e in episodes])
+            diagnostics = sampler.update(train_xi, train_returns) if len(train_returns) else {}
+        else:
+            diagnostics = sampler.update(xi, returns)
+        t2 = time.perf_counter()
+        log["rounds"] = r + 1
+        log["curve"].append([(r + 1) * steps_per_round, float(np.mean(successes)),
+                             float(np.mean(returns))])
+        log["seconds"] += t2 - t0
+        log["sampler_seconds"] += t2 - t1
+        log["last_sampler"] = {k: v for k, v in diagnostics.items()
+                               if isinstance(v, (int, float, bool, str))}
+        if config.out is not None:
+            config.out.mkdir(parents=True, exist_ok=True)
+            _atomic_save({"agent": agent.state_dict(), "sampler": sampler.state_dict(),
+                          "space": space.to_dict(), "log": log}, checkpoint)
+            _atomic_json(log, config.out / "log.json")
+        bar.set_postfix(success=f"{log['curve'][-1][1]:.2f}")
+        bar.update(1)
+    bar.close()
+    train_envs.close()
+    val_envs.close()
+    return log
+
+
+@dataclass
+class ExperimentConfig:
+    """Methods x seeds of one environment, run in parallel processes."""
+
+    env: str = "goflow/Toy2D-v0"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    methods: tuple[str, ...] = METHODS
+    seeds: int = 5
+    total_steps: int = 200_000
+    iterations_per_round: int = 2
+    eval_episodes: int = 64
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    sampler_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)  # per method
+    workers: int = 2
+    out: Path = Path("runs")
+    results: Path = Path("docs/results")
+    name: str | None = None  # results file stem; default derived from env id (+ kwargs)
+
+    def __post_init__(self) -> None:
+        for m in self.methods:
+            if m not in METHODS:
+                raise ValueError(f"unknown sampler {m!r}; expected one of {list(METHODS)}")
+        if self.seeds < 1 or self.workers < 1:
+            raise ValueError(f"seeds = {self.seeds}, workers = {self.workers}; expected >= 1")
+
+    def stem(self) -> str:
+        if self.name:
+            return self.name
+        base = self.env.split("/")[-1].split("-v")[0].lower()
+        extra = "-".join(f"{v}" for v in self.env_kwargs.values())
+        return f"{base}-{extra}" if extra else base
+
+    def runs(self) -> list[TrainConfig]:
+        return [TrainConfig(env=self.env, env_kwargs=dict(self.env_kwargs), method=m,
+                            sampler_kwargs=dict(self.sampler_kwargs.get(m, {})), seed=s,
+                            total_steps=self.total_steps,
+                            iterations_per_round=self.iterations_per_round,
+                            eval_episodes=self.eval_episodes, ppo=self.ppo,
+                            out=self.out / self.stem() / m / f"seed{s}")
+                for m in self.methods for s in range(self.seeds)]
+
+
+def _run_quiet(config: TrainConfig) -> dict:
+    torch.set_num_threads(1)
+    return train(config, progress=False)
+
+
+def summarize(logs: list[dict], steps: int, env: str) -> dict:
+    """The experiment file: {"env", "steps", "methods": {name: {"final_success_mean",
+    "final_success_se", "seeds", "curve": [[step, mean, se], ...]}}} plus timing shares."""
+    out = {"env": env, "steps": steps, "methods": {}}
+    for method in dict.fromkeys(log["method"] for log in logs):
+        runs = [log for log in logs if log["method"] == method]
+        n = min(len(r["curve"]) for r in runs)
+        success = np.array([[point[1] for point in r["curve"][:n]] for r in runs])
+        se = success.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else np.zeros(n)
+        steps_axis = [r for r, *_ in runs[0]["curve"][:n]]
+        out["methods"][method] = {
+            "final_success_mean": float(success[:, -1].mean()),
+            "final_success_se": float(se[-1]),
+            "seeds": len(runs),
+            "curve": [[int(s), float(m), float(e)] for s, m, e in zip(steps_axis, success.mean(0), se)],
+            "sampler_time_share": float(sum(r["sampler_seconds"] for r in runs)
+                                        / max(sum(r["seconds"] for r in runs), 1e-9)),
+        }
+    return out
+
+
+def plot_curves(summary: dict, path: Path) -> None:
+    """Success on the uniform box vs training steps, mean and standard-error band per method."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for method, res in summary["methods"].items():
+        c = np.array(res["curve"])
+        ax.plot(c[:, 0], c[:, 1], label=method)
+        ax.fill_between(c[:, 0], c[:, 1] - c[:, 2], c[:, 1] + c[:, 2], alpha=0.2)
+    ax.set_xlabel("training steps")
+    ax.set_ylabel("success rate on the uniform box")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(summary["env"])
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_experiment(config: ExperimentConfig, progress: bool = True) -> dict:
+    """Run every (method, seed) in `config.workers` processes (resuming finished or interrupted
+    runs from their checkpoints); write docs/results/<stem>.json and .png; return the summary."""
+    import multiprocessing as mp
+    runs = config.runs()
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(config.workers) as pool:
+        logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress,
+                         desc=f"experiment {config.stem()}", unit="run"))
+    summary = summarize(logs, config.total_steps, config.env)
+    summary["command"] = os.environ.get("GOFLOW_COMMAND", "")
+    config.results.mkdir(parents=True, exist_ok=True)
+    _atomic_json(summary, config.results / f"{config.stem()}.json")
+    plot_curves(summary, config.results / f"{config.stem()}.png")
+    return summary
+
+
+def format_summary(summary: dict) -> str:
+    """A table of final success per method and the sampler update's share of wall time."""
+    lines = [f"{summary['env']}  ({summary['steps']} steps per run)",
+             f"{'method':<10} {'final success':>14} {'seeds':>6} {'sampler time':>13}"]
+    for method, res in summary["methods"].items():
+        lines.append(f"{method:<10} {res['final_success_mean']:>7.3f} +- {res['final_success_se']:<5.3f}"
+                     f" {res['seeds']:>6} {100 * res['sampler_time_share']:>12.1f}%")
+    return "\n".join(lines)

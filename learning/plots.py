@@ -1,0 +1,58 @@
+"""Figures of learned parameter distributions (the GoFlow paper's Fig. 2 for Toy2D)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import torch
+
+import assembly  # noqa: F401  (registers the environment ids)
+from learning.experiment import ExperimentConfig, make_sampler
+
+
+def load_final_sampler(config: ExperimentConfig, method: str, seed: int = 0):
+    """The sampler of run (method, seed) as saved in its last checkpoint."""
+    env = gymnasium.make(config.env, **config.env_kwargs).unwrapped
+    sampler = make_sampler(method, env.space, env.success_threshold,
+                           **config.sampler_kwargs.get(method, {}))
+    state = torch.load(config.out / config.stem() / method / f"seed{seed}" / "checkpoint.pt",
+                       weights_only=False)
+    sampler.load_state_dict(state["sampler"])
+    return env, sampler
+
+
+def plot_toy2d_densities(config: ExperimentConfig, path: Path, seed: int = 0, grid: int = 120) -> None:
+    """One panel per method: the learned density over the 2-D box, the feasible set's outline on top;
+    a first panel shows the feasible set itself."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    env = gymnasium.make(config.env, **config.env_kwargs).unwrapped
+    lo, hi = env.space.low, env.space.high
+    xs, ys = np.linspace(lo[0], hi[0], grid), np.linspace(lo[1], hi[1], grid)
+    X, Y = np.meshgrid(xs, ys)
+    points = np.stack([X.ravel(), Y.ravel()], axis=1)
+    feasible = env.feasible_set(points).reshape(grid, grid)
+    methods = list(config.methods)
+    fig, axes = plt.subplots(1, len(methods) + 1, figsize=(3 * (len(methods) + 1), 3.2))
+    extent = (lo[0], hi[0], lo[1], hi[1])
+    axes[0].imshow(feasible, origin="lower", extent=extent, cmap="Greens")
+    axes[0].set_title("feasible set")
+    for ax, method in zip(axes[1:], methods):
+        _, sampler = load_final_sampler(config, method, seed)
+        logp = np.asarray(sampler.log_prob(points), dtype=float)
+        if np.all(~np.isfinite(logp) | (logp == np.inf)) and np.any(logp == np.inf):
+            density = (logp == np.inf).astype(float)  # a point mass (NoDR)
+        else:
+            density = np.exp(np.where(np.isfinite(logp), logp, -np.inf))
+        ax.imshow(density.reshape(grid, grid), origin="lower", extent=extent, cmap="viridis")
+        ax.contour(X, Y, feasible.astype(float), levels=[0.5], colors="w", linewidths=0.8)
+        ax.set_title(method)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

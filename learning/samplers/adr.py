@@ -1,0 +1,354 @@
+"""Automatic Domain Randomization (ADR; OpenAI et al. 2019, "Solving Rubik's Cube with a Robot Hand").
+
+ADR keeps one interval [lo_i, hi_i] per parameter, starting around the nominal point, and samples
+uniformly from the product of the intervals. With probability `boundary_prob` a sample instead pins
+one uniformly chosen dimension i to one of its two current bounds (lo_i or hi_i, each with
+probability 1/2; the other dimensions stay uniform). The returns of episodes run at a bound go into
+that bound's queue; when a queue holds `queue_length` returns its mean decides the bound's move:
+
+- mean >= t+ : the bound moves outward by Delta_i (expand), clipped to the ParamSpace box;
+- mean <= t- : the bound moves inward by Delta_i (contract), never past the nominal point
+  (so lo_i <= nominal_i <= hi_i always holds, and a bound never crosses the other one);
+- otherwise nothing moves;
+
+and the queue is cleared in all three cases. Defaults are the GoFlow paper's ADR baseline
+(REFERENCES.md, appendix A.2): t+ = J_T, t- = 0.5 x t+ (swept over {0.1, 0.25, 0.5, 0.75, 0.9}),
+Delta_i = 0.1 x (high_i - low_i), boundary probability 0.5.
+
+The public port this replaces started at zero width *and* inverted expand/contract, so it never
+left the nominal point (NoDR in disguise). Here good performance at a bound widens the range
+(see tests/learning/test_adr.py), and the initial width is configurable (`init_width_fraction`,
+default 0.05 of the box width; 0 gives the paper's zero-width start).
+
+Recognising boundary samples. `update(xi, returns)` receives only parameter vectors, so a row
+counts towards the queue of bound (i, side) exactly when xi[row, i] == bound value (exact float
+equality against the bounds current at that moment; rows are processed in order and a bound that
+moved makes later rows pinned to its old value stale, as in the reference implementations). For a
+dimension of positive width a uniform draw hits a bound with probability zero, so in practice only
+pinned rows match. For a zero-width dimension (lo_i == hi_i) *every* row sits at both of its bounds
+and is counted for both: every such episode was indeed run with that parameter at its bound, which
+is what the queue estimates. Rows need not come back in the order they were sampled, and rows from
+elsewhere (e.g. a uniform validation batch) are simply not counted unless they sit on a bound; a
+batch with no row on any bound changes nothing and raises a UserWarning, because feeding ADR such
+batches (e.g. only the GoFlow protocol's uniform-box validation episodes) silently turns it into
+a fixed distribution.
+
+Thresholds for non-positive J_T. t- = ratio x t+ only makes sense for t+ > 0 (for t+ < 0 it would
+lie above t+). The general rule used here is t- = t+ - (1 - ratio) x |t+|, which equals ratio x t+
+for t+ > 0 and stays below t+ for t+ < 0. For t+ == 0 it gives t- = t+ = 0 (no dead band: a mean of
+exactly 0 expands, since expansion is tested first); set `t_minus` explicitly in that case.
+
+Density conventions (assembly/samplers.py). `log_prob` and `entropy` describe the uniform
+distribution on the current intervals and ignore the point masses that boundary sampling adds
+(those atoms have Lebesgue measure zero and would make every density infinite; the uniform part is
+what ADR calls its distribution). log_prob = -sum_i log(hi_i - lo_i) inside the closed intervals,
+-inf outside; entropy = sum_i log(hi_i - lo_i). With any zero-width dimension the uniform part is
+degenerate: entropy = -inf and log_prob = +inf on the degenerate set (-inf off it), as for NoDR.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from assembly.params import ParamSpace
+from assembly.samplers import check_sample_args, check_state_dict, check_update_inputs
+
+__all__ = ["ADRConfig", "ADRSampler"]
+
+_SIDES = ("low", "high")
+
+
+@dataclass(frozen=True)
+class ADRConfig:
+    """Hyperparameters of ADR (defaults: GoFlow paper appendix A.2, via REFERENCES.md)."""
+
+    # t- = t+ - (1 - ratio)|t+| (= ratio * t+ for t+ > 0); swept over {0.1, 0.25, 0.5, 0.75, 0.9}.
+    t_minus_ratio: float = 0.5
+    # Explicit thresholds override the defaults (t+ = success_threshold J_T, t- from the ratio).
+    t_plus: float | None = None
+    t_minus: float | None = None
+    # Delta_i = step_fraction * (high_i - low_i) (A.2: 0.1 x range).
+    step_fraction: float = 0.1
+    # Probability that a sample pins one dimension to one of its bounds (A.2: 0.5).
+    boundary_prob: float = 0.5
+    # Returns per bound averaged before a decision (m in the ADR paper; TeachMyAgent uses 10).
+    queue_length: int = 10
+    # Initial interval width as a fraction of the box width, centred on the nominal point and
+    # clipped to the box (0 = the ADR paper's start at the nominal point).
+    init_width_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        def num(name: str, lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+                raise ValueError(f"ADR config: {name} must be a finite number, got {v!r}")
+            bad = (v <= lo if lo_open else v < lo) or (v >= hi if hi_open else v > hi)
+            if bad:
+                lb = "(" if lo_open else "["
+                ub = ")" if hi_open else "]"
+                raise ValueError(f"ADR config: {name} must be in {lb}{lo:g}, {hi:g}{ub}, got {v!r}")
+            object.__setattr__(self, name, float(v))
+
+        num("t_minus_ratio", 0.0, 1.0)
+        num("step_fraction", 0.0, 1.0, lo_open=True)
+        num("boundary_prob", 0.0, 1.0)
+        num("init_width_fraction", 0.0, 1.0)
+        for name in ("t_plus", "t_minus"):
+            v = getattr(self, name)
+            if v is not None:
+                num(name, -math.inf, math.inf)
+        q = self.queue_length
+        if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or q < 1:
+            raise ValueError(f"ADR config: queue_length must be a positive integer, got {q!r}")
+        object.__setattr__(self, "queue_length", int(q))
+
+    @classmethod
+    def from_any(cls, config: ADRConfig | Mapping[str, Any] | None) -> ADRConfig:
+        """An ADRConfig from None (defaults), a mapping of overrides, or an ADRConfig."""
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        if not isinstance(config, Mapping):
+            raise ValueError(f"ADR config must be a mapping or ADRConfig, got {type(config).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(config) - known)
+        if unknown:
+            raise ValueError(f"ADR config: unknown keys {unknown}; known keys are {sorted(known)}")
+        return cls(**dict(config))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serializable dict of the fields."""
+        return asdict(self)
+
+
+class ADRSampler:
+    """ADR on a ParamSpace: per-dimension intervals grown and shrunk by boundary performance.
+
+    Args:
+        space: the parameter box.
+        success_threshold: J_T, the return that counts as success; the default t+.
+        config: an ADRConfig or a mapping of its fields (None: defaults).
+        **overrides: ADRConfig fields as keywords; they take precedence over `config`.
+
+    Attributes (read-only by convention): `lo`, `hi` (current bounds, shape (d,)), `delta`
+    (step per dimension), `t_plus`, `t_minus`, and `queues` (dict keyed by (dim, "low"/"high")).
+    """
+
+    def __init__(
+        self,
+        space: ParamSpace,
+        success_threshold: float,
+        config: ADRConfig | Mapping[str, Any] | None = None,
+        **overrides: Any,
+    ) -> None:
+        if not isinstance(space, ParamSpace):
+            raise ValueError(f"ADRSampler: space must be a ParamSpace, got {type(space).__name__}")
+        if isinstance(success_threshold, bool) or not isinstance(success_threshold, (int, float, np.integer, np.floating)):
+            raise ValueError(f"ADRSampler: success_threshold must be a finite number, got {success_threshold!r}")
+        if not math.isfinite(float(success_threshold)):
+            raise ValueError(f"ADRSampler: success_threshold must be finite, got {success_threshold!r}")
+        self.space = space
+        self.success_threshold = float(success_threshold)
+        self.config = ADRConfig.from_any(config)
+        if overrides:  # keyword arguments override config fields (e.g. make_sampler(**sampler_kwargs))
+            self.config = ADRConfig.from_any({**self.config.to_dict(), **overrides})
+        c = self.config
+        self.t_plus = self.success_threshold if c.t_plus is None else c.t_plus
+        if c.t_minus is not None:
+            self.t_minus = c.t_minus
+        else:
+            self.t_minus = self.t_plus - (1.0 - c.t_minus_ratio) * abs(self.t_plus)
+        if not self.t_minus <= self.t_plus:
+            raise ValueError(f"ADR config: need t_minus <= t_plus, got t_minus={self.t_minus:g}, t_plus={self.t_plus:g}")
+
+        self._box_lo = space.low
+        self._box_hi = space.high
+        self._nominal = space.nominal()
+        width = self._box_hi - self._box_lo
+        self.delta: NDArray[np.float64] = c.step_fraction * width
+        half = 0.5 * c.init_width_fraction * width
+        self.lo: NDArray[np.float64] = np.maximum(self._nominal - half, self._box_lo)
+        self.hi: NDArray[np.float64] = np.minimum(self._nominal + half, self._box_hi)
+        self.queues: dict[tuple[int, str], list[float]] = {(i, s): [] for i in range(space.dim) for s in _SIDES}
+        self.n_updates = 0
+        self.n_expansions = 0
+        self.n_contractions = 0
+
+    # -- sampling and density ------------------------------------------------------------------
+
+    def bounds(self) -> NDArray[np.float64]:
+        """Current bounds as a (d, 2) array [[lo_0, hi_0], ...] (a copy)."""
+        return np.stack([self.lo, self.hi], axis=1)
+
+    def widths(self) -> NDArray[np.float64]:
+        """Current interval widths hi - lo, shape (d,)."""
+        return self.hi - self.lo
+
+    def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        """n draws, shape (n, d): uniform on the intervals, a fraction boundary_prob pinned to a bound."""
+        n = check_sample_args(n, rng)
+        d = self.space.dim
+        xi = rng.uniform(self.lo, self.hi, size=(n, d))
+        xi = np.clip(xi, self.lo, self.hi)  # uniform's half-open upper end, rounding: stay inside
+        pinned = rng.random(n) < self.config.boundary_prob
+        rows = np.flatnonzero(pinned)
+        dims = rng.integers(0, d, size=rows.size)
+        sides = rng.integers(0, 2, size=rows.size)
+        values = np.where(sides == 0, self.lo[dims], self.hi[dims])
+        xi[rows, dims] = values
+        assert xi.shape == (n, d)
+        return xi
+
+    def log_prob(self, xi: ArrayLike) -> NDArray[np.float64]:
+        """Log density of the uniform part on the current intervals (parameter units), shape (n,).
+
+        Boundary-sampling atoms are ignored (see the module docstring). Outside the intervals:
+        -inf. With a zero-width dimension: +inf on the degenerate set, -inf elsewhere.
+        """
+        batch = self.space.as_batch(xi)
+        inside = np.all((batch >= self.lo) & (batch <= self.hi), axis=1)
+        w = self.widths()
+        if np.any(w <= 0.0):
+            value = math.inf
+        else:
+            value = -float(np.sum(np.log(w)))
+        out = np.where(inside, value, -math.inf)
+        assert out.shape == (batch.shape[0],)
+        return out
+
+    def entropy(self) -> float:
+        """sum_i log(hi_i - lo_i) in nats (parameter units); -inf if any width is zero."""
+        w = self.widths()
+        if np.any(w <= 0.0):
+            return -math.inf
+        return float(np.sum(np.log(w)))
+
+    # -- learning ------------------------------------------------------------------------------
+
+    def update(self, xi: ArrayLike, returns: ArrayLike) -> dict[str, Any]:
+        """Push the returns of boundary episodes into their queues and move bounds whose queue is full.
+
+        Returns diagnostics: n, mean_return, entropy, n_boundary (rows that sat on a bound),
+        expanded / contracted (lists of [dim_name, side]), lo, hi, queue_fill.
+        """
+        x, ret = check_update_inputs(self.space, xi, returns)
+        n, d = x.shape
+        assert ret.shape == (n,)
+        m = self.config.queue_length
+        expanded: list[list[str]] = []
+        contracted: list[list[str]] = []
+        n_boundary = 0
+        for r in range(n):
+            row = x[r]
+            on_bound = False
+            for i in range(d):
+                for side in _SIDES:
+                    bound = self.lo[i] if side == "low" else self.hi[i]
+                    if row[i] != bound:
+                        continue
+                    on_bound = True
+                    q = self.queues[(i, side)]
+                    q.append(float(ret[r]))
+                    if len(q) < m:
+                        continue
+                    mean = float(np.mean(q))
+                    q.clear()
+                    if mean >= self.t_plus:
+                        if self._move(i, side, outward=True):
+                            expanded.append([self.space.names[i], side])
+                    elif mean <= self.t_minus:
+                        if self._move(i, side, outward=False):
+                            contracted.append([self.space.names[i], side])
+            n_boundary += on_bound
+        if n_boundary == 0:
+            warnings.warn(
+                f"ADR update: none of the {n} episodes ran at a current bound, so no bound can move. ADR learns "
+                "only from its own boundary samples: feed it episodes drawn with ADRSampler.sample "
+                "(e.g. the training phase), not a batch drawn elsewhere (e.g. uniform on the box).",
+                stacklevel=2,
+            )
+        self.n_updates += 1
+        self.n_expansions += len(expanded)
+        self.n_contractions += len(contracted)
+        return {
+            "n": int(n),
+            "mean_return": float(ret.mean()),
+            "entropy": self.entropy(),
+            "n_boundary": int(n_boundary),
+            "expanded": expanded,
+            "contracted": contracted,
+            "lo": self.lo.tolist(),
+            "hi": self.hi.tolist(),
+            "queue_fill": {f"{self.space.names[i]}:{s}": len(q) for (i, s), q in self.queues.items()},
+        }
+
+    def _move(self, i: int, side: str, outward: bool) -> bool:
+        """Move bound (i, side) by delta_i; outward clips to the box, inward to the nominal point."""
+        nominal = self._nominal[i]
+        if side == "low":
+            old = self.lo[i]
+            new = max(old - self.delta[i], self._box_lo[i]) if outward else min(old + self.delta[i], nominal)
+            self.lo[i] = new
+        else:
+            old = self.hi[i]
+            new = min(old + self.delta[i], self._box_hi[i]) if outward else max(old - self.delta[i], nominal)
+            self.hi[i] = new
+        assert self._box_lo[i] <= self.lo[i] <= nominal <= self.hi[i] <= self._box_hi[i]
+        return bool(new != old)
+
+    # -- checkpoints ---------------------------------------------------------------------------
+
+    def state_dict(self) -> dict[str, Any]:
+        """JSON-serializable state: type, space, threshold, config, bounds, queues and counters."""
+        return {
+            "type": type(self).__name__,
+            "space": self.space.to_dict(),
+            "success_threshold": self.success_threshold,
+            "config": self.config.to_dict(),
+            "lo": self.lo.tolist(),
+            "hi": self.hi.tolist(),
+            "queues": [[i, s, list(q)] for (i, s), q in self.queues.items()],
+            "n_updates": self.n_updates,
+            "n_expansions": self.n_expansions,
+            "n_contractions": self.n_contractions,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore from `state_dict`; ValueError on another type, another ParamSpace or bad contents."""
+        check_state_dict(self.space, state, type(self).__name__)
+        try:
+            restored = ADRSampler(self.space, state["success_threshold"], state["config"])
+            lo = np.asarray(state["lo"], dtype=np.float64)
+            hi = np.asarray(state["hi"], dtype=np.float64)
+            queues = {(int(i), str(s)): [float(v) for v in q] for i, s, q in state["queues"]}
+            counters = {k: int(state[k]) for k in ("n_updates", "n_expansions", "n_contractions")}
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"load_state_dict: malformed ADRSampler state_dict ({exc!r})") from exc
+        d = self.space.dim
+        if lo.shape != (d,) or hi.shape != (d,):
+            raise ValueError(f"load_state_dict: ADR bounds have shapes {lo.shape}, {hi.shape}, expected ({d},)")
+        nom = self.space.nominal()
+        ok = np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
+        ok = ok and np.all(self.space.low <= lo) and np.all(lo <= nom) and np.all(nom <= hi) and np.all(hi <= self.space.high)
+        if not ok:
+            raise ValueError(f"load_state_dict: ADR bounds lo={lo.tolist()}, hi={hi.tolist()} are not low <= lo <= nominal <= hi <= high")
+        if set(queues) != set(restored.queues):
+            raise ValueError("load_state_dict: ADR queues do not match the ParamSpace's dimensions")
+        restored.lo, restored.hi, restored.queues = lo, hi, queues
+        restored.n_updates = counters["n_updates"]
+        restored.n_expansions = counters["n_expansions"]
+        restored.n_contractions = counters["n_contractions"]
+        self.__dict__.update(restored.__dict__)
+
+    def __repr__(self) -> str:
+        """Class, current intervals and thresholds."""
+        iv = ", ".join(f"{name} in [{a:g}, {b:g}]" for name, a, b in zip(self.space.names, self.lo, self.hi))
+        return f"ADRSampler({iv}; t+={self.t_plus:g}, t-={self.t_minus:g})"

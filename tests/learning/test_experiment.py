@@ -1,0 +1,72 @@
+"""The GoFlow protocol harness: every method runs, runs resume exactly, bad input is refused."""
+
+import json
+
+import numpy as np
+import pytest
+
+from learning.experiment import (
+    METHODS, ExperimentConfig, TrainConfig, make_sampler, plot_curves, summarize, train,
+)
+from learning.ppo import PPOConfig
+
+TINY = PPOConfig(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=2)
+
+
+def _config(method, out, rounds=2, **kwargs):
+    return TrainConfig(env="goflow/Toy2D-v0", method=method, seed=1, ppo=TINY, eval_episodes=16,
+                       iterations_per_round=1, total_steps=rounds * 4 * 16, out=out,
+                       sampler_kwargs=kwargs)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_runs_the_protocol(method, tmp_path):
+    kwargs = {"steps": 5, "entropy_samples": 256, "kl_samples": 256} if method == "goflow" else {}
+    log = train(_config(method, tmp_path, **kwargs), progress=False)
+    assert log["rounds"] == 2 and len(log["curve"]) == 2
+    for step, success, mean_return in log["curve"]:
+        assert 0.0 <= success <= 1.0 and np.isfinite(mean_return)
+    assert 0.0 <= log["sampler_seconds"] <= log["seconds"]
+    assert (tmp_path / "checkpoint.pt").exists()
+    assert json.loads((tmp_path / "log.json").read_text())["rounds"] == 2
+
+
+def test_interrupted_run_resumes_and_matches(tmp_path):
+    kwargs = {"steps": 5, "entropy_samples": 256, "kl_samples": 256}
+    full = train(_config("goflow", tmp_path / "full", rounds=3, **kwargs), progress=False)
+    train(_config("goflow", tmp_path / "cut", rounds=1, **kwargs), progress=False)  # "killed"
+    resumed = train(_config("goflow", tmp_path / "cut", rounds=3, **kwargs), progress=False)
+    assert resumed["curve"] == full["curve"]
+
+
+def test_checkpoint_of_another_param_space_is_refused(tmp_path):
+    train(_config("fulldr", tmp_path, rounds=1), progress=False)
+    other = _config("fulldr", tmp_path, rounds=2)
+    other.env_kwargs = {"half_extent": 2.0}
+    with pytest.raises(ValueError, match="another ParamSpace"):
+        train(other, progress=False)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="unknown sampler 'sac'"):
+        TrainConfig(method="sac")
+    with pytest.raises(ValueError, match="unknown sampler"):
+        make_sampler("sac", None, 1.0)
+    with pytest.raises(ValueError, match="total_steps"):
+        TrainConfig(total_steps=0)
+    with pytest.raises(ValueError, match="unknown sampler"):
+        ExperimentConfig(methods=("goflow", "magic"))
+
+
+def test_summary_format_and_plot(tmp_path):
+    logs = [{"method": m, "curve": [[10, s, 0.0], [20, s + 0.1, 0.0]], "seconds": 10.0,
+             "sampler_seconds": 0.2} for m in ("goflow", "fulldr") for s in (0.1, 0.3)]
+    summary = summarize(logs, 20, "goflow/Toy2D-v0")
+    assert set(summary) == {"env", "steps", "methods"}
+    g = summary["methods"]["goflow"]
+    assert g["seeds"] == 2 and g["final_success_mean"] == pytest.approx(0.3)
+    assert g["final_success_se"] == pytest.approx(np.std([0.2, 0.4], ddof=1) / np.sqrt(2))
+    assert g["curve"][0] == [10, pytest.approx(0.2), pytest.approx(np.std([0.1, 0.3], ddof=1) / np.sqrt(2))]
+    assert g["sampler_time_share"] == pytest.approx(0.02)
+    plot_curves(summary, tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 1000
