@@ -19,6 +19,7 @@ Conventions:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import Any, Protocol, runtime_checkable
@@ -35,6 +36,8 @@ __all__ = [
     "check_update_inputs",
     "check_sample_args",
     "check_state_dict",
+    "sampler_config",
+    "check_sampler_args",
 ]
 
 
@@ -219,3 +222,36 @@ class FullDR:
     def __repr__(self) -> str:
         """Class and space."""
         return f"FullDR(space={self.space})"
+
+
+def sampler_config(config_type: type, config: Any, owner: str,
+                   overrides: Mapping[str, Any] | None = None) -> Any:
+    """A `config_type` dataclass from None (its defaults), a mapping of field values (e.g. options
+    read from JSON or the command line), or an instance, with keyword `overrides` applied last;
+    ValueError naming unknown keys."""
+    if overrides:
+        base = sampler_config(config_type, config, owner)
+        return sampler_config(config_type, {**dataclasses.asdict(base), **overrides}, owner)
+    if config is None:
+        return config_type()
+    if isinstance(config, config_type):
+        return config
+    if not isinstance(config, Mapping):
+        raise ValueError(f"{owner} config must be a mapping or {config_type.__name__}, "
+                         f"got {type(config).__name__}")
+    known = {f.name for f in dataclasses.fields(config_type)}
+    unknown = sorted(set(config) - known)
+    if unknown:
+        raise ValueError(f"{owner} config: unknown keys {unknown}; known keys are {sorted(known)}")
+    return config_type(**dict(config))
+
+
+def check_sampler_args(space: Any, success_threshold: float, owner: str) -> float:
+    """ValueError unless `space` is a ParamSpace and J_T is a finite number; returns J_T."""
+    if not isinstance(space, ParamSpace):
+        raise ValueError(f"{owner}: space must be a ParamSpace, got {type(space).__name__}")
+    if (isinstance(success_threshold, bool)
+            or not isinstance(success_threshold, (int, float, np.integer, np.floating))
+            or not math.isfinite(float(success_threshold))):
+        raise ValueError(f"{owner}: success_threshold must be a finite number, got {success_threshold!r}")
+    return float(success_threshold)

@@ -51,14 +51,16 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
-from assembly.samplers import check_sample_args, check_state_dict, check_update_inputs
+from assembly.samplers import (
+    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs, sampler_config,
+)
 
 __all__ = ["ADRConfig", "ADRSampler"]
 
@@ -109,24 +111,6 @@ class ADRConfig:
             raise ValueError(f"ADR config: queue_length must be a positive integer, got {q!r}")
         object.__setattr__(self, "queue_length", int(q))
 
-    @classmethod
-    def from_any(cls, config: ADRConfig | Mapping[str, Any] | None) -> ADRConfig:
-        """An ADRConfig from None (defaults), a mapping of overrides, or an ADRConfig."""
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        if not isinstance(config, Mapping):
-            raise ValueError(f"ADR config must be a mapping or ADRConfig, got {type(config).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(config) - known)
-        if unknown:
-            raise ValueError(f"ADR config: unknown keys {unknown}; known keys are {sorted(known)}")
-        return cls(**dict(config))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serializable dict of the fields."""
-        return asdict(self)
 
 
 class ADRSampler:
@@ -149,17 +133,9 @@ class ADRSampler:
         config: ADRConfig | Mapping[str, Any] | None = None,
         **overrides: Any,
     ) -> None:
-        if not isinstance(space, ParamSpace):
-            raise ValueError(f"ADRSampler: space must be a ParamSpace, got {type(space).__name__}")
-        if isinstance(success_threshold, bool) or not isinstance(success_threshold, (int, float, np.integer, np.floating)):
-            raise ValueError(f"ADRSampler: success_threshold must be a finite number, got {success_threshold!r}")
-        if not math.isfinite(float(success_threshold)):
-            raise ValueError(f"ADRSampler: success_threshold must be finite, got {success_threshold!r}")
+        self.success_threshold = check_sampler_args(space, success_threshold, "ADRSampler")
         self.space = space
-        self.success_threshold = float(success_threshold)
-        self.config = ADRConfig.from_any(config)
-        if overrides:  # keyword arguments override config fields (e.g. make_sampler(**sampler_kwargs))
-            self.config = ADRConfig.from_any({**self.config.to_dict(), **overrides})
+        self.config = sampler_config(ADRConfig, config, "ADR", overrides)
         c = self.config
         self.t_plus = self.success_threshold if c.t_plus is None else c.t_plus
         if c.t_minus is not None:
@@ -312,7 +288,7 @@ class ADRSampler:
             "type": type(self).__name__,
             "space": self.space.to_dict(),
             "success_threshold": self.success_threshold,
-            "config": self.config.to_dict(),
+            "config": asdict(self.config),
             "lo": self.lo.tolist(),
             "hi": self.hi.tolist(),
             "queues": [[i, s, list(q)] for (i, s), q in self.queues.items()],

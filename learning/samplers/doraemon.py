@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -48,7 +48,9 @@ from scipy.optimize import NonlinearConstraint, minimize
 from scipy.special import betaln, digamma, polygamma, xlog1py, xlogy
 
 from assembly.params import ParamSpace
-from assembly.samplers import check_sample_args, check_state_dict, check_update_inputs
+from assembly.samplers import (
+    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs, sampler_config,
+)
 
 __all__ = ["DORAEMONConfig", "DORAEMONSampler", "beta_entropy", "beta_kl"]
 
@@ -125,24 +127,6 @@ class DORAEMONConfig:
         if self.proposal not in ("sampler", "uniform"):
             raise ValueError(f"DORAEMON config: proposal must be 'sampler' or 'uniform', got {self.proposal!r}")
 
-    @classmethod
-    def from_any(cls, config: DORAEMONConfig | Mapping[str, Any] | None) -> DORAEMONConfig:
-        """A DORAEMONConfig from None (defaults), a mapping of overrides, or a DORAEMONConfig."""
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        if not isinstance(config, Mapping):
-            raise ValueError(f"DORAEMON config must be a mapping or DORAEMONConfig, got {type(config).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(config) - known)
-        if unknown:
-            raise ValueError(f"DORAEMON config: unknown keys {unknown}; known keys are {sorted(known)}")
-        return cls(**dict(config))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serializable dict of the fields."""
-        return asdict(self)
 
 
 class _Problem:
@@ -267,17 +251,9 @@ class DORAEMONSampler:
         config: DORAEMONConfig | Mapping[str, Any] | None = None,
         **overrides: Any,
     ) -> None:
-        if not isinstance(space, ParamSpace):
-            raise ValueError(f"DORAEMONSampler: space must be a ParamSpace, got {type(space).__name__}")
-        if isinstance(success_threshold, bool) or not isinstance(success_threshold, (int, float, np.integer, np.floating)):
-            raise ValueError(f"DORAEMONSampler: success_threshold must be a finite number, got {success_threshold!r}")
-        if not math.isfinite(float(success_threshold)):
-            raise ValueError(f"DORAEMONSampler: success_threshold must be finite, got {success_threshold!r}")
+        self.success_threshold = check_sampler_args(space, success_threshold, "DORAEMONSampler")
         self.space = space
-        self.success_threshold = float(success_threshold)
-        self.config = DORAEMONConfig.from_any(config)
-        if overrides:  # keyword arguments override config fields (e.g. make_sampler(**sampler_kwargs))
-            self.config = DORAEMONConfig.from_any({**self.config.to_dict(), **overrides})
+        self.config = sampler_config(DORAEMONConfig, config, "DORAEMON", overrides)
         d = space.dim
         self.a: NDArray[np.float64] = np.full(d, self.config.init_beta)
         self.b: NDArray[np.float64] = np.full(d, self.config.init_beta)
@@ -470,7 +446,7 @@ class DORAEMONSampler:
             "type": type(self).__name__,
             "space": self.space.to_dict(),
             "success_threshold": self.success_threshold,
-            "config": self.config.to_dict(),
+            "config": asdict(self.config),
             "a": self.a.tolist(),
             "b": self.b.tolist(),
             "n_updates": self.n_updates,
