@@ -86,8 +86,14 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     import os
     from learning.experiment import format_summary, run_experiment
     os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
-    summary = run_experiment(_experiment_config(args, args.methods))
+    config = _experiment_config(args, args.methods)
+    summary = run_experiment(config)
     print(format_summary(summary))
+    if args.env.startswith("goflow/Toy2D"):
+        from learning.plots import plot_toy2d_densities
+        path = Path(args.results) / f"{config.stem()}-densities.png"
+        plot_toy2d_densities(config, path)
+        print(f"densities: {path}")
     return 0
 
 

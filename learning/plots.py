@@ -43,11 +43,11 @@ def plot_toy2d_densities(config: ExperimentConfig, path: Path, seed: int = 0, gr
     for ax, method in zip(axes[1:], methods):
         _, sampler = load_final_sampler(config, method, seed)
         logp = np.asarray(sampler.log_prob(points), dtype=float)
-        if np.all(~np.isfinite(logp) | (logp == np.inf)) and np.any(logp == np.inf):
-            density = (logp == np.inf).astype(float)  # a point mass (NoDR)
-        else:
-            density = np.exp(np.where(np.isfinite(logp), logp, -np.inf))
-        ax.imshow(density.reshape(grid, grid), origin="lower", extent=extent, cmap="viridis")
+        density = np.exp(np.where(np.isfinite(logp), logp, -np.inf))
+        ax.imshow(density.reshape(grid, grid), origin="lower", extent=extent, cmap="viridis",
+                  vmin=0.0, vmax=max(float(np.percentile(density, 99.5)), 1e-12))  # spikes clipped
+        if hasattr(sampler, "point"):  # a point mass (NoDR): mark it
+            ax.plot(*np.asarray(sampler.point)[:2], "r*", markersize=12)
         ax.contour(X, Y, feasible.astype(float), levels=[0.5], colors="w", linewidths=0.8)
         ax.set_title(method)
     for ax in axes:
