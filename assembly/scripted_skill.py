@@ -18,7 +18,7 @@ from pydrake.systems.framework import Context, LeafSystem
 
 from assembly.gearset import GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
 from assembly.panda_model import FINGER_MAX_WIDTH
-from assembly.world import validate_tool_target
+from assembly.world import nominal_grasp, validate_tool_target
 
 
 @dataclass
@@ -105,7 +105,7 @@ def plan_pick_and_insert(plan: SkillPlan, gear: str, X_WG_believed: RigidTransfo
     yaw = _grasp_yaw(plan.keyframes[-1].X_WT)
     open_w = min(2 * spec.tip_radius + c.open_margin, FINGER_MAX_WIDTH)
     closed_w = 2 * spec.tip_radius - c.squeeze
-    grasp_z = GEAR_THICKNESS - c.grasp_depth  # tool height above the gear bottom
+    grasp_z = nominal_grasp(gear, c.grasp_depth).translation()[2]  # tool height above the gear bottom
 
     p_G = X_WG_believed.translation()
     p_S = X_WS.translation()

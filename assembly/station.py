@@ -27,11 +27,11 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSyst
 from pydrake.systems.sensors import RgbdSensor
 
 from assembly.cameras import CamerasConfig, add_camera
-from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, gear_spec
+from assembly.gearset import gear_spec
 from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
 from assembly.impedance import CartesianImpedanceController, ImpedanceGains
 from assembly.panda_model import Q_HOME, TAU_MAX
-from assembly.world import WorldConfig, WorldModels, add_panda, add_world, gear_body, tool_frame
+from assembly.world import WorldConfig, WorldModels, add_panda, add_world, gear_body, insertion_error, is_seated, tool_frame
 
 
 
@@ -69,7 +69,7 @@ class InsertionError:
 
     @property
     def inserted(self) -> bool:
-        return self.lateral_m < SEATED_LATERAL_TOL and abs(self.height_m) < SEATED_HEIGHT_TOL
+        return is_seated(self.lateral_m, self.height_m)
 
 
 @dataclass
@@ -101,8 +101,8 @@ class Station:
 
     def insertion_error(self, root: Context, gear: str) -> InsertionError:
         """Lateral and height error of a gear's frame from its seated pose on its shaft."""
-        p_SG = self.models.X_WS(gear).inverse() @ self.gear_pose(root, gear).translation()
-        return InsertionError(float(np.hypot(p_SG[0], p_SG[1])), float(p_SG[2]))
+        return InsertionError(*insertion_error(self.models.X_WS(gear).inverse(),
+                                               self.gear_pose(root, gear)))
 
     def tool_pose(self, root: Context) -> RigidTransform:
         """Measured pose X_WT of the hand's tool frame."""

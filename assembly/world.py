@@ -16,7 +16,10 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import FixedOffsetFrame, Frame, ModelInstanceIndex, RigidBody
 
 from assembly.gear_meshes import gearset_model_paths
-from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS, PLATE_SIZE, gear_spec, shaft_position_in_plate
+from assembly.gearset import (
+    GEAR_NAMES, GEAR_THICKNESS, PLATE_SIZE, SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, gear_spec,
+    shaft_position_in_plate,
+)
 from assembly.panda_model import (
     FINGER_MAX_WIDTH, HAND_FLANGE_YAW, HAND_TCP_OFFSET, Q_HOME, panda_model_paths,
 )
@@ -30,6 +33,15 @@ REACH_RADIUS = (0.25, 0.80)
 REACH_HEIGHT = (-0.05, 0.80)
 # The hand is mounted on the flange rotated -pi/4 about the flange z axis (Franka's convention).
 X_FLANGE_HAND = RigidTransform(RotationMatrix.MakeZRotation(HAND_FLANGE_YAW), np.zeros(3))
+
+
+def model_parser(plant: MultibodyPlant) -> Parser:
+    """A Parser for our own models that cannot download anything: Drake's remote model package is
+    removed from its package map, so a stray package:// reference fails instead of fetching.
+    (drake 1.51: DRAKE_ALLOW_NETWORK=none would make the Parser constructor itself throw.)"""
+    parser = Parser(plant)
+    parser.package_map().Remove("drake_models")
+    return parser
 
 
 def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> RigidTransform:
@@ -125,6 +137,18 @@ def validate_gear_pose(name: str, pose: tuple[float, float, float],
                              f"expected at least {need:.3f} m so the open gripper fits between")
 
 
+def insertion_error(X_SW: RigidTransform, X_WG: RigidTransform) -> tuple[float, float]:
+    """(lateral, signed height) [m] of gear frame G from its seated pose, given the inverse X_SW of
+    its shaft frame's pose (precomputed by callers on a hot path)."""
+    p = X_SW @ X_WG.translation()
+    return float(np.hypot(p[0], p[1])), float(p[2])
+
+
+def is_seated(lateral: float, height: float) -> bool:
+    """The seated criterion (SEATED_LATERAL_TOL, SEATED_HEIGHT_TOL in assembly.gearset)."""
+    return lateral < SEATED_LATERAL_TOL and abs(height) < SEATED_HEIGHT_TOL
+
+
 def validate_tool_target(X_WT: RigidTransform) -> None:
     """ValueError unless a hand (tool) target lies inside the Panda's workspace above the table."""
     p = X_WT.translation()
@@ -171,7 +195,7 @@ def grasp_with_error(gear: str, x: float, y: float, yaw: float) -> RigidTransfor
 
 def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame) -> HeldGear:
     """Add gear `gear` welded to a new grasp frame on `tool` (initially the nominal grasp)."""
-    instance = Parser(plant).AddModels(str(gearset_model_paths()[gear]))[0]
+    instance = model_parser(plant).AddModels(str(gearset_model_paths()[gear]))[0]
     grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", tool, nominal_grasp(gear)))
     (index,) = plant.GetBodyIndices(instance)
     plant.WeldFrames(grasp, plant.get_body(index).body_frame(), RigidTransform())
@@ -199,7 +223,7 @@ def add_panda(plant: MultibodyPlant, X_WBase: RigidTransform | None = None
               ) -> tuple[ModelInstanceIndex, ModelInstanceIndex]:
     """Add the Panda arm (welded at X_WBase) and its hand (welded to the flange); returns both."""
     arm_urdf, hand_urdf = panda_model_paths()
-    parser = Parser(plant)
+    parser = model_parser(plant)
     arm = parser.AddModels(str(arm_urdf))[0]
     hand = parser.AddModels(str(hand_urdf))[0]
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", arm),
@@ -217,7 +241,7 @@ def tool_frame(plant: MultibodyPlant, hand: ModelInstanceIndex):
 def add_world(plant: MultibodyPlant, scene_graph: SceneGraph | None, config: WorldConfig) -> WorldModels:
     """Add table, plate, gears and Panda to an unfinalized plant; set their default poses."""
     paths = gearset_model_paths()
-    parser = Parser(plant)
+    parser = model_parser(plant)
     table = parser.AddModels(str(paths["table"]))[0]
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("table", table), RigidTransform())
     plate = parser.AddModels(str(paths["plate"]))[0]
@@ -276,6 +300,6 @@ def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, ge
 
 __all__ = [
     "HAND_TCP_OFFSET", "HeldGear", "WorldConfig", "WorldModels", "add_held_gear", "add_world",
-    "add_panda", "gear_body", "grasp_with_error", "nominal_grasp",
+    "add_panda", "gear_body", "insertion_error", "is_seated", "model_parser", "grasp_with_error", "nominal_grasp",
     "planar_pose", "tool_frame", "validate_gear_pose", "validate_plate_pose", "validate_tool_target",
 ]

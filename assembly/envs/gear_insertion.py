@@ -44,10 +44,10 @@ from pydrake.systems.analysis import Simulator
 
 from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
 from assembly.envs.drake_sim import advance
-from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, SHAFT_HEIGHT, gear_spec
+from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
-from assembly.world import grasp_with_error, nominal_grasp
+from assembly.world import grasp_with_error, insertion_error, is_seated, nominal_grasp
 
 VARIANTS = ("fast", "panda")
 
@@ -133,8 +133,7 @@ class GearInsertionEnv(ParamEnv):
 
     def insertion_error(self) -> tuple[float, float]:
         """(lateral, signed height) of the gear frame from its seated pose on the shaft [m]."""
-        p = self._X_SW @ self._sim.gear_pose().translation()
-        return float(np.hypot(p[0], p[1])), float(p[2])
+        return insertion_error(self._X_SW, self._sim.gear_pose())
 
     def tool_pose(self) -> np.ndarray:
         """Measured tool pose (x, y, z, yaw) in the world."""
@@ -186,7 +185,7 @@ class GearInsertionEnv(ParamEnv):
         self._poses[1:] = self._poses[:-1]
         self._poses[0] = self._relative(pose)
         lateral, height = self.insertion_error()
-        seated = lateral < SEATED_LATERAL_TOL and abs(height) < SEATED_HEIGHT_TOL
+        seated = is_seated(lateral, height)
         reward = float(seated) + 0.1 * (1.0 - math.tanh(math.hypot(lateral, height) / 0.01))
         return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
                                                     "height_error": height}

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from pydrake.geometry import Convex, Role
 from pydrake.math import RigidTransform
-from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import FixedOffsetFrame, PrismaticJoint
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
+from assembly.world import model_parser
 from assembly import gear_meshes as gm
 from assembly import gearset
 
@@ -33,8 +33,7 @@ def _add_models_offline(plant: MultibodyPlant, paths: list[pathlib.Path],
 
     (drake 1.51: with DRAKE_ALLOW_NETWORK=none set *before* it, the Parser constructor itself throws,
     because its default package map registers the remote drake_models package.)"""
-    parser = Parser(plant)
-    parser.package_map().Remove("drake_models")
+    parser = model_parser(plant)
     monkeypatch.setenv("DRAKE_ALLOW_NETWORK", "none")
     instances = []
     for path in paths:

@@ -9,7 +9,8 @@ import pytest
 
 from assembly.demo import AssemblyConfig, run_assembly
 from assembly.gearset import GEAR_NAMES
-from assembly.station import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, make_meshcat
+from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL
+from assembly.station import make_meshcat
 
 GOFLOW = Path(sys.executable).parent / "goflow"
 

@@ -14,6 +14,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.multibody.tree import JointActuatorIndex
 from pydrake.systems.framework import DiagramBuilder
 
+from assembly.world import model_parser
 from assembly import panda_model as pm
 
 ARM_URDF, HAND_URDF = pm.panda_model_paths()
@@ -44,13 +45,8 @@ def dh_flange_pose(q: np.ndarray) -> np.ndarray:
 
 
 def offline_parser(plant) -> Parser:
-    """A Parser without Drake's remote `drake_models` package: any package:// fetch would fail.
-
-    (DRAKE_ALLOW_NETWORK=none cannot be used: drake 1.51's Parser constructor then throws unless
-    its download cache already holds drake_models.)
-    """
-    parser = Parser(plant)
-    parser.package_map().Remove("drake_models")
+    """The project's parser (assembly.world.model_parser): it cannot fetch remote packages."""
+    parser = model_parser(plant)
     assert not parser.package_map().Contains("drake_models")
     return parser
 
