@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any, TypeVar
 
 import gymnasium
@@ -28,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 
-__all__ = ["ParamEnv", "SimulationError", "config_with_overrides"]
+__all__ = ["ParamEnv", "SimulationError", "clipped_float32", "config_with_overrides"]
 
 C = TypeVar("C")
 
@@ -42,6 +43,14 @@ def config_with_overrides(config_type: type[C], config: C | None, overrides: dic
     if unknown:
         raise TypeError(f"{owner}: unknown option(s) {unknown}; known: {sorted(known)}")
     return dataclasses.replace(config or config_type(), **overrides)
+
+
+def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[np.float32]:
+    """values clipped to [-high, high] as a float32 array, in plain Python (an env's per-step path:
+    numpy calls between AdvanceTo calls cost several times their isolated time)."""
+    if all(-h <= v <= h for v, h in zip(values, high)):
+        return np.array(values, dtype=np.float32)
+    return np.array([min(h, max(-h, v)) for v, h in zip(values, high)], dtype=np.float32)
 
 
 class SimulationError(RuntimeError):
@@ -92,8 +101,7 @@ class ParamEnv(gymnasium.Env):
         return None if self._xi is None else self._xi.copy()
 
     def _info(self) -> dict[str, Any]:
-        critic = np.concatenate([self._obs, self._xi_normalized])
-        return {"xi": self._xi.copy(), "critic_obs": critic}
+        return {"xi": self._xi.copy(), "critic_obs": np.concatenate((self._obs, self._xi_normalized))}
 
     def _set_timing(self, control_dt: float, t_max: float, success_threshold: float) -> None:
         """control_dt [s], the time limit t_max [s] as max_episode_steps, and J_T."""
@@ -134,7 +142,7 @@ class ParamEnv(gymnasium.Env):
         shape = self.action_space.shape
         if a.shape != shape:
             raise ValueError(f"{type(self).__name__}.step: action has shape {a.shape}, expected {shape}")
-        if not math.isfinite(a.sum()):  # any NaN or inf (cheaper than np.isfinite().all())
+        if not math.isfinite(sum(a.tolist()) if a.ndim == 1 else a.sum()):  # any NaN or inf
             raise ValueError(f"{type(self).__name__}.step: action must be finite, got {a.tolist()}")
         return a
 
@@ -153,7 +161,7 @@ class ParamEnv(gymnasium.Env):
             info.update(sim_error=str(exc), episode_return=self._return,
                         success=self._return >= self.success_threshold)
             return self._obs.copy(), 0.0, False, True, info
-        self._obs = np.asarray(obs, dtype=np.float32)
+        self._obs = obs if type(obs) is np.ndarray and obs.dtype == np.float32 else np.asarray(obs, dtype=np.float32)
         self._steps += 1
         self._return += float(reward)
         truncated = (not terminated and self.max_episode_steps is not None
@@ -164,4 +172,5 @@ class ParamEnv(gymnasium.Env):
             self._done = True
             info["episode_return"] = self._return
             info["success"] = bool(self._return >= self.success_threshold)
-        return self._obs.copy(), float(reward), bool(terminated), bool(truncated), info
+        # _step_model returns a fresh observation every step, so it is handed out without a copy.
+        return self._obs, float(reward), bool(terminated), bool(truncated), info

@@ -66,8 +66,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
-from assembly.envs.drake_sim import advance, rollout_fixed_inputs
+from assembly.envs.base import ParamEnv, SimulationError, clipped_float32, config_with_overrides
+from assembly.envs.drake_sim import HeldInput, advance, rollout_fixed_inputs
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -145,9 +145,9 @@ class CartpoleEnv(ParamEnv):
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.success_threshold)
         # Finite bounds (observations are clipped to them): the slider limits (+1 m of slack), cos/sin,
         # and speeds far above what the 100 N force against the 10 N s/m damper reaches.
-        self._obs_high = np.array([cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0])
-        self.observation_space = spaces.Box(-self._obs_high.astype(np.float32), self._obs_high.astype(np.float32),
-                                            dtype=np.float32)
+        self._obs_high = (cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0)
+        high = np.array(self._obs_high, dtype=np.float32)
+        self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
         self._build()
 
@@ -197,8 +197,7 @@ class CartpoleEnv(ParamEnv):
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._sg_context = scene_graph.GetMyMutableContextFromRoot(self._context)
-        self._actuation = plant.get_actuation_input_port()
-        self._actuation.FixValue(self._plant_context, np.zeros(1))
+        self._actuation = HeldInput(plant.get_actuation_input_port(), self._plant_context, [0.0])
         self._initial_state: NDArray[np.float64] | None = None
         self._friction_set: float | None = None
         self._k = 0  # control steps since reset (simulated time = k * control_dt)
@@ -221,19 +220,21 @@ class CartpoleEnv(ParamEnv):
         self._apply_xi(xi)
         self._context.SetTime(0.0)
         self._plant.SetPositionsAndVelocities(self._plant_context, state)
-        self._actuation.FixValue(self._plant_context, np.zeros(1))
+        self._actuation.set_scalar(0.0)
         self._simulator.Initialize()
         self._k = 0
 
-    def _advance(self, force: float) -> NDArray[np.float64]:
-        """Hold `force` [N] for one control period; return the plant state (q, v) after it."""
-        self._actuation.FixValue(self._plant_context, [force])
+    def _advance(self, force: float) -> list[float]:
+        """Hold `force` [N] for one control period; return the plant state (q, v) after it.
+
+        The per-step path works on Python floats: numpy calls between AdvanceTo calls cost several
+        times their isolated time (docs/envs.md, "Speed")."""
+        self._actuation.set_scalar(force)
         self._k += 1
         advance(self._simulator, self._k * self.control_dt, "Cartpole")
-        state = self._plant.GetPositionsAndVelocities(self._plant_context)
-        if not math.isfinite(float(state.sum())):  # NaN or inf anywhere (cheaper than np.isfinite().all())
-            raise SimulationError(f"Cartpole: non-finite state at t = {self._k * self.control_dt:.4f} s: "
-                                  f"{state.tolist()}")
+        state = self._plant.GetPositionsAndVelocities(self._plant_context).tolist()
+        if not math.isfinite(sum(state)):  # NaN or inf anywhere
+            raise SimulationError(f"Cartpole: non-finite state at t = {self._k * self.control_dt:.4f} s: {state}")
         return state
 
     def _initial_plant_state(self, xi: NDArray[np.float64], theta0: float) -> NDArray[np.float64]:
@@ -247,16 +248,15 @@ class CartpoleEnv(ParamEnv):
     def _wrap(theta: float) -> float:
         return (theta + math.pi) % (2.0 * math.pi) - math.pi
 
-    def _observe(self, state: NDArray[np.float64]) -> NDArray[np.float32]:
-        theta = float(state[2])
-        obs = np.array([state[0], state[3], math.cos(theta), math.sin(theta), state[5]])
-        return np.clip(obs, -self._obs_high, self._obs_high).astype(np.float32)
+    def _observe(self, state: list[float]) -> NDArray[np.float32]:
+        x, _, theta, xdot, _, thetadot = state
+        return clipped_float32((x, xdot, math.cos(theta), math.sin(theta), thetadot), self._obs_high)
 
-    def _reward(self, state: NDArray[np.float64]) -> float:
+    def _reward(self, state: list[float]) -> float:
         cfg = self.config
-        theta = self._wrap(float(state[2]))
-        return (cfg.rew_alive + cfg.rew_pole_angle * theta * theta + cfg.rew_cart_vel * abs(float(state[3]))
-                + cfg.rew_pole_vel * abs(float(state[5])))
+        theta = self._wrap(state[2])
+        return (cfg.rew_alive + cfg.rew_pole_angle * theta * theta + cfg.rew_cart_vel * abs(state[3])
+                + cfg.rew_pole_vel * abs(state[5]))
 
     # -- ParamEnv ------------------------------------------------------------------------------
 
@@ -266,7 +266,7 @@ class CartpoleEnv(ParamEnv):
         state = self._initial_plant_state(xi, theta0)
         self._initial_state = state.copy()
         self._start(xi, state)
-        return self._observe(state)
+        return self._observe(state.tolist())
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
@@ -302,5 +302,5 @@ class CartpoleEnv(ParamEnv):
         self._done = True
         self._start(xi, np.asarray(initial_state, dtype=np.float64))
         return rollout_fixed_inputs(
-            self._simulator, self._actuation, self._plant_context, forces[:, None], self.control_dt,
+            self._simulator, self._actuation, forces[:, None], self.control_dt,
             lambda: self._plant.GetPositionsAndVelocities(self._plant_context), "Cartpole.bare_rollout")

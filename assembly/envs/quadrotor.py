@@ -61,8 +61,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
-from assembly.envs.drake_sim import advance, rollout_fixed_inputs
+from assembly.envs.base import ParamEnv, SimulationError, clipped_float32, config_with_overrides
+from assembly.envs.drake_sim import HeldInput, advance, rollout_fixed_inputs
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -137,9 +137,9 @@ class QuadrotorEnv(ParamEnv):
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.success_threshold)
         # Finite bounds (observations are clipped to them): speeds far beyond what 2 s of flight reach
         # at the lowest mass, the unit gravity direction, and the farthest goal after such a flight.
-        self._obs_high = np.array([200.0] * 3 + [500.0] * 3 + [1.0] * 3 + [500.0] * 3)
-        self.observation_space = spaces.Box(-self._obs_high.astype(np.float32), self._obs_high.astype(np.float32),
-                                            dtype=np.float32)
+        self._obs_high = (200.0,) * 3 + (500.0,) * 3 + (1.0,) * 3 + (500.0,) * 3
+        high = np.array(self._obs_high, dtype=np.float32)
+        self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self._build()
 
@@ -189,17 +189,17 @@ class QuadrotorEnv(ParamEnv):
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._prop_context = propellers.GetMyMutableContextFromRoot(self._context)
-        self._command = propellers.get_command_input_port()
-        self._command.FixValue(self._prop_context, np.zeros(4))
+        self._command = HeldInput(propellers.get_command_input_port(), self._prop_context, np.zeros(4))
         self._initial_state: NDArray[np.float64] | None = None
         self._goal = np.array([0.0, 0.0, 1.0])
+        self._goal_xyz = (0.0, 0.0, 1.0)
         self._k = 0
 
     def _start(self, xi: NDArray[np.float64], state: NDArray[np.float64]) -> None:
         self._body.SetMass(self._plant_context, float(xi[0]))
         self._context.SetTime(0.0)
         self._plant.SetPositionsAndVelocities(self._plant_context, state)
-        self._command.FixValue(self._prop_context, np.zeros(4))
+        self._command.set(np.zeros(4))
         self._simulator.Initialize()
         self._k = 0
 
@@ -208,14 +208,16 @@ class QuadrotorEnv(ParamEnv):
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         return 0.5 * self.config.max_rotor_thrust * (a + 1.0)
 
-    def _advance(self, thrusts: NDArray[np.float64]) -> NDArray[np.float64]:
-        self._command.FixValue(self._prop_context, thrusts)
+    def _advance(self, thrusts: NDArray[np.float64]) -> list[float]:
+        """Hold `thrusts` [N] for one control period; return the plant state after it as floats
+        (the per-step path avoids numpy calls, which cost several times their isolated time
+        between AdvanceTo calls: docs/envs.md, "Speed")."""
+        self._command.set(thrusts)
         self._k += 1
         advance(self._simulator, self._k * self.control_dt, "Quadrotor")
-        state = self._plant.GetPositionsAndVelocities(self._plant_context)
-        if not math.isfinite(float(state.sum())):  # NaN or inf anywhere
-            raise SimulationError(f"Quadrotor: non-finite state at t = {self._k * self.control_dt:.4f} s: "
-                                  f"{state.tolist()}")
+        state = self._plant.GetPositionsAndVelocities(self._plant_context).tolist()
+        if not math.isfinite(sum(state)):  # NaN or inf anywhere
+            raise SimulationError(f"Quadrotor: non-finite state at t = {self._k * self.control_dt:.4f} s: {state}")
         return state
 
     # -- observation and reward ----------------------------------------------------------------
@@ -231,17 +233,27 @@ class QuadrotorEnv(ParamEnv):
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ])
 
-    def _observe_and_reward(self, state: NDArray[np.float64]) -> tuple[NDArray[np.float32], float]:
+    def _observe_and_reward(self, state: list[float]) -> tuple[NDArray[np.float32], float]:
+        """Observation (v_B, w_B, gravity direction in B, goal offset in B) and the step reward, in
+        Python floats (the same maths as R_WB^T applied with `_rotation`)."""
         cfg = self.config
-        R = self._rotation(state[0:4])
-        p = state[4:7]
-        w_b = R.T @ state[7:10]
-        v_b = R.T @ state[10:13]
-        g_b = -R[2]  # R^T (0, 0, -1)
-        goal_b = R.T @ (self._goal - p)
-        obs = np.clip(np.concatenate([v_b, w_b, g_b, goal_b]), -self._obs_high, self._obs_high).astype(np.float32)
-        d = math.sqrt(float(goal_b @ goal_b))
-        reward = self.control_dt * (cfg.rew_lin_vel * float(v_b @ v_b) + cfg.rew_ang_vel * float(w_b @ w_b)
+        qw, qx, qy, qz, px, py, pz, wx, wy, wz, vx, vy, vz = state
+        n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        w, x, y, z = qw * n, qx * n, qy * n, qz * n
+        # R_WB^T (rows a, b, c) applied to world vectors.
+        a0, a1, a2 = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)
+        b0, b1, b2 = 2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)
+        c0, c1, c2 = 2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)
+        v_b = (a0 * vx + a1 * vy + a2 * vz, b0 * vx + b1 * vy + b2 * vz, c0 * vx + c1 * vy + c2 * vz)
+        w_b = (a0 * wx + a1 * wy + a2 * wz, b0 * wx + b1 * wy + b2 * wz, c0 * wx + c1 * wy + c2 * wz)
+        g_b = (-a2, -b2, -c2)  # R^T (0, 0, -1)
+        gx, gy, gz = self._goal_xyz
+        ex, ey, ez = gx - px, gy - py, gz - pz
+        goal_b = (a0 * ex + a1 * ey + a2 * ez, b0 * ex + b1 * ey + b2 * ez, c0 * ex + c1 * ey + c2 * ez)
+        obs = clipped_float32(v_b + w_b + g_b + goal_b, self._obs_high)
+        d = math.sqrt(goal_b[0] ** 2 + goal_b[1] ** 2 + goal_b[2] ** 2)
+        reward = self.control_dt * (cfg.rew_lin_vel * (v_b[0] ** 2 + v_b[1] ** 2 + v_b[2] ** 2)
+                                    + cfg.rew_ang_vel * (w_b[0] ** 2 + w_b[1] ** 2 + w_b[2] ** 2)
                                     + cfg.rew_distance * (1.0 - math.tanh(d / cfg.distance_scale)))
         return obs, reward
 
@@ -253,16 +265,18 @@ class QuadrotorEnv(ParamEnv):
         gx, gy = self.np_random.uniform(-r, r, size=2)
         gz = self.np_random.uniform(*cfg.goal_z_range)
         self._goal = np.array([gx, gy, gz], dtype=np.float64)
+        self._goal_xyz = (float(gx), float(gy), float(gz))
         state = np.zeros(13)
         state[0] = 1.0
         state[4:7] = cfg.start_position
         self._initial_state = state.copy()
         self._start(xi, state)
-        return self._observe_and_reward(state)[0]
+        return self._observe_and_reward(state.tolist())[0]
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
-        state = self._advance(self.thrusts(action))
+        t_max = 0.5 * self.config.max_rotor_thrust
+        state = self._advance(np.array([t_max * (min(1.0, max(-1.0, a)) + 1.0) for a in action.tolist()]))
         obs, reward = self._observe_and_reward(state)
         return obs, reward, False, {}
 
@@ -314,5 +328,5 @@ class QuadrotorEnv(ParamEnv):
         self._done = True
         self._start(xi, np.asarray(initial_state, dtype=np.float64))
         return rollout_fixed_inputs(
-            self._simulator, self._command, self._prop_context, thrusts, self.control_dt,
+            self._simulator, self._command, thrusts, self.control_dt,
             lambda: self._plant.GetPositionsAndVelocities(self._plant_context), "Quadrotor.bare_rollout")
