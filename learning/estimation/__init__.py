@@ -1,0 +1,2 @@
+"""Offline estimation of simulator parameter distributions from logged (s, a, s') data:
+the dataset format, collection, NFPDE, DROPO and BayesSim, and the OT metric (docs/nfpde.md)."""

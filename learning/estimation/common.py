@@ -1,0 +1,109 @@
+"""What every estimator shares: the simulator budget and its bookkeeping (calls, wall time, a trace
+of snapshots for OT-vs-time plots), trajectory segments, and the one-step prediction loss."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from learning.estimation.dataset import TransitionDataset
+from learning.estimation.distributions import UnitBoxDistribution
+
+__all__ = ["Budget", "BudgetExhausted", "segment_rows", "prediction_loss", "FAILED_LOSS"]
+
+FAILED_LOSS = 1e6  # loss of a row whose simulation failed (NaN prediction)
+
+
+class BudgetExhausted(RuntimeError):
+    """The next simulator batch would exceed the budget."""
+
+
+@dataclass
+class Budget:
+    """Steps the simulator for an estimator while counting calls (one call = one row stepped) and
+    wall time; `snapshot` records samples of the current estimate (outside the timed region)."""
+
+    data: TransitionDataset
+    sim: Any  # a TransitionSim
+    max_calls: int
+    snapshot_samples: int = 500
+    calls: int = 0
+    trace: list[dict[str, Any]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.max_calls < 1:
+            raise ValueError(f"sim budget must be >= 1 simulator call, got {self.max_calls}")
+        self.scale = self.data.delta_scale()
+        self._t0 = time.perf_counter()
+        self._paused = 0.0
+
+    @property
+    def seconds(self) -> float:
+        """Wall time since the start, excluding snapshots."""
+        return time.perf_counter() - self._t0 - self._paused
+
+    def remaining(self) -> int:
+        """Simulator calls left."""
+        return self.max_calls - self.calls
+
+    def can_afford(self, calls: int) -> bool:
+        """Whether `calls` more simulator calls fit in the budget."""
+        return self.calls + calls <= self.max_calls
+
+    def predict(self, rows: NDArray[np.int64], u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Next states (M, R, ds) of the logged rows under each of M unit-box parameters u (M, d)."""
+        m, r = len(u), len(rows)
+        if not self.can_afford(m * r):
+            raise BudgetExhausted(f"{m * r} calls requested, {self.remaining()} left")
+        xi = self.data.space.denormalize(np.clip(u, 0.0, 1.0))
+        s = np.tile(self.data.states[rows], (m, 1))
+        a = np.tile(self.data.actions[rows], (m, 1))
+        x = np.repeat(xi, r, axis=0)
+        out = self.sim.step(s, a, x)
+        self.calls += m * r
+        return out.reshape(m, r, -1)
+
+    def step_rows(self, rows: NDArray[np.int64], u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Next states (R, ds) of the logged rows, row r under its own unit-box parameters u[r]."""
+        if not self.can_afford(len(rows)):
+            raise BudgetExhausted(f"{len(rows)} calls requested, {self.remaining()} left")
+        xi = self.data.space.denormalize(np.clip(u, 0.0, 1.0))
+        out = self.sim.step(self.data.states[rows], self.data.actions[rows], xi)
+        self.calls += len(rows)
+        return out
+
+    def snapshot(self, dist: UnitBoxDistribution, **extra: Any) -> None:
+        """Record (calls, seconds, samples of dist) without counting the sampling time."""
+        t = time.perf_counter()
+        seconds = self.seconds
+        u = dist.sample_u(self.snapshot_samples, np.random.default_rng(12345))
+        self.trace.append({"calls": self.calls, "seconds": seconds, "u": u, **extra})
+        self._paused += time.perf_counter() - t
+
+
+def segment_rows(data: TransitionDataset, length: int) -> NDArray[np.int64]:
+    """Non-overlapping windows of `length` consecutive transitions of one trajectory, (S, length)."""
+    if length < 1:
+        raise ValueError(f"segment length must be >= 1, got {length}")
+    out = []
+    for e in range(data.num_episodes):
+        rows = data.episode_rows(e)
+        for k in range(len(rows) // length):
+            out.append(rows[k * length:(k + 1) * length])
+    if not out:
+        raise ValueError(f"no trajectory has {length} transitions (the longest has "
+                         f"{max(len(data.episode_rows(e)) for e in range(data.num_episodes))})")
+    return np.array(out, dtype=np.int64)
+
+
+def prediction_loss(pred: NDArray[np.float64], target: NDArray[np.float64], scale: NDArray[np.float64]
+                    ) -> NDArray[np.float64]:
+    """l_pred per (sample, row): mean over state dims of ((s'_sim - s'_log) / scale)^2, (M, R);
+    failed simulations (NaN) get FAILED_LOSS."""
+    err = ((pred - target[None]) / scale) ** 2
+    loss = err.mean(axis=-1)
+    return np.where(np.isfinite(loss), loss, FAILED_LOSS)
