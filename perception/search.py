@@ -1,0 +1,214 @@
+"""From an observation to a PosePosterior: staged grids (coarse to fine) to the MAP over
+(x, y, yaw) with the gear flat on the table, then a grid posterior centred at the MAP.
+
+1. Coarse: a grid over the prior box and over one period of the model's appearance in yaw (the
+   whole turn for a marked gear: the model itself then has no symmetry), scored on sparse pixels;
+   the best few go on.
+2. Refine: 5 x 5 x 5 grids around the best, halving the steps, on denser pixels, down to the
+   posterior's resolution.
+3. Posterior: a local grid around the MAP whose steps adapt until the mass fits inside it without
+   sitting in a single cell; then the same yaw slice is scored at every tooth-pitch repeat of the
+   MAP yaw, and each repeat gets the local grid's shape weighted by its own evidence.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import logsumexp
+
+from assembly.gearset import gear_spec
+from perception.gear_model import GearModel, gear_model
+from perception.likelihood import LikelihoodConfig
+from perception.observation import Observation
+from perception.posterior import PosePosterior, uniform_posterior, wrap
+from perception.renderer import RayCasterConfig
+from perception.scoring import ImageScorer
+
+
+@dataclass
+class Prior:
+    """Where the gear may be: a square of half-width `half_width` [m] around (x, y); any yaw."""
+
+    x: float
+    y: float
+    half_width: float = 0.03
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.x) and np.isfinite(self.y)):
+            raise ValueError(f"prior centre ({self.x}, {self.y}) is not finite")
+        if not 0 < self.half_width <= 0.2:
+            raise ValueError(f"prior half_width = {self.half_width}; expected (0, 0.2] m")
+
+
+@dataclass
+class SearchConfig:
+    """Settings of the search and of the posterior grid (SI units, radians)."""
+
+    likelihood: LikelihoodConfig = field(default_factory=LikelihoodConfig)
+    raycaster: RayCasterConfig = field(default_factory=RayCasterConfig)
+    coarse_pixels: int = 120        # sampled pixels on a gear in the coarse stage
+    fine_pixels: int = 500          # ... in the refining stages and the posterior
+    coarse_step: float = 0.35       # coarse x-y step, as a fraction of the tip radius
+    coarse_yaw_cells: int = 4       # coarse yaw steps per appearance period (marked: 24 per turn)
+    beam: int = 3                   # coarse hypotheses refined
+    min_step: float = 2.5e-4        # finest x-y step [m] of the refinement
+    min_yaw_step: float = np.radians(0.25)
+    grid: int = 7                   # posterior grid points per dimension (odd)
+    adapt: int = 4                  # posterior grid adaptations
+    min_pixels: int = 25            # fewer gear pixels (at the fine stride) -> uninformative
+    min_inlier_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.grid < 3 or self.grid % 2 == 0:
+            raise ValueError(f"grid = {self.grid}; expected an odd number >= 3")
+        if self.beam < 1 or self.coarse_pixels < 10 or self.fine_pixels < self.coarse_pixels:
+            raise ValueError("expected beam >= 1 and 10 <= coarse_pixels <= fine_pixels")
+
+
+def _grid(centre: np.ndarray, steps: np.ndarray, n: int) -> np.ndarray:
+    """(n^3, 3) poses on a grid of n points per dimension around `centre`."""
+    r = (np.arange(n) - (n - 1) / 2)
+    g = np.meshgrid(*(centre[d] + r * steps[d] for d in range(3)), indexing="ij")
+    return np.stack([a.ravel() for a in g], axis=1)
+
+
+def _model(gear: str | GearModel) -> GearModel:
+    return gear if isinstance(gear, GearModel) else gear_model(gear)
+
+
+def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
+                  config: SearchConfig | None = None) -> PosePosterior:
+    """The posterior over `gear`'s pose (x, y, yaw) given `obs`, searched within `prior`.
+
+    ValueError if the camera does not see the prior's region at all; a posterior flagged
+    uninformative (the prior itself) if the gear cannot be found in the image."""
+    config = config or SearchConfig()
+    t0 = time.perf_counter()
+    model = _model(gear)
+    scorer = ImageScorer(obs, model, (prior.x, prior.y), prior.half_width * np.sqrt(2),
+                         config.likelihood, config.raycaster)
+    info = {"hypotheses": 0}
+    if scorer.footprint < config.min_pixels:
+        raise ValueError(f"the camera does not see the {model.name} gear's search region around "
+                         f"({prior.x:.3f}, {prior.y:.3f}) m: {scorer.footprint} pixels of a gear "
+                         f"there would be in view; expected at least {config.min_pixels}")
+
+    def score(poses, stride):
+        info["hypotheses"] += len(poses)
+        return scorer.score(poses, stride)
+
+    coarse = scorer.stride_for(config.coarse_pixels)
+    fine = scorer.stride_for(config.fine_pixels)
+    # 1. Coarse grid over the box and one appearance period.
+    step = min(config.coarse_step * model.tip_radius, prior.half_width)
+    nxy = int(np.ceil(prior.half_width / step)) * 2 + 1
+    axis = np.linspace(-prior.half_width, prior.half_width, nxy)
+    n_yaw = config.coarse_yaw_cells if model.symmetry > 1 else 24
+    yaw_step = model.period / n_yaw
+    yaws = -np.pi + np.arange(n_yaw) * yaw_step if model.symmetry == 1 else np.arange(n_yaw) * yaw_step
+    g = np.meshgrid(prior.x + axis, prior.y + axis, yaws, indexing="ij")
+    poses = np.stack([a.ravel() for a in g], axis=1)
+    s = score(poses, coarse)
+    beam = poses[np.argsort(s.loglik)[::-1][:config.beam]]
+    steps = np.array([axis[1] - axis[0] if nxy > 1 else step, axis[1] - axis[0] if nxy > 1 else step,
+                      yaw_step])
+    # 2. Refine the beam with shrinking grids (5^3 for the beam's first stages, then 3^3 around
+    #    the single best).
+    centres = beam
+    st = steps.copy()
+    stage = 0
+    while st[0] > config.min_step or st[2] > config.min_yaw_step:
+        st = np.maximum(st / 2, [config.min_step, config.min_step, config.min_yaw_step])
+        n = 5 if stage < 2 else 3
+        cand = np.vstack([_grid(c, st, n) for c in centres])
+        sc = score(cand, fine)
+        keep = config.beam if stage < 1 else 1
+        centres = cand[np.argsort(sc.loglik)[::-1][:keep]]
+        stage += 1
+    best = centres[0]
+    # 3. Posterior grid around the MAP.
+    post = _posterior_grid(model, best, score, fine, config, info)
+    check = score(post.map_pose[None], fine)
+    pixels, inliers = int(check.pixels[0]), float(check.inliers[0])
+    info.update(pixels=pixels, inlier_fraction=inliers / max(pixels, 1), stride=fine,
+                seconds=time.perf_counter() - t0)
+    reason = ""
+    if pixels < config.min_pixels:
+        reason = (f"only {pixels} pixels of the {model.name} gear at its best pose are in view "
+                  f"(expected >= {config.min_pixels}): occluded or out of view")
+    elif inliers / pixels < config.min_inlier_fraction:
+        reason = (f"the best pose explains only {inliers / pixels:.0%} of its gear pixels "
+                  f"(expected >= {config.min_inlier_fraction:.0%}): the gear is not where the "
+                  "prior says, or something hides it")
+    if reason:
+        info["seconds"] = time.perf_counter() - t0
+        return uniform_posterior(model.name, (prior.x, prior.y), prior.half_width, reason, info=info)
+    post.info.update(info)
+    return post
+
+
+def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
+                    config: SearchConfig, info: dict) -> PosePosterior:
+    """Local grid around the MAP with adapted steps, replicated over the tooth-pitch repeats."""
+    n = config.grid
+    half = (n - 1) // 2
+    teeth = gear_spec(model.name).teeth
+    pitch = 2 * np.pi / teeth
+    centre = map_pose.copy()
+    steps = _probe_steps(centre, score, stride, config, half, pitch)
+    for attempt in range(config.adapt):
+        poses = _grid(centre, steps, n)
+        ll = score(poses, stride).loglik.reshape(n, n, n)
+        p = np.exp(ll - logsumexp(ll))
+        best = np.array(np.unravel_index(np.argmax(ll), ll.shape)) - half
+        grow = np.zeros(3, bool)
+        shrink = np.zeros(3, bool)
+        for d in range(3):
+            m = p.sum(axis=tuple(a for a in range(3) if a != d))
+            grow[d] = m[0] + m[-1] > 0.01
+            shrink[d] = m.max() > 0.98
+        shift = np.abs(best) == half
+        if attempt == config.adapt - 1 or not (grow.any() or shrink.any() or shift.any()):
+            break
+        centre = centre + np.where(shift, best * steps, 0.0)
+        steps = np.where(grow, steps * 2, np.where(shrink, steps / 2, steps))
+        steps[2] = min(steps[2], pitch / n)  # a mode's yaw window stays inside one tooth pitch
+    # Every tooth-pitch repeat of the MAP yaw: score its yaw slice through the MAP (x, y).
+    offsets = (np.arange(n) - half) * steps[2]
+    repeats = wrap(centre[2] + pitch * np.arange(teeth))
+    slice_poses = np.array([[centre[0], centre[1], r + o] for r in repeats for o in offsets])
+    slice_ll = score(slice_poses, stride).loglik.reshape(teeth, n)
+    evidence = logsumexp(slice_ll, axis=1)
+    log_mass = ll[None] + (evidence - evidence[0])[:, None, None, None]
+    xs = centre[0] + (np.arange(n) - half) * steps[0]
+    ys = centre[1] + (np.arange(n) - half) * steps[1]
+    post = PosePosterior(model.name, xs, ys, repeats, offsets, log_mass)
+    post.info["repeat_log_evidence"] = (evidence - evidence.max()).tolist()
+    return post
+
+
+def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, half: int,
+                 pitch: float) -> np.ndarray:
+    """Posterior grid steps from 1-D probes: along each axis, how far from the MAP the tempered
+    log-likelihood falls by 4 (about 2.8 standard deviations for a Gaussian); the grid reaches
+    1.25 times that far."""
+    dist = np.array([config.min_step, config.min_step, config.min_yaw_step]) * 2.0 ** np.arange(7)[:, None]
+    poses = []
+    for d in range(3):
+        for sign in (-1, 1):
+            p = np.repeat(centre[None], len(dist), axis=0)
+            p[:, d] += sign * dist[:, d]
+            poses.append(p)
+    ll = score(np.vstack([centre[None]] + poses), stride).loglik
+    drop = ll[0] - ll[1:].reshape(3, 2, len(dist))
+    steps = np.empty(3)
+    for d in range(3):
+        far = np.nonzero(drop[d].min(axis=0) > 4.0)[0]
+        reach = dist[far[0], d] if far.size else dist[-1, d]
+        steps[d] = 1.25 * reach / half
+    steps[:2] = np.maximum(steps[:2], config.min_step / 2)
+    steps[2] = min(max(steps[2], config.min_yaw_step / 2), pitch / (2 * half + 1))
+    return steps
