@@ -120,6 +120,37 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_skill(args: argparse.Namespace) -> int:
+    from learning.skills import SkillRecipe, describe, export_skill, load_skill, skill_path, train_skill
+    if args.action == "train":
+        recipe = SkillRecipe(seed=args.seed, total_steps=args.steps)
+        skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=args.out,
+                            command="goflow " + " ".join(sys.argv[1:]))
+        print(f"{skill!r} -> {args.out or skill_path(args.skill, args.gear)}")
+    elif args.action == "export":
+        if not args.run:
+            raise SystemExit("goflow skill export: --run FOLDER (a `goflow train` run folder) is required")
+        out = args.out or skill_path(args.skill, args.gear)
+        skill = export_skill(args.run, args.skill, args.gear, out, command="goflow " + " ".join(sys.argv[1:]))
+        print(f"{skill!r} -> {out}")
+    else:
+        print(describe(load_skill(args.skill, args.gear, path=args.out)))
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from learning.skills import evaluate_skill, load_skill
+    skill = load_skill(args.skill, args.gear, path=args.path)
+    result = evaluate_skill(skill, variant=args.variant, xi=args.xi, episodes=args.episodes, seed=args.seed)
+    print(f"{args.skill} {args.gear} ({args.variant}, xi {args.xi}): success {result['success_rate']:.3f} "
+          f"+- {result['success_se']:.3f} over {args.episodes} episodes, mean return {result['mean_return']:.2f} "
+          f"({result['seconds']:.0f} s)")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2))
+    return 0
+
+
 def _add_run_flags(p: argparse.ArgumentParser, steps: int) -> None:
     p.add_argument("--env", required=True, help="environment id, e.g. goflow/Toy2D-v0")
     p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE", help="environment option")
@@ -172,12 +203,40 @@ def make_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--values", nargs="+", required=True)
     _add_experiment_flags(sweep)
     sweep.set_defaults(func=_cmd_sweep)
+
+    from assembly.gearset import GEARS
+    skill = sub.add_parser("skill", help="train, export or show a shipped skill (learning/skill_files/)")
+    skill.add_argument("action", choices=["train", "export", "show"])
+    skill.add_argument("--skill", default="insert", choices=["insert"])
+    skill.add_argument("--gear", required=True, choices=sorted(GEARS))
+    skill.add_argument("--seed", type=int, default=0)
+    skill.add_argument("--steps", type=int, default=300_000, help="training environment steps")
+    skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
+    skill.add_argument("--run", help="export: the `goflow train` run folder to package")
+    skill.add_argument("--out", help="skill file (default: the shipped location)")
+    skill.set_defaults(func=_cmd_skill)
+
+    evaluate = sub.add_parser("evaluate", help="success rate of a shipped skill")
+    evaluate.add_argument("--skill", default="insert", choices=["insert"])
+    evaluate.add_argument("--gear", required=True, choices=sorted(GEARS))
+    evaluate.add_argument("--variant", default="fast", choices=["fast", "panda"])
+    evaluate.add_argument("--xi", default="flow", choices=["uniform", "flow"],
+                          help="grasp errors from the skill's flow or uniform over the box")
+    evaluate.add_argument("--episodes", type=int, default=100)
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--path", help="a skill file other than the shipped one")
+    evaluate.add_argument("--json", metavar="PATH", help="write the result as JSON")
+    evaluate.set_defaults(func=_cmd_evaluate)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except (FileNotFoundError, ValueError) as exc:  # bad input: one clear line, no traceback
+        print(f"goflow {args.command}: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

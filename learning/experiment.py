@@ -113,7 +113,11 @@ def _atomic_json(obj: Any, path: Path) -> None:
 
 def train(config: TrainConfig, progress: bool = True) -> dict:
     """Run (or resume) the GoFlow protocol; return the log {"config", "curve": [[step, success,
-    mean_return], ...], "seconds", "sampler_seconds", "rounds"}."""
+    mean_return], ...], "seconds", "sampler_seconds", "rounds"}.
+
+    Torch runs on one thread: the networks are small, and a second thread only contends with the
+    simulator (a GoFlow update took 2 s on one thread and 23 s on two, with other jobs running)."""
+    torch.set_num_threads(1)
     torch.manual_seed(config.seed)
     probe = gymnasium.make(config.env, **config.env_kwargs).unwrapped
     space, J_T = probe.space, float(probe.success_threshold)

@@ -754,6 +754,13 @@ class PPO:
         state = torch.load(path, map_location="cpu", weights_only=True)
         if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
             raise ValueError(f"PPO.from_checkpoint: {path} is not a PPO checkpoint")
+        return cls.from_state_dict(state)
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, Any]) -> "PPO":
+        """A PPO built with a state_dict's dimensions, action bounds and config, then loaded."""
+        if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
+            raise ValueError("PPO.from_state_dict: not a PPO state_dict")
         cfg = dict(state["config"])
         cfg["hidden_sizes"] = tuple(cfg["hidden_sizes"])
         box = spaces.Box(np.asarray(state["action_low"], dtype=np.float32),

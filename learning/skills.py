@@ -1,0 +1,285 @@
+"""Trained skills: a policy, its privileged value function V(s, xi), its sampling distribution
+(the flow) and the ParamSpace and observation normalization they were trained with, in one small
+file made by our own training command.
+
+    skill = load_skill("insert", gear="medium")     # learning/skill_files/insert-medium.pt
+    action = skill.act(obs)                          # deterministic policy mean
+    v = skill.value(obs, xi)                         # privileged value V(s, xi)
+    density = skill.density(xi)                      # the flow's density over the box
+
+A skill file is written by `export_skill` from a `goflow train` run folder (its checkpoint and
+log); `goflow skill train --gear G` does both with the recipe below, so every shipped file is
+reproduced by one command (docs/skills.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+
+import assembly  # noqa: F401  (registers the environment ids)
+from assembly.gearset import GEARS
+from assembly.params import ParamSpace
+from assembly.samplers import FullDR, Sampler
+from learning.experiment import TrainConfig, make_sampler, train
+from learning.ppo import PPO, PPOConfig
+
+__all__ = ["SKILLS", "SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill", "export_skill",
+           "flow_width", "load_skill", "skill_path", "train_skill"]
+
+SKILL_DIR = Path(__file__).parent / "skill_files"
+SKILLS = ("insert",)
+_FORMAT = "goflow-skill-1"
+_ENV = {"insert": "goflow/GearInsertion-v0"}
+
+
+def _check_name(name: str, gear: str) -> None:
+    if name not in SKILLS:
+        raise ValueError(f"unknown skill {name!r}; expected one of {list(SKILLS)}")
+    if gear not in GEARS:
+        raise ValueError(f"unknown gear {gear!r}; expected one of {sorted(GEARS)}")
+
+
+def skill_path(name: str, gear: str) -> Path:
+    """Where the shipped file of skill `name` for `gear` lives."""
+    _check_name(name, gear)
+    return SKILL_DIR / f"{name}-{gear}.pt"
+
+
+@dataclass
+class SkillRecipe:
+    """How a shipped skill is trained: the `goflow train` settings behind `goflow skill train`."""
+
+    method: str = "goflow"
+    variant: str = "fast"
+    seed: int = 0
+    total_steps: int = 300_000
+    iterations_per_round: int = 2
+    eval_episodes: int = 32
+    sampler_kwargs: dict[str, Any] = field(default_factory=dict)
+    ppo: PPOConfig = field(default_factory=lambda: PPOConfig(num_steps=100, init_log_std=-1.0))
+
+    def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
+        """The TrainConfig of this recipe for skill `name` on `gear`, writing to run folder `out`."""
+        _check_name(name, gear)
+        return TrainConfig(env=_ENV[name], env_kwargs={"gear": gear, "variant": self.variant},
+                           method=self.method, sampler_kwargs=dict(self.sampler_kwargs), seed=self.seed,
+                           total_steps=self.total_steps, iterations_per_round=self.iterations_per_round,
+                           eval_episodes=self.eval_episodes, ppo=self.ppo, out=Path(out))
+
+
+class Skill:
+    """A trained skill: policy, privileged value function, sampling distribution, ParamSpace."""
+
+    def __init__(self, name: str, gear: str, env_id: str, env_kwargs: dict[str, Any], method: str,
+                 agent: PPO, sampler: Sampler, success_threshold: float, provenance: dict[str, Any]) -> None:
+        _check_name(name, gear)
+        self.name, self.gear, self.env_id = name, gear, env_id
+        self.env_kwargs = dict(env_kwargs)
+        self.method = method
+        self.agent = agent
+        self.sampler = sampler
+        self.space: ParamSpace = sampler.space
+        self.success_threshold = float(success_threshold)
+        self.provenance = dict(provenance)
+
+    def __repr__(self) -> str:
+        return (f"Skill({self.name!r}, gear={self.gear!r}, method={self.method!r}, "
+                f"params={self.space.names}, trained {self.provenance.get('steps', '?')} steps)")
+
+    def act(self, obs: ArrayLike, deterministic: bool = True) -> NDArray[np.float32]:
+        """Actions for raw observations (obs_dim,) or (n, obs_dim); the policy mean by default."""
+        return self.agent.act(obs, deterministic=deterministic)
+
+    def value(self, obs: ArrayLike, xi: ArrayLike) -> NDArray[np.float64]:
+        """Privileged value V(s, xi) for observations (n, obs_dim) or (obs_dim,) and parameters
+        xi (n, d) or (d,) in parameter units (checked against the skill's box)."""
+        o = np.asarray(obs, dtype=np.float64)
+        single = o.ndim == 1
+        o = o[None] if single else o
+        x = self.space.as_batch(xi)
+        if len(x) == 1 and len(o) > 1:
+            x = np.repeat(x, len(o), axis=0)
+        if o.ndim != 2 or o.shape[1] != self.agent.obs_dim or len(x) != len(o):
+            raise ValueError(f"Skill.value: obs has shape {np.shape(obs)} and xi {np.shape(xi)}; expected "
+                             f"({self.agent.obs_dim},) or (n, {self.agent.obs_dim}) and (d,) or (n, {self.space.dim})")
+        self.space.validate(x, what="Skill.value xi")
+        critic_obs = np.concatenate([o, self.space.normalize(x)], axis=1)
+        with torch.no_grad():
+            v = self.agent.critic(torch.from_numpy(self.agent._norm_critic_obs(critic_obs))).numpy()
+        return v[0] if single else v.astype(np.float64)
+
+    def density(self, xi: ArrayLike) -> NDArray[np.float64]:
+        """The skill's sampling density at xi (parameter units; 0 outside the box)."""
+        return np.exp(self.sampler.log_prob(xi))
+
+    def make_env(self, variant: str | None = None, xi: str = "flow") -> gymnasium.Env:
+        """The skill's environment (default: the variant it was trained on), drawing xi from the
+        skill's flow (`xi="flow"`) or uniformly over the box (`xi="uniform"`)."""
+        if xi not in ("flow", "uniform"):
+            raise ValueError(f"xi source {xi!r}; expected 'flow' or 'uniform'")
+        kwargs = dict(self.env_kwargs)
+        if variant is not None:
+            kwargs["variant"] = variant
+        env = gymnasium.make(self.env_id, **kwargs)
+        env.unwrapped.sampler = self.sampler if xi == "flow" else FullDR(self.space)
+        return env
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the skill file atomically; return its path."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        agent_state = self.agent.state_dict()
+        state = {"format": _FORMAT, "name": self.name, "gear": self.gear, "env": self.env_id,
+                 "env_kwargs": self.env_kwargs, "method": self.method,
+                 "success_threshold": self.success_threshold, "space": self.space.to_dict(),
+                 "agent": {k: v for k, v in agent_state.items() if k != "optimizer"},
+                 "sampler": self.sampler.state_dict(), "provenance": self.provenance}
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                torch.save(state, f)
+            os.chmod(tmp, 0o644)  # a file to commit, readable like any other
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Skill:
+        """Read a skill file written by `save`; ValueError if it is not one."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"no skill file at {path}")
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        if not isinstance(state, dict) or state.get("format") != _FORMAT:
+            raise ValueError(f"{path} is not a goflow skill file (expected format {_FORMAT!r})")
+        space = ParamSpace.from_dict(state["space"])
+        agent_state = dict(state["agent"])
+        probe = PPO.from_state_dict({**agent_state, "optimizer": _fresh_optimizer_state(agent_state)})
+        sampler_kwargs = dict(state["provenance"].get("sampler_kwargs", {}))
+        sampler = make_sampler(state["method"], space, state["success_threshold"], **sampler_kwargs)
+        sampler.load_state_dict(state["sampler"])
+        return cls(state["name"], state["gear"], state["env"], state["env_kwargs"], state["method"], probe,
+                   sampler, state["success_threshold"], state["provenance"])
+
+
+def _fresh_optimizer_state(agent_state: dict[str, Any]) -> dict[str, Any]:
+    """The optimizer state of a freshly built PPO with this state's shape (skills ship without
+    Adam's moments: they are for acting, not for resuming training)."""
+    cfg = dict(agent_state["config"])
+    cfg["hidden_sizes"] = tuple(cfg["hidden_sizes"])
+    box = gymnasium.spaces.Box(np.asarray(agent_state["action_low"], dtype=np.float32),
+                               np.asarray(agent_state["action_high"], dtype=np.float32), dtype=np.float32)
+    return PPO(agent_state["obs_dim"], agent_state["critic_obs_dim"], box, PPOConfig(**cfg)).optimizer.state_dict()
+
+
+def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLike[str] | None = None) -> Skill:
+    """The shipped skill `name` for `gear` (or the file at `path`)."""
+    if path is None:
+        path = skill_path(name, gear)
+        if not path.is_file():
+            raise FileNotFoundError(f"no shipped {name!r} skill for the {gear} gear at {path}; "
+                                    f"train it with `goflow skill train --skill {name} --gear {gear}`")
+    skill = Skill.load(path)
+    if (skill.name, skill.gear) != (name, gear):
+        raise ValueError(f"{path} holds the {skill.name!r} skill for the {skill.gear} gear, not {name!r} for {gear}")
+    return skill
+
+
+def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | os.PathLike[str],
+                 command: str = "") -> Skill:
+    """Package a `goflow train` run folder (checkpoint.pt, log.json) as a skill file at `out`."""
+    _check_name(name, gear)
+    run = Path(run)
+    checkpoint = run / "checkpoint.pt"
+    if not checkpoint.is_file():
+        raise FileNotFoundError(f"{run} has no checkpoint.pt: is it a `goflow train` run folder?")
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    log = state["log"]
+    cfg = log["config"]
+    if cfg["env"] != _ENV[name] or cfg["env_kwargs"].get("gear", "medium") != gear:
+        raise ValueError(f"{run} trained {cfg['env']} with {cfg['env_kwargs']}, not the {name!r} skill for "
+                         f"the {gear} gear")
+    space = ParamSpace.from_dict(state["space"])
+    sampler = make_sampler(cfg["method"], space, log["success_threshold"], **dict(cfg["sampler_kwargs"]))
+    sampler.load_state_dict(state["sampler"])
+    agent = PPO.from_state_dict(state["agent"])
+    step, success, mean_return = log["curve"][-1]
+    provenance = {"command": command, "steps": int(step), "rounds": int(log["rounds"]),
+                  "train_seconds": float(log["seconds"]), "sampler_seconds": float(log["sampler_seconds"]),
+                  "final_uniform_success": float(success), "final_uniform_return": float(mean_return),
+                  "sampler_kwargs": dict(cfg["sampler_kwargs"]), "train_config": cfg,
+                  "exported": time.strftime("%Y-%m-%d")}
+    skill = Skill(name, gear, cfg["env"], cfg["env_kwargs"], cfg["method"], agent, sampler,
+                  log["success_threshold"], provenance)
+    skill.save(out)
+    return skill
+
+
+def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: str | os.PathLike[str] = "runs/skills",
+                out: str | os.PathLike[str] | None = None, command: str = "", progress: bool = True) -> Skill:
+    """Train (or resume) skill `name` for `gear` with `recipe`, then export it (default: the
+    shipped location)."""
+    recipe = recipe or SkillRecipe()
+    run = Path(runs) / f"{name}-{gear}"
+    train(recipe.train_config(name, gear, run), progress=progress)
+    return export_skill(run, name, gear, out or skill_path(name, gear), command=command)
+
+
+def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episodes: int = 100, seed: int = 0,
+                   num_envs: int = 4, progress: bool = False) -> dict[str, Any]:
+    """Run `episodes` episodes of the skill's deterministic policy with xi from its flow or uniform
+    over the box: {"gear", "variant", "xi", "episodes", "success_rate", "mean_return", ...}."""
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    t0 = time.perf_counter()
+    n = max(1, min(int(num_envs), int(episodes)))
+    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
+                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    try:
+        xis, returns, successes = skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
+    finally:
+        vec.close()
+    rate = float(np.mean(successes))
+    return {"gear": skill.gear, "variant": variant, "xi": xi, "episodes": int(episodes),
+            "success_rate": rate, "mean_return": float(np.mean(returns)),
+            "success_se": float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
+            "seed": int(seed), "seconds": time.perf_counter() - t0,
+            "xi_mean": xis.mean(axis=0).tolist(), "xi_std": xis.std(axis=0).tolist()}
+
+
+def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) -> dict[str, float]:
+    """How wide the skill's flow is: its differential entropy (nats, parameter units), the uniform
+    box's, and the fraction of the box (by volume) where its density exceeds `eps` (the planner's
+    trust threshold, in 1 / parameter-unit volume)."""
+    if not (isinstance(eps, (int, float)) and math.isfinite(eps) and eps >= 0):
+        raise ValueError(f"eps must be a finite number >= 0, got {eps!r}")
+    rng = np.random.default_rng(seed)
+    u = skill.space.low + (skill.space.high - skill.space.low) * rng.random((samples, skill.space.dim))
+    density = skill.density(u)
+    volume = float(np.prod(skill.space.high - skill.space.low))
+    return {"entropy": float(skill.sampler.entropy()), "uniform_entropy": math.log(volume),
+            "eps": float(eps), "eps_uniform_ratio": float(eps * volume),
+            "trusted_fraction": float(np.mean(density > eps))}
+
+
+def describe(skill: Skill) -> str:
+    """One JSON line of a skill's provenance (for the CLI and docs)."""
+    keep = ("steps", "rounds", "train_seconds", "final_uniform_success", "command", "exported")
+    return json.dumps({"skill": skill.name, "gear": skill.gear, "method": skill.method,
+                       **{k: skill.provenance.get(k) for k in keep}})
+

@@ -1,0 +1,110 @@
+"""Skills: export from a training run, load by one call, act, value, density, evaluate."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from learning.experiment import train
+from learning.ppo import PPOConfig
+from learning.skills import (SkillRecipe, Skill, evaluate_skill, export_skill, flow_width, load_skill, skill_path)
+
+
+@pytest.fixture(scope="module")
+def tiny_skill(tmp_path_factory):
+    """A one-round GoFlow run on the small gear, exported as a skill file."""
+    tmp = tmp_path_factory.mktemp("skill")
+    recipe = SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1,
+                         sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
+                                         "report_samples": 256},
+                         ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
+    run = tmp / "run"
+    log = train(recipe.train_config("insert", "small", run), progress=False)
+    out = export_skill(run, "insert", "small", tmp / "insert-small.pt", command="test")
+    return log, out, tmp / "insert-small.pt"
+
+
+def test_export_and_load_round_trip(tiny_skill):
+    log, exported, path = tiny_skill
+    skill = load_skill("insert", "small", path=path)
+    assert skill.gear == "small" and skill.method == "goflow"
+    assert skill.provenance["steps"] == log["curve"][-1][0] and skill.provenance["command"] == "test"
+    assert path.stat().st_size < 2_000_000  # small enough to commit
+    env = skill.make_env()
+    obs, info = env.reset(seed=3)
+    # The loaded policy, value function and flow are the exported ones.
+    np.testing.assert_array_equal(skill.act(obs), exported.act(obs))
+    assert skill.value(obs, info["xi"]) == pytest.approx(float(exported.value(obs, info["xi"])))
+    critic = exported.agent._norm_critic_obs(info["critic_obs"][None])
+    with torch.no_grad():
+        assert skill.value(obs, info["xi"]) == pytest.approx(float(exported.agent.critic(torch.from_numpy(critic))[0]),
+                                                             rel=1e-5)
+    xi = skill.sampler.sample(16, np.random.default_rng(0))
+    np.testing.assert_allclose(skill.density(xi), exported.density(xi), rtol=1e-6)
+    assert np.all(skill.density(np.array([[0.2, 0.0, 0.0]])) == 0.0)  # outside the box
+
+
+def test_flow_env_draws_from_the_flow_and_uniform_from_the_box(tiny_skill):
+    _, skill, _ = tiny_skill
+    env = skill.make_env(xi="uniform")
+    assert type(env.unwrapped.sampler).__name__ == "FullDR"
+    assert skill.make_env(xi="flow").unwrapped.sampler is skill.sampler
+    with pytest.raises(ValueError, match="'gaussian'"):
+        skill.make_env(xi="gaussian")
+
+
+def test_evaluate_schema(tiny_skill):
+    _, skill, _ = tiny_skill
+    result = evaluate_skill(skill, variant="fast", xi="uniform", episodes=3, seed=1, num_envs=3)
+    for key, kind in (("gear", str), ("variant", str), ("xi", str), ("episodes", int), ("success_rate", float),
+                      ("mean_return", float)):
+        assert isinstance(result[key], kind), key
+    assert result["episodes"] == 3 and 0.0 <= result["success_rate"] <= 1.0
+    again = evaluate_skill(skill, variant="fast", xi="uniform", episodes=3, seed=1, num_envs=3)
+    assert again["mean_return"] == result["mean_return"]  # seeded
+
+
+def test_flow_width(tiny_skill):
+    _, skill, _ = tiny_skill
+    w = flow_width(skill, eps=0.0, samples=2000)
+    assert w["trusted_fraction"] == 1.0  # the flow's density is positive on the whole box
+    assert w["entropy"] < w["uniform_entropy"] + 0.05  # no density on the box beats uniform's entropy
+    high = flow_width(skill, eps=1e12, samples=2000)
+    assert high["trusted_fraction"] == 0.0
+
+
+def test_bad_input(tiny_skill, tmp_path):
+    _, skill, path = tiny_skill
+    with pytest.raises(ValueError, match="unknown gear 'huge'"):
+        load_skill("insert", "huge")
+    with pytest.raises(ValueError, match="unknown skill 'fly'"):
+        skill_path("fly", "small")
+    with pytest.raises(FileNotFoundError, match="no skill file"):
+        load_skill("insert", "small", path=tmp_path / "missing.pt")
+    bogus = tmp_path / "bogus.pt"
+    torch.save({"format": "something else"}, bogus)
+    with pytest.raises(ValueError, match="not a goflow skill file"):
+        Skill.load(bogus)
+    with pytest.raises(ValueError, match="not 'insert' for medium"):
+        load_skill("insert", "medium", path=path)
+    with pytest.raises(ValueError, match=r"'x'.*bounds"):
+        skill.value(np.zeros(skill.agent.obs_dim), [0.3, 0.0, 0.0])
+    with pytest.raises(ValueError, match="obs has shape"):
+        skill.value(np.zeros(5), [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate_skill(skill, episodes=0)
+
+
+def test_cli_evaluate_writes_the_issue_schema(tiny_skill, tmp_path):
+    from goflow_cli import main
+    _, _, path = tiny_skill
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", "--gear", "small", "--path", str(path), "--episodes", "2", "--xi", "flow",
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert {"gear", "variant", "xi", "episodes", "success_rate", "mean_return"} <= set(result)
+    assert (result["gear"], result["variant"], result["xi"], result["episodes"]) == ("small", "fast", "flow", 2)
+    assert main(["evaluate", "--gear", "medium", "--path", str(path), "--episodes", "2"]) == 2  # wrong gear
