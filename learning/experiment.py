@@ -113,7 +113,8 @@ def _atomic_json(obj: Any, path: Path) -> None:
 
 def train(config: TrainConfig, progress: bool = True) -> dict:
     """Run (or resume) the GoFlow protocol; return the log {"config", "curve": [[step, success,
-    mean_return], ...], "seconds", "sampler_seconds", "rounds"}.
+    mean_return], ...] on the uniform box, "train_curve": the same on the training episodes (xi
+    from the sampler), "seconds", "sampler_seconds", "rounds"}.
 
     Torch runs on one thread: the networks are small, and a second thread only contends with the
     simulator (a GoFlow update took 2 s on one thread and 23 s on two, with other jobs running)."""
@@ -156,9 +157,10 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         xi, returns, successes = agent.evaluate(val_envs, config.eval_episodes,
                                                 seed=config.seed * 100_003 + r)
         t1 = time.perf_counter()
+        train_returns = np.concatenate([e.episode_returns for e in episodes])
+        train_successes = np.concatenate([e.successes for e in episodes])
         if config.method == "adr":
             train_xi = np.concatenate([e.xi for e in episodes])
-            train_returns = np.concatenate([e.episode_returns for e in episodes])
             diagnostics = sampler.update(train_xi, train_returns) if len(train_returns) else {}
         else:
             diagnostics = sampler.update(xi, returns)
@@ -166,6 +168,10 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         log["rounds"] = r + 1
         log["curve"].append([(r + 1) * steps_per_round, float(np.mean(successes)),
                              float(np.mean(returns))])
+        # Training-phase episodes (xi from the sampler): how the policy does where it trains.
+        log.setdefault("train_curve", []).append(
+            [(r + 1) * steps_per_round, float(train_successes.mean()) if len(train_successes) else None,
+             float(train_returns.mean()) if len(train_returns) else None])
         log["seconds"] += t2 - t0
         log["sampler_seconds"] += t2 - t1
         log["last_sampler"] = {k: v for k, v in diagnostics.items()
