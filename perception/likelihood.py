@@ -33,7 +33,7 @@ class LikelihoodConfig:
     b_rgb: float = 0.15
     b_d: float = 0.004
     depth_range: float = 2.0
-    tempering: float = 0.02
+    tempering: float = 0.002
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:

@@ -49,8 +49,8 @@ class SearchConfig:
 
     likelihood: LikelihoodConfig = field(default_factory=LikelihoodConfig)
     raycaster: RayCasterConfig = field(default_factory=RayCasterConfig)
-    coarse_pixels: int = 120        # sampled pixels on a gear in the coarse stage
-    fine_pixels: int = 500          # ... in the refining stages and the posterior
+    coarse_pixels: int = 80         # sampled pixels on a gear in the coarse stage
+    fine_pixels: int = 300          # ... in the refining stages and the posterior
     coarse_step: float = 0.35       # coarse x-y step, as a fraction of the tip radius
     coarse_yaw_cells: int = 4       # coarse yaw steps per appearance period (marked: 24 per turn)
     beam: int = 3                   # coarse hypotheses refined
@@ -130,6 +130,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         stage += 1
     best = centres[0]
     # 3. Posterior grid around the MAP.
+    info["search_hypotheses"] = info["hypotheses"]
     post = _posterior_grid(model, best, score, fine, config, info)
     check = score(post.map_pose[None], fine)
     pixels, inliers = int(check.pixels[0]), float(check.inliers[0])

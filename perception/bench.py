@@ -1,0 +1,172 @@
+"""Speed and faithfulness of rendering pose hypotheses, and speed of whole posteriors.
+
+Two renderers of the same hypotheses: Drake's RenderEngineVtk, one full image per hypothesis (set
+the gear's pose, render colour and depth), and our batched height-map ray caster over the pixels
+that can see the gear. Faithful means: the depth of every pixel where both renderers see the gear,
+away from its silhouette, agrees within 1 mm.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from assembly.cameras import CameraConfig, default_scene_camera, look_at
+from assembly.gearset import GEAR_NAMES
+from perception.drake_scene import DrakeScene, SceneConfig
+from perception.gear_model import gear_model
+from perception.likelihood import table_prediction
+from perception.observation import Observation
+from perception.renderer import NAME as RAYCAST_NAME
+from perception.renderer import RayCaster
+from perception.search import Prior, estimate_pose
+
+DRAKE_NAME = "drake-vtk"
+DEPTH_TOL = 1e-3  # [m]
+
+
+@dataclass
+class BenchConfig:
+    """hypotheses: poses rendered per gear and view; posteriors: close-view posteriors timed per
+    gear; seed: of the random poses."""
+
+    hypotheses: int = 20
+    posteriors: int = 2
+    seed: int = 0
+    gears: tuple[str, ...] = GEAR_NAMES
+
+
+def close_camera(x: float, y: float, height: float = 0.15) -> CameraConfig:
+    """A wrist-like camera (60 degree field of view) `height` above the table over (x, y)."""
+    return CameraConfig("close", look_at([x + 0.01, y + 0.01, height], [x, y, 0.0]),
+                        fov_y=np.deg2rad(60.0), near=0.01, far=1.5)
+
+
+def _views(x: float, y: float) -> dict[str, CameraConfig]:
+    return {"close": close_camera(x, y), "scene": default_scene_camera()}
+
+
+def gear_mask(obs: Observation) -> np.ndarray:
+    """Pixels that see something above the table plane by more than 1 mm (here: the gear)."""
+    k = obs.intrinsics
+    v, u = np.mgrid[0:k.height, 0:k.width]
+    origin, dirs = obs.rays_W(u.ravel(), v.ravel())
+    plane, _ = table_prediction(origin, dirs, -obs.X_WC.rotation().matrix()[:, 2])
+    return obs.valid & (np.abs(obs.depth - plane.reshape(k.height, k.width)) > 1e-3)
+
+
+def _smooth(depth: np.ndarray, seen: np.ndarray, jump: float) -> np.ndarray:
+    """Pixels whose 8 neighbours are also seen and within `jump` of their depth."""
+    ok = seen.copy()
+    d = np.where(seen, depth, np.nan)
+    pad = np.pad(d, 1, constant_values=np.nan)
+    h, w = d.shape
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            n = pad[1 + dv:1 + dv + h, 1 + du:1 + du + w]
+            with np.errstate(invalid="ignore"):
+                ok &= np.abs(n - d) <= jump
+    return ok
+
+
+def compare_depth(drake_depth: np.ndarray, drake_gear: np.ndarray, ours_depth: np.ndarray,
+                  jump: float = 0.005) -> dict:
+    """Depth agreement where both renderers see the gear: over all such pixels, and over those
+    away from depth edges (silhouette, bore and tooth edges: no neighbour differs by more than
+    `jump` in either image), where a sub-pixel shift of an edge cannot flip a pixel."""
+    ours_gear = np.isfinite(ours_depth)
+    both = drake_gear & ours_gear
+    interior = both & _smooth(drake_depth, drake_gear, jump) & _smooth(ours_depth, ours_gear, jump)
+    err = np.abs(drake_depth - np.where(ours_gear, ours_depth, 0.0))
+    frac = lambda m: float((err[m] <= DEPTH_TOL).mean()) if m.any() else float("nan")  # noqa: E731
+    return {"pixels_both": int(both.sum()), "pixels_interior": int(interior.sum()),
+            "within_1mm_all": frac(both), "within_1mm_interior": frac(interior),
+            "max_error_interior_m": float(err[interior].max()) if interior.any() else float("nan"),
+            "median_error_m": float(np.median(err[both])) if both.any() else float("nan")}
+
+
+def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
+    """Per gear and view: hypotheses per second of each renderer and their depth agreement."""
+    config = config or BenchConfig()
+    rng = np.random.default_rng(config.seed)
+    rows = []
+    for gear in config.gears:
+        x, y = 0.42, -0.05
+        scene = DrakeScene(SceneConfig(gears={gear: (x, y, 0.0)}))
+        caster = RayCaster(gear_model(gear))
+        poses = np.column_stack([x + rng.uniform(-0.01, 0.01, config.hypotheses),
+                                 y + rng.uniform(-0.01, 0.01, config.hypotheses),
+                                 rng.uniform(-np.pi, np.pi, config.hypotheses)])
+        for view, camera in _views(x, y).items():
+            scene.render(camera, camera.X_PC)  # warm up the renderer
+            t0 = time.perf_counter()
+            drake = []
+            for pose in poses:
+                scene.set_gear_pose(gear, tuple(pose))
+                drake.append(scene.render(camera, camera.X_PC))
+            t_drake = time.perf_counter() - t0
+            k = drake[0].intrinsics
+            # Our renderer gets the pixels whose rays can meet the gear anywhere in the pose box.
+            v, u = np.mgrid[0:k.height, 0:k.width]
+            origin, dirs = drake[0].rays_W(u.ravel(), v.ravel())
+            down = dirs[:, 2] < 0
+            hit_z0 = origin[:2] + (-origin[2] / np.where(down, dirs[:, 2], -1.0))[:, None] * dirs[:, :2]
+            reach = caster.model.tip_radius + 0.015 + 0.03
+            roi = down & (np.hypot(hit_z0[:, 0] - x, hit_z0[:, 1] - y) < reach)
+            light = -camera.X_PC.rotation().matrix()[:, 2]
+            t0 = time.perf_counter()
+            out = caster.render(origin, dirs[roi], light, poses)
+            t_ours = time.perf_counter() - t0
+            agree = []
+            idx = np.nonzero(roi)[0]
+            for h, obs in enumerate(drake):
+                depth = np.full(k.height * k.width, np.inf, np.float32)
+                sel = out.hyp == h
+                depth[idx[out.pix[sel]]] = out.depth[sel]
+                agree.append(compare_depth(obs.depth, gear_mask(obs), depth.reshape(k.height, k.width)))
+            rows.append({
+                "gear": gear, "view": view, "hypotheses": config.hypotheses,
+                "drake_hypotheses_per_second": config.hypotheses / t_drake,
+                "ours_hypotheses_per_second": config.hypotheses / t_ours,
+                "ours_pixels_per_hypothesis": int(roi.sum()),
+                "within_1mm_interior": float(np.mean([a["within_1mm_interior"] for a in agree])),
+                "within_1mm_all": float(np.mean([a["within_1mm_all"] for a in agree])),
+                "max_error_interior_m": float(np.max([a["max_error_interior_m"] for a in agree])),
+                "median_error_m": float(np.median([a["median_error_m"] for a in agree])),
+            })
+    return rows
+
+
+def bench_posteriors(config: BenchConfig | None = None) -> dict:
+    """Whole close-view posteriors (search + grid) per gear: seconds each, hypotheses per second."""
+    config = config or BenchConfig()
+    rng = np.random.default_rng(config.seed + 1)
+    seconds, hyps, rows = [], [], []
+    for gear in config.gears:
+        scene = DrakeScene(SceneConfig(gears={gear: (0.42, -0.05, 0.0)}))
+        for _ in range(config.posteriors):
+            truth = np.array([0.42 + rng.uniform(-0.01, 0.01), -0.05 + rng.uniform(-0.01, 0.01),
+                              rng.uniform(-np.pi, np.pi)])
+            scene.set_gear_pose(gear, tuple(truth))
+            camera = close_camera(truth[0] + rng.uniform(-0.02, 0.02), truth[1] + rng.uniform(-0.02, 0.02))
+            obs = scene.render(camera, camera.X_PC)
+            prior = Prior(truth[0] + rng.uniform(-0.01, 0.01), truth[1] + rng.uniform(-0.01, 0.01))
+            t0 = time.perf_counter()
+            post = estimate_pose(obs, gear, prior)
+            dt = time.perf_counter() - t0
+            seconds.append(dt)
+            hyps.append(post.info["hypotheses"])
+            rows.append({"gear": gear, "seconds": dt, "hypotheses": post.info["hypotheses"],
+                         "xy_error_m": float(np.hypot(*(post.map_pose[:2] - truth[:2])))})
+    return {"seconds_per_posterior": float(np.mean(seconds)),
+            "hypotheses_per_second": float(np.sum(hyps) / np.sum(seconds)),
+            "renderer": RAYCAST_NAME, "rows": rows}
+
+
+def bench_perception(config: BenchConfig | None = None) -> dict:
+    """What `goflow bench perception` reports: {"seconds_per_posterior", "hypotheses_per_second",
+    "renderer"} for close-view posteriors with the renderer the pipeline uses."""
+    result = bench_posteriors(config)
+    return {k: result[k] for k in ("seconds_per_posterior", "hypotheses_per_second", "renderer")}

@@ -1,0 +1,31 @@
+"""Observations from the station's cameras: colour, depth, intrinsics and the camera's pose."""
+
+from __future__ import annotations
+
+from pydrake.systems.framework import Context
+
+from assembly.station import Station
+from perception.observation import Intrinsics, Observation
+
+
+def camera_pose(station: Station, root: Context, camera: str):
+    """World pose X_WC of station camera `camera` ('scene' on the world, 'wrist' on the hand)."""
+    cameras = {c.name: c for c in (station.config.cameras.scene, station.config.cameras.wrist) if c}
+    if camera not in cameras:
+        raise ValueError(f"the station has no camera {camera!r}; it has {sorted(cameras)}")
+    config = cameras[camera]
+    if config is station.config.cameras.scene:
+        return config.X_PC
+    hand = station.plant.GetBodyByName("panda_hand", station.models.hand)
+    return station.plant.EvalBodyPoseInWorld(station.plant_context(root), hand) @ config.X_PC
+
+
+def observe(station: Station, root: Context, camera: str) -> Observation:
+    """The RGB-D image of station camera `camera` at the state in `root` (the commanded
+    station's root context)."""
+    X_WC = camera_pose(station, root, camera)
+    context = station.diagram.GetMyContextFromRoot(root)
+    rgb = station.diagram.GetOutputPort(f"{camera}_rgb").Eval(context).data[:, :, :3].copy()
+    depth = station.diagram.GetOutputPort(f"{camera}_depth").Eval(context).data[:, :, 0].copy()
+    config = station.config.cameras.scene if camera == "scene" else station.config.cameras.wrist
+    return Observation(rgb, depth, Intrinsics.from_camera_info(config.info()), X_WC)
