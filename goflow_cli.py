@@ -169,6 +169,19 @@ def _add_experiment_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", help="result file stem (default from the env id)")
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from perception.bench import BenchConfig, bench_perception
+    if args.posteriors < 1:
+        raise ValueError(f"--posteriors {args.posteriors}: expected at least 1")
+    result = bench_perception(BenchConfig(posteriors=args.posteriors, seed=args.seed))
+    print(f"perception: {result['seconds_per_posterior']:.3f} s per posterior, "
+          f"{result['hypotheses_per_second']:.0f} hypotheses/s ({result['renderer']})")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2))
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="goflow", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -227,6 +240,13 @@ def make_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--path", help="a skill file other than the shipped one")
     evaluate.add_argument("--json", metavar="PATH", help="write the result as JSON")
     evaluate.set_defaults(func=_cmd_evaluate)
+
+    bench = sub.add_parser("bench", help="speed benchmarks (perception: pose posteriors per gear)")
+    bench.add_argument("target", choices=["perception"])
+    bench.add_argument("--json", metavar="PATH", help="write the result as JSON")
+    bench.add_argument("--posteriors", type=int, default=2, help="close-view posteriors per gear")
+    bench.add_argument("--seed", type=int, default=0)
+    bench.set_defaults(func=_cmd_bench)
     return parser
 
 
