@@ -28,16 +28,17 @@ class InspectConfig:
     """camera_height: the wrist camera's height above the gear's top face [m]; speed: mean tool
     speed [m/s]; min_segment: shortest move [s]; settle: still time before the picture [s]."""
 
-    camera_height: float = 0.12
+    camera_height: float = 0.17
     speed: float = 0.15
     min_segment: float = 0.8
     settle: float = 0.6
+    finger_clearance: float = 0.02  # fingertips (tool frame) above the gears' top faces [m]
 
     def __post_init__(self) -> None:
         if not 0.03 <= self.camera_height <= 0.6:
             raise ValueError(f"camera_height = {self.camera_height}; expected 0.03..0.6 m above "
                              "the gear (closer than the camera's near plane makes no picture)")
-        for name in ("speed", "min_segment", "settle"):
+        for name in ("speed", "min_segment", "settle", "finger_clearance"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"InspectConfig.{name} = {getattr(self, name)}; expected > 0")
 
@@ -71,6 +72,11 @@ def plan_inspect(plan: SkillPlan, gear: str, gear_xy: tuple[float, float],
     R = last.X_WT.rotation().matrix()
     current_yaw = float(np.arctan2(R[1, 0], R[0, 0]))
     target = inspect_tool_pose(gear_xy, camera, config, yaw=_camera_yaw(current_yaw, camera))
+    low = GEAR_THICKNESS + config.finger_clearance
+    if target.translation()[2] < low:
+        raise ValueError(f"camera_height = {config.camera_height} m puts the fingertips at "
+                         f"z = {target.translation()[2]:.3f} m, below {low:.3f} m (the gears' tops "
+                         f"+ finger_clearance); raise camera_height")
     d = np.linalg.norm(target.translation() - last.X_WT.translation())
     plan.append(max(d / config.speed, config.min_segment), target, last.width, f"{gear}: inspect")
     plan.append(config.settle, target, last.width, f"{gear}: hold for the picture")

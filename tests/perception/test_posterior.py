@@ -1,0 +1,93 @@
+"""PosePosterior on hand-made grids: sampling, region probabilities, marginals, entropies,
+credible regions, the plot."""
+
+import numpy as np
+import pytest
+
+from perception.posterior import PosePosterior, uniform_posterior, wrap
+
+
+def _gaussian(sigma=(0.001, 0.002, 0.02), centre=(0.4, -0.1, 3.1), modes=1):
+    xs = centre[0] + np.linspace(-0.006, 0.006, 25)
+    ys = centre[1] + np.linspace(-0.012, 0.012, 25)
+    offs = np.linspace(-0.12, 0.12, 25)
+    X, Y, A = np.meshgrid(xs - centre[0], ys - centre[1], offs, indexing="ij")
+    ll = -0.5 * ((X / sigma[0]) ** 2 + (Y / sigma[1]) ** 2 + (A / sigma[2]) ** 2)
+    mode_yaws = wrap(centre[2] + 2 * np.pi * np.arange(modes) / modes)
+    return PosePosterior("medium", xs, ys, mode_yaws, offs, np.repeat(ll[None], modes, axis=0))
+
+
+def test_normalized_and_map():
+    post = _gaussian()
+    assert post.mass.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(post.map_pose, [0.4, -0.1, wrap(3.1)], atol=1e-12)
+
+
+def test_samples_match_moments():
+    post = _gaussian()
+    s = post.sample(20000, seed=1)
+    assert s.shape == (20000, 3)
+    np.testing.assert_allclose(s[:, :2].mean(0), [0.4, -0.1], atol=1e-4)
+    np.testing.assert_allclose(s[:, :2].std(0), [0.001, 0.002], rtol=0.05)
+    # yaw straddles +-pi: samples stay wrapped and cluster around 3.1 rad
+    assert np.all((s[:, 2] >= -np.pi) & (s[:, 2] < np.pi))
+    assert np.abs(wrap(s[:, 2] - 3.1)).max() < 0.13
+    np.testing.assert_allclose(post.std()[:2], [0.001, 0.002], rtol=0.05)
+
+
+def test_region_probabilities():
+    post = _gaussian()
+    assert post.probability() == pytest.approx(1.0)
+    assert post.probability(x=(0.4, 1.0)) == pytest.approx(0.5, abs=1e-9)
+    # one sigma either side in x: 68 %
+    assert post.probability(x=(0.399, 0.401)) == pytest.approx(0.683, abs=0.02)  # 0.5 sigma cells
+    # a yaw arc across the +-pi seam, counter-clockwise from 3.0 to 3.2 (= 3.2 - 2 pi)
+    both = post.probability(yaw=(3.0, 3.2 - 2 * np.pi))
+    assert both == pytest.approx(post.probability(yaw=(3.0 - 2 * np.pi, 3.2)), abs=1e-12)
+    assert both > 0.99
+    assert post.probability(yaw=(3.2 - 2 * np.pi, 3.0)) < 0.01  # the complementary arc
+
+
+def test_marginals_and_entropies():
+    post = _gaussian()
+    for dim, sigma in zip(("x", "y", "yaw"), (0.001, 0.002, 0.02)):
+        v, p = post.marginal(dim)
+        assert p.sum() == pytest.approx(1.0)
+        # differential entropy of a Gaussian: 0.5 log(2 pi e sigma^2)
+        assert post.marginal_entropy(dim) == pytest.approx(0.5 * np.log(2 * np.pi * np.e * sigma ** 2), abs=0.02)
+    with pytest.raises(ValueError, match="unknown dimension"):
+        post.marginal("z")
+
+
+def test_modes_split_the_yaw_mass():
+    post = _gaussian(modes=4)
+    v, p = post.marginal("yaw")
+    assert len(v) == 4 * 25 and np.all(np.diff(v) >= 0)
+    for k in range(4):
+        c = wrap(3.1 + k * np.pi / 2)
+        assert post.probability(yaw=(c - 0.2, c + 0.2)) == pytest.approx(0.25, abs=1e-6)
+
+
+def test_credible_region_contains():
+    post = _gaussian()
+    assert post.contains([0.4, -0.1, 3.1], 0.9)
+    assert not post.contains([0.4 + 0.005, -0.1, 3.1], 0.9)   # 5 sigma off in x
+    assert not post.contains([0.5, -0.1, 3.1], 0.9)           # off the grid
+    assert post.credible_mask(0.9).sum() < post.credible_mask(0.99).sum()
+    with pytest.raises(ValueError, match="level"):
+        post.credible_mask(1.5)
+
+
+def test_uniform_posterior_is_flagged_and_flat(tmp_path):
+    post = uniform_posterior("small", (0.4, 0.0), 0.03, "not seen")
+    assert not post.informative and post.reason == "not seen"
+    assert post.probability(x=(0.4, 0.5), y=(0.0, 0.1)) == pytest.approx(0.25, abs=0.03)
+    assert post.probability(yaw=(0.0, np.pi / 2)) == pytest.approx(0.25, abs=0.01)
+    post.plot(tmp_path / "u.png")
+    assert (tmp_path / "u.png").stat().st_size > 1000
+
+
+def test_plot_writes_png(tmp_path):
+    fig = _gaussian(modes=3).plot(tmp_path / "p.png", truth=np.array([0.4, -0.1, 3.1]))
+    assert (tmp_path / "p.png").stat().st_size > 1000
+    assert len(fig.axes) == 2
