@@ -33,12 +33,15 @@ class InspectConfig:
     min_segment: float = 0.8
     settle: float = 0.6
     finger_clearance: float = 0.02  # fingertips (tool frame) above the gears' top faces [m]
+    settle_tolerance: float = 0.002  # the picture waits until the tool is this close [m] ...
+    max_wait: float = 4.0            # ... or this long after the planned picture time [s]
 
     def __post_init__(self) -> None:
         if not 0.03 <= self.camera_height <= 0.6:
             raise ValueError(f"camera_height = {self.camera_height}; expected 0.03..0.6 m above "
                              "the gear (closer than the camera's near plane makes no picture)")
-        for name in ("speed", "min_segment", "settle", "finger_clearance"):
+        for name in ("speed", "min_segment", "settle", "finger_clearance", "settle_tolerance",
+                     "max_wait"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"InspectConfig.{name} = {getattr(self, name)}; expected > 0")
 
@@ -122,4 +125,11 @@ def run_inspect(gear: str, gear_xy: tuple[float, float], station_config: Station
     simulator = Simulator(drive_station(station, PlanSource(plan)))
     simulator.Initialize()
     simulator.AdvanceTo(t)
-    return InspectRun(station, simulator, plan, t)
+    # The impedance controller lags its target; wait (up to max_wait) until the tool is there.
+    config = config or InspectConfig()
+    target = plan.keyframes[-1].X_WT.translation()
+    context = simulator.get_context()
+    while (np.linalg.norm(station.tool_pose(context).translation() - target) > config.settle_tolerance
+           and context.get_time() < t + config.max_wait):
+        simulator.AdvanceTo(context.get_time() + 0.1)
+    return InspectRun(station, simulator, plan, context.get_time())

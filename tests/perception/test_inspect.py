@@ -33,6 +33,8 @@ def test_wrist_camera_is_close_above_the_believed_gear(inspected):
     assert p[2] == pytest.approx(GEAR_THICKNESS + InspectConfig().camera_height, abs=0.01)
     assert np.hypot(*(p[:2] - belief)) < 0.01
     assert X_WC.rotation().matrix()[2, 2] < -0.99            # looking straight down
+    tool = run.station.tool_pose(run.root_context).translation()
+    assert np.linalg.norm(tool - run.plan.keyframes[-1].X_WT.translation()) < 0.002  # settled
 
 
 def test_close_wrist_view_map_within_2mm_and_3deg(inspected):
@@ -67,4 +69,4 @@ def test_inspect_pose_puts_the_camera_above_the_gear_and_validates():
         InspectConfig(camera_height=0.01)
     plan = start_plan(X_WT, 0.08)
     with pytest.raises(ValueError, match="fingertips"):
-        plan_inspect(plan, "small", (0.4, 0.0), wrist, InspectConfig(camera_height=0.1))
+        plan_inspect(plan, "small", (0.4, 0.0), wrist, InspectConfig(camera_height=0.05))
