@@ -182,6 +182,29 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_collect(args: argparse.Namespace) -> int:
+    import os
+    from learning.estimation.collect import CollectConfig, collect_to_file
+    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    config = CollectConfig(env=args.env, xi=args.xi, episodes=args.episodes, steps=args.steps,
+                           policy=args.policy, seed=args.seed)
+    ds = collect_to_file(config, args.out, progress=True)
+    print(f"{ds.num_episodes} trajectories, {ds.num_transitions} transitions of {ds.env_id} "
+          f"(xi {args.xi}, policy {args.policy}) -> {args.out}")
+    return 0
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    import os
+    from learning.estimation.estimate import EstimateConfig, estimate_file
+    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    config = EstimateConfig(method=args.method, seed=args.seed, sim_budget=args.sim_budget,
+                            workers=args.workers, options=_key_values(args.option, "--option"))
+    info = estimate_file(args.data, args.out, config)
+    print(f"{args.method}: {info['sim_calls']} simulator calls, {info['seconds']:.1f} s -> {args.out}")
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="goflow", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -247,6 +270,29 @@ def make_parser() -> argparse.ArgumentParser:
     bench.add_argument("--posteriors", type=int, default=2, help="close-view posteriors per gear")
     bench.add_argument("--seed", type=int, default=0)
     bench.set_defaults(func=_cmd_bench)
+
+    collect = sub.add_parser("collect", help="log (s, a, s') trajectories with known true parameters")
+    collect.add_argument("--env", required=True, help="simulator id, e.g. goflow/Cartpole-v0")
+    collect.add_argument("--xi", required=True, choices=["gaussian", "mixture"],
+                         help="true parameter distribution (mixture: means in an L shape)")
+    collect.add_argument("--episodes", type=int, required=True)
+    collect.add_argument("--steps", type=int, help="steps per trajectory (default: the env's episode)")
+    collect.add_argument("--policy", default="random", help="'random' or a PPO checkpoint path")
+    collect.add_argument("--seed", type=int, default=0)
+    collect.add_argument("--out", required=True, help="dataset file (.npz)")
+    collect.set_defaults(func=_cmd_collect)
+
+    from learning.estimation import ESTIMATORS
+    estimate = sub.add_parser("estimate", help="estimate a parameter distribution from a dataset")
+    estimate.add_argument("--data", required=True, help="dataset file written by `goflow collect`")
+    estimate.add_argument("--method", required=True, choices=ESTIMATORS)
+    estimate.add_argument("--out", required=True, help="estimate file (.json), loadable as a Sampler")
+    estimate.add_argument("--seed", type=int, default=0)
+    estimate.add_argument("--sim-budget", type=int, default=100_000, help="simulator calls")
+    estimate.add_argument("--workers", type=int, default=1, help="simulator processes")
+    estimate.add_argument("--option", action="append", metavar="KEY=VALUE",
+                          help="a field of the method's config, e.g. beta=1000")
+    estimate.set_defaults(func=_cmd_estimate)
     return parser
 
 

@@ -13,13 +13,12 @@ import numpy as np
 import torch
 
 from assembly.transition_sim import ParallelTransitionSim
+from learning.estimation import ESTIMATORS
 from learning.estimation.common import Budget
 from learning.estimation.dataset import TransitionDataset, load_dataset
 from learning.estimation.sampler import EstimatedSampler, save_estimate
 
 __all__ = ["ESTIMATORS", "EstimateConfig", "estimate", "estimate_file"]
-
-ESTIMATORS = ("nfpde-softmax", "nfpde-cai", "dropo", "bayessim")
 
 
 @dataclass

@@ -47,12 +47,13 @@ class NFPDEConfig:
     likelihood: str = "softmax"  # "softmax" | "cai"
     samples: int = 64  # M parameter draws per iteration
     segments: int = 16  # B logged segments per iteration
-    segment_length: int = 4  # L transitions per segment
-    beta: float = 20.0  # Softmax inverse temperature on l_pred
+    segment_length: int = 2  # L transitions per segment
+    beta: float = 1000.0  # Softmax inverse temperature on l_pred
     tau: float = 0.05  # CAI temperature: likelihood exp(-l_pred / tau)
     epochs: int = 30  # K gradient steps per simulated batch
-    lr: float = 3e-3
-    clip: float | None = 0.2  # PPO ratio clipping; None: plain importance-sampled surrogate
+    lr: float = 5e-3
+    clip: float | None = 0.3  # PPO ratio clipping; None: plain importance-sampled surrogate
+    replay: int = 4  # also reuse the last `replay` - 1 batches (their ratios are against their own p_old)
     transforms: int = 4  # RealNVP coupling layers
     hidden: tuple[int, ...] = (64, 64)
     y_scale: float = 1.5  # start: u = sigmoid(1.5 w), w ~ N(0, I) spreads over the box
@@ -67,6 +68,8 @@ class NFPDEConfig:
             raise ValueError("NFPDEConfig.samples must be >= 2 (weights compare samples)")
         if not (self.beta > 0 and self.tau > 0 and self.lr > 0):
             raise ValueError(f"NFPDEConfig: beta, tau and lr must be > 0, got {self.beta}, {self.tau}, {self.lr}")
+        if int(self.replay) < 1:
+            raise ValueError(f"NFPDEConfig.replay must be >= 1, got {self.replay!r}")
         if self.clip is not None and not 0 < self.clip < 1:
             raise ValueError(f"NFPDEConfig.clip must be in (0, 1) or None, got {self.clip!r}")
         self.hidden = tuple(self.hidden)
@@ -94,6 +97,7 @@ def fit_nfpde(budget: Budget, config: NFPDEConfig, seed: int) -> tuple[FlowDistr
     per_iter = config.samples * min(config.segments, len(segs)) * config.segment_length
     budget.snapshot(dist, iteration=0)
     it, skipped = 0, 0
+    batches: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
     while budget.can_afford(per_iter):
         y = dist.sample_y(config.samples, rng)
         u = expit(y.double().numpy())
@@ -108,9 +112,14 @@ def fit_nfpde(budget: Budget, config: NFPDEConfig, seed: int) -> tuple[FlowDistr
         loss = prediction_loss(pred, data.next_states[rows], budget.scale)  # (M, B * L)
         seg_loss = loss.reshape(config.samples, len(chosen), config.segment_length).mean(axis=2)
         adv = torch.as_tensor(_advantages(seg_loss, config), dtype=torch.float32)
+        batches = (batches + [(y, logp_old, adv)])[-config.replay:]
+        ys = torch.cat([b[0] for b in batches])
+        logp_olds = torch.cat([b[1] for b in batches])
+        advs = torch.cat([b[2] for b in batches])
         backup = {k: v.clone() for k, v in dist.flow.state_dict().items()}
         for _ in range(config.epochs):
-            ratio = torch.exp(dist.log_prob_y(y) - logp_old)
+            ratio = torch.exp(dist.log_prob_y(ys) - logp_olds)
+            adv = advs
             surrogate = ratio * adv
             if config.clip is not None:
                 surrogate = torch.minimum(surrogate, torch.clamp(ratio, 1 - config.clip, 1 + config.clip) * adv)

@@ -1,0 +1,90 @@
+"""NFPDE recovers a known two-parameter mixture on the cheap point-mass simulator; the baselines run
+on the same budget; a seed reproduces an estimate; the estimate works as a Sampler."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from assembly.samplers import Sampler
+from learning.estimation.collect import CollectConfig, collect
+from learning.estimation.estimate import EstimateConfig, estimate
+from learning.estimation.metrics import ot_cost
+from learning.estimation.sampler import load_estimate, save_estimate
+from learning.estimation.targets import TargetConfig, sample_target
+
+# The bound for the recovery test, measured (see docs/nfpde.md): NFPDE-Softmax on this dataset
+# reaches OT ~0.10; drawing 500 samples from the TRUE mixture scores ~0.07 (finite-sample floor);
+# the starting flow scores 0.16 and CAI (which collapses to a mode) ~0.5.
+RECOVERY_BOUND = 0.13
+
+
+@pytest.fixture(scope="module")
+def mixture_data():
+    ds, truth = collect(CollectConfig(env="goflow/PointMass-v0", xi="mixture", episodes=48, steps=40, seed=0))
+    return ds, ds.space.normalize(truth)
+
+
+def _ot(sampler, u_true, seed=1):
+    xi = sampler.sample(500, np.random.default_rng(seed))
+    return ot_cost(sampler.space.normalize(xi), u_true)
+
+
+def test_nfpde_softmax_recovers_l_mixture(mixture_data):
+    ds, u_true = mixture_data
+    sampler, info, _ = estimate(ds, EstimateConfig(method="nfpde-softmax", seed=0, sim_budget=100_000))
+    assert info["sim_calls"] <= 100_000
+    cost = _ot(sampler, u_true)
+    assert cost < RECOVERY_BOUND, f"OT {cost:.3f} >= bound {RECOVERY_BOUND}"
+    # every mode of the L is populated
+    u = sampler.space.normalize(sampler.sample(2000, np.random.default_rng(2)))
+    for m in TargetConfig().l_means:
+        near = np.linalg.norm(u - np.asarray(m), axis=1) < 0.15
+        assert near.mean() > 0.1, f"mode {m} holds only {near.mean():.2f} of the mass"
+
+
+def test_same_seed_same_estimate_and_sampler_protocol(tmp_path, mixture_data):
+    ds, _ = mixture_data
+    cfg = EstimateConfig(method="nfpde-softmax", seed=7, sim_budget=8192, options={"epochs": 5})
+    a, _, _ = estimate(ds, cfg)
+    b, _, _ = estimate(ds, cfg)
+    xa = a.sample(64, np.random.default_rng(0))
+    np.testing.assert_array_equal(xa, b.sample(64, np.random.default_rng(0)))
+    assert isinstance(a, Sampler)
+    assert np.all(ds.space.contains(xa))
+    lp = a.log_prob(xa)
+    assert lp.shape == (64,) and np.all(np.isfinite(lp))
+    assert a.log_prob(ds.space.high + 1.0)[0] == -np.inf
+    assert np.isfinite(a.entropy())
+    path = save_estimate(tmp_path / "e.json", a, "nfpde-softmax", ds.env_id, {"seed": 7})
+    back, doc = load_estimate(path)
+    np.testing.assert_allclose(back.log_prob(xa), lp, rtol=1e-6)
+    assert doc["method"] == "nfpde-softmax"
+    c, _, _ = estimate(ds, EstimateConfig(method="nfpde-softmax", seed=8, sim_budget=8192, options={"epochs": 5}))
+    assert not np.array_equal(xa, c.sample(64, np.random.default_rng(0)))
+
+
+@pytest.mark.parametrize("method", ["nfpde-cai", "dropo", "bayessim"])
+def test_baselines_share_the_budget_and_give_samplers(method, mixture_data):
+    ds, u_true = mixture_data
+    sampler, info, budget = estimate(ds, EstimateConfig(method=method, seed=0, sim_budget=30_000))
+    assert 0 < info["sim_calls"] <= 30_000 and budget.trace
+    xi = sampler.sample(200, np.random.default_rng(0))
+    assert np.all(ds.space.contains(xi)) and np.all(np.isfinite(sampler.log_prob(xi)))
+    assert ot_cost(ds.space.normalize(xi), u_true) < 0.6
+
+
+def test_target_and_config_errors():
+    from learning.estimation.nfpde import NFPDEConfig
+
+    with pytest.raises(ValueError, match="unknown estimation method 'mle'"):
+        EstimateConfig(method="mle")
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['betta'\]"):
+        EstimateConfig(method="nfpde-softmax", options={"betta": 1}).method_config()
+    with pytest.raises(ValueError, match="likelihood must be 'softmax' or 'cai'"):
+        NFPDEConfig(likelihood="gauss")
+    with pytest.raises(ValueError, match="target kind 'uniform' is unknown"):
+        TargetConfig(kind="uniform")
+    from assembly.transition_sim import POINT_MASS_SPACE
+    xi = sample_target(TargetConfig(kind="mixture"), POINT_MASS_SPACE, 300, np.random.default_rng(0))
+    assert np.all(POINT_MASS_SPACE.contains(xi))
