@@ -57,10 +57,12 @@ class LikelihoodConfig:
         return np.logaddexp(log_in, log_out)
 
     def is_inlier(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                  depth_hat: np.ndarray) -> np.ndarray:
-        """Whether each pixel is better explained by the inlier term than by the outlier one."""
-        log_in, log_out = self._log_terms(rgb, depth, rgb_hat, depth_hat)
-        return log_in > log_out
+                  depth_hat: np.ndarray, scales: float = 3.0) -> np.ndarray:
+        """Whether each pixel matches its rendering within `scales` times b_rgb (colour, L1) and
+        b_d (depth): what "the hypothesis explains this pixel" means in the sanity checks."""
+        colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
+        dist = np.abs(depth - depth_hat) / self.b_d
+        return (colour < scales) & (dist < scales)
 
 
 @lru_cache(maxsize=None)

@@ -24,8 +24,20 @@ def marked_scene() -> DrakeScene:
     return DrakeScene(SceneConfig(gears=dict(POSES), marked=tuple(POSES), plate_pose=PLATE))
 
 
-def close_view(scene: DrakeScene, gear: str, height: float = 0.15):
-    """A wrist-like view from `height` above the table over `gear`."""
+@pytest.fixture(scope="session")
+def poses() -> dict:
+    """The gears' true poses (x, y, yaw) in the shared scenes."""
+    return dict(POSES)
+
+
+def _close_view(scene: DrakeScene, gear: str, height: float = 0.15):
     x, y, _ = POSES[gear]
     cam = close_camera(x, y, height)
     return scene.render(cam, cam.X_PC)
+
+
+@pytest.fixture(scope="session")
+def close_view():
+    """close_view(scene, gear, height=0.15): a wrist-like view from `height` above the table
+    over `gear` in a shared scene."""
+    return _close_view

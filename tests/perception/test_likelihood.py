@@ -14,7 +14,8 @@ def test_laplace_near_and_outlier_floor_far():
     assert exact - off == pytest.approx(1.0, abs=1e-3)          # one b_d away: exp(-1)
     far = cfg.pixel_loglik(rgb, d, rgb + 0.5, d + 1.0)[0]
     assert far == pytest.approx(np.log(0.1 / cfg.depth_range), abs=1e-6)  # only the outlier term
-    assert cfg.is_inlier(rgb, d, rgb, d)[0] and not cfg.is_inlier(rgb, d, rgb + 0.5, d + 1.0)[0]
+    assert cfg.is_inlier(rgb, d, rgb, d)[0] and not cfg.is_inlier(rgb, d, rgb + 0.5, d)[0]
+    assert not cfg.is_inlier(rgb, d, rgb, d + 0.02)[0]
 
 
 def test_bad_configs_are_named():

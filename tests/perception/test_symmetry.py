@@ -1,0 +1,74 @@
+"""Symmetry: a plain gear looks the same every tooth pitch, so its yaw posterior spreads about
+evenly over every repeat, from far and from close (a closer look narrows x and y only); a marked
+gear's close view puts the mass on the one true repeat."""
+
+import numpy as np
+import pytest
+
+from assembly.cameras import default_scene_camera
+from assembly.gearset import gear_spec
+from perception.gear_model import gear_model
+from perception.posterior import PosePosterior, wrap
+from perception.search import Prior, estimate_pose
+
+GEAR = "medium"
+
+
+def repeat_masses(post: PosePosterior, truth_yaw: float, teeth: int) -> np.ndarray:
+    """Mass within half a tooth pitch of each repeat truth_yaw + k * pitch."""
+    pitch = 2 * np.pi / teeth
+    return np.array([post.probability(yaw=(truth_yaw + (k - 0.5) * pitch, truth_yaw + (k + 0.5) * pitch))
+                     for k in range(teeth)])
+
+
+def effective_repeats(m: np.ndarray) -> float:
+    """exp(entropy) of the repeat masses: how many repeats effectively share the mass."""
+    m = m[m > 0] / m.sum()
+    return float(np.exp(-(m * np.log(m)).sum()))
+
+
+def _posteriors(scene, marked: bool, poses, close_view):
+    x, y, yaw = poses[GEAR]
+    prior = Prior(x + 0.01, y - 0.008, 0.03)
+    model = gear_model(GEAR, marked)
+    cam = default_scene_camera()
+    far = estimate_pose(scene.render(cam, cam.X_PC), model, prior)
+    close = estimate_pose(close_view(scene, GEAR), model, prior)
+    return far, close
+
+
+@pytest.fixture(scope="module")
+def plain(plain_scene, poses, close_view):
+    return _posteriors(plain_scene, False, poses, close_view)
+
+
+def test_plain_gear_yaw_mass_is_even_over_tooth_repeats(plain, poses):
+    teeth = gear_spec(GEAR).teeth
+    yaw = poses[GEAR][2]
+    for post in plain:
+        m = repeat_masses(post, yaw, teeth)
+        assert m.sum() == pytest.approx(1.0, abs=1e-6)
+        assert effective_repeats(m) > 0.8 * teeth, m * teeth
+        assert m.max() < 3.0 / teeth and m.min() > 0.25 / teeth, m * teeth
+
+
+def test_closer_look_narrows_xy_not_the_tooth_ambiguity(plain, poses):
+    far, close = plain
+    teeth = gear_spec(GEAR).teeth
+    for dim in ("x", "y"):
+        assert close.marginal_entropy(dim) < far.marginal_entropy(dim) - 0.5
+    yaw = poses[GEAR][2]
+    # both stay spread over the repeats: neither view can tell the teeth apart
+    assert effective_repeats(repeat_masses(close, yaw, teeth)) > 0.8 * teeth
+    assert close.marginal_entropy("yaw") > np.log(2 * np.pi) - 3.0
+
+
+def test_marked_gear_close_view_concentrates_on_the_true_repeat(marked_scene, poses, close_view):
+    far, close = _posteriors(marked_scene, True, poses, close_view)
+    x, y, yaw = poses[GEAR]
+    teeth = gear_spec(GEAR).teeth
+    m = repeat_masses(close, yaw, teeth)
+    assert m[0] > 0.9, m                                  # repeat 0 is the truth
+    assert effective_repeats(m) < 1.5
+    assert abs(wrap(close.map_pose[2] - yaw)) < np.radians(3.0)
+    assert close.marginal_entropy("yaw") < far.marginal_entropy("yaw") - 2.0
