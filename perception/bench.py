@@ -15,13 +15,13 @@ import numpy as np
 
 from assembly.cameras import CameraConfig, default_scene_camera, look_at
 from assembly.gearset import GEAR_NAMES
-from perception.drake_scene import DrakeScene, SceneConfig
+from perception.drake_scene import DrakeScene, SceneConfig, crop_info
 from perception.gear_model import gear_model
 from perception.likelihood import table_prediction
 from perception.observation import Observation
 from perception.renderer import NAME as RAYCAST_NAME
 from perception.renderer import RayCaster
-from perception.search import Prior, estimate_pose
+from perception.search import Prior, SearchConfig, estimate_pose
 
 DRAKE_NAME = "drake-vtk"
 DEPTH_TOL = 1e-3  # [m]
@@ -87,8 +87,18 @@ def compare_depth(drake_depth: np.ndarray, drake_gear: np.ndarray, ours_depth: n
             "median_error_m": float(np.median(err[both])) if both.any() else float("nan")}
 
 
+def _time(fn, repeat: int = 1) -> float:
+    t0 = time.perf_counter()
+    for _ in range(repeat):
+        fn()
+    return (time.perf_counter() - t0) / repeat
+
+
 def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
-    """Per gear and view: hypotheses per second of each renderer and their depth agreement."""
+    """Per gear and view, hypotheses per second of: Drake on the full image, Drake on the crop of
+    the image where the gear can be, ours on every pixel of that crop that can see the gear, ours
+    on the sparse pixels the search uses (SearchConfig.fine_pixels on the gear); and the depth
+    agreement of ours with Drake (full images)."""
     config = config or BenchConfig()
     rng = np.random.default_rng(config.seed)
     rows = []
@@ -96,29 +106,49 @@ def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
         x, y = 0.42, -0.05
         scene = DrakeScene(SceneConfig(gears={gear: (x, y, 0.0)}))
         caster = RayCaster(gear_model(gear))
-        poses = np.column_stack([x + rng.uniform(-0.01, 0.01, config.hypotheses),
-                                 y + rng.uniform(-0.01, 0.01, config.hypotheses),
-                                 rng.uniform(-np.pi, np.pi, config.hypotheses)])
+        n = config.hypotheses
+        poses = np.column_stack([x + rng.uniform(-0.01, 0.01, n), y + rng.uniform(-0.01, 0.01, n),
+                                 rng.uniform(-np.pi, np.pi, n)])
         for view, camera in _views(x, y).items():
             scene.render(camera, camera.X_PC)  # warm up the renderer
-            t0 = time.perf_counter()
             drake = []
-            for pose in poses:
-                scene.set_gear_pose(gear, tuple(pose))
-                drake.append(scene.render(camera, camera.X_PC))
-            t_drake = time.perf_counter() - t0
+
+            def drake_full():
+                drake.clear()
+                for pose in poses:
+                    scene.set_gear_pose(gear, tuple(pose))
+                    drake.append(scene.render(camera, camera.X_PC))
+
+            t_full = _time(drake_full)
             k = drake[0].intrinsics
-            # Our renderer gets the pixels whose rays can meet the gear anywhere in the pose box.
+            # The pixels whose rays can meet the gear anywhere in the pose box, and their crop.
             v, u = np.mgrid[0:k.height, 0:k.width]
             origin, dirs = drake[0].rays_W(u.ravel(), v.ravel())
             down = dirs[:, 2] < 0
-            hit_z0 = origin[:2] + (-origin[2] / np.where(down, dirs[:, 2], -1.0))[:, None] * dirs[:, :2]
+            hit = origin[:2] + (-origin[2] / np.where(down, dirs[:, 2], -1.0))[:, None] * dirs[:, :2]
             reach = caster.model.tip_radius + 0.015 + 0.03
-            roi = down & (np.hypot(hit_z0[:, 0] - x, hit_z0[:, 1] - y) < reach)
+            roi = down & (np.hypot(hit[:, 0] - x, hit[:, 1] - y) < reach)
+            rows_, cols_ = np.nonzero(roi.reshape(k.height, k.width))
+            info = crop_info(camera.info(), cols_.min(), cols_.max() + 1, rows_.min(), rows_.max() + 1)
+
+            def drake_crop():
+                for pose in poses:
+                    scene.set_gear_pose(gear, tuple(pose))
+                    scene.render_info(info, camera.near, camera.far, camera.X_PC)
+
+            t_crop = _time(drake_crop)
             light = -camera.X_PC.rotation().matrix()[:, 2]
-            t0 = time.perf_counter()
-            out = caster.render(origin, dirs[roi], light, poses)
-            t_ours = time.perf_counter() - t0
+            out = None
+
+            def ours_all():
+                nonlocal out
+                out = caster.render(origin, dirs[roi], light, poses)
+
+            t_ours = _time(ours_all)
+            footprint = int(np.count_nonzero(roi & (np.hypot(hit[:, 0] - x, hit[:, 1] - y) < caster.model.tip_radius)))
+            m = max(1, round(footprint / SearchConfig().fine_pixels))
+            sparse = np.nonzero(roi)[0][::m]
+            t_sparse = _time(lambda: caster.render(origin, dirs[sparse], light, poses), repeat=3)
             agree = []
             idx = np.nonzero(roi)[0]
             for h, obs in enumerate(drake):
@@ -127,10 +157,14 @@ def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
                 depth[idx[out.pix[sel]]] = out.depth[sel]
                 agree.append(compare_depth(obs.depth, gear_mask(obs), depth.reshape(k.height, k.width)))
             rows.append({
-                "gear": gear, "view": view, "hypotheses": config.hypotheses,
-                "drake_hypotheses_per_second": config.hypotheses / t_drake,
-                "ours_hypotheses_per_second": config.hypotheses / t_ours,
-                "ours_pixels_per_hypothesis": int(roi.sum()),
+                "gear": gear, "view": view, "hypotheses": n,
+                "drake_full_hypotheses_per_second": n / t_full,
+                "drake_crop_hypotheses_per_second": n / t_crop,
+                "drake_crop_pixels": int(info.width() * info.height()),
+                "ours_all_hypotheses_per_second": n / t_ours,
+                "ours_all_pixels": int(roi.sum()),
+                "ours_sparse_hypotheses_per_second": n / t_sparse,
+                "ours_sparse_pixels": int(len(sparse)),
                 "within_1mm_interior": float(np.mean([a["within_1mm_interior"] for a in agree])),
                 "within_1mm_all": float(np.mean([a["within_1mm_all"] for a in agree])),
                 "max_error_interior_m": float(np.max([a["max_error_interior_m"] for a in agree])),

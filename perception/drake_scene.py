@@ -13,6 +13,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.sensors import CameraInfo
 
 from assembly.cameras import RENDERER, CameraConfig, add_renderer
 from assembly.gear_meshes import gearset_model_paths
@@ -80,12 +81,25 @@ class DrakeScene:
 
     def render(self, camera: CameraConfig, X_WC: RigidTransform) -> Observation:
         """Colour and depth seen by `camera` (intrinsics and clipping) placed at X_WC."""
-        core = RenderCameraCore(RENDERER, camera.info(), ClippingRange(camera.near, camera.far),
-                                RigidTransform())
+        return self.render_info(camera.info(), camera.near, camera.far, X_WC)
+
+    def render_info(self, info: CameraInfo, near: float, far: float, X_WC: RigidTransform
+                    ) -> Observation:
+        """Colour and depth of a pinhole camera with intrinsics `info` (e.g. a crop of a larger
+        camera: same focal lengths, shifted principal point) and clipping range [near, far]."""
+        core = RenderCameraCore(RENDERER, info, ClippingRange(near, far), RigidTransform())
         query = self.scene_graph.get_query_output_port().Eval(self._sg_context)
         world = self.scene_graph.world_frame_id()
         color = query.RenderColorImage(ColorRenderCamera(core, False), world, X_WC)
-        depth = query.RenderDepthImage(
-            DepthRenderCamera(core, DepthRange(camera.near, camera.far)), world, X_WC)
+        depth = query.RenderDepthImage(DepthRenderCamera(core, DepthRange(near, far)), world, X_WC)
         return Observation(color.data[:, :, :3].copy(), depth.data[:, :, 0].copy(),
-                           Intrinsics.from_camera_info(camera.info()), X_WC)
+                           Intrinsics.from_camera_info(info), X_WC)
+
+
+def crop_info(info: CameraInfo, u0: int, u1: int, v0: int, v1: int) -> CameraInfo:
+    """The intrinsics of the pixel window [u0, u1) x [v0, v1) of a camera."""
+    if not (0 <= u0 < u1 <= info.width() and 0 <= v0 < v1 <= info.height()):
+        raise ValueError(f"crop [{u0}, {u1}) x [{v0}, {v1}) is not inside the "
+                         f"{info.width()} x {info.height()} image")
+    return CameraInfo(u1 - u0, v1 - v0, info.focal_x(), info.focal_y(),
+                      info.center_x() - u0, info.center_y() - v0)

@@ -1,0 +1,101 @@
+"""Perception benchmark: renderers per hypothesis (Drake vs our ray caster, speed and depth
+agreement), whole posteriors per gear, calibration over random scenes, and the posterior plots
+of one gear seen close (wrist camera after inspect) and far (scene camera).
+
+    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python benchmarks/perception_speed.py
+
+writes docs/results/perception_bench.json, perception_calibration.json,
+perception_posterior_close.png and perception_posterior_far.png, and prints markdown tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from assembly.gearset import gear_spec
+from assembly.inspect import run_inspect
+from assembly.world import WorldConfig
+from perception.bench import BenchConfig, bench_posteriors, bench_renderers
+from perception.calibration import CalibrationConfig, pose_error, run_calibration
+from perception.observe import observe
+from perception.search import Prior, estimate_pose
+
+
+def _renderer_table(rows: list[dict]) -> str:
+    head = ("| gear | view | Drake full [hyp/s] | Drake crop [hyp/s] (px) | ours, all crop pixels "
+            "[hyp/s] (px) | ours, search's sparse pixels [hyp/s] (px) | depth within 1 mm, "
+            "off edges | within 1 mm, all both-gear px | max off-edge error [mm] |")
+    lines = [head, "|" + "---|" * 9]
+    for r in rows:
+        lines.append(
+            f"| {r['gear']} | {r['view']} | {r['drake_full_hypotheses_per_second']:.1f} | "
+            f"{r['drake_crop_hypotheses_per_second']:.1f} ({r['drake_crop_pixels']}) | "
+            f"{r['ours_all_hypotheses_per_second']:.1f} ({r['ours_all_pixels']}) | "
+            f"{r['ours_sparse_hypotheses_per_second']:.0f} ({r['ours_sparse_pixels']}) | "
+            f"{100 * r['within_1mm_interior']:.2f} % | {100 * r['within_1mm_all']:.2f} % | "
+            f"{1e3 * r['max_error_interior_m']:.2f} |")
+    return "\n".join(lines)
+
+
+def _inspect_figures(out: Path, gear: str = "medium") -> dict:
+    """inspect(gear) with a belief 8 mm off the truth; the close and far posteriors and plots."""
+    truth = np.array(WorldConfig().gear_start_poses[gear])
+    belief = truth[:2] + [0.008, -0.006]
+    run = run_inspect(gear, tuple(belief))
+    prior = Prior(belief[0], belief[1], 0.03)
+    result = {}
+    for name, camera in (("close", "wrist"), ("far", "scene")):
+        post = estimate_pose(observe(run.station, run.root_context, camera), gear, prior)
+        post.plot(out / f"perception_posterior_{name}.png", truth=truth)
+        d, e = pose_error(post.map_pose, truth, gear_spec(gear).tooth_pitch_angle)
+        result[name] = {**post.summary(), "xy_error_m": d, "yaw_error_deg": float(np.degrees(e)),
+                        "truth_in_90": post.contains(truth, 0.9)}
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hypotheses", type=int, default=40)
+    parser.add_argument("--posteriors", type=int, default=5)
+    parser.add_argument("--scenes", type=int, default=30)
+    parser.add_argument("--out", default="docs/results")
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    renderers = bench_renderers(BenchConfig(hypotheses=args.hypotheses))
+    posteriors = bench_posteriors(BenchConfig(posteriors=args.posteriors))
+    figures = _inspect_figures(out)
+    bench = {"cores": os.sched_getaffinity(0).__len__(), "renderers": renderers,
+             "posteriors": posteriors, "inspect_medium": figures}
+    (out / "perception_bench.json").write_text(json.dumps(bench, indent=2))
+    calib = run_calibration(CalibrationConfig(scenes=args.scenes))
+    (out / "perception_calibration.json").write_text(json.dumps(calib, indent=2))
+
+    print(_renderer_table(renderers))
+    print()
+    print("| gear | seconds per posterior | hypotheses | MAP x-y error [mm] |")
+    print("|---|---|---|---|")
+    for r in posteriors["rows"]:
+        print(f"| {r['gear']} | {r['seconds']:.3f} | {r['hypotheses']} | {1e3 * r['xy_error_m']:.3f} |")
+    print(f"\nmean {posteriors['seconds_per_posterior']:.3f} s per posterior, "
+          f"{posteriors['hypotheses_per_second']:.0f} hypotheses/s on {bench['cores']} core(s)")
+    for name, f in figures.items():
+        print(f"inspect medium, {name}: MAP error {1e3 * f['xy_error_m']:.2f} mm, "
+              f"{f['yaw_error_deg']:.2f} deg (mod tooth pitch); std x,y "
+              f"{1e3 * f['std'][0]:.3f}, {1e3 * f['std'][1]:.3f} mm; entropy x,y "
+              f"{f['entropy']['x']:.2f}, {f['entropy']['y']:.2f} nats; truth in 90 %: {f['truth_in_90']}")
+    rows = calib["rows"]
+    print(f"\ncalibration: truth in the 90 % region in {100 * calib['coverage']:.0f} % of "
+          f"{calib['scenes']} scenes; MAP x-y error median {1e3 * np.median([r['xy_error_m'] for r in rows]):.3f} mm, "
+          f"max {1e3 * np.max([r['xy_error_m'] for r in rows]):.3f} mm; yaw error (mod pitch) max "
+          f"{np.degrees(np.max([r['yaw_error_rad'] for r in rows])):.2f} deg; "
+          f"seconds per posterior median {np.median([r['seconds'] for r in rows]):.3f}")
+
+
+if __name__ == "__main__":
+    main()
