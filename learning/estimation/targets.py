@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from assembly.params import ParamSpace
 
-__all__ = ["TargetConfig", "sample_target", "target_description", "TARGETS"]
+__all__ = ["TargetConfig", "TargetSampler", "sample_target", "target_description", "TARGETS"]
 
 TARGETS = ("gaussian", "mixture")
 
@@ -74,3 +74,68 @@ def target_description(config: TargetConfig) -> dict[str, Any]:
         out.update(l_means=[list(m) for m in config.l_means], l_std=config.l_std,
                    other_dims={"mean": config.mean, "std": config.std})
     return out
+
+
+class TargetSampler:
+    """The true target distribution as a Sampler (evaluation of transfer: episodes on the truth).
+
+    Its density is exact: each component is a diagonal Gaussian truncated to the unit box, which is
+    what the row-wise rejection in `sample_target` draws from."""
+
+    def __init__(self, space: ParamSpace, config: TargetConfig) -> None:
+        self.space, self.config = space, config
+        d = space.dim
+        if config.kind == "gaussian":
+            self._means = np.full((1, d), config.mean)
+            self._stds = np.full((1, d), config.std)
+        else:
+            k = len(config.l_means)
+            self._means = np.full((k, d), config.mean)
+            self._stds = np.full((k, d), config.std)
+            if d == 1:
+                means = np.asarray(config.l_means)
+                self._means[:, 0] = means[:, 0] if len(set(means[:, 0])) > 1 else means[:, 1]
+                self._stds[:, 0] = config.l_std
+            else:
+                self._means[:, :2] = np.asarray(config.l_means)
+                self._stds[:, :2] = config.l_std
+
+    def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        """n draws (n, d) in parameter units."""
+        from assembly.samplers import check_sample_args
+
+        return sample_target(self.config, self.space, check_sample_args(n, rng), rng)
+
+    def log_prob(self, xi: Any) -> NDArray[np.float64]:
+        """Exact log density (parameter units); -inf outside the box."""
+        from scipy.special import logsumexp
+        from scipy.stats import truncnorm
+
+        batch = self.space.as_batch(xi)
+        u = self.space.normalize(batch)
+        a, b = (0 - self._means) / self._stds, (1 - self._means) / self._stds
+        comp = truncnorm.logpdf(u[:, None, :], a[None], b[None], loc=self._means[None], scale=self._stds[None])
+        lp = logsumexp(comp.sum(-1), axis=1) - np.log(len(self._means))
+        lp = lp - float(np.log(self.space.high - self.space.low).sum())
+        return np.where(self.space.contains(batch), lp, -np.inf)
+
+    def update(self, xi: Any, returns: Any) -> dict[str, Any]:
+        """Validate; the truth does not adapt."""
+        from assembly.samplers import check_update_inputs
+
+        _, ret = check_update_inputs(self.space, xi, returns)
+        return {"n": int(len(ret)), "mean_return": float(ret.mean())}
+
+    def entropy(self) -> float:
+        """Monte Carlo entropy in nats (parameter units), fixed seed."""
+        return float(-self.log_prob(self.sample(4096, np.random.default_rng(0))).mean())
+
+    def state_dict(self) -> dict[str, Any]:
+        """Type, space and the target's description."""
+        return {"type": type(self).__name__, "space": self.space.to_dict(), "target": target_description(self.config)}
+
+    def load_state_dict(self, state: Any) -> None:
+        """Check type and space (the target is fixed at construction)."""
+        from assembly.samplers import check_state_dict
+
+        check_state_dict(self.space, state, type(self).__name__)

@@ -1,0 +1,185 @@
+"""Our version of the NFPDE seed's Tables II and III (OT cost and wall time per method, Gaussian and
+mixed-Gaussian targets) and its Fig. 2 (samples), plus OT against wall time and simulator calls.
+
+For every (env, target, seed): collect a dataset (48 random-policy trajectories, true xi from the
+target, dataset seed = seed), run every method with the same simulator budget and estimator seed,
+and score snapshots of each estimate by the OT cost (POT ot.emd2, Euclidean ground cost, unit-box
+coordinates) between 500 samples and the 48 true per-trajectory parameters. Every finished run is
+appended to docs/results/nfpde_runs.json at once (a rerun skips what is there); the summary
+docs/results/nfpde.json and the plots are rewritten from all runs at the end.
+
+seconds_mean: the wall time to converge, the first snapshot whose OT is within 10 % of the run's
+final OT (BayesSim trains once at the end: its total time). Timing excludes scoring.
+
+Usage: .venv/bin/python benchmarks/nfpde_table.py --envs goflow/Cartpole-v0 --seeds 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from learning.estimation import ESTIMATORS  # noqa: E402
+from learning.estimation.collect import CollectConfig, collect  # noqa: E402
+from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
+from learning.estimation.metrics import ot_cost  # noqa: E402
+from learning.estimation.targets import TargetConfig, sample_target  # noqa: E402
+
+RESULTS = ROOT / "docs" / "results"
+
+
+def _key(run: dict) -> tuple:
+    return run["env"], run["target"], run["method"], run["seed"]
+
+
+def converge_seconds(trace: list[dict]) -> float:
+    """First snapshot time whose OT is within 10 % of the final OT."""
+    final = trace[-1]["ot"]
+    return next(t["seconds"] for t in trace if t["ot"] <= 1.1 * final + 1e-12)
+
+
+def run_one(env: str, target: str, method: str, seed: int, budget: int, episodes: int, data_cache: dict) -> dict:
+    """One estimation run, scored along its trace."""
+    if (env, target, seed) not in data_cache:
+        ds, truth = collect(CollectConfig(env=env, xi=target, episodes=episodes, seed=seed))
+        data_cache[(env, target, seed)] = (ds, ds.space.normalize(truth))
+    ds, u_true = data_cache[(env, target, seed)]
+    sampler, info, budget_state = estimate(ds, EstimateConfig(method=method, seed=seed, sim_budget=budget))
+    trace = [{"calls": t["calls"], "seconds": t["seconds"], "ot": ot_cost(t["u"], u_true)} for t in budget_state.trace]
+    final_u = sampler.space.normalize(sampler.sample(500, np.random.default_rng(seed + 1000)))
+    return {"env": env, "target": target, "method": method, "seed": seed, "sim_budget": budget,
+            "ot": ot_cost(final_u, u_true), "seconds_total": info["seconds"], "sim_calls": info["sim_calls"],
+            "seconds_converge": converge_seconds(trace), "trace": trace, "details": info["details"],
+            "samples_u": final_u[:300].round(4).tolist(), "true_u": u_true.round(4).tolist()}
+
+
+def oracle_ot(env: str, target: str, seed: int, data_cache: dict) -> float:
+    """OT of 500 fresh draws from the TRUE target against the 48 true parameters: the floor."""
+    ds, u_true = data_cache[(env, target, seed)]
+    xi = sample_target(TargetConfig(kind=target), ds.space, 500, np.random.default_rng(seed + 2000))
+    return ot_cost(ds.space.normalize(xi), u_true)
+
+
+def summarize(runs: list[dict], oracle: dict) -> dict:
+    """The rows of docs/results/nfpde.json."""
+    rows = []
+    for env in dict.fromkeys(r["env"] for r in runs):
+        for target in ("gaussian", "mixture"):
+            for method in ESTIMATORS:
+                sel = [r for r in runs if (r["env"], r["target"], r["method"]) == (env, target, method)]
+                if not sel:
+                    continue
+                ot = np.array([r["ot"] for r in sel])
+                rows.append({"env": env, "target": target, "method": method,
+                             "ot_mean": float(ot.mean()),
+                             "ot_se": float(ot.std(ddof=1) / np.sqrt(len(ot))) if len(ot) > 1 else 0.0,
+                             "seconds_mean": float(np.mean([r["seconds_converge"] for r in sel])),
+                             "seconds_total_mean": float(np.mean([r["seconds_total"] for r in sel])),
+                             "sim_calls_mean": float(np.mean([r["sim_calls"] for r in sel])),
+                             "seeds": len(sel),
+                             "oracle_ot_mean": float(np.mean([oracle[f"{env}|{target}|{r['seed']}"] for r in sel
+                                                              if f"{env}|{target}|{r['seed']}" in oracle] or [np.nan]))})
+    return {"rows": rows}
+
+
+def plot(runs: list[dict], out: Path) -> None:
+    """Per env: samples (first two params) per method and target; OT vs seconds and vs calls."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for env in dict.fromkeys(r["env"] for r in runs):
+        stem = env.split("/")[-1].split("-v")[0].lower()
+        fig, axs = plt.subplots(2, len(ESTIMATORS), figsize=(3.2 * len(ESTIMATORS), 6.4), squeeze=False)
+        for i, target in enumerate(("gaussian", "mixture")):
+            for j, method in enumerate(ESTIMATORS):
+                ax = axs[i, j]
+                sel = [r for r in runs if (r["env"], r["target"], r["method"], r["seed"]) == (env, target, method, 0)]
+                if sel:
+                    u, t = np.array(sel[0]["samples_u"]), np.array(sel[0]["true_u"])
+                    ax.scatter(u[:, 0], u[:, 1], s=3, alpha=0.5, label="estimate")
+                    ax.scatter(t[:, 0], t[:, 1], s=12, c="r", label="true xi")
+                    ax.set_title(f"{method} / {target}\nOT {sel[0]['ot']:.3f}", fontsize=9)
+                ax.set_xlim(0, 1)
+                ax.set_ylim(0, 1)
+        axs[0, 0].legend(fontsize=7)
+        fig.suptitle(f"{env}: samples of the estimate (seed 0), first two parameters, unit box")
+        fig.tight_layout()
+        fig.savefig(out / f"nfpde-{stem}-samples.png", dpi=100)
+        plt.close(fig)
+
+        for xkey, label in (("seconds", "wall time [s]"), ("calls", "simulator calls")):
+            fig, axs = plt.subplots(1, 2, figsize=(10, 4))
+            for ax, target in zip(axs, ("gaussian", "mixture")):
+                for method in ESTIMATORS:
+                    sel = [r for r in runs if (r["env"], r["target"], r["method"]) == (env, target, method)]
+                    for k, r in enumerate(sel):
+                        x = [t[xkey] for t in r["trace"]]
+                        y = [t["ot"] for t in r["trace"]]
+                        color = f"C{ESTIMATORS.index(method)}"
+                        ax.plot(x, y, "-o" if len(x) == 1 else "-", color=color, ms=4, alpha=0.7,
+                                label=method if k == 0 else None)
+                ax.set_xlabel(label)
+                ax.set_ylabel("OT cost (unit box)")
+                ax.set_title(f"{env} / {target}")
+                ax.legend(fontsize=8)
+            fig.tight_layout()
+            fig.savefig(out / f"nfpde-{stem}-ot-vs-{xkey}.png", dpi=100)
+            plt.close(fig)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--envs", nargs="+", default=["goflow/Cartpole-v0"])
+    p.add_argument("--targets", nargs="+", default=["gaussian", "mixture"])
+    p.add_argument("--methods", nargs="+", default=list(ESTIMATORS), choices=ESTIMATORS)
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--budget", type=int, default=100_000, help="simulator calls per run")
+    p.add_argument("--episodes", type=int, default=48)
+    p.add_argument("--out", default=str(RESULTS))
+    args = p.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs_path = out / "nfpde_runs.json"
+    doc = json.loads(runs_path.read_text()) if runs_path.exists() else {"runs": [], "oracle": {}}
+    done = {_key(r) for r in doc["runs"]}
+    doc["command"] = "python benchmarks/nfpde_table.py " + " ".join(sys.argv[1:])
+    cache: dict = {}
+    for env in args.envs:
+        for target in args.targets:
+            for seed in range(args.seeds):
+                for method in args.methods:
+                    if (env, target, method, seed) in done:
+                        continue
+                    t0 = time.perf_counter()
+                    run = run_one(env, target, method, seed, args.budget, args.episodes, cache)
+                    doc["oracle"][f"{env}|{target}|{seed}"] = oracle_ot(env, target, seed, cache)
+                    doc["runs"].append(run)
+                    tmp = runs_path.with_suffix(".tmp")
+                    tmp.write_text(json.dumps(doc))
+                    os.replace(tmp, runs_path)
+                    print(f"{env} {target} seed {seed} {method}: OT {run['ot']:.3f}, converged "
+                          f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s "
+                          f"({time.perf_counter() - t0:.0f} s with scoring)", flush=True)
+    summary = summarize(doc["runs"], doc["oracle"])
+    summary["command"] = doc["command"]
+    (out / "nfpde.json").write_text(json.dumps(summary, indent=2))
+    plot(doc["runs"], out)
+    for r in summary["rows"]:
+        print(f"{r['env']:<22} {r['target']:<9} {r['method']:<14} OT {r['ot_mean']:.3f} +- {r['ot_se']:.3f}  "
+              f"converge {r['seconds_mean']:6.1f} s  total {r['seconds_total_mean']:6.1f} s  "
+              f"(oracle {r['oracle_ot_mean']:.3f})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
