@@ -20,7 +20,10 @@ import numpy as np
 from assembly.gearset import gear_spec
 from assembly.inspect import run_inspect
 from assembly.world import WorldConfig
-from perception.bench import BenchConfig, bench_posteriors, bench_renderers
+from assembly.cameras import default_scene_camera
+from perception.bench import BenchConfig, bench_posteriors, bench_renderers, close_camera
+from perception.drake_scene import DrakeScene, SceneConfig
+from perception.gear_model import gear_model
 from perception.calibration import CalibrationConfig, pose_error, run_calibration
 from perception.observe import observe
 from perception.search import Prior, estimate_pose
@@ -58,6 +61,31 @@ def _inspect_figures(out: Path, gear: str = "medium") -> dict:
     return result
 
 
+def _symmetry(gear: str = "medium") -> list[dict]:
+    """Plain and marked gear, far (scene camera) and close (15 cm above): how the yaw mass spreads
+    over the tooth-pitch repeats (exp of the repeats' entropy; mass on the true repeat)."""
+    truth = (0.41, -0.03, 0.7)
+    prior = Prior(truth[0] + 0.01, truth[1] - 0.008, 0.03)
+    teeth = gear_spec(gear).teeth
+    pitch = 2 * np.pi / teeth
+    rows = []
+    for marked in (False, True):
+        scene = DrakeScene(SceneConfig(gears={gear: truth}, marked=(gear,) if marked else (),
+                                       plate_pose=(0.55, 0.0, np.pi / 2)))
+        for view, camera in (("far", default_scene_camera()), ("close", close_camera(truth[0], truth[1]))):
+            post = estimate_pose(scene.render(camera, camera.X_PC), gear_model(gear, marked), prior)
+            m = np.array([post.probability(yaw=(truth[2] + (k - 0.5) * pitch, truth[2] + (k + 0.5) * pitch))
+                          for k in range(teeth)])
+            p = m[m > 0] / m.sum()
+            rows.append({"gear": gear, "marked": marked, "view": view, "teeth": teeth,
+                         "effective_repeats": float(np.exp(-(p * np.log(p)).sum())),
+                         "true_repeat_mass": float(m[0]), "min_repeat_mass_x_teeth": float(m.min() * teeth),
+                         "max_repeat_mass_x_teeth": float(m.max() * teeth),
+                         "entropy": {d: post.marginal_entropy(d) for d in ("x", "y", "yaw")},
+                         "seconds": post.info["seconds"]})
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hypotheses", type=int, default=40)
@@ -70,8 +98,9 @@ def main() -> None:
     renderers = bench_renderers(BenchConfig(hypotheses=args.hypotheses))
     posteriors = bench_posteriors(BenchConfig(posteriors=args.posteriors))
     figures = _inspect_figures(out)
-    bench = {"cores": os.sched_getaffinity(0).__len__(), "renderers": renderers,
-             "posteriors": posteriors, "inspect_medium": figures}
+    symmetry = _symmetry()
+    bench = {"cores": len(os.sched_getaffinity(0)), "renderers": renderers,
+             "posteriors": posteriors, "inspect_medium": figures, "symmetry": symmetry}
     (out / "perception_bench.json").write_text(json.dumps(bench, indent=2))
     calib = run_calibration(CalibrationConfig(scenes=args.scenes))
     (out / "perception_calibration.json").write_text(json.dumps(calib, indent=2))
@@ -89,6 +118,14 @@ def main() -> None:
               f"{f['yaw_error_deg']:.2f} deg (mod tooth pitch); std x,y "
               f"{1e3 * f['std'][0]:.3f}, {1e3 * f['std'][1]:.3f} mm; entropy x,y "
               f"{f['entropy']['x']:.2f}, {f['entropy']['y']:.2f} nats; truth in 90 %: {f['truth_in_90']}")
+    print("\n| gear | marked | view | effective repeats (of teeth) | mass on true repeat | "
+          "min, max repeat mass x teeth | entropy x, y, yaw [nats] | s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in symmetry:
+        e = r["entropy"]
+        print(f"| {r['gear']} | {r['marked']} | {r['view']} | {r['effective_repeats']:.1f} of {r['teeth']} | "
+              f"{r['true_repeat_mass']:.3f} | {r['min_repeat_mass_x_teeth']:.2f}, {r['max_repeat_mass_x_teeth']:.2f} | "
+              f"{e['x']:.2f}, {e['y']:.2f}, {e['yaw']:.2f} | {r['seconds']:.2f} |")
     rows = calib["rows"]
     print(f"\ncalibration: truth in the 90 % region in {100 * calib['coverage']:.0f} % of "
           f"{calib['scenes']} scenes; MAP x-y error median {1e3 * np.median([r['xy_error_m'] for r in rows]):.3f} mm, "

@@ -191,6 +191,9 @@ class PosePosterior:
         if truth is not None:
             ax0.plot(1e3 * truth[0], 1e3 * truth[1], "r+", ms=12, label="truth")
             ax0.legend(loc="upper right", fontsize=8)
+        from matplotlib.ticker import MaxNLocator
+        ax0.xaxis.set_major_locator(MaxNLocator(4))
+        ax0.yaxis.set_major_locator(MaxNLocator(5))
         ax0.set_xlabel("x [mm]")
         ax0.set_ylabel("y [mm]")
         ax0.set_title(f"{self.gear} gear: p(x, y)" + ("" if self.informative else " (uninformative)"))
