@@ -58,6 +58,7 @@ class HeightMap:
 
     @property
     def size(self) -> int:
+        """Texels per side."""
         return self.height.shape[0]
 
     @property

@@ -52,14 +52,17 @@ class PosePosterior:
 
     @property
     def dx(self) -> float:
+        """Cell size in x [m]."""
         return float(self.xs[1] - self.xs[0]) if len(self.xs) > 1 else 0.0
 
     @property
     def dy(self) -> float:
+        """Cell size in y [m]."""
         return float(self.ys[1] - self.ys[0]) if len(self.ys) > 1 else 0.0
 
     @property
     def dyaw(self) -> float:
+        """Cell size in yaw [rad]."""
         return float(self.yaw_offsets[1] - self.yaw_offsets[0]) if len(self.yaw_offsets) > 1 else 0.0
 
     @property
