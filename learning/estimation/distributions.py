@@ -127,14 +127,17 @@ class TruncNormalProduct:
         self.dim = len(self.mu)
         self._a, self._b = (0.0 - self.mu) / self.sigma, (1.0 - self.mu) / self.sigma
 
-    def sample_u(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-        """Inverse-CDF draws (one uniform per value)."""
+    def quantile(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The inverse CDF applied to uniforms p (n, d) in [0, 1]: a draw per row."""
         from scipy.special import ndtr, ndtri
 
         lo, hi = ndtr(self._a), ndtr(self._b)
-        p = lo + rng.uniform(size=(n, self.dim)) * (hi - lo)
-        u = self.mu + self.sigma * ndtri(np.clip(p, 1e-300, 1.0 - 1e-16))
-        return np.clip(u, 0.0, 1.0)
+        q = lo + np.asarray(p, dtype=np.float64) * (hi - lo)
+        return np.clip(self.mu + self.sigma * ndtri(np.clip(q, 1e-300, 1.0 - 1e-16)), 0.0, 1.0)
+
+    def sample_u(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        """Inverse-CDF draws (one uniform per value)."""
+        return self.quantile(rng.uniform(size=(n, self.dim)))
 
     def log_prob_u(self, u: ArrayLike) -> NDArray[np.float64]:
         """Sum of truncated-normal log densities; -inf outside."""
