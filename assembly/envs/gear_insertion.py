@@ -20,7 +20,12 @@ Each episode starts with the tool at the pre-insertion pose: where a centred gea
   d the gear's distance to its seated pose. The 1 cm term guides the last centimetre; the 5 cm
   term spans the whole grasp-error box, so that failed episodes still rank grasp errors (a gear
   stuck on the shaft top 1 cm off earns more than one 4 cm off): a sampler learning from the
-  returns of a uniform batch, where almost nothing succeeds, needs that gradient.
+  returns of a uniform batch, where almost nothing succeeds, needs that gradient. A third term
+  rewards progress, `progress_weight` (d_prev - d) with progress_weight = 10 /m (potential-based
+  shaping, Ng et al. 1999: it leaves the optimal policy unchanged and sums to 10 (d_0 - d_T) over
+  an episode, at most ~0.25). It credits each action for the distance it gains at once; without
+  it, lowering the gear 3 mm earned ~0.0003 per later step, which PPO did not pick out of the
+  noise in 40k steps (the policy hovered; docs/skills.md).
 - success: return >= J_T = 50 (the seed's J_T). With our reward (at most 1.2 per step, 100 steps
   in t_max = 4 s; about 0.1 per step while unseated near the shaft) that means the gear is seated
   from step ~65 on at the latest, i.e. inserted within ~2.6 s and kept there; the seed's reward
@@ -77,6 +82,7 @@ class GearInsertionConfig:
     shaping_weight: float = 0.1  # reward per step of each shaping term at d = 0
     shaping_near: float = 0.01  # [m] length scale of the fine shaping term
     shaping_far: float = 0.05  # [m] length scale of the coarse shaping term (the grasp-error box)
+    progress_weight: float = 10.0  # [1/m] reward per metre the gear gets closer to its seat
     fast_time_step: float = 0.04  # [s] physics step of the fast variant (docs/envs.md)
     panda_time_step: float = 0.008  # [s] physics step of the panda variant (the station's)
 
@@ -183,6 +189,7 @@ class GearInsertionEnv(ParamEnv):
         self._sim.reset(grasp_with_error(self.config.gear, *xi))
         self._poses[:] = 0.0
         self._poses[0] = self._relative(self._sim.tool_pose())
+        self._d = math.hypot(*self.insertion_error())
         return self._observation()
 
     def _step_model(self, action: NDArray[np.float64]
@@ -198,7 +205,8 @@ class GearInsertionEnv(ParamEnv):
         d = math.hypot(lateral, height)
         c = self.config
         reward = (float(seated) + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
-                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)))
+                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (self._d - d))
+        self._d = d
         return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
                                                     "height_error": height}
 

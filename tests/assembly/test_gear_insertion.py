@@ -81,6 +81,21 @@ def test_contact_decides(variant, fast, panda):
     assert height > 0.015
 
 
+def test_progress_is_credited_at_once(fast):
+    """Lowering the gear earns its progress term in the same steps; hovering earns none of it."""
+    def run(action, steps=10):
+        fast.reset(seed=0, options={"xi": [0.02, 0.0, 0.0]})
+        d0 = np.hypot(*fast.insertion_error())
+        rewards = [fast.step(action)[1] for _ in range(steps)]
+        return d0 - np.hypot(*fast.insertion_error()), rewards
+
+    gained_hover, r_hover = run(np.zeros(4))
+    gained_down, r_down = run(DOWN)
+    assert abs(gained_hover) < 0.001 and gained_down > 0.003  # down 5 mm onto the shaft top
+    progress = fast.config.progress_weight * (gained_down - gained_hover)
+    assert sum(r_down) - sum(r_hover) > 0.9 * progress
+
+
 def test_failed_episodes_still_rank_grasp_errors(fast):
     """The coarse shaping term orders failures by distance, across the whole grasp-error box."""
     returns = [_push_down(fast, [x, 0.0, 0.0])[0] for x in (0.005, 0.02, 0.045)]
