@@ -73,6 +73,11 @@ class RayCaster:
         poses = np.atleast_2d(np.asarray(poses, float))
         if poses.ndim != 2 or poses.shape[1] != 3:
             raise ValueError(f"poses have shape {poses.shape}; expected (N, 3) rows (x, y, yaw)")
+        if self.model.symmetry > 1:
+            # The model repeats every period: render the representative yaw in [0, period), so
+            # that poses one period apart give identical images (the texel grid is not symmetric).
+            poses = poses.copy()
+            poses[:, 2] = np.mod(poses[:, 2], self.model.period)
         origin = np.asarray(origin, float)
         dirs = np.asarray(dirs, float)
         if origin[2] <= self._top:
