@@ -132,6 +132,23 @@ class RayCaster:
         within = np.arange(len(pair_p)) - np.repeat(np.cumsum(reps) - reps, reps)
         return order[first + within], pair_p
 
+    def _cylinder_span(self, x0, y0, dx, dy) -> tuple[np.ndarray, np.ndarray]:
+        """Chord parameters [s_in, s_out] within [0, 1] where (x0 + s dx, y0 + s dy) lies inside
+        the tip radius (s_in >= s_out: never)."""
+        r2 = (self.model.tip_radius + 2 * self.map.texel) ** 2
+        A = dx * dx + dy * dy
+        B = x0 * dx + y0 * dy
+        C = x0 * x0 + y0 * y0 - r2
+        disc = B * B - A * C
+        root = np.sqrt(np.maximum(disc, 0.0))
+        safe = np.maximum(A, 1e-30)
+        vertical = A < 1e-24
+        s_in = np.where(vertical, np.where(C <= 0, 0.0, 1.0), (-B - root) / safe)
+        s_out = np.where(vertical, np.where(C <= 0, 1.0, 0.0), (-B + root) / safe)
+        s_in = np.where(disc < 0, 1.0, np.maximum(s_in, 0.0))
+        s_out = np.where(disc < 0, 0.0, np.minimum(s_out, 1.0))
+        return s_in, s_out
+
     def _lookup(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
         return self.map.index(gx, gy)
 
@@ -159,13 +176,18 @@ class RayCaster:
             hit, _ = inside(active, sv)
             s_hit[active[hit]] = s_prev[active[hit]] = sv[hit]
             active = active[~hit]
+        # March only the part of the chord inside the tip cylinder (the solid lies within it).
+        s_in, s_out = self._cylinder_span(gx0[active], gy0[active], gdx[active], gdy[active])
+        keep = s_in < s_out
+        active, s_in, s_out = active[keep], s_in[keep], s_out[keep]
         k_step = 1
         while active.size:
-            sv = np.minimum(1.0, k_step * ds[active])
+            sv = np.minimum(s_out, s_in + k_step * ds[active])
             hit, _ = inside(active, sv)
             s_hit[active[hit]] = sv[hit]
-            s_prev[active[hit]] = np.maximum(sv[hit] - ds[active[hit]], 0.0)
-            active = active[~hit & (sv < 1.0)]
+            s_prev[active[hit]] = np.maximum(sv[hit] - ds[active[hit]], s_in[hit])
+            go = ~hit & (sv < s_out)
+            active, s_in, s_out = active[go], s_in[go], s_out[go]
             k_step += 1
         rows = np.nonzero(np.isfinite(s_hit))[0]
         lo = s_prev[rows]
