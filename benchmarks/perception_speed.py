@@ -26,7 +26,8 @@ from perception.drake_scene import DrakeScene, SceneConfig
 from perception.gear_model import gear_model
 from perception.calibration import CalibrationConfig, pose_error, run_calibration
 from perception.observe import observe
-from perception.search import Prior, estimate_pose
+from perception.likelihood import LikelihoodConfig
+from perception.search import Prior, SearchConfig, estimate_pose
 
 
 def _renderer_table(rows: list[dict]) -> str:
@@ -86,15 +87,41 @@ def _symmetry(gear: str = "medium") -> list[dict]:
     return rows
 
 
+def _sweep_tempering(values: list[float], scenes: int, out: Path) -> None:
+    """Calibration coverage and median posterior widths for several tempering exponents."""
+    rows = []
+    for tau in values:
+        search = SearchConfig(likelihood=LikelihoodConfig(tempering=tau))
+        calib = run_calibration(CalibrationConfig(scenes=scenes, search=search))
+        std = np.array([r["std"] for r in calib["rows"]])
+        rows.append({"tempering": tau, "scenes": scenes, "coverage": calib["coverage"],
+                     "median_std_x_m": float(np.median(std[:, 0])),
+                     "median_std_y_m": float(np.median(std[:, 1])),
+                     "median_xy_error_m": float(np.median([r["xy_error_m"] for r in calib["rows"]]))})
+    (out / "perception_tempering.json").write_text(json.dumps(rows, indent=2))
+    print("| tempering | coverage of the 90 % region | median std x, y [mm] | median MAP x-y error [mm] |")
+    print("|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['tempering']} | {100 * r['coverage']:.0f} % of {r['scenes']} | "
+              f"{1e3 * r['median_std_x_m']:.3f}, {1e3 * r['median_std_y_m']:.3f} | "
+              f"{1e3 * r['median_xy_error_m']:.3f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hypotheses", type=int, default=40)
     parser.add_argument("--posteriors", type=int, default=5)
     parser.add_argument("--scenes", type=int, default=30)
     parser.add_argument("--out", default="docs/results")
+    parser.add_argument("--sweep-tempering", type=float, nargs="+", metavar="TAU",
+                        help="only run the calibration for each tempering exponent and print "
+                             "coverage and posterior widths (writes perception_tempering.json)")
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.sweep_tempering:
+        _sweep_tempering(args.sweep_tempering, args.scenes, out)
+        return
     renderers = bench_renderers(BenchConfig(hypotheses=args.hypotheses))
     posteriors = bench_posteriors(BenchConfig(posteriors=args.posteriors))
     figures = _inspect_figures(out)
