@@ -52,7 +52,8 @@ class SearchConfig:
     coarse_pixels: int = 80         # sampled pixels on a gear in the coarse stage
     fine_pixels: int = 300          # ... in the refining stages and the posterior
     coarse_step: float = 0.35       # coarse x-y step, as a fraction of the tip radius
-    coarse_yaw_cells: int = 4       # coarse yaw steps per appearance period (marked: 24 per turn)
+    coarse_yaw_cells: int = 4       # coarse yaw steps per appearance period ...
+    coarse_yaw_cells_turn: int = 24  # ... or per turn for a model without symmetry (marked)
     beam: int = 3                   # coarse hypotheses refined
     min_step: float = 2.5e-4        # finest x-y step [m] of the refinement
     min_yaw_step: float = np.radians(0.25)
@@ -65,7 +66,12 @@ class SearchConfig:
         if self.grid < 3 or self.grid % 2 == 0:
             raise ValueError(f"grid = {self.grid}; expected an odd number >= 3")
         if self.beam < 1 or self.coarse_pixels < 10 or self.fine_pixels < self.coarse_pixels:
-            raise ValueError("expected beam >= 1 and 10 <= coarse_pixels <= fine_pixels")
+            raise ValueError(f"beam = {self.beam}, coarse_pixels = {self.coarse_pixels}, "
+                             f"fine_pixels = {self.fine_pixels}; expected beam >= 1 and "
+                             "10 <= coarse_pixels <= fine_pixels")
+        if self.coarse_yaw_cells < 1 or self.coarse_yaw_cells_turn < 4:
+            raise ValueError(f"coarse_yaw_cells = {self.coarse_yaw_cells}, coarse_yaw_cells_turn = "
+                             f"{self.coarse_yaw_cells_turn}; expected >= 1 and >= 4")
 
 
 def _grid(centre: np.ndarray, steps: np.ndarray, n: int) -> np.ndarray:
@@ -106,15 +112,15 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
     step = min(config.coarse_step * model.tip_radius, prior.half_width)
     nxy = int(np.ceil(prior.half_width / step)) * 2 + 1
     axis = np.linspace(-prior.half_width, prior.half_width, nxy)
-    n_yaw = config.coarse_yaw_cells if model.symmetry > 1 else 24
+    n_yaw = config.coarse_yaw_cells if model.symmetry > 1 else config.coarse_yaw_cells_turn
     yaw_step = model.period / n_yaw
-    yaws = -np.pi + np.arange(n_yaw) * yaw_step if model.symmetry == 1 else np.arange(n_yaw) * yaw_step
+    yaws = np.arange(n_yaw) * yaw_step - (np.pi if model.symmetry == 1 else 0.0)
     g = np.meshgrid(prior.x + axis, prior.y + axis, yaws, indexing="ij")
     poses = np.stack([a.ravel() for a in g], axis=1)
     s = score(poses, coarse)
     beam = poses[np.argsort(s.loglik)[::-1][:config.beam]]
-    steps = np.array([axis[1] - axis[0] if nxy > 1 else step, axis[1] - axis[0] if nxy > 1 else step,
-                      yaw_step])
+    dxy = axis[1] - axis[0] if nxy > 1 else step
+    steps = np.array([dxy, dxy, yaw_step])
     # 2. Refine the beam with shrinking grids (5^3 for the beam's first stages, then 3^3 around
     #    the single best).
     centres = beam
@@ -129,13 +135,11 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         centres = cand[np.argsort(sc.loglik)[::-1][:keep]]
         stage += 1
     best = centres[0]
-    # 3. Posterior grid around the MAP.
-    info["search_hypotheses"] = info["hypotheses"]
-    post = _posterior_grid(model, best, score, fine, config, info)
-    check = score(post.map_pose[None], fine)
+    # Sanity: does the best pose show enough of the gear, and explain what it shows?
+    check = score(best[None], fine)
     pixels, inliers = int(check.pixels[0]), float(check.inliers[0])
     info.update(pixels=pixels, inlier_fraction=inliers / max(pixels, 1), stride=fine,
-                seconds=time.perf_counter() - t0)
+                search_hypotheses=info["hypotheses"])
     reason = ""
     if pixels < config.min_pixels:
         reason = (f"only {pixels} pixels of the {model.name} gear at its best pose are in view "
@@ -147,6 +151,9 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
     if reason:
         info["seconds"] = time.perf_counter() - t0
         return uniform_posterior(model.name, (prior.x, prior.y), prior.half_width, reason, info=info)
+    # 3. Posterior grid around the MAP.
+    post = _posterior_grid(model, best, score, fine, config, info)
+    info["seconds"] = time.perf_counter() - t0
     post.info.update(info)
     return post
 
