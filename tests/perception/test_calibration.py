@@ -7,7 +7,8 @@ from perception.calibration import CalibrationConfig, run_calibration
 
 
 def test_truth_in_90_percent_region_at_least_80_percent_of_the_time():
-    result = run_calibration(CalibrationConfig(scenes=30, seed=0))
+    # seed 1: held-out scenes (the tempering exponent was chosen on seed 0, docs/perception.md)
+    result = run_calibration(CalibrationConfig(scenes=30, seed=1))
     rows = result["rows"]
     assert result["scenes"] == 30
     assert all(r["informative"] for r in rows)
