@@ -21,9 +21,9 @@ Each episode starts with the tool at the pre-insertion pose: where a centred gea
   term spans the whole grasp-error box, so that failed episodes still rank grasp errors (a gear
   stuck on the shaft top 1 cm off earns more than one 4 cm off): a sampler learning from the
   returns of a uniform batch, where almost nothing succeeds, needs that gradient. A third term
-  rewards progress, `progress_weight` (d_prev - d) with progress_weight = 10 /m (potential-based
-  shaping, Ng et al. 1999: it leaves the optimal policy unchanged and sums to 10 (d_0 - d_T) over
-  an episode, at most ~0.25). It credits each action for the distance it gains at once; without
+  rewards progress, `progress_weight` (d_prev - d) with progress_weight = 100 /m (potential-based
+  shaping, Ng et al. 1999: it leaves the optimal policy unchanged and sums to 100 (d_0 - d_T) over
+  an episode: 2.5 for a full insertion, at most ~7.5). It credits each action for the distance it gains at once; without
   it, lowering the gear 3 mm earned ~0.0003 per later step, which PPO did not pick out of the
   noise in 40k steps (the policy hovered; docs/skills.md).
 - success: return >= J_T = 50 (the seed's J_T). With our reward (at most 1.2 per step, 100 steps
@@ -74,15 +74,19 @@ class GearInsertionConfig:
     t_max: float = 4.0  # [s]
     start_height: float = 0.005  # [m] centred gear's bottom above the shaft top at the start
     # Per step. The impedance target is the measured pose plus this, so the pushing force stays
-    # below K times it (3 N at K = 300 N/m) and free motion is at most K/D times it per second.
-    action_scale: tuple[float, float, float, float] = (0.01, 0.01, 0.01, 0.1)
+    # below K times it (6 N down at K = 300 N/m) and free motion is at most K/D times it per second.
+    # Seating needs a firm push (a steady 6 N seats a centred gear in 0.6 s, 1.5 N not within 4 s),
+    # while a few millimetres of lateral drift already miss the chamfer: hence 2 cm down, 3 mm
+    # sideways (docs/skills.md: with 1 cm sideways, PPO's exploration drifted off the shaft).
+    action_scale: tuple[float, float, float, float] = (0.003, 0.003, 0.02, 0.05)
     workspace: tuple[float, float, float, float] = (0.06, 0.06, 0.06, 0.6)  # |target - seated|
     history: int = 10
     success_threshold: float = 50.0  # J_T
     shaping_weight: float = 0.1  # reward per step of each shaping term at d = 0
     shaping_near: float = 0.01  # [m] length scale of the fine shaping term
     shaping_far: float = 0.05  # [m] length scale of the coarse shaping term (the grasp-error box)
-    progress_weight: float = 10.0  # [1/m] reward per metre the gear gets closer to its seat
+    progress_weight: float = 100.0  # [1/m] reward per metre the gear gets closer to its seat
+    action_penalty: float = 0.0  # reward - action_penalty * |a|^2 per step (a the normalized action)
     fast_time_step: float = 0.04  # [s] physics step of the fast variant (docs/envs.md)
     panda_time_step: float = 0.008  # [s] physics step of the panda variant (the station's)
 
@@ -205,7 +209,8 @@ class GearInsertionEnv(ParamEnv):
         d = math.hypot(lateral, height)
         c = self.config
         reward = (float(seated) + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
-                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (self._d - d))
+                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (self._d - d)
+                  - c.action_penalty * float(np.dot(action, action)))
         self._d = d
         return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
                                                     "height_error": height}
