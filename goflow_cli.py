@@ -246,7 +246,7 @@ def make_parser() -> argparse.ArgumentParser:
     skill.add_argument("--skill", default="insert", choices=["insert"])
     skill.add_argument("--gear", required=True, choices=sorted(GEARS))
     skill.add_argument("--seed", type=int, default=0)
-    skill.add_argument("--steps", type=int, default=300_000, help="training environment steps")
+    skill.add_argument("--steps", type=int, default=120_000, help="training environment steps")
     skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
     skill.add_argument("--run", help="export: the `goflow train` run folder to package")
     skill.add_argument("--out", help="skill file (default: the shipped location)")

@@ -64,10 +64,14 @@ class SkillRecipe:
     method: str = "goflow"
     variant: str = "fast"
     seed: int = 0
-    total_steps: int = 300_000
+    total_steps: int = 120_000
     iterations_per_round: int = 2
-    eval_episodes: int = 32
-    sampler_kwargs: dict[str, Any] = field(default_factory=dict)
+    # The flow learns from the uniform-box validation batch, where only ~0.3 % of grasp errors
+    # are within the chamfer's capture range: a larger batch shows it a success more often.
+    eval_episodes: int = 96
+    # GoFlow from a narrow start (std 5 mm in x, y) with a small entropy weight (the seed swept
+    # alpha in {0.1, ..., 2}): the training probes in docs/skills.md.
+    sampler_kwargs: dict[str, Any] = field(default_factory=lambda: {"alpha": 0.1, "base_scale": 0.5})
     ppo: PPOConfig = field(default_factory=lambda: PPOConfig(num_steps=100, init_log_std=-1.0))
 
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:

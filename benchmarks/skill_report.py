@@ -1,0 +1,57 @@
+"""Report on the shipped insertion skills: success on the uniform box and on samples of each
+skill's own flow, in the fast variant and on the full Panda station, plus how wide each flow is.
+
+    .venv/bin/python benchmarks/skill_report.py [--gears small medium large] [--episodes 100]
+        [--panda-episodes 100] [--json docs/results/skills.json]
+
+Prints one table; the JSON holds every row (the `goflow evaluate` schema plus the flow's width).
+The trust threshold eps is given relative to the uniform density over the box (eps = ratio / volume).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from learning.skills import evaluate_skill, flow_width, load_skill, skill_path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--gears", nargs="+", default=["small", "medium", "large"])
+    parser.add_argument("--episodes", type=int, default=100, help="episodes per row, fast variant")
+    parser.add_argument("--panda-episodes", type=int, default=100, help="episodes per row, panda variant")
+    parser.add_argument("--eps-ratio", type=float, nargs="+", default=[1.0, 10.0],
+                        help="trust thresholds as multiples of the uniform density")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    rows = []
+    print(f"{'gear':<7} {'variant':<6} {'xi':<8} {'success':>8} {'+-':>6} {'return':>7} {'seconds':>8}")
+    for gear in args.gears:
+        if not skill_path("insert", gear).is_file():
+            print(f"{gear:<7} no shipped skill")
+            continue
+        skill = load_skill("insert", gear)
+        volume = float((skill.space.high - skill.space.low).prod())
+        widths = [flow_width(skill, eps=ratio / volume) for ratio in args.eps_ratio]
+        for variant, episodes in (("fast", args.episodes), ("panda", args.panda_episodes)):
+            for xi in ("flow", "uniform"):
+                result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed)
+                result["flow"] = widths
+                result["provenance"] = {k: skill.provenance.get(k) for k in
+                                        ("command", "steps", "train_seconds", "final_uniform_success")}
+                rows.append(result)
+                print(f"{gear:<7} {variant:<6} {xi:<8} {result['success_rate']:8.3f} {result['success_se']:6.3f} "
+                      f"{result['mean_return']:7.2f} {result['seconds']:8.0f}", flush=True)
+        for w in widths:
+            print(f"{gear:<7} flow entropy {w['entropy']:.2f} nats (uniform {w['uniform_entropy']:.2f}); density > "
+                  f"{w['eps_uniform_ratio']:g} x uniform on {100 * w['trusted_fraction']:.2f} % of the box")
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps({"rows": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
