@@ -39,6 +39,8 @@ def main() -> int:
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--iterations", type=int, default=20, help="PPO iterations (1920 env steps each)")
     p.add_argument("--budget", type=int, default=100_000, help="simulator calls per estimate")
+    p.add_argument("--train-on", nargs="+", default=["true", "fulldr", "nfpde-softmax", "dropo"],
+                   choices=["true", "fulldr", "nfpde-softmax", "dropo"], help="samplers to train with")
     p.add_argument("--out", default=str(ROOT / "docs" / "results"))
     p.add_argument("--estimates", default=str(ROOT / "runs" / "nfpde_policy"), help="estimate files")
     args = p.parse_args()
@@ -67,7 +69,7 @@ def main() -> int:
     done = {(r["train_on"], r["seed"]) for r in doc["runs"]}
     for seed in range(args.seeds):
         for name, sampler in samplers.items():
-            if (name, seed) in done:
+            if (name, seed) in done or name not in args.train_on:
                 continue
             res = train_and_evaluate(sampler, true_sampler, TransferConfig(env=ENV, seed=seed, iterations=args.iterations))
             doc["runs"].append({"train_on": name, "seed": seed, "target": args.target, **res})
