@@ -13,10 +13,11 @@ from learning.estimation.metrics import ot_cost
 from learning.estimation.sampler import load_estimate, save_estimate
 from learning.estimation.targets import TargetConfig, sample_target
 
-# The bound for the recovery test, measured (see docs/nfpde.md): NFPDE-Softmax on this dataset
-# reaches OT ~0.10; drawing 500 samples from the TRUE mixture scores ~0.07 (finite-sample floor);
-# the starting flow scores 0.16 and CAI (which collapses to a mode) ~0.5.
-RECOVERY_BOUND = 0.13
+# The bound for the recovery test, measured (see docs/nfpde.md): NFPDE-Softmax on this dataset ends
+# at OT 0.128 (seed 0; the last iterates jitter between ~0.09 and ~0.19); 500 samples of the TRUE
+# mixture score ~0.06 (the finite-sample floor), the starting flow 0.18, DROPO ~0.21 and CAI (which
+# collapses to one mode) ~0.33. Below 0.15 with every mode populated means the L was recovered.
+RECOVERY_BOUND = 0.15
 
 
 @pytest.fixture(scope="module")
