@@ -36,7 +36,7 @@ from learning.experiment import TrainConfig, make_sampler, train
 from learning.ppo import PPO, PPOConfig
 
 __all__ = ["SKILLS", "SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill", "export_skill",
-           "flow_width", "load_skill", "refine_flow", "skill_path", "train_skill"]
+           "flow_width", "load_skill", "skill_path", "train_skill"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
 SKILLS = ("insert",)
@@ -73,9 +73,6 @@ class SkillRecipe:
     # alpha in {0.1, ..., 2}): the training probes in docs/skills.md.
     sampler_kwargs: dict[str, Any] = field(default_factory=lambda: {"alpha": 0.1, "base_scale": 0.5})
     ppo: PPOConfig = field(default_factory=lambda: PPOConfig(num_steps=100, init_log_std=-1.0))
-    # After training: the flow's update on one uniform batch of this many episodes (0: none).
-    refine_episodes: int = 1500
-    refine_updates: int = 5
 
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
         """The TrainConfig of this recipe for skill `name` on `gear`, writing to run folder `out`."""
@@ -237,47 +234,14 @@ def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | o
     return skill
 
 
-def refine_flow(skill: Skill, episodes: int, updates: int, seed: int = 0, num_envs: int = 8) -> dict[str, Any]:
-    """The sampler's own update, `updates` times, on one large uniform-box batch of the final,
-    deterministic policy (the protocol's validation batch, only larger); the skill's flow changes
-    in place. Returns {"episodes", "successes", "updates", "entropy_before", "entropy_after"}.
-
-    Why: the flow learns where the policy succeeds from uniform-box batches, and for a blind
-    insertion policy that is ~0.3 % of the seed's box, so a 96-episode batch holds a success
-    about one round in four and the flow stays wide (docs/skills.md). One batch of thousands of
-    episodes shows it every success region at once."""
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
-    if isinstance(updates, bool) or not isinstance(updates, (int, np.integer)) or updates < 0:
-        raise ValueError(f"updates must be an integer >= 0, got {updates!r}")
-    n = max(1, min(int(num_envs), int(episodes)))
-    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(xi="uniform") for _ in range(n)],
-                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
-    try:
-        xi, returns, successes = skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
-    finally:
-        vec.close()
-    before = float(skill.sampler.entropy())
-    for _ in range(int(updates)):
-        skill.sampler.update(xi, returns)
-    return {"episodes": int(episodes), "successes": int(successes.sum()), "updates": int(updates),
-            "entropy_before": before, "entropy_after": float(skill.sampler.entropy())}
-
-
 def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: str | os.PathLike[str] = "runs/skills",
                 out: str | os.PathLike[str] | None = None, command: str = "", progress: bool = True) -> Skill:
-    """Train (or resume) skill `name` for `gear` with `recipe`, refine its flow on a large
-    uniform batch (`recipe.refine_episodes`), then export it (default: the shipped location)."""
+    """Train (or resume) skill `name` for `gear` with `recipe`, then export it (default: the
+    shipped location)."""
     recipe = recipe or SkillRecipe()
     run = Path(runs) / f"{name}-{gear}"
     train(recipe.train_config(name, gear, run), progress=progress)
-    out = Path(out or skill_path(name, gear))
-    skill = export_skill(run, name, gear, out, command=command)
-    if recipe.refine_episodes:
-        skill.provenance["refine"] = refine_flow(skill, recipe.refine_episodes, recipe.refine_updates,
-                                                 seed=recipe.seed + 1)
-        skill.save(out)
-    return skill
+    return export_skill(run, name, gear, out or skill_path(name, gear), command=command)
 
 
 def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episodes: int = 100, seed: int = 0,

@@ -10,8 +10,7 @@ import torch
 
 from learning.experiment import train
 from learning.ppo import PPOConfig
-from learning.skills import (SkillRecipe, Skill, evaluate_skill, export_skill, flow_width, load_skill, refine_flow,
-                             skill_path)
+from learning.skills import SkillRecipe, Skill, evaluate_skill, export_skill, flow_width, load_skill, skill_path
 
 
 @pytest.fixture(scope="module")
@@ -75,19 +74,6 @@ def test_flow_width(tiny_skill):
     assert w["entropy"] < w["uniform_entropy"] + 0.05  # no density on the box beats uniform's entropy
     high = flow_width(skill, eps=1e12, samples=2000)
     assert high["trusted_fraction"] == 0.0
-
-
-def test_refine_flow_updates_the_flow_from_one_uniform_batch(tiny_skill):
-    _, _, path = tiny_skill
-    skill = load_skill("insert", "small", path=path)
-    xi = skill.sampler.sample(8, np.random.default_rng(0))
-    before = skill.sampler.log_prob(xi)
-    info = refine_flow(skill, episodes=4, updates=2, seed=0, num_envs=2)
-    assert info["episodes"] == 4 and info["updates"] == 2 and 0 <= info["successes"] <= 4
-    assert not np.allclose(skill.sampler.log_prob(xi), before)
-    assert np.isfinite(info["entropy_after"])
-    with pytest.raises(ValueError, match="episodes"):
-        refine_flow(skill, episodes=0, updates=1)
 
 
 def test_bad_input(tiny_skill, tmp_path):
