@@ -108,3 +108,25 @@ def test_cli_evaluate_writes_the_issue_schema(tiny_skill, tmp_path):
     assert {"gear", "variant", "xi", "episodes", "success_rate", "mean_return"} <= set(result)
     assert (result["gear"], result["variant"], result["xi"], result["episodes"]) == ("small", "fast", "flow", 2)
     assert main(["evaluate", "--gear", "medium", "--path", str(path), "--episodes", "2"]) == 2  # wrong gear
+
+
+@pytest.mark.parametrize("gear", ["small", "medium", "large"])
+def test_shipped_skill_seats_a_small_grasp_error(gear):
+    """Each shipped skill loads by one call; its policy seats a gear held 1 mm off (fast variant)
+    and earns far more there than 1 cm off, where a blind push misses the shaft."""
+    skill = load_skill("insert", gear)
+    assert skill.provenance["command"] == f"goflow skill train --gear {gear}"
+    env = skill.make_env(variant="fast").unwrapped
+
+    def episode(xi):
+        obs, _ = env.reset(seed=0, options={"xi": xi})
+        total, seated, done = 0.0, 0, False
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(skill.act(obs))
+            total, seated, done = total + reward, seated + info["seated"], terminated or truncated
+        return total, seated
+
+    near, seated_steps = episode([0.001, 0.0, 0.0])
+    assert seated_steps >= 20, (near, seated_steps)  # seated for at least 0.8 s of the 4 s
+    far, _ = episode([0.01, 0.0, 0.0])
+    assert near > far + 20.0, (near, far)
