@@ -64,10 +64,10 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError, clipped_float32, config_with_overrides
-from assembly.envs.drake_sim import HeldInput, advance, rollout_fixed_inputs
+from assembly.envs.base import clipped_float32, config_with_overrides
+from assembly.envs.drake_sim import HeldInput, PlantEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -134,8 +134,10 @@ def _proximity(mu: float, cfg: CartpoleConfig):
     return props
 
 
-class CartpoleEnv(ParamEnv):
+class CartpoleEnv(PlantEnv):
     """Balance a pole on a force-driven cart; xi = (pole mass, cart mass, slider Coulomb friction)."""
+
+    _owner = "Cartpole"
 
     def __init__(self, config: CartpoleConfig | None = None, *, sampler: Sampler | None = None,
                  **overrides: Any) -> None:
@@ -197,7 +199,8 @@ class CartpoleEnv(ParamEnv):
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._sg_context = scene_graph.GetMyMutableContextFromRoot(self._context)
-        self._actuation = HeldInput(plant.get_actuation_input_port(), self._plant_context, [0.0])
+        self._input_zero = 0.0
+        self._input = HeldInput(plant.get_actuation_input_port(), self._plant_context, [0.0])
         self._initial_state: NDArray[np.float64] | None = None
         self._friction_set: float | None = None
         self._k = 0  # control steps since reset (simulated time = k * control_dt)
@@ -216,28 +219,7 @@ class CartpoleEnv(ParamEnv):
                                              RoleAssign.kReplace)
             self._friction_set = mu
 
-    def _start(self, xi: NDArray[np.float64], state: NDArray[np.float64]) -> None:
-        self._apply_xi(xi)
-        self._context.SetTime(0.0)
-        self._plant.SetPositionsAndVelocities(self._plant_context, state)
-        self._actuation.set_scalar(0.0)
-        self._simulator.Initialize()
-        self._k = 0
-
-    def _advance(self, force: float) -> list[float]:
-        """Hold `force` [N] for one control period; return the plant state (q, v) after it.
-
-        The per-step path works on Python floats: numpy calls between AdvanceTo calls cost several
-        times their isolated time (docs/envs.md, "Speed")."""
-        self._actuation.set_scalar(force)
-        self._k += 1
-        advance(self._simulator, self._k * self.control_dt, "Cartpole")
-        state = self._plant.GetPositionsAndVelocities(self._plant_context).tolist()
-        if not math.isfinite(sum(state)):  # NaN or inf anywhere
-            raise SimulationError(f"Cartpole: non-finite state at t = {self._k * self.control_dt:.4f} s: {state}")
-        return state
-
-    def _initial_plant_state(self, xi: NDArray[np.float64], theta0: float) -> NDArray[np.float64]:
+    def _initial_plant_state(self, xi: NDArray[np.float64], theta0: float = 0.0) -> NDArray[np.float64]:
         """(x, z, theta, xdot, zdot, thetadot) at rest, the wheel pressed to its static penetration."""
         penetration = (xi[0] + xi[1]) * 9.81 / self.config.contact_stiffness
         return np.array([0.0, self._cart_height - penetration, theta0, 0.0, 0.0, 0.0])
@@ -276,31 +258,8 @@ class CartpoleEnv(ParamEnv):
 
     # -- tools ---------------------------------------------------------------------------------
 
-    @property
-    def plant_state(self) -> NDArray[np.float64]:
-        """The plant state (x, z, theta, xdot, zdot, thetadot) [m, m, rad, m/s, m/s, rad/s], a copy."""
-        return self._plant.GetPositionsAndVelocities(self._plant_context).copy()
+    def _default_state(self, xi: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self._initial_plant_state(xi)  # pole upright, at rest
 
-    @property
-    def initial_state(self) -> NDArray[np.float64] | None:
-        """The plant state the last reset started from (None before the first reset)."""
-        return None if self._initial_state is None else self._initial_state.copy()
-
-    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike,
-                     initial_state: ArrayLike | None = None) -> NDArray[np.float64]:
-        """Advance the bare Drake simulator through `actions` (T, 1) with no gym wrapper.
-
-        Starts from `initial_state` (default: the state the last reset started from, else the pole
-        upright at rest) with parameters xi, and returns the plant state after every step, shape
-        (T, 6), equal to `plant_state` after each env.step of the same actions. It ends the current
-        episode: call reset() before stepping the env again.
-        """
-        xi = self.validate_xi(xi, what="bare_rollout xi")
-        forces = self.config.max_force * np.clip(np.asarray(actions, dtype=np.float64).reshape(-1), -1.0, 1.0)
-        if initial_state is None:
-            initial_state = self._initial_state if self._initial_state is not None else self._initial_plant_state(xi, 0.0)
-        self._done = True
-        self._start(xi, np.asarray(initial_state, dtype=np.float64))
-        return rollout_fixed_inputs(
-            self._simulator, self._actuation, forces[:, None], self.control_dt,
-            lambda: self._plant.GetPositionsAndVelocities(self._plant_context), "Cartpole.bare_rollout")
+    def _inputs(self, actions: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.config.max_force * np.clip(actions, -1.0, 1.0)  # slider force [N], (T, 1)

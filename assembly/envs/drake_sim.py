@@ -1,16 +1,19 @@
 """Stepping a Drake Simulator the way every goflow env does: failures become SimulationError, and
-inputs are held in place rather than re-fixed every step."""
+inputs are held in place rather than re-fixed every step; `PlantEnv`, the base of the envs that
+drive one MultibodyPlant through one held input (Cartpole, Quadrotor)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, InputPort
 
-from assembly.envs.base import SimulationError
+from assembly.envs.base import ParamEnv, SimulationError
 
 
 class HeldInput:
@@ -24,13 +27,12 @@ class HeldInput:
     def __init__(self, port: InputPort, context: Context, value: ArrayLike) -> None:
         self._fixed = port.FixValue(context, np.asarray(value, dtype=np.float64))
 
-    def set(self, value: ArrayLike) -> None:
-        """Hold `value` (shape of the port) from now on."""
-        self._fixed.GetMutableData().set_value(np.asarray(value, dtype=np.float64))
-
-    def set_scalar(self, value: float) -> None:
-        """Hold `value` on a size-1 port (the cheapest path)."""
-        self._fixed.GetMutableData().get_mutable_value().SetAtIndex(0, value)
+    def set(self, value: ArrayLike | float) -> None:
+        """Hold `value` (shape of the port; a float on a size-1 port, the cheapest path) from now on."""
+        if isinstance(value, float):
+            self._fixed.GetMutableData().get_mutable_value().SetAtIndex(0, value)
+        else:
+            self._fixed.GetMutableData().set_value(np.asarray(value, dtype=np.float64))
 
 
 def advance(simulator: Simulator, t: float, owner: str) -> None:
@@ -53,3 +55,76 @@ def rollout_fixed_inputs(simulator: Simulator, held: HeldInput, inputs: NDArray[
         advance(simulator, t0 + (k + 1) * dt, owner)
         out.append(read_state())
     return np.array(out)
+
+
+class PlantEnv(ParamEnv):
+    """A ParamEnv over one MultibodyPlant, simulated by one Simulator and Context reused for every
+    episode and driven through one HeldInput.
+
+    Subclasses set, when they build their diagram: `_simulator`, `_context`, `_plant`,
+    `_plant_context`, `_input` (the HeldInput), `_input_zero` (its value at rest) and
+    `_initial_state = None`; and implement `_apply_xi(xi)` (write xi into the Context),
+    `_default_state(xi)` (bare_rollout's start when no episode has started) and
+    `_inputs(actions)` (a (T, m) array of port values for normalized actions).
+    """
+
+    _owner = "PlantEnv"  # names the env in SimulationError messages
+
+    def _apply_xi(self, xi: NDArray[np.float64]) -> None:
+        raise NotImplementedError
+
+    def _default_state(self, xi: NDArray[np.float64]) -> NDArray[np.float64]:
+        raise NotImplementedError
+
+    def _inputs(self, actions: NDArray[np.float64]) -> NDArray[np.float64]:
+        raise NotImplementedError
+
+    def _start(self, xi: NDArray[np.float64], state: NDArray[np.float64]) -> None:
+        """Parameters xi, plant state `state`, input at rest, time 0."""
+        self._apply_xi(xi)
+        self._context.SetTime(0.0)
+        self._plant.SetPositionsAndVelocities(self._plant_context, state)
+        self._input.set(self._input_zero)
+        self._simulator.Initialize()
+        self._k = 0  # control steps since the start (simulated time = k * control_dt)
+
+    def _advance(self, value: ArrayLike | float) -> list[float]:
+        """Hold `value` on the input for one control period; return the plant state (q, v) after
+        it as Python floats. The per-step path avoids numpy calls, which cost several times their
+        isolated time between AdvanceTo calls (docs/envs.md, "Speed")."""
+        self._input.set(value)
+        self._k += 1
+        advance(self._simulator, self._k * self.control_dt, self._owner)
+        state = self._plant.GetPositionsAndVelocities(self._plant_context).tolist()
+        if not math.isfinite(sum(state)):  # NaN or inf anywhere
+            raise SimulationError(f"{self._owner}: non-finite state at t = {self._k * self.control_dt:.4f} s: {state}")
+        return state
+
+    @property
+    def plant_state(self) -> NDArray[np.float64]:
+        """The plant state (q, v), a copy."""
+        return self._plant.GetPositionsAndVelocities(self._plant_context).copy()
+
+    @property
+    def initial_state(self) -> NDArray[np.float64] | None:
+        """The plant state the last reset started from (None before the first reset)."""
+        return None if self._initial_state is None else self._initial_state.copy()
+
+    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike,
+                     initial_state: ArrayLike | None = None) -> NDArray[np.float64]:
+        """Advance the bare Drake simulator through `actions` (T, action dim) with no gym wrapper.
+
+        Starts from `initial_state` (default: the state the last reset started from, else
+        `_default_state(xi)`) with parameters xi, and returns the plant state after every step,
+        shape (T, nq + nv), equal to `plant_state` after each env.step of the same actions. It ends
+        the current episode: call reset() before stepping the env again.
+        """
+        xi = self.validate_xi(xi, what="bare_rollout xi")
+        inputs = self._inputs(np.asarray(actions, dtype=np.float64).reshape(-1, self.action_space.shape[0]))
+        if initial_state is None:
+            initial_state = self._initial_state if self._initial_state is not None else self._default_state(xi)
+        self._done = True
+        self._start(xi, np.asarray(initial_state, dtype=np.float64))
+        return rollout_fixed_inputs(
+            self._simulator, self._input, inputs, self.control_dt,
+            lambda: self._plant.GetPositionsAndVelocities(self._plant_context), f"{self._owner}.bare_rollout")

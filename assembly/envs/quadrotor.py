@@ -61,8 +61,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError, clipped_float32, config_with_overrides
-from assembly.envs.drake_sim import HeldInput, advance, rollout_fixed_inputs
+from assembly.envs.base import clipped_float32, config_with_overrides
+from assembly.envs.drake_sim import HeldInput, PlantEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -126,8 +126,10 @@ class QuadrotorConfig:
         return self.thrust_to_weight * self.nominal_mass
 
 
-class QuadrotorEnv(ParamEnv):
+class QuadrotorEnv(PlantEnv):
     """Fly to a random goal in 2 s; xi = (mass,); actions are four normalized rotor thrusts."""
+
+    _owner = "Quadrotor"
 
     def __init__(self, config: QuadrotorConfig | None = None, *, sampler: Sampler | None = None,
                  **overrides: Any) -> None:
@@ -189,36 +191,20 @@ class QuadrotorEnv(ParamEnv):
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._prop_context = propellers.GetMyMutableContextFromRoot(self._context)
-        self._command = HeldInput(propellers.get_command_input_port(), self._prop_context, np.zeros(4))
+        self._input_zero = np.zeros(4)
+        self._input = HeldInput(propellers.get_command_input_port(), self._prop_context, self._input_zero)
         self._initial_state: NDArray[np.float64] | None = None
         self._goal = np.array([0.0, 0.0, 1.0])
         self._goal_xyz = (0.0, 0.0, 1.0)
         self._k = 0
 
-    def _start(self, xi: NDArray[np.float64], state: NDArray[np.float64]) -> None:
+    def _apply_xi(self, xi: NDArray[np.float64]) -> None:
         self._body.SetMass(self._plant_context, float(xi[0]))
-        self._context.SetTime(0.0)
-        self._plant.SetPositionsAndVelocities(self._plant_context, state)
-        self._command.set(np.zeros(4))
-        self._simulator.Initialize()
-        self._k = 0
 
     def thrusts(self, action: ArrayLike) -> NDArray[np.float64]:
         """Rotor thrusts [N] for normalized actions (..., 4): T_max (clip(a, -1, 1) + 1) / 2."""
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         return 0.5 * self.config.max_rotor_thrust * (a + 1.0)
-
-    def _advance(self, thrusts: NDArray[np.float64]) -> list[float]:
-        """Hold `thrusts` [N] for one control period; return the plant state after it as floats
-        (the per-step path avoids numpy calls, which cost several times their isolated time
-        between AdvanceTo calls: docs/envs.md, "Speed")."""
-        self._command.set(thrusts)
-        self._k += 1
-        advance(self._simulator, self._k * self.control_dt, "Quadrotor")
-        state = self._plant.GetPositionsAndVelocities(self._plant_context).tolist()
-        if not math.isfinite(sum(state)):  # NaN or inf anywhere
-            raise SimulationError(f"Quadrotor: non-finite state at t = {self._k * self.control_dt:.4f} s: {state}")
-        return state
 
     # -- observation and reward ----------------------------------------------------------------
     # Drake's free-body state: q = (qw, qx, qy, qz, x, y, z), v = (w_WB in world, v_WB in world).
@@ -266,17 +252,15 @@ class QuadrotorEnv(ParamEnv):
         gz = self.np_random.uniform(*cfg.goal_z_range)
         self._goal = np.array([gx, gy, gz], dtype=np.float64)
         self._goal_xyz = (float(gx), float(gy), float(gz))
-        state = np.zeros(13)
-        state[0] = 1.0
-        state[4:7] = cfg.start_position
+        state = self._default_state(xi)
         self._initial_state = state.copy()
         self._start(xi, state)
         return self._observe_and_reward(state.tolist())[0]
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
-        t_max = 0.5 * self.config.max_rotor_thrust
-        state = self._advance(np.array([t_max * (min(1.0, max(-1.0, a)) + 1.0) for a in action.tolist()]))
+        half = 0.5 * self.config.max_rotor_thrust  # `thrusts`, on floats (the per-step path)
+        state = self._advance(np.array([half * (min(1.0, max(-1.0, a)) + 1.0) for a in action.tolist()]))
         obs, reward = self._observe_and_reward(state)
         return obs, reward, False, {}
 
@@ -288,16 +272,6 @@ class QuadrotorEnv(ParamEnv):
         return self._goal.copy()
 
     @property
-    def plant_state(self) -> NDArray[np.float64]:
-        """The plant state (qw, qx, qy, qz, x, y, z, w_WB (world), v_WB (world)), a copy."""
-        return self._plant.GetPositionsAndVelocities(self._plant_context).copy()
-
-    @property
-    def initial_state(self) -> NDArray[np.float64] | None:
-        """The plant state the last reset started from (None before the first reset)."""
-        return None if self._initial_state is None else self._initial_state.copy()
-
-    @property
     def rotor_positions(self) -> NDArray[np.float64]:
         """Rotor positions in the body frame [m], shape (4, 3)."""
         return self._rotor_positions.copy()
@@ -307,26 +281,12 @@ class QuadrotorEnv(ParamEnv):
         """Sign of each rotor's drag moment about body z per unit thrust (times moment_ratio), shape (4,)."""
         return self._rotor_spin.copy()
 
-    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike,
-                     initial_state: ArrayLike | None = None) -> NDArray[np.float64]:
-        """Advance the bare Drake simulator through `actions` (T, 4) with no gym wrapper.
+    def _default_state(self, xi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """At rest at the start position, level: (qw, qx, qy, qz, x, y, z, w_WB, v_WB)."""
+        state = np.zeros(13)
+        state[0] = 1.0
+        state[4:7] = self.config.start_position
+        return state
 
-        Starts from `initial_state` (default: the state the last reset started from, else the start
-        position at rest) with parameters xi, and returns the plant state after every step, shape
-        (T, 13), equal to `plant_state` after each env.step of the same actions. It ends the current
-        episode: call reset() before stepping the env again.
-        """
-        xi = self.validate_xi(xi, what="bare_rollout xi")
-        thrusts = self.thrusts(np.asarray(actions, dtype=np.float64).reshape(-1, 4))
-        if initial_state is None:
-            if self._initial_state is not None:
-                initial_state = self._initial_state
-            else:
-                initial_state = np.zeros(13)
-                initial_state[0] = 1.0
-                initial_state[4:7] = self.config.start_position
-        self._done = True
-        self._start(xi, np.asarray(initial_state, dtype=np.float64))
-        return rollout_fixed_inputs(
-            self._simulator, self._command, thrusts, self.control_dt,
-            lambda: self._plant.GetPositionsAndVelocities(self._plant_context), "Quadrotor.bare_rollout")
+    def _inputs(self, actions: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.thrusts(actions)
