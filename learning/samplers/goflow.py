@@ -70,7 +70,7 @@ from zuko.lazy import UnconditionalDistribution
 from assembly.params import ParamSpace
 from assembly.samplers import _diagnostics, check_sample_args, check_state_dict, check_update_inputs
 
-__all__ = ["GoFlowConfig", "GoFlowSampler", "standardize_returns"]
+__all__ = ["GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
 
 BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (REFERENCES.md: the authors map the box onto it)
 _BOX_TOL = 1e-4  # float32 rounding slack (box coordinates) before a draw counts as outside
@@ -94,6 +94,19 @@ def standardize_returns(returns: NDArray[np.float64]) -> tuple[NDArray[np.float6
     if not math.isfinite(std) or std <= 1e-12:
         return np.zeros_like(r), False
     return centred / std, True
+
+
+def update_diagnostics(returns: NDArray[np.float64], entropy: float, *, first: dict[str, float] | None,
+                       last: dict[str, float], steps: int, skipped: int, reverted: bool, has_signal: bool,
+                       update_index: int, t0: float, **extra: Any) -> dict[str, Any]:
+    """What a sampler updated by gradient steps reports (GoFlow, LSDR): the protocol's diagnostics,
+    the first and last step's loss, the step counts, whether it reverted, and `extra`."""
+    diag = _diagnostics(returns, entropy)
+    diag.update({"loss": last.get("loss", math.nan), "loss_first": math.nan if first is None else first["loss"],
+                 **extra, "steps": steps, "skipped_steps": skipped, "reverted": reverted,
+                 "returns_have_signal": has_signal, "update_index": update_index,
+                 "time_s": time.perf_counter() - t0})
+    return diag
 
 
 @dataclass(frozen=True)
@@ -381,23 +394,12 @@ class GoFlowSampler:
         self._entropy_cache = None
         kl = float((lq_old - self._log_q(y_old)).mean()) if len(y_old) else 0.0
 
-        diag = _diagnostics(ret, self.entropy())
-        diag.update(
-            {
-                "loss": last.get("loss", math.nan),
-                "loss_first": math.nan if first is None else first["loss"],
-                "reward_term": last.get("reward_term", math.nan),
-                "entropy_objective": last.get("entropy_objective", math.nan),
-                "kl": kl,  # KL(q_old || q_new) on the old flow's samples, after any revert
-                "steps": cfg.steps,
-                "skipped_steps": skipped,
-                "reverted": reverted,
-                "returns_have_signal": has_signal,
-                "update_index": self.n_updates,
-                "time_s": time.perf_counter() - t0,
-            }
-        )
-        return diag
+        return update_diagnostics(
+            ret, self.entropy(), first=first, last=last, steps=cfg.steps, skipped=skipped, reverted=reverted,
+            has_signal=has_signal, update_index=self.n_updates, t0=t0,
+            reward_term=last.get("reward_term", math.nan),
+            entropy_objective=last.get("entropy_objective", math.nan),
+            kl=kl)  # KL(q_old || q_new) on the old flow's samples, after any revert
 
     # -- checkpoints -----------------------------------------------------------------------------
 

@@ -50,8 +50,8 @@ from scipy.linalg import solve_triangular
 from scipy.special import log_ndtr, ndtri
 
 from assembly.params import ParamSpace
-from assembly.samplers import _diagnostics, check_sample_args, check_state_dict, check_update_inputs
-from learning.samplers.goflow import standardize_returns
+from assembly.samplers import check_sample_args, check_state_dict, check_update_inputs
+from learning.samplers.goflow import standardize_returns, update_diagnostics
 
 __all__ = ["LSDRConfig", "LSDRSampler"]
 
@@ -313,25 +313,12 @@ class LSDRSampler:
 
         with torch.no_grad():
             kl_now = float(kl_uniform_gaussian(torch.as_tensor(self.mu), torch.as_tensor(self.chol)))
-        diag = _diagnostics(ret, self.entropy())
-        diag.update(
-            {
-                "loss": last.get("loss", math.nan),
-                "loss_first": math.nan if first is None else first["loss"],
-                "weighted_loglik": last.get("weighted_loglik", math.nan),
-                "kl_uniform": kl_now,
-                "truncation_mass": self.truncation_mass(),
-                "mean": self.mean().tolist(),
-                "std": np.sqrt(np.diag(self.covariance())).tolist(),
-                "steps": cfg.steps,
-                "skipped_steps": skipped,
-                "reverted": reverted,
-                "returns_have_signal": has_signal,
-                "update_index": self.n_updates,
-                "time_s": time.perf_counter() - t0,
-            }
-        )
-        return diag
+        return update_diagnostics(
+            ret, self.entropy(), first=first, last=last, steps=cfg.steps, skipped=skipped, reverted=reverted,
+            has_signal=has_signal, update_index=self.n_updates, t0=t0,
+            weighted_loglik=last.get("weighted_loglik", math.nan), kl_uniform=kl_now,
+            truncation_mass=self.truncation_mass(), mean=self.mean().tolist(),
+            std=np.sqrt(np.diag(self.covariance())).tolist())
 
     # -- checkpoints -----------------------------------------------------------------------------
 
