@@ -694,9 +694,11 @@ class PPO:
                          "gradient_steps": self.gradient_steps},
         }
 
-    def load_state_dict(self, state: dict[str, Any], strict_config: bool = True) -> None:
+    def load_state_dict(self, state: dict[str, Any], strict_config: bool = True, optimizer: bool = True) -> None:
         """Restore a state_dict. ValueError if it is not a PPO checkpoint, if the dimensions or action
-        bounds differ, or (strict_config) if any hyperparameter differs from this PPO's config."""
+        bounds differ, or (strict_config) if any hyperparameter differs from this PPO's config.
+        optimizer=False keeps this PPO's own (fresh) Adam state: for a state saved to act, not to
+        resume training, which may lack it."""
         if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
             raise ValueError(f"PPO.load_state_dict: not a PPO checkpoint (expected format {_CHECKPOINT_FORMAT!r})")
         for key, mine in (("obs_dim", self.obs_dim), ("critic_obs_dim", self.critic_obs_dim),
@@ -714,7 +716,8 @@ class PPO:
                                "strict_config=False")
         self.actor.load_state_dict(state["actor"])
         self.critic.load_state_dict(state["critic"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        if optimizer:
+            self.optimizer.load_state_dict(state["optimizer"])
         self.obs_rms.load_state_dict(state["obs_rms"])
         self.critic_obs_rms.load_state_dict(state["critic_obs_rms"])
         self.reward_rms.load_state_dict(state["reward_rms"])
@@ -757,8 +760,9 @@ class PPO:
         return cls.from_state_dict(state)
 
     @classmethod
-    def from_state_dict(cls, state: dict[str, Any]) -> "PPO":
-        """A PPO built with a state_dict's dimensions, action bounds and config, then loaded."""
+    def from_state_dict(cls, state: dict[str, Any], optimizer: bool = True) -> "PPO":
+        """A PPO built with a state_dict's dimensions, action bounds and config, then loaded
+        (optimizer: as in load_state_dict)."""
         if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
             raise ValueError("PPO.from_state_dict: not a PPO state_dict")
         cfg = dict(state["config"])
@@ -766,5 +770,5 @@ class PPO:
         box = spaces.Box(np.asarray(state["action_low"], dtype=np.float32),
                          np.asarray(state["action_high"], dtype=np.float32), dtype=np.float32)
         ppo = cls(state["obs_dim"], state["critic_obs_dim"], box, PPOConfig(**cfg))
-        ppo.load_state_dict(state)
+        ppo.load_state_dict(state, optimizer=optimizer)
         return ppo

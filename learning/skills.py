@@ -172,23 +172,12 @@ class Skill:
         if not isinstance(state, dict) or state.get("format") != _FORMAT:
             raise ValueError(f"{path} is not a goflow skill file (expected format {_FORMAT!r})")
         space = ParamSpace.from_dict(state["space"])
-        agent_state = dict(state["agent"])
-        probe = PPO.from_state_dict({**agent_state, "optimizer": _fresh_optimizer_state(agent_state)})
+        agent = PPO.from_state_dict(state["agent"], optimizer=False)  # skills ship without Adam's moments
         sampler_kwargs = dict(state["provenance"].get("sampler_kwargs", {}))
         sampler = make_sampler(state["method"], space, state["success_threshold"], **sampler_kwargs)
         sampler.load_state_dict(state["sampler"])
-        return cls(state["name"], state["gear"], state["env"], state["env_kwargs"], state["method"], probe,
+        return cls(state["name"], state["gear"], state["env"], state["env_kwargs"], state["method"], agent,
                    sampler, state["success_threshold"], state["provenance"])
-
-
-def _fresh_optimizer_state(agent_state: dict[str, Any]) -> dict[str, Any]:
-    """The optimizer state of a freshly built PPO with this state's shape (skills ship without
-    Adam's moments: they are for acting, not for resuming training)."""
-    cfg = dict(agent_state["config"])
-    cfg["hidden_sizes"] = tuple(cfg["hidden_sizes"])
-    box = gymnasium.spaces.Box(np.asarray(agent_state["action_low"], dtype=np.float32),
-                               np.asarray(agent_state["action_high"], dtype=np.float32), dtype=np.float32)
-    return PPO(agent_state["obs_dim"], agent_state["critic_obs_dim"], box, PPOConfig(**cfg)).optimizer.state_dict()
 
 
 def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLike[str] | None = None) -> Skill:
