@@ -86,7 +86,6 @@ class GearInsertionConfig:
     shaping_near: float = 0.01  # [m] length scale of the fine shaping term
     shaping_far: float = 0.05  # [m] length scale of the coarse shaping term (the grasp-error box)
     progress_weight: float = 100.0  # [1/m] reward per metre the gear gets closer to its seat
-    action_penalty: float = 0.0  # reward - action_penalty * |a|^2 per step (a the normalized action)
     fast_time_step: float = 0.04  # [s] physics step of the fast variant (docs/envs.md)
     panda_time_step: float = 0.008  # [s] physics step of the panda variant (the station's)
 
@@ -209,8 +208,7 @@ class GearInsertionEnv(ParamEnv):
         d = math.hypot(lateral, height)
         c = self.config
         reward = (float(seated) + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
-                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (self._d - d)
-                  - c.action_penalty * float(np.dot(action, action)))
+                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (self._d - d))
         self._d = d
         return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
                                                     "height_error": height}
