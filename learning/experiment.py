@@ -4,10 +4,14 @@ Each round:
   1. training phase: PPO iterations on environments whose xi is drawn from the current sampler;
   2. validation phase: episodes on the *uniform* box with the current policy and no policy update;
      their success rate (return >= J_T) is the reported metric;
-  3. the sampler is updated with the batch its method learns from: the validation batch (xi,
-     returns) for GoFlow, LSDR and DORAEMON (told that its proposal is the uniform box, so its
-     importance weights are right), and for ADR its own training-phase episodes (ADR learns only
-     from episodes it pinned to a bound, which a uniform batch almost never contains).
+  3. the sampler is updated with the batch its method learns from (`TrainConfig.sampler_batch`):
+     by default the validation batch (xi, returns) for GoFlow, LSDR and DORAEMON (told that its
+     proposal is the uniform box, so its importance weights are right), and for ADR its own
+     training-phase episodes (ADR learns only from episodes it pinned to a bound, which a uniform
+     batch almost never contains). sampler_batch="training" makes GoFlow learn from the episodes
+     drawn from the flow itself: its reward term is then the score-function gradient of E_q[R],
+     which sees successes as often as the flow finds them (a departure from the paper, used to
+     refine skills whose success region is a tiny part of the box: docs/skills.md).
 A run writes `log.json` (config, curve, timings) and `checkpoint.pt` (policy, value function,
 optimizer, normalizers, sampler, ParamSpace, round, RNG) into its folder after every round; a run
 started on a folder that holds a checkpoint resumes from it, and reproduces the uninterrupted run.
@@ -76,10 +80,24 @@ class TrainConfig:
     eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
     ppo: PPOConfig = field(default_factory=PPOConfig)
     out: Path | None = None  # run folder (log.json, checkpoint.pt); None: nothing written
+    # the episodes the sampler learns from: "validation" (uniform box) or "training" (xi from the
+    # sampler); None: the method's own ("training" for ADR, "validation" for the rest)
+    sampler_batch: str | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown sampler {self.method!r}; expected one of {list(METHODS)}")
+        if self.sampler_batch is None:
+            self.sampler_batch = "training" if self.method == "adr" else "validation"
+        if self.sampler_batch not in ("validation", "training"):
+            raise ValueError(f"TrainConfig.sampler_batch = {self.sampler_batch!r}; expected 'validation' or "
+                             "'training'")
+        if self.method == "doraemon" and self.sampler_batch != "validation":
+            raise ValueError("DORAEMON's importance weights assume the uniform validation batch: "
+                             "sampler_batch must be 'validation'")
+        if self.method == "adr" and self.sampler_batch != "training":
+            raise ValueError("ADR learns only from its own boundary-pinned training episodes: "
+                             "sampler_batch must be 'training'")
         for name in ("total_steps", "iterations_per_round", "eval_episodes"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"TrainConfig.{name} = {getattr(self, name)}; expected >= 1")
@@ -142,8 +160,14 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         agent.load_state_dict(state["agent"])
         sampler.load_state_dict(state["sampler"])
         log = state["log"]
+        if log["config"] != config.to_json():  # a later stage continues the run with new settings
+            log.setdefault("stages", []).append({"from_round": log["rounds"], "config": config.to_json()})
+            log["config"] = config.to_json()
     steps_per_round = config.iterations_per_round * ppo_config.num_envs * ppo_config.num_steps
-    rounds = max(1, config.total_steps // steps_per_round)
+    # Rounds left from the training steps already done, so that a later stage with another round
+    # size continues the run to config.total_steps (a fresh run does at least one round).
+    done = log.get("steps", log["curve"][-1][0] if log["curve"] else 0)
+    rounds = log["rounds"] + max(0 if done else 1, (config.total_steps - done) // steps_per_round)
     bar = tqdm(total=rounds, initial=log["rounds"], disable=not progress,
                desc=f"{config.method} seed {config.seed}", unit="round")
     while log["rounds"] < rounds:
@@ -159,18 +183,20 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         t1 = time.perf_counter()
         train_returns = np.concatenate([e.episode_returns for e in episodes])
         train_successes = np.concatenate([e.successes for e in episodes])
-        if config.method == "adr":
+        if config.sampler_batch == "training":
             train_xi = np.concatenate([e.xi for e in episodes])
             diagnostics = sampler.update(train_xi, train_returns) if len(train_returns) else {}
         else:
             diagnostics = sampler.update(xi, returns)
         t2 = time.perf_counter()
         log["rounds"] = r + 1
-        log["curve"].append([(r + 1) * steps_per_round, float(np.mean(successes)),
+        done += steps_per_round
+        log["steps"] = done
+        log["curve"].append([done, float(np.mean(successes)),
                              float(np.mean(returns))])
         # Training-phase episodes (xi from the sampler): how the policy does where it trains.
         log.setdefault("train_curve", []).append(
-            [(r + 1) * steps_per_round, float(train_successes.mean()) if len(train_successes) else None,
+            [done, float(train_successes.mean()) if len(train_successes) else None,
              float(train_returns.mean()) if len(train_returns) else None])
         log["seconds"] += t2 - t0
         log["sampler_seconds"] += t2 - t1

@@ -39,6 +39,41 @@ def test_interrupted_run_resumes_and_matches(tmp_path):
     assert resumed["curve"] == full["curve"]
 
 
+def test_a_later_stage_switches_goflow_to_its_own_training_episodes(tmp_path, monkeypatch):
+    kwargs = {"steps": 5, "entropy_samples": 256, "kl_samples": 256}
+    train(_config("goflow", tmp_path, rounds=1, **kwargs), progress=False)
+    seen = []
+    from learning.samplers.goflow import GoFlowSampler
+    original = GoFlowSampler.update
+
+    def spy(self, xi, returns):
+        seen.append(len(returns))
+        return original(self, xi, returns)
+
+    monkeypatch.setattr(GoFlowSampler, "update", spy)
+    stage2 = _config("goflow", tmp_path, rounds=3, **kwargs)
+    stage2.sampler_batch = "training"
+    stage2.iterations_per_round = 2  # rounds of 128 steps: one more round reaches 3 x 64 steps
+    log = train(stage2, progress=False)
+    # Toy2D episodes last one step: the training phase's 2 x 4 envs x 16 steps are 128 episodes
+    # drawn from the flow, while the validation batch holds 16 uniform ones.
+    assert seen == [128]
+    assert log["rounds"] == 2 and log["stages"][0]["from_round"] == 1
+    assert [c[0] for c in log["curve"]] == [64, 192] and log["steps"] == 192
+    assert log["config"]["sampler_batch"] == "training"
+
+
+def test_sampler_batch_is_checked_per_method():
+    assert TrainConfig(method="adr").sampler_batch == "training"
+    assert TrainConfig(method="goflow").sampler_batch == "validation"
+    with pytest.raises(ValueError, match="sampler_batch = 'test'"):
+        TrainConfig(method="goflow", sampler_batch="test")
+    with pytest.raises(ValueError, match="DORAEMON"):
+        TrainConfig(method="doraemon", sampler_batch="training")
+    with pytest.raises(ValueError, match="ADR"):
+        TrainConfig(method="adr", sampler_batch="validation")
+
+
 def test_checkpoint_of_another_param_space_is_refused(tmp_path):
     train(_config("fulldr", tmp_path, rounds=1), progress=False)
     other = _config("fulldr", tmp_path, rounds=2)
