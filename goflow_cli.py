@@ -46,6 +46,18 @@ def _key_values(pairs: list[str] | None, flag: str) -> dict:
     return out
 
 
+def _method_kwargs(pairs: list[str] | None, methods) -> dict:
+    """["goflow.alpha=0.1"] -> {"goflow": {"alpha": 0.1}}: sampler options per method."""
+    out: dict = {}
+    for key, value in _key_values(pairs, "--method-kwarg").items():
+        method, dot, name = key.partition(".")
+        if not dot or method not in methods:
+            raise SystemExit(f"goflow: --method-kwarg {key}=...: expected METHOD.KEY=VALUE with METHOD one of "
+                             f"{list(methods)}")
+        out.setdefault(method, {})[name] = value
+    return out
+
+
 def _ppo_config(args: argparse.Namespace):
     import dataclasses
     from learning.ppo import PPOConfig
@@ -64,7 +76,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
                          method=args.sampler, sampler_kwargs=_key_values(args.sampler_kwarg, "--sampler-kwarg"),
                          seed=args.seed, total_steps=args.steps,
                          iterations_per_round=args.iterations_per_round,
-                         eval_episodes=args.eval_episodes, ppo=_ppo_config(args), out=out)
+                         eval_episodes=args.eval_episodes, ppo=_ppo_config(args), out=out,
+                         sampler_batch=args.sampler_batch)
     log = train(config)
     step, success, ret = log["curve"][-1]
     print(f"{args.sampler} seed {args.seed}: success {success:.3f} on the uniform box, mean return "
@@ -86,7 +99,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     import os
     from learning.experiment import format_summary, run_experiment
     os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
-    config = _experiment_config(args, args.methods)
+    config = _experiment_config(args, args.methods, _method_kwargs(args.method_kwarg, args.methods))
     summary = run_experiment(config)
     print(format_summary(summary))
     if args.env.startswith("goflow/Toy2D"):
@@ -123,7 +136,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_skill(args: argparse.Namespace) -> int:
     from learning.skills import SkillRecipe, describe, export_skill, load_skill, skill_path, train_skill
     if args.action == "train":
-        recipe = SkillRecipe(seed=args.seed, total_steps=args.steps)
+        recipe = SkillRecipe(seed=args.seed, total_steps=args.steps, refine_steps=args.refine_steps)
         skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=args.out,
                             command="goflow " + " ".join(sys.argv[1:]))
         print(f"{skill!r} -> {args.out or skill_path(args.skill, args.gear)}")
@@ -223,12 +236,17 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--sampler", required=True, choices=METHODS)
     train.add_argument("--sampler-kwarg", action="append", metavar="KEY=VALUE")
     train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--sampler-batch", choices=["validation", "training"],
+                       help="episodes the sampler learns from (default: the method's own; "
+                            "'training' makes GoFlow learn from its own draws)")
     train.add_argument("--out", help="run folder (resumes from its checkpoint)")
     train.set_defaults(func=_cmd_train)
 
     experiment = sub.add_parser("experiment", help="methods x seeds; writes docs/results/<env>.json")
     _add_run_flags(experiment, 200_000)
     experiment.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    experiment.add_argument("--method-kwarg", action="append", metavar="METHOD.KEY=VALUE",
+                            help="a sampler option of one method, e.g. goflow.alpha=0.1")
     _add_experiment_flags(experiment)
     experiment.set_defaults(func=_cmd_experiment)
 
@@ -246,7 +264,9 @@ def make_parser() -> argparse.ArgumentParser:
     skill.add_argument("--skill", default="insert", choices=["insert"])
     skill.add_argument("--gear", required=True, choices=sorted(GEARS))
     skill.add_argument("--seed", type=int, default=0)
-    skill.add_argument("--steps", type=int, default=120_000, help="training environment steps")
+    skill.add_argument("--steps", type=int, default=120_000, help="stage 1 (GoFlow) training environment steps")
+    skill.add_argument("--refine-steps", type=int, default=48_000,
+                       help="stage 2 steps, the flow learning from its own draws (0: none)")
     skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
     skill.add_argument("--run", help="export: the `goflow train` run folder to package")
     skill.add_argument("--out", help="skill file (default: the shipped location)")

@@ -83,6 +83,8 @@ class TrainConfig:
     # the episodes the sampler learns from: "validation" (uniform box) or "training" (xi from the
     # sampler); None: the method's own ("training" for ADR, "validation" for the rest)
     sampler_batch: str | None = None
+    # what the sampler learns: "return" (the episode return) or "success" (1 if return >= J_T else 0)
+    sampler_signal: str = "return"
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -92,6 +94,10 @@ class TrainConfig:
         if self.sampler_batch not in ("validation", "training"):
             raise ValueError(f"TrainConfig.sampler_batch = {self.sampler_batch!r}; expected 'validation' or "
                              "'training'")
+        if self.sampler_signal not in ("return", "success"):
+            raise ValueError(f"TrainConfig.sampler_signal = {self.sampler_signal!r}; expected 'return' or 'success'")
+        if self.sampler_signal == "success" and self.method in ("adr", "doraemon"):
+            raise ValueError(f"{self.method} compares returns with J_T itself: sampler_signal must be 'return'")
         if self.method == "doraemon" and self.sampler_batch != "validation":
             raise ValueError("DORAEMON's importance weights assume the uniform validation batch: "
                              "sampler_batch must be 'validation'")
@@ -184,10 +190,12 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         train_returns = np.concatenate([e.episode_returns for e in episodes])
         train_successes = np.concatenate([e.successes for e in episodes])
         if config.sampler_batch == "training":
-            train_xi = np.concatenate([e.xi for e in episodes])
-            diagnostics = sampler.update(train_xi, train_returns) if len(train_returns) else {}
+            batch_xi, batch_returns, batch_successes = (
+                np.concatenate([e.xi for e in episodes]), train_returns, train_successes)
         else:
-            diagnostics = sampler.update(xi, returns)
+            batch_xi, batch_returns, batch_successes = xi, returns, successes
+        signal = batch_returns if config.sampler_signal == "return" else batch_successes.astype(np.float64)
+        diagnostics = sampler.update(batch_xi, signal) if len(signal) else {}
         t2 = time.perf_counter()
         log["rounds"] = r + 1
         done += steps_per_round

@@ -14,6 +14,7 @@ reproduced by one command (docs/skills.md).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -73,14 +74,32 @@ class SkillRecipe:
     # alpha in {0.1, ..., 2}): the training probes in docs/skills.md.
     sampler_kwargs: dict[str, Any] = field(default_factory=lambda: {"alpha": 0.1, "base_scale": 0.5})
     ppo: PPOConfig = field(default_factory=lambda: PPOConfig(num_steps=100, init_log_std=-1.0))
+    # Stage 2, refinement: GoFlow learns from its own training episodes (sampler_batch="training"),
+    # which hit the chamfer's capture range as often as the flow does; 4 iterations per round give
+    # each flow update 32 episodes. The uniform-box validation goes on, smaller (docs/skills.md).
+    refine_steps: int = 48_000
+    refine_iterations_per_round: int = 4
+    refine_eval_episodes: int = 16
 
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
-        """The TrainConfig of this recipe for skill `name` on `gear`, writing to run folder `out`."""
+        """Stage 1 of this recipe for skill `name` on `gear`, writing to run folder `out`."""
         _check_name(name, gear)
         return TrainConfig(env=_ENV[name], env_kwargs={"gear": gear, "variant": self.variant},
                            method=self.method, sampler_kwargs=dict(self.sampler_kwargs), seed=self.seed,
                            total_steps=self.total_steps, iterations_per_round=self.iterations_per_round,
                            eval_episodes=self.eval_episodes, ppo=self.ppo, out=Path(out))
+
+    def refine_config(self, name: str, gear: str, out: Path) -> TrainConfig:
+        """Stage 2: the same run continued for `refine_steps`, the flow learning from its own draws."""
+        return dataclasses.replace(self.train_config(name, gear, out),
+                                   total_steps=self.total_steps + self.refine_steps,
+                                   iterations_per_round=self.refine_iterations_per_round,
+                                   eval_episodes=self.refine_eval_episodes, sampler_batch="training")
+
+    def stages(self, name: str, gear: str, out: Path) -> list[TrainConfig]:
+        """The TrainConfigs run one after the other on run folder `out`."""
+        return [self.train_config(name, gear, out)] + (
+            [self.refine_config(name, gear, out)] if self.refine_steps > 0 else [])
 
 
 class Skill:
@@ -229,7 +248,8 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
     shipped location)."""
     recipe = recipe or SkillRecipe()
     run = Path(runs) / f"{name}-{gear}"
-    train(recipe.train_config(name, gear, run), progress=progress)
+    for config in recipe.stages(name, gear, run):
+        train(config, progress=progress)
     return export_skill(run, name, gear, out or skill_path(name, gear), command=command)
 
 

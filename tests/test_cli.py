@@ -41,3 +41,18 @@ def test_bad_flags_are_explained():
     assert proc.returncode == 2 and "invalid choice: 'sac'" in proc.stderr
     proc = _run("train", "--env", "goflow/Toy2D-v0", "--sampler", "goflow", "--ppo", "learning_rat=1")
     assert proc.returncode != 0 and "learning_rat" in proc.stderr
+
+
+def test_experiment_passes_sampler_options_per_method(tmp_path):
+    proc = _run("experiment", "--env", "goflow/Toy2D-v0", "--methods", "goflow", "nodr", "--seeds", "1",
+                "--workers", "1", "--steps", "16", "--method-kwarg", "goflow.steps=3",
+                "--method-kwarg", "goflow.entropy_samples=64", "--out", str(tmp_path / "runs"),
+                "--results", str(tmp_path / "results"), "--name", "tiny", *TINY)
+    assert proc.returncode == 0, proc.stderr
+    log = json.loads((tmp_path / "runs" / "tiny" / "goflow" / "seed0" / "log.json").read_text())
+    assert log["config"]["sampler_kwargs"] == {"steps": 3, "entropy_samples": 64}
+    nodr = json.loads((tmp_path / "runs" / "tiny" / "nodr" / "seed0" / "log.json").read_text())
+    assert nodr["config"]["sampler_kwargs"] == {}
+    assert set(json.loads((tmp_path / "results" / "tiny.json").read_text())["methods"]) == {"goflow", "nodr"}
+    bad = _run("experiment", "--env", "goflow/Toy2D-v0", "--methods", "nodr", "--method-kwarg", "alpha=0.1")
+    assert bad.returncode != 0 and "METHOD.KEY=VALUE" in bad.stderr

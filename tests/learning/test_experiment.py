@@ -48,11 +48,12 @@ def test_a_later_stage_switches_goflow_to_its_own_training_episodes(tmp_path, mo
 
     def spy(self, xi, returns):
         seen.append(len(returns))
+        assert set(np.unique(returns)) <= {0.0, 1.0}  # sampler_signal="success"
         return original(self, xi, returns)
 
     monkeypatch.setattr(GoFlowSampler, "update", spy)
     stage2 = _config("goflow", tmp_path, rounds=3, **kwargs)
-    stage2.sampler_batch = "training"
+    stage2.sampler_batch, stage2.sampler_signal = "training", "success"
     stage2.iterations_per_round = 2  # rounds of 128 steps: one more round reaches 3 x 64 steps
     log = train(stage2, progress=False)
     # Toy2D episodes last one step: the training phase's 2 x 4 envs x 16 steps are 128 episodes
@@ -72,6 +73,10 @@ def test_sampler_batch_is_checked_per_method():
         TrainConfig(method="doraemon", sampler_batch="training")
     with pytest.raises(ValueError, match="ADR"):
         TrainConfig(method="adr", sampler_batch="validation")
+    with pytest.raises(ValueError, match="sampler_signal = 'score'"):
+        TrainConfig(method="goflow", sampler_signal="score")
+    with pytest.raises(ValueError, match="doraemon compares returns"):
+        TrainConfig(method="doraemon", sampler_signal="success")
 
 
 def test_checkpoint_of_another_param_space_is_refused(tmp_path):

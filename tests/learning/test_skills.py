@@ -8,23 +8,34 @@ import numpy as np
 import pytest
 import torch
 
-from learning.experiment import train
 from learning.ppo import PPOConfig
-from learning.skills import SkillRecipe, Skill, evaluate_skill, export_skill, flow_width, load_skill, skill_path
+from learning.skills import (
+    SkillRecipe, Skill, evaluate_skill, export_skill, flow_width, load_skill, skill_path, train_skill,
+)
 
 
 @pytest.fixture(scope="module")
 def tiny_skill(tmp_path_factory):
-    """A one-round GoFlow run on the small gear, exported as a skill file."""
+    """A tiny two-stage recipe on the small gear (one GoFlow round, one refinement round), exported
+    as a skill file by train_skill."""
     tmp = tmp_path_factory.mktemp("skill")
     recipe = SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1,
+                         refine_steps=20, refine_iterations_per_round=1, refine_eval_episodes=2,
                          sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
                                          "report_samples": 256},
                          ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
-    run = tmp / "run"
-    log = train(recipe.train_config("insert", "small", run), progress=False)
-    out = export_skill(run, "insert", "small", tmp / "insert-small.pt", command="test")
+    out = train_skill("insert", "small", recipe, runs=tmp / "runs", out=tmp / "insert-small.pt", command="test",
+                      progress=False)
+    log = json.loads((tmp / "runs" / "insert-small" / "log.json").read_text())
     return log, out, tmp / "insert-small.pt"
+
+
+def test_the_recipe_runs_both_stages(tiny_skill):
+    log, skill, _ = tiny_skill
+    assert log["rounds"] == 2 and [c[0] for c in log["curve"]] == [20, 40]
+    assert log["stages"] == [{"from_round": 1, "config": log["config"]}]
+    assert log["config"]["sampler_batch"] == "training" and log["config"]["eval_episodes"] == 2
+    assert skill.provenance["train_config"]["sampler_batch"] == "training"
 
 
 def test_export_and_load_round_trip(tiny_skill):
