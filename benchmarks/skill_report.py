@@ -22,7 +22,7 @@ def main() -> None:
     parser.add_argument("--gears", nargs="+", default=["small", "medium", "large"])
     parser.add_argument("--episodes", type=int, default=100, help="episodes per row, fast variant")
     parser.add_argument("--panda-episodes", type=int, default=100, help="episodes per row, panda variant")
-    parser.add_argument("--eps-ratio", type=float, nargs="+", default=[1.0, 10.0],
+    parser.add_argument("--eps-ratio", type=float, nargs="+", default=[1.0, 10.0, 100.0],
                         help="trust thresholds as multiples of the uniform density")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path)
