@@ -265,7 +265,7 @@ def make_parser() -> argparse.ArgumentParser:
     skill.add_argument("--gear", required=True, choices=sorted(GEARS))
     skill.add_argument("--seed", type=int, default=0)
     skill.add_argument("--steps", type=int, default=120_000, help="stage 1 (GoFlow) training environment steps")
-    skill.add_argument("--refine-steps", type=int, default=96_000,
+    skill.add_argument("--refine-steps", type=int, default=48_000,
                        help="stage 2 steps, the flow learning from its own draws (0: none)")
     skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
     skill.add_argument("--run", help="export: the `goflow train` run folder to package")

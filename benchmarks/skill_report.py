@@ -26,14 +26,17 @@ def main() -> None:
                         help="trust thresholds as multiples of the uniform density")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--skill-dir", type=Path, help="skill files insert-<gear>.pt to report on "
+                        "instead of the shipped ones (e.g. another recipe's exports)")
     args = parser.parse_args()
     rows = []
     print(f"{'gear':<7} {'variant':<6} {'xi':<8} {'success':>8} {'+-':>6} {'return':>7} {'seconds':>8}")
     for gear in args.gears:
-        if not skill_path("insert", gear).is_file():
-            print(f"{gear:<7} no shipped skill")
+        path = args.skill_dir / f"insert-{gear}.pt" if args.skill_dir else skill_path("insert", gear)
+        if not path.is_file():
+            print(f"{gear:<7} no skill file {path}")
             continue
-        skill = load_skill("insert", gear)
+        skill = load_skill("insert", gear, path=path)
         volume = float((skill.space.high - skill.space.low).prod())
         widths = [flow_width(skill, eps=ratio / volume) for ratio in args.eps_ratio]
         for variant, episodes in (("fast", args.episodes), ("panda", args.panda_episodes)):

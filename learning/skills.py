@@ -77,7 +77,7 @@ class SkillRecipe:
     # Stage 2, refinement: GoFlow learns from its own training episodes (sampler_batch="training"),
     # which hit the chamfer's capture range as often as the flow does; 4 iterations per round give
     # each flow update 32 episodes. The uniform-box validation goes on, smaller (docs/skills.md).
-    refine_steps: int = 96_000
+    refine_steps: int = 48_000
     refine_iterations_per_round: int = 4
     refine_eval_episodes: int = 16
 
