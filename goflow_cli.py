@@ -136,7 +136,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_skill(args: argparse.Namespace) -> int:
     from learning.skills import SkillRecipe, describe, export_skill, load_skill, skill_path, train_skill
     if args.action == "train":
-        recipe = SkillRecipe(seed=args.seed, total_steps=args.steps, refine_steps=args.refine_steps)
+        recipe = SkillRecipe(seed=args.seed, total_steps=args.steps, refine_steps=args.refine_steps,
+                             fit_rounds=args.fit_rounds)
         skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=args.out,
                             command="goflow " + " ".join(sys.argv[1:]))
         print(f"{skill!r} -> {args.out or skill_path(args.skill, args.gear)}")
@@ -267,6 +268,8 @@ def make_parser() -> argparse.ArgumentParser:
     skill.add_argument("--steps", type=int, default=120_000, help="stage 1 (GoFlow) training environment steps")
     skill.add_argument("--refine-steps", type=int, default=48_000,
                        help="stage 2 steps, the flow learning from its own draws (0: none)")
+    skill.add_argument("--fit-rounds", type=int, default=10,
+                       help="stage 3 flow updates with the policy frozen (0: none)")
     skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
     skill.add_argument("--run", help="export: the `goflow train` run folder to package")
     skill.add_argument("--out", help="skill file (default: the shipped location)")

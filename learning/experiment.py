@@ -115,6 +115,14 @@ class TrainConfig:
         d["out"] = None if self.out is None else str(self.out)
         return d
 
+    @classmethod
+    def from_json(cls, d: dict) -> TrainConfig:
+        """The inverse of to_json (a run's log["config"])."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        kwargs = {k: v for k, v in d.items() if k in known}
+        kwargs["ppo"] = PPOConfig(**{k: tuple(v) if k == "hidden_sizes" else v for k, v in d["ppo"].items()})
+        return cls(**kwargs)
+
 
 def _make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
     """n environments in this process (runs parallelize across processes, one per run)."""
@@ -220,6 +228,73 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     bar.close()
     train_envs.close()
     val_envs.close()
+    return log
+
+
+@dataclass
+class SamplerFitConfig:
+    """A last stage with the policy frozen: the sampler learns where the deterministic policy
+    succeeds on the sampler's own draws, so that it describes the policy that is shipped."""
+
+    rounds: int = 10  # sampler updates
+    episodes: int = 64  # deterministic episodes per update, xi from the sampler
+    signal: str = "success"  # "success" (1 if return >= J_T) or "return"
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "episodes"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"SamplerFitConfig.{name} must be a positive integer, got {v!r}")
+        if self.signal not in ("return", "success"):
+            raise ValueError(f"SamplerFitConfig.signal = {self.signal!r}; expected 'return' or 'success'")
+
+
+def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -> dict:
+    """Run (or resume) the frozen-policy stage on a `train` run folder: each round draws
+    `fit.episodes` grasp errors from the sampler, runs the deterministic policy on them and updates
+    the sampler with their successes (or returns). The checkpoint's sampler and log are updated
+    after every round; log["sampler_fit"] holds [round, success, mean return, entropy before the
+    update]. Returns the log."""
+    if not isinstance(fit, SamplerFitConfig):
+        raise TypeError(f"fit must be a SamplerFitConfig, got {type(fit).__name__}")
+    run = Path(run)
+    checkpoint = run / "checkpoint.pt"
+    if not checkpoint.is_file():
+        raise FileNotFoundError(f"{run} has no checkpoint.pt: is it a `goflow train` run folder?")
+    torch.set_num_threads(1)
+    state = torch.load(checkpoint, weights_only=False)
+    log = state["log"]
+    config = TrainConfig.from_json(log["config"])
+    if config.method in ("nodr", "fulldr", "adr", "doraemon"):
+        raise ValueError(f"fit_sampler needs a gradient-updated sampler (goflow, lsdr), not {config.method!r}")
+    space = ParamSpace.from_dict(state["space"])
+    sampler = make_sampler(config.method, space, log["success_threshold"], **dict(config.sampler_kwargs))
+    sampler.load_state_dict(state["sampler"])
+    agent = PPO.from_state_dict(state["agent"])
+    envs = _make_vector_env(config, agent.config.num_envs)
+    envs.set_attr("sampler", sampler)
+    done = log.setdefault("sampler_fit", [])
+    log["sampler_fit_config"] = dataclasses.asdict(fit)
+    bar = tqdm(total=fit.rounds, initial=len(done), disable=not progress, desc="fit sampler", unit="round")
+    try:
+        while len(done) < fit.rounds:
+            r = len(done)
+            t0 = time.perf_counter()
+            entropy = float(sampler.entropy())
+            xi, returns, successes = agent.evaluate(envs, fit.episodes, deterministic=True,
+                                                    seed=config.seed * 100_003 + 500_000 + r)
+            t1 = time.perf_counter()
+            sampler.update(xi, successes.astype(np.float64) if fit.signal == "success" else returns)
+            done.append([r + 1, float(successes.mean()), float(returns.mean()), entropy])
+            log["seconds"] += time.perf_counter() - t0
+            log["sampler_seconds"] += time.perf_counter() - t1
+            _atomic_save({**state, "sampler": sampler.state_dict(), "log": log}, checkpoint)
+            _atomic_json(log, run / "log.json")
+            bar.set_postfix(success=f"{done[-1][1]:.2f}")
+            bar.update(1)
+    finally:
+        bar.close()
+        envs.close()
     return log
 
 

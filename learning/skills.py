@@ -33,7 +33,7 @@ import assembly  # noqa: F401  (registers the environment ids)
 from assembly.gearset import GEARS
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from learning.experiment import TrainConfig, make_sampler, train
+from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, make_sampler, train
 from learning.ppo import PPO, PPOConfig
 
 __all__ = ["SKILLS", "SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill", "export_skill",
@@ -80,6 +80,10 @@ class SkillRecipe:
     refine_steps: int = 48_000
     refine_iterations_per_round: int = 4
     refine_eval_episodes: int = 16
+    # Stage 3, the policy frozen: the flow learns where the deterministic policy (the one shipped)
+    # succeeds on the flow's own draws (learning.experiment.fit_sampler); 0 rounds: none.
+    fit_rounds: int = 10
+    fit_episodes: int = 64
 
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
         """Stage 1 of this recipe for skill `name` on `gear`, writing to run folder `out`."""
@@ -235,6 +239,7 @@ def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | o
                   "train_seconds": float(log["seconds"]), "sampler_seconds": float(log["sampler_seconds"]),
                   "final_uniform_success": float(success), "final_uniform_return": float(mean_return),
                   "sampler_kwargs": dict(cfg["sampler_kwargs"]), "train_config": cfg,
+                  "sampler_fit": log.get("sampler_fit", []), "sampler_fit_config": log.get("sampler_fit_config"),
                   "exported": time.strftime("%Y-%m-%d")}
     skill = Skill(name, gear, cfg["env"], cfg["env_kwargs"], cfg["method"], agent, sampler,
                   log["success_threshold"], provenance)
@@ -250,6 +255,8 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
     run = Path(runs) / f"{name}-{gear}"
     for config in recipe.stages(name, gear, run):
         train(config, progress=progress)
+    if recipe.fit_rounds > 0:
+        fit_sampler(run, SamplerFitConfig(rounds=recipe.fit_rounds, episodes=recipe.fit_episodes), progress=progress)
     return export_skill(run, name, gear, out or skill_path(name, gear), command=command)
 
 

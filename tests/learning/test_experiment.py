@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from learning.experiment import (
-    METHODS, ExperimentConfig, TrainConfig, make_sampler, plot_curves, summarize, train,
+    METHODS, ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, make_sampler, plot_curves, summarize,
+    train,
 )
 from learning.ppo import PPOConfig
 
@@ -77,6 +78,37 @@ def test_sampler_batch_is_checked_per_method():
         TrainConfig(method="goflow", sampler_signal="score")
     with pytest.raises(ValueError, match="doraemon compares returns"):
         TrainConfig(method="doraemon", sampler_signal="success")
+
+
+def test_fit_sampler_moves_only_the_sampler_and_resumes(tmp_path):
+    import torch
+    kwargs = {"steps": 5, "entropy_samples": 256, "kl_samples": 256}
+    for name in ("full", "cut"):
+        train(_config("goflow", tmp_path / name, rounds=1, **kwargs), progress=False)
+    before = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)
+    full = fit_sampler(tmp_path / "full", SamplerFitConfig(rounds=3, episodes=16), progress=False)
+    after = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)
+    assert [row[0] for row in full["sampler_fit"]] == [1, 2, 3]
+    assert all(0.0 <= row[1] <= 1.0 and np.isfinite(row[3]) for row in full["sampler_fit"])
+    assert after["agent"]["config"] == before["agent"]["config"]
+    for key, value in before["agent"]["actor"].items():  # the policy is frozen
+        assert torch.equal(value, after["agent"]["actor"][key])
+    assert after["sampler"] != before["sampler"] and after["log"]["rounds"] == 1
+    fit_sampler(tmp_path / "cut", SamplerFitConfig(rounds=1, episodes=16), progress=False)  # "killed"
+    resumed = fit_sampler(tmp_path / "cut", SamplerFitConfig(rounds=3, episodes=16), progress=False)
+    assert resumed["sampler_fit"] == full["sampler_fit"]
+
+
+def test_fit_sampler_bad_input(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no checkpoint.pt"):
+        fit_sampler(tmp_path / "nothing", SamplerFitConfig(), progress=False)
+    train(_config("fulldr", tmp_path, rounds=1), progress=False)
+    with pytest.raises(ValueError, match="gradient-updated sampler"):
+        fit_sampler(tmp_path, SamplerFitConfig(rounds=1), progress=False)
+    with pytest.raises(ValueError, match="rounds must be a positive integer, got 0"):
+        SamplerFitConfig(rounds=0)
+    with pytest.raises(ValueError, match="signal = 'reward'"):
+        SamplerFitConfig(signal="reward")
 
 
 def test_checkpoint_of_another_param_space_is_refused(tmp_path):

@@ -21,6 +21,7 @@ def tiny_skill(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("skill")
     recipe = SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1,
                          refine_steps=20, refine_iterations_per_round=1, refine_eval_episodes=2,
+                         fit_rounds=2, fit_episodes=4,
                          sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
                                          "report_samples": 256},
                          ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
@@ -36,6 +37,9 @@ def test_the_recipe_runs_both_stages(tiny_skill):
     assert log["stages"] == [{"from_round": 1, "config": log["config"]}]
     assert log["config"]["sampler_batch"] == "training" and log["config"]["eval_episodes"] == 2
     assert skill.provenance["train_config"]["sampler_batch"] == "training"
+    # stage 3: two flow updates on 4 deterministic episodes each, the policy untouched
+    assert [row[0] for row in log["sampler_fit"]] == [1, 2] and skill.provenance["sampler_fit"] == log["sampler_fit"]
+    assert all(0.0 <= row[1] <= 1.0 for row in log["sampler_fit"])
 
 
 def test_export_and_load_round_trip(tiny_skill):
