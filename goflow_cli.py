@@ -268,7 +268,7 @@ def make_parser() -> argparse.ArgumentParser:
     skill.add_argument("--steps", type=int, default=120_000, help="stage 1 (GoFlow) training environment steps")
     skill.add_argument("--refine-steps", type=int, default=48_000,
                        help="stage 2 steps, the flow learning from its own draws (0: none)")
-    skill.add_argument("--fit-rounds", type=int, default=10,
+    skill.add_argument("--fit-rounds", type=int, default=30,
                        help="stage 3 flow updates with the policy frozen (0: none)")
     skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
     skill.add_argument("--run", help="export: the `goflow train` run folder to package")

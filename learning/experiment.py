@@ -251,10 +251,14 @@ class SamplerFitConfig:
 
 def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -> dict:
     """Run (or resume) the frozen-policy stage on a `train` run folder: each round draws
-    `fit.episodes` grasp errors from the sampler, runs the deterministic policy on them and updates
-    the sampler with their successes (or returns). The checkpoint's sampler and log are updated
-    after every round; log["sampler_fit"] holds [round, success, mean return, entropy before the
-    update]. Returns the log."""
+    `fit.episodes` parameter vectors from the sampler, runs the deterministic policy on them and
+    updates the sampler with their successes (or returns). log["sampler_fit"] holds [round,
+    success, mean return, entropy] of the sampler each round evaluated, before its update.
+
+    The update oscillates (a batch that all succeeds carries no signal, so the entropy term widens
+    the flow until it fails again), so the stage keeps the evaluated sampler with the highest
+    success (ties: the highest entropy), and when the rounds are done the checkpoint's sampler is
+    that one (log["sampler_fit_best"]). The checkpoint is written after every round. Returns the log."""
     if not isinstance(fit, SamplerFitConfig):
         raise TypeError(f"fit must be a SamplerFitConfig, got {type(fit).__name__}")
     run = Path(run)
@@ -269,12 +273,13 @@ def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -
         raise ValueError(f"fit_sampler needs a gradient-updated sampler (goflow, lsdr), not {config.method!r}")
     space = ParamSpace.from_dict(state["space"])
     sampler = make_sampler(config.method, space, log["success_threshold"], **dict(config.sampler_kwargs))
-    sampler.load_state_dict(state["sampler"])
+    sampler.load_state_dict(state.get("sampler_fit_last", state["sampler"]))  # go on from the last update
     agent = PPO.from_state_dict(state["agent"])
     envs = _make_vector_env(config, agent.config.num_envs)
     envs.set_attr("sampler", sampler)
     done = log.setdefault("sampler_fit", [])
     log["sampler_fit_config"] = dataclasses.asdict(fit)
+    best = state.get("sampler_fit_best")  # {"round", "success", "entropy", "sampler"}
     bar = tqdm(total=fit.rounds, initial=len(done), disable=not progress, desc="fit sampler", unit="round")
     try:
         while len(done) < fit.rounds:
@@ -284,11 +289,19 @@ def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -
             xi, returns, successes = agent.evaluate(envs, fit.episodes, deterministic=True,
                                                     seed=config.seed * 100_003 + 500_000 + r)
             t1 = time.perf_counter()
+            success = float(successes.mean())
+            if best is None or (success, entropy) > (best["success"], best["entropy"]):
+                best = {"round": r + 1, "success": success, "entropy": entropy, "sampler": sampler.state_dict()}
             sampler.update(xi, successes.astype(np.float64) if fit.signal == "success" else returns)
-            done.append([r + 1, float(successes.mean()), float(returns.mean()), entropy])
+            done.append([r + 1, success, float(returns.mean()), entropy])
             log["seconds"] += time.perf_counter() - t0
             log["sampler_seconds"] += time.perf_counter() - t1
-            _atomic_save({**state, "sampler": sampler.state_dict(), "log": log}, checkpoint)
+            last = sampler.state_dict()
+            state = {**state, "sampler": last, "log": log, "sampler_fit_best": best, "sampler_fit_last": last}
+            if len(done) == fit.rounds:  # finished: the checkpoint carries the selected sampler
+                state["sampler"] = best["sampler"]
+                log["sampler_fit_best"] = {k: best[k] for k in ("round", "success", "entropy")}
+            _atomic_save(state, checkpoint)
             _atomic_json(log, run / "log.json")
             bar.set_postfix(success=f"{done[-1][1]:.2f}")
             bar.update(1)

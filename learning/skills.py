@@ -82,7 +82,7 @@ class SkillRecipe:
     refine_eval_episodes: int = 16
     # Stage 3, the policy frozen: the flow learns where the deterministic policy (the one shipped)
     # succeeds on the flow's own draws (learning.experiment.fit_sampler); 0 rounds: none.
-    fit_rounds: int = 10
+    fit_rounds: int = 30
     fit_episodes: int = 64
 
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
@@ -240,6 +240,7 @@ def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | o
                   "final_uniform_success": float(success), "final_uniform_return": float(mean_return),
                   "sampler_kwargs": dict(cfg["sampler_kwargs"]), "train_config": cfg,
                   "sampler_fit": log.get("sampler_fit", []), "sampler_fit_config": log.get("sampler_fit_config"),
+                  "sampler_fit_best": log.get("sampler_fit_best"),
                   "exported": time.strftime("%Y-%m-%d")}
     skill = Skill(name, gear, cfg["env"], cfg["env_kwargs"], cfg["method"], agent, sampler,
                   log["success_threshold"], provenance)
