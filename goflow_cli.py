@@ -92,6 +92,7 @@ def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, n
                             iterations_per_round=args.iterations_per_round,
                             eval_episodes=args.eval_episodes, ppo=_ppo_config(args),
                             sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
+                            sampler_signal=getattr(args, "sampler_signal", "return"),
                             out=Path(args.out), results=Path(args.results), name=name or args.name)
 
 
@@ -248,6 +249,8 @@ def make_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     experiment.add_argument("--method-kwarg", action="append", metavar="METHOD.KEY=VALUE",
                             help="a sampler option of one method, e.g. goflow.alpha=0.1")
+    experiment.add_argument("--sampler-signal", choices=["return", "success"], default="return",
+                            help="what GoFlow and LSDR learn from (ADR and DORAEMON always use returns)")
     _add_experiment_flags(experiment)
     experiment.set_defaults(func=_cmd_experiment)
 

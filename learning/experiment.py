@@ -324,6 +324,7 @@ class ExperimentConfig:
     eval_episodes: int = 64
     ppo: PPOConfig = field(default_factory=PPOConfig)
     sampler_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)  # per method
+    sampler_signal: str = "return"  # TrainConfig.sampler_signal of every run (ADR and DORAEMON keep returns)
     workers: int = 2
     out: Path = Path("runs")
     results: Path = Path("docs/results")
@@ -349,6 +350,7 @@ class ExperimentConfig:
                             total_steps=self.total_steps,
                             iterations_per_round=self.iterations_per_round,
                             eval_episodes=self.eval_episodes, ppo=self.ppo,
+                            sampler_signal="return" if m in ("adr", "doraemon") else self.sampler_signal,
                             out=self.out / self.stem() / m / f"seed{s}")
                 for m in self.methods for s in range(self.seeds)]
 

@@ -117,6 +117,12 @@ def test_fit_sampler_bad_input(tmp_path):
         SamplerFitConfig(signal="reward")
 
 
+def test_experiment_sampler_signal_reaches_the_methods_that_can_use_it():
+    runs = ExperimentConfig(methods=("goflow", "lsdr", "adr", "doraemon"), seeds=1, sampler_signal="success").runs()
+    assert {r.method: r.sampler_signal for r in runs} == {
+        "goflow": "success", "lsdr": "success", "adr": "return", "doraemon": "return"}
+
+
 def test_checkpoint_of_another_param_space_is_refused(tmp_path):
     train(_config("fulldr", tmp_path, rounds=1), progress=False)
     other = _config("fulldr", tmp_path, rounds=2)
