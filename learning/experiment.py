@@ -35,7 +35,7 @@ from tqdm import tqdm
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, NoDR, Sampler
-from learning.methods import METHODS
+from learning.methods import GRADIENT_METHODS, METHODS, THRESHOLD_METHODS
 from learning.ppo import PPO, PPOConfig
 
 
@@ -96,7 +96,7 @@ class TrainConfig:
                              "'training'")
         if self.sampler_signal not in ("return", "success"):
             raise ValueError(f"TrainConfig.sampler_signal = {self.sampler_signal!r}; expected 'return' or 'success'")
-        if self.sampler_signal == "success" and self.method in ("adr", "doraemon"):
+        if self.sampler_signal == "success" and self.method in THRESHOLD_METHODS:
             raise ValueError(f"{self.method} compares returns with J_T itself: sampler_signal must be 'return'")
         if self.method == "doraemon" and self.sampler_batch != "validation":
             raise ValueError("DORAEMON's importance weights assume the uniform validation batch: "
@@ -120,8 +120,39 @@ class TrainConfig:
         """The inverse of to_json (a run's log["config"])."""
         known = {f.name for f in dataclasses.fields(cls)}
         kwargs = {k: v for k, v in d.items() if k in known}
-        kwargs["ppo"] = PPOConfig(**{k: tuple(v) if k == "hidden_sizes" else v for k, v in d["ppo"].items()})
+        kwargs["ppo"] = PPOConfig(**d["ppo"])
         return cls(**kwargs)
+
+
+def _sampler_signal(kind: str, returns: np.ndarray, successes: np.ndarray) -> np.ndarray:
+    """What a sampler learns from a batch: its returns, or its 0/1 successes."""
+    return returns if kind == "return" else successes.astype(np.float64)
+
+
+@dataclass
+class Run:
+    """A `train` run folder's checkpoint, with its config, sampler and policy rebuilt."""
+
+    state: dict[str, Any]  # the checkpoint as saved (agent, sampler, space, log, ...)
+    config: TrainConfig
+    space: ParamSpace
+    sampler: Sampler
+    agent: PPO
+
+
+def load_run(run: Path | str) -> Run:
+    """Load run folder `run`; FileNotFoundError if it holds no checkpoint."""
+    run = Path(run)
+    checkpoint = run / "checkpoint.pt"
+    if not checkpoint.is_file():
+        raise FileNotFoundError(f"{run} has no checkpoint.pt: is it a `goflow train` run folder?")
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    log = state["log"]
+    config = TrainConfig.from_json(log["config"])
+    space = ParamSpace.from_dict(state["space"])
+    sampler = make_sampler(config.method, space, log["success_threshold"], **dict(config.sampler_kwargs))
+    sampler.load_state_dict(state["sampler"])
+    return Run(state, config, space, sampler, PPO.from_state_dict(state["agent"]))
 
 
 def _make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
@@ -202,7 +233,7 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
                 np.concatenate([e.xi for e in episodes]), train_returns, train_successes)
         else:
             batch_xi, batch_returns, batch_successes = xi, returns, successes
-        signal = batch_returns if config.sampler_signal == "return" else batch_successes.astype(np.float64)
+        signal = _sampler_signal(config.sampler_signal, batch_returns, batch_successes)
         diagnostics = sampler.update(batch_xi, signal) if len(signal) else {}
         t2 = time.perf_counter()
         log["rounds"] = r + 1
@@ -261,20 +292,15 @@ def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -
     that one (log["sampler_fit_best"]). The checkpoint is written after every round. Returns the log."""
     if not isinstance(fit, SamplerFitConfig):
         raise TypeError(f"fit must be a SamplerFitConfig, got {type(fit).__name__}")
-    run = Path(run)
-    checkpoint = run / "checkpoint.pt"
-    if not checkpoint.is_file():
-        raise FileNotFoundError(f"{run} has no checkpoint.pt: is it a `goflow train` run folder?")
     torch.set_num_threads(1)
-    state = torch.load(checkpoint, weights_only=False)
-    log = state["log"]
-    config = TrainConfig.from_json(log["config"])
-    if config.method in ("nodr", "fulldr", "adr", "doraemon"):
-        raise ValueError(f"fit_sampler needs a gradient-updated sampler (goflow, lsdr), not {config.method!r}")
-    space = ParamSpace.from_dict(state["space"])
-    sampler = make_sampler(config.method, space, log["success_threshold"], **dict(config.sampler_kwargs))
-    sampler.load_state_dict(state.get("sampler_fit_last", state["sampler"]))  # go on from the last update
-    agent = PPO.from_state_dict(state["agent"])
+    run = Path(run)
+    loaded = load_run(run)
+    state, config, sampler, agent = loaded.state, loaded.config, loaded.sampler, loaded.agent
+    if config.method not in GRADIENT_METHODS:
+        raise ValueError(f"fit_sampler needs a gradient-updated sampler {GRADIENT_METHODS}, not {config.method!r}")
+    if "sampler_fit_last" in state:  # go on from the last update, not from the selected sampler
+        sampler.load_state_dict(state["sampler_fit_last"])
+    log, checkpoint = state["log"], run / "checkpoint.pt"
     envs = _make_vector_env(config, agent.config.num_envs)
     envs.set_attr("sampler", sampler)
     done = log.setdefault("sampler_fit", [])
@@ -292,7 +318,7 @@ def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -
             success = float(successes.mean())
             if best is None or (success, entropy) > (best["success"], best["entropy"]):
                 best = {"round": r + 1, "success": success, "entropy": entropy, "sampler": sampler.state_dict()}
-            sampler.update(xi, successes.astype(np.float64) if fit.signal == "success" else returns)
+            sampler.update(xi, _sampler_signal(fit.signal, returns, successes))
             done.append([r + 1, success, float(returns.mean()), entropy])
             log["seconds"] += time.perf_counter() - t0
             log["sampler_seconds"] += time.perf_counter() - t1
@@ -324,7 +350,7 @@ class ExperimentConfig:
     eval_episodes: int = 64
     ppo: PPOConfig = field(default_factory=PPOConfig)
     sampler_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)  # per method
-    sampler_signal: str = "return"  # TrainConfig.sampler_signal of every run (ADR and DORAEMON keep returns)
+    sampler_signal: str = "return"  # TrainConfig.sampler_signal of every run (THRESHOLD_METHODS keep returns)
     workers: int = 2
     out: Path = Path("runs")
     results: Path = Path("docs/results")
@@ -350,7 +376,7 @@ class ExperimentConfig:
                             total_steps=self.total_steps,
                             iterations_per_round=self.iterations_per_round,
                             eval_episodes=self.eval_episodes, ppo=self.ppo,
-                            sampler_signal="return" if m in ("adr", "doraemon") else self.sampler_signal,
+                            sampler_signal="return" if m in THRESHOLD_METHODS else self.sampler_signal,
                             out=self.out / self.stem() / m / f"seed{s}")
                 for m in self.methods for s in range(self.seeds)]
 

@@ -1,3 +1,8 @@
 """Names of the domain-randomization methods (kept light: the CLI imports it to build its flags)."""
 
 METHODS: tuple[str, ...] = ("nodr", "fulldr", "adr", "lsdr", "doraemon", "goflow")
+
+#: Methods that compare returns with J_T themselves: they learn from returns, never 0/1 successes.
+THRESHOLD_METHODS: tuple[str, ...] = ("adr", "doraemon")
+#: Methods whose sampler is updated by gradient steps on a batch of (xi, signal).
+GRADIENT_METHODS: tuple[str, ...] = ("lsdr", "goflow")

@@ -33,7 +33,7 @@ import assembly  # noqa: F401  (registers the environment ids)
 from assembly.gearset import GEARS
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, make_sampler, train
+from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, make_sampler, train
 from learning.ppo import PPO, PPOConfig
 
 __all__ = ["SKILLS", "SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill", "export_skill",
@@ -220,20 +220,13 @@ def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | o
                  command: str = "") -> Skill:
     """Package a `goflow train` run folder (checkpoint.pt, log.json) as a skill file at `out`."""
     _check_name(name, gear)
-    run = Path(run)
-    checkpoint = run / "checkpoint.pt"
-    if not checkpoint.is_file():
-        raise FileNotFoundError(f"{run} has no checkpoint.pt: is it a `goflow train` run folder?")
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    log = state["log"]
+    loaded = load_run(run)
+    log = loaded.state["log"]
     cfg = log["config"]
     if cfg["env"] != _ENV[name] or cfg["env_kwargs"].get("gear", "medium") != gear:
         raise ValueError(f"{run} trained {cfg['env']} with {cfg['env_kwargs']}, not the {name!r} skill for "
                          f"the {gear} gear")
-    space = ParamSpace.from_dict(state["space"])
-    sampler = make_sampler(cfg["method"], space, log["success_threshold"], **dict(cfg["sampler_kwargs"]))
-    sampler.load_state_dict(state["sampler"])
-    agent = PPO.from_state_dict(state["agent"])
+    sampler, agent = loaded.sampler, loaded.agent
     step, success, mean_return = log["curve"][-1]
     provenance = {"command": command, "steps": int(step), "rounds": int(log["rounds"]),
                   "train_seconds": float(log["seconds"]), "sampler_seconds": float(log["sampler_seconds"]),
