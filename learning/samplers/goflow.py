@@ -58,14 +58,17 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
+from functools import partial
 from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 import zuko
 from numpy.typing import ArrayLike, NDArray
 from zuko.distributions import DiagNormal
 from zuko.lazy import UnconditionalDistribution
+from zuko.transforms import MonotonicRQSTransform
 
 from assembly.params import ParamSpace
 from assembly.samplers import _diagnostics, check_sample_args, check_state_dict, check_update_inputs
@@ -76,6 +79,35 @@ BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (REFERENCES.md: the authors m
 _BOX_TOL = 1e-4  # float32 rounding slack (box coordinates) before a draw counts as outside
 _LOG_Q_FLOOR = -1e4  # clamp for log q in the entropy term: exp underflows to 0 well before this
 _CHUNK = 65536  # rows per flow evaluation outside training
+
+
+class _SplineTransform(MonotonicRQSTransform):
+    """zuko's monotonic rational-quadratic spline with the bin softmax written as exp / sum.
+
+    The same function as `MonotonicRQSTransform` (tests compare the two flows' densities): zuko first
+    squashes every unconstrained width and height into (-l/2, l/2), l = -log(slope) = 6.9, so exp
+    cannot overflow and the max-shift of a general softmax is not needed. torch's CPU softmax over
+    8 bins costs 3.5x the plain exp / sum, and with it a d = 3 update takes a third longer.
+    """
+
+    def __init__(self, widths: torch.Tensor, heights: torch.Tensor, derivatives: torch.Tensor,
+                 bound: float = 5.0, slope: float = 1e-3, **kwargs: Any) -> None:
+        torch.distributions.Transform.__init__(self, **kwargs)
+        log_slope = math.log(slope)
+        widths = torch.exp(widths / (1 + abs(2 * widths / log_slope)))
+        heights = torch.exp(heights / (1 + abs(2 * heights / log_slope)))
+        derivatives = derivatives / (1 + abs(derivatives / log_slope))
+        widths = F.pad(widths / widths.sum(dim=-1, keepdim=True), (1, 0), value=0)
+        heights = F.pad(heights / heights.sum(dim=-1, keepdim=True), (1, 0), value=0)
+        self.horizontal = bound * (2 * torch.cumsum(widths, dim=-1) - 1)
+        self.vertical = bound * (2 * torch.cumsum(heights, dim=-1) - 1)
+        self.derivatives = torch.exp(F.pad(derivatives, (1, 1), value=0))
+
+
+def build_spline_flow(features: int, transforms: int, hidden_features: tuple[int, ...], bins: int) -> zuko.flows.Flow:
+    """zuko's NSF (same modules and state_dict keys as `zuko.flows.NSF`) on `_SplineTransform`."""
+    return zuko.flows.MAF(features=features, transforms=transforms, hidden_features=hidden_features,
+                          univariate=partial(_SplineTransform, slope=1e-3), shapes=[(bins,), (bins,), (bins - 1,)])
 
 
 def standardize_returns(returns: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
@@ -231,7 +263,7 @@ class GoFlowSampler:
         d = self.space.dim
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed)
-            flow = zuko.flows.NSF(features=d, transforms=cfg.transforms, hidden_features=cfg.hidden_features, bins=cfg.bins)
+            flow = build_spline_flow(d, cfg.transforms, cfg.hidden_features, cfg.bins)
         flow.base = UnconditionalDistribution(
             DiagNormal, torch.zeros(d), torch.full((d,), float(cfg.base_scale)), buffer=True
         )
@@ -353,7 +385,7 @@ class GoFlowSampler:
         n_b, n_u = len(y_batch), cfg.entropy_samples
         vol = (2.0 * BOX_BOUND) ** d
         params = list(self._flow.parameters())
-        optimizer = torch.optim.Adam(params, lr=cfg.lr)  # fresh each update (no state across rounds)
+        optimizer = torch.optim.Adam(params, lr=cfg.lr, foreach=True)  # fresh each update (no state across rounds)
 
         skipped = 0
         first: dict[str, float] | None = None

@@ -4,6 +4,7 @@ Updates use fewer Monte Carlo samples than the defaults (10^4) to keep the suite
 the estimator is the same.
 """
 
+import copy
 import json
 import math
 import pickle
@@ -16,7 +17,7 @@ from scipy.stats import truncnorm
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR, Sampler
 from learning.samplers import GoFlowSampler
-from learning.samplers.goflow import GoFlowConfig, standardize_returns
+from learning.samplers.goflow import GoFlowConfig, build_spline_flow, standardize_returns
 
 FAST = GoFlowConfig(entropy_samples=512, kl_samples=512, steps=60)
 SIGMA = GoFlowConfig().base_scale
@@ -93,6 +94,32 @@ def test_one_dimension_starts_smooth():
     assert ratio < math.exp(12.5 / SIGMA**2) * 1.001  # the truncated Gaussian's centre/edge ratio (7.4)
     assert np.all(np.abs(np.diff(dens)) < 0.01 * dens.max())  # no spikes on a fine grid
     assert abs(np.trapezoid(dens, grid[:, 0]) - 1.0) < 1e-3
+
+
+@pytest.mark.parametrize("d", [1, 3])
+def test_spline_flow_is_zukos_nsf(d):
+    """Our spline (softmax as exp / sum) has zuko NSF's modules, and its density and inverse on any
+    parameters (here random, scaled up to steep splines) within float32 rounding."""
+    import zuko
+
+    torch.manual_seed(0)
+    reference = zuko.flows.NSF(features=d, transforms=3, hidden_features=(64, 64), bins=8)
+    ours = build_spline_flow(d, 3, (64, 64), 8)
+    assert ours.state_dict().keys() == reference.state_dict().keys()
+    with torch.no_grad():
+        for p in reference.parameters():
+            p.mul_(3.0)
+    ours.load_state_dict(reference.state_dict())
+    x = torch.rand(2000, d) * 10 - 5
+    with torch.no_grad():
+        reference64 = copy.deepcopy(reference).double()
+        exact = reference64().log_prob(x.double())
+        err_ours = (ours().log_prob(x).double() - exact).abs().max().item()
+        err_zuko = (reference().log_prob(x).double() - exact).abs().max().item()
+        z = torch.randn(2000, d)
+        inverse_gap = (ours().transform.inv(z) - reference().transform.inv(z)).abs().max().item()
+    assert err_ours < max(10 * err_zuko, 1e-3)
+    assert inverse_gap < 1e-3
 
 
 def test_same_rng_gives_same_samples():
