@@ -3,8 +3,8 @@ needs for the update to stay within the 5 % share of training time (issue 4's sp
 
     .venv/bin/python benchmarks/sampler_update.py [--dims 1 3 5] [--batch 32] [--repeats 5] [--json PATH]
 
-Each update gets a validation-sized batch (`--batch` uniform draws with returns that peak in the
-box's centre), as `goflow train` gives it. One torch thread, as in training. The GoFlow rows also
+Each update gets a validation-sized batch (`--batch` uniform draws, ADR its own draws, with
+returns that peak in the box's centre), as `goflow train` gives it. One torch thread, as in training. The GoFlow rows also
 time zuko's own NSF class beside ours (`learning.samplers.goflow.build_spline_flow`, the same
 function with a cheaper bin softmax), side by side in one process. "round for 5 %" is 19 x the
 update: the round's training + validation time at which the update is 5 % of the total.
@@ -38,7 +38,9 @@ def time_update(method: str, d: int, batch: int, repeats: int) -> float:
     rng = np.random.default_rng(0)
     times = []
     for _ in range(repeats + 1):  # the first update warms up torch and scipy
-        xi = rng.uniform(0.0, 1.0, (batch, d))
+        # ADR learns only from its own boundary draws (the training phase's); the others get the
+        # uniform validation batch
+        xi = sampler.sample(batch, rng) if method == "adr" else rng.uniform(0.0, 1.0, (batch, d))
         returns = 1.0 - np.linalg.norm(xi - 0.5, axis=1)
         t0 = time.perf_counter()
         sampler.update(xi, returns)
