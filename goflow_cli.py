@@ -85,7 +85,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, name=None):
+def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, name=None, results=None):
     from learning.experiment import ExperimentConfig
     return ExperimentConfig(env=args.env, env_kwargs=_key_values(args.env_kwarg, "--env-kwarg"),
                             methods=tuple(methods), seeds=args.seeds, total_steps=args.steps,
@@ -93,7 +93,7 @@ def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, n
                             eval_episodes=args.eval_episodes, ppo=_ppo_config(args),
                             sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
                             sampler_signal=getattr(args, "sampler_signal", "return"),
-                            out=Path(args.out), results=Path(args.results), name=name or args.name)
+                            out=Path(args.out), results=Path(results or args.results), name=name or args.name)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
@@ -114,23 +114,28 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     import os
     from learning.experiment import format_summary, run_experiment
+    from learning.plots import plot_sweep
     os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
     stem = args.name or f"sweep-{args.env.split('/')[-1].lower()}-{args.method}-{args.param}"
+    results = Path(args.results)
     rows = []
     for value in args.values:
         v = json.loads(value) if value[:1].isdigit() or value[:1] in "-[" else value
+        # each value's experiment (its JSON and curves) goes to <results>/<stem>/
         summary = run_experiment(_experiment_config(
-            args, [args.method], {args.method: {args.param: v}}, name=f"{stem}-{value}"))
+            args, [args.method], {args.method: {args.param: v}}, name=f"{stem}-{value}", results=results / stem))
         print(format_summary(summary))
         res = summary["methods"][args.method]
         rows.append({"value": v, "final_success_mean": res["final_success_mean"],
-                     "final_success_se": res["final_success_se"]})
-    Path(args.results).mkdir(parents=True, exist_ok=True)
-    (Path(args.results) / f"{stem}.json").write_text(json.dumps(
-        {"env": args.env, "method": args.method, "param": args.param, "rows": rows,
-         "command": os.environ["GOFLOW_COMMAND"]}, indent=2))
+                     "final_success_se": res["final_success_se"], "seeds": res["seeds"]})
+    results.mkdir(parents=True, exist_ok=True)
+    sweep = {"env": args.env, "method": args.method, "param": args.param, "steps": args.steps, "rows": rows,
+             "command": os.environ["GOFLOW_COMMAND"]}
+    (results / f"{stem}.json").write_text(json.dumps(sweep, indent=2))
+    plot_sweep(sweep, results / f"{stem}.png")
     best = max(rows, key=lambda r: r["final_success_mean"])
-    print(f"best {args.param} = {best['value']} (success {best['final_success_mean']:.3f})")
+    print(f"best {args.param} = {best['value']} (success {best['final_success_mean']:.3f}); "
+          f"{results / stem}.json and .png")
     return 0
 
 

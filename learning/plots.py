@@ -56,3 +56,24 @@ def plot_toy2d_densities(config: ExperimentConfig, path: Path, seed: int = 0, gr
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_sweep(sweep: dict, path: Path) -> None:
+    """Final uniform-box success (mean +- s.e. over seeds) against each swept value of one option."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = sweep["rows"]
+    labels = [str(r["value"]) for r in rows]
+    fig, ax = plt.subplots(figsize=(5.0, 3.4))
+    ax.errorbar(range(len(rows)), [r["final_success_mean"] for r in rows],
+                yerr=[r["final_success_se"] for r in rows], fmt="o-", capsize=4)
+    ax.set_xticks(range(len(rows)), labels)
+    ax.set_xlabel(f"{sweep['method']}: {sweep['param']}")
+    ax.set_ylabel("final success on the uniform box")
+    ax.set_title(f"{sweep['env']}, {rows[0]['seeds']} seed(s) per value", fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -33,6 +33,12 @@ def test_sweep_writes_one_row_per_value(tmp_path):
     assert proc.returncode == 0, proc.stderr
     sweep = json.loads((tmp_path / "results" / "sweep-toy2d-v0-lsdr-alpha.json").read_text())
     assert [row["value"] for row in sweep["rows"]] == [0.5, 1.0]
+    assert all(row["seeds"] == 1 for row in sweep["rows"])
+    assert (tmp_path / "results" / "sweep-toy2d-v0-lsdr-alpha.png").stat().st_size > 0
+    # each value's own experiment lands in a folder named for the sweep, not beside the other results
+    per_value = tmp_path / "results" / "sweep-toy2d-v0-lsdr-alpha"
+    assert sorted(p.name for p in per_value.glob("*.json")) == [
+        "sweep-toy2d-v0-lsdr-alpha-0.5.json", "sweep-toy2d-v0-lsdr-alpha-1.0.json"]
     assert "best alpha" in proc.stdout
 
 
