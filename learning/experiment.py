@@ -386,21 +386,32 @@ def _run_quiet(config: TrainConfig) -> dict:
     return train(config, progress=False)
 
 
+def _mean_se(runs: list[dict], column: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-round mean over seeds of one column of the runs' uniform-box curves, and its s.e."""
+    values = np.array([[point[column] for point in r["curve"][:n]] for r in runs])
+    se = values.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else np.zeros(n)
+    return values.mean(axis=0), se
+
+
 def summarize(logs: list[dict], steps: int, env: str) -> dict:
     """The experiment file: {"env", "steps", "methods": {name: {"final_success_mean",
-    "final_success_se", "seeds", "curve": [[step, mean, se], ...]}}} plus timing shares."""
+    "final_success_se", "seeds", "curve": [[step, mean, se], ...]}}} plus the uniform-box return
+    ("final_return_mean", "final_return_se", "return_curve") and timing shares."""
     out = {"env": env, "steps": steps, "methods": {}}
     for method in dict.fromkeys(log["method"] for log in logs):
         runs = [log for log in logs if log["method"] == method]
         n = min(len(r["curve"]) for r in runs)
-        success = np.array([[point[1] for point in r["curve"][:n]] for r in runs])
-        se = success.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else np.zeros(n)
-        steps_axis = [r for r, *_ in runs[0]["curve"][:n]]
+        steps_axis = [int(r) for r, *_ in runs[0]["curve"][:n]]
+        success, success_se = _mean_se(runs, 1, n)
+        ret, ret_se = _mean_se(runs, 2, n)
         out["methods"][method] = {
-            "final_success_mean": float(success[:, -1].mean()),
-            "final_success_se": float(se[-1]),
+            "final_success_mean": float(success[-1]),
+            "final_success_se": float(success_se[-1]),
             "seeds": len(runs),
-            "curve": [[int(s), float(m), float(e)] for s, m, e in zip(steps_axis, success.mean(0), se)],
+            "curve": [[s, float(m), float(e)] for s, m, e in zip(steps_axis, success, success_se)],
+            "final_return_mean": float(ret[-1]),
+            "final_return_se": float(ret_se[-1]),
+            "return_curve": [[s, float(m), float(e)] for s, m, e in zip(steps_axis, ret, ret_se)],
             "sampler_time_share": float(sum(r["sampler_seconds"] for r in runs)
                                         / max(sum(r["seconds"] for r in runs), 1e-9)),
         }
@@ -408,19 +419,23 @@ def summarize(logs: list[dict], steps: int, env: str) -> dict:
 
 
 def plot_curves(summary: dict, path: Path) -> None:
-    """Success on the uniform box vs training steps, mean and standard-error band per method."""
+    """Success (left) and mean return (right) on the uniform box vs training steps, mean and
+    standard-error band per method."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, (ax, ax_ret) = plt.subplots(1, 2, figsize=(11, 4))
     for method, res in summary["methods"].items():
-        c = np.array(res["curve"])
-        ax.plot(c[:, 0], c[:, 1], label=method)
-        ax.fill_between(c[:, 0], c[:, 1] - c[:, 2], c[:, 1] + c[:, 2], alpha=0.2)
-    ax.set_xlabel("training steps")
+        for axis, key in ((ax, "curve"), (ax_ret, "return_curve")):
+            c = np.array(res[key])
+            axis.plot(c[:, 0], c[:, 1], label=method)
+            axis.fill_between(c[:, 0], c[:, 1] - c[:, 2], c[:, 1] + c[:, 2], alpha=0.2)
     ax.set_ylabel("success rate on the uniform box")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_title(summary["env"])
+    ax_ret.set_ylabel("mean return on the uniform box")
+    for axis in (ax, ax_ret):
+        axis.set_xlabel("training steps")
+    fig.suptitle(summary["env"])
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -445,10 +460,11 @@ def run_experiment(config: ExperimentConfig, progress: bool = True) -> dict:
 
 
 def format_summary(summary: dict) -> str:
-    """A table of final success per method and the sampler update's share of wall time."""
+    """A table of final success and return per method and the sampler update's share of wall time."""
     lines = [f"{summary['env']}  ({summary['steps']} steps per run)",
-             f"{'method':<10} {'final success':>14} {'seeds':>6} {'sampler time':>13}"]
+             f"{'method':<10} {'final success':>14} {'final return':>18} {'seeds':>6} {'sampler time':>13}"]
     for method, res in summary["methods"].items():
+        ret = f"{res['final_return_mean']:.1f} +- {res['final_return_se']:.1f}" if "final_return_mean" in res else "-"
         lines.append(f"{method:<10} {res['final_success_mean']:>7.3f} +- {res['final_success_se']:<5.3f}"
-                     f" {res['seeds']:>6} {100 * res['sampler_time_share']:>12.1f}%")
+                     f" {ret:>18} {res['seeds']:>6} {100 * res['sampler_time_share']:>12.1f}%")
     return "\n".join(lines)

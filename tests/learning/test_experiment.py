@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from learning.experiment import (
-    METHODS, ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, make_sampler, plot_curves, summarize,
-    train,
+    METHODS, ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, format_summary, make_sampler, plot_curves,
+    summarize, train,
 )
 from learning.ppo import PPOConfig
 
@@ -143,7 +143,7 @@ def test_bad_input():
 
 
 def test_summary_format_and_plot(tmp_path):
-    logs = [{"method": m, "curve": [[10, s, 0.0], [20, s + 0.1, 0.0]], "seconds": 10.0,
+    logs = [{"method": m, "curve": [[10, s, -100 * s], [20, s + 0.1, 100 * s]], "seconds": 10.0,
              "sampler_seconds": 0.2} for m in ("goflow", "fulldr") for s in (0.1, 0.3)]
     summary = summarize(logs, 20, "goflow/Toy2D-v0")
     assert set(summary) == {"env", "steps", "methods"}
@@ -152,5 +152,12 @@ def test_summary_format_and_plot(tmp_path):
     assert g["final_success_se"] == pytest.approx(np.std([0.2, 0.4], ddof=1) / np.sqrt(2))
     assert g["curve"][0] == [10, pytest.approx(0.2), pytest.approx(np.std([0.1, 0.3], ddof=1) / np.sqrt(2))]
     assert g["sampler_time_share"] == pytest.approx(0.02)
+    # the uniform-box return beside the success: informative where no method succeeds yet
+    assert g["final_return_mean"] == pytest.approx(20.0)
+    assert g["final_return_se"] == pytest.approx(np.std([10.0, 30.0], ddof=1) / np.sqrt(2))
+    assert g["return_curve"][0][:2] == [10, pytest.approx(-20.0)]
+    table = format_summary(summary).splitlines()
+    goflow_row = next(line for line in table if line.startswith("goflow "))
+    assert "0.300 +-" in goflow_row and "20.0 +- 10.0" in goflow_row and goflow_row.endswith("2.0%")
     plot_curves(summary, tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 1000
