@@ -61,7 +61,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.envs.base import clipped_float32, config_with_overrides
+from assembly.envs.base import SimulationError, clipped_float32, config_with_overrides
 from assembly.envs.drake_sim import HeldInput, PlantEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -90,6 +90,11 @@ class QuadrotorConfig:
     # [N m s] rotational damping torque per body angular velocity: limits |w| to ~55 rad/s at the
     # largest rotor-thrust difference; 0.25 s time constant at the nominal inertia.
     angular_damping: float = 0.01
+    # [rad/s] a body rate beyond this is a diverged physics step (SimulationError: the episode ends
+    # truncated with info["sim_error"]). Bang-bang thrusts at 0.01-0.03 kg reach at most ~1,100 rad/s
+    # in 450 episodes that stay finite; a diverging step grows without bound (1e13 rad/s at 0.03 kg in
+    # one of them; a GoFlow training run logged an episode return of -4e10).
+    max_angular_rate: float = 5000.0
     start_position: tuple[float, float, float] = (0.0, 0.0, 0.5)  # [m]
     goal_xy_range: float = 2.0  # [m] goal x, y uniform in +-this
     goal_z_range: tuple[float, float] = (0.5, 1.5)  # [m] goal z uniform in this interval
@@ -101,7 +106,7 @@ class QuadrotorConfig:
 
     def __post_init__(self) -> None:
         for name in ("t_max", "control_dt", "sim_dt", "nominal_mass", "thrust_to_weight", "arm_length",
-                     "collision_radius", "distance_scale", "angular_damping"):
+                     "collision_radius", "distance_scale", "angular_damping", "max_angular_rate"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"Quadrotor: {name} must be a finite positive number, got {value!r}")
@@ -261,6 +266,12 @@ class QuadrotorEnv(PlantEnv):
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         half = 0.5 * self.config.max_rotor_thrust  # `thrusts`, on floats (the per-step path)
         state = self._advance(np.array([half * (min(1.0, max(-1.0, a)) + 1.0) for a in action.tolist()]))
+        limit = self.config.max_angular_rate
+        if not (-limit <= state[7] <= limit and -limit <= state[8] <= limit and -limit <= state[9] <= limit):
+            raise SimulationError(
+                f"Quadrotor (mass {float(self._xi[0]):g} kg): body rate ({state[7]:.3g}, {state[8]:.3g}, {state[9]:.3g}) "
+                f"rad/s at t = {self._k * self.control_dt:.2f} s is beyond max_angular_rate = {limit:g} rad/s: "
+                "the discrete step diverged")
         obs, reward = self._observe_and_reward(state)
         return obs, reward, False, {}
 

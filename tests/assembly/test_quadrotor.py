@@ -90,6 +90,40 @@ def test_info_shapes_and_truncation(env):
     assert "episode_return" in info and "success" in info
 
 
+def test_a_diverging_step_is_reported_not_scored(env):
+    """Bang-bang thrusts on a 30 g drone: in this episode the discrete step diverges at 1.76 s
+    (body rate 2e4 rad/s, then without bound; a training run logged an episode return of -4e10).
+    It must end truncated with info["sim_error"], its return bounded, and the env must go on."""
+    rng = np.random.default_rng(67)
+    env.reset(seed=67, options={"xi": [0.03]})
+    hold = rng.choice([-1.0, 1.0], size=4)
+    for _ in range(env.max_episode_steps):
+        if rng.random() < 0.3:
+            hold = rng.choice([-1.0, 1.0], size=4)
+        _, reward, term, trunc, info = env.step(hold.astype(np.float32))
+        if term or trunc:
+            break
+    assert trunc and not term and env._k < env.max_episode_steps
+    assert "max_angular_rate" in info["sim_error"] and "0.03 kg" in info["sim_error"]
+    assert reward == 0.0 and -1e5 < info["episode_return"] < 0.0 and not info["success"]
+    env.reset(seed=0)
+    assert env.step(np.zeros(4, dtype=np.float32))[3] is False
+
+
+def test_a_spinning_state_is_a_failed_step(env):
+    """The check itself, on a forced state: 2e4 rad/s at the nominal mass (damping takes ~12 % off
+    per step there), so it holds whatever the floating-point detail of a divergence."""
+    env.reset(seed=0, options={"xi": [0.775]})
+    v = env.plant_state[7:]
+    v[:3] = (2e4, 0.0, 0.0)  # world-frame body rate [rad/s]
+    env._plant.SetVelocities(env._plant_context, v)
+    _, reward, term, trunc, info = env.step(np.zeros(4, dtype=np.float32))
+    assert trunc and not term and "max_angular_rate" in info["sim_error"]
+    assert reward == 0.0 and info["episode_return"] == 0.0
+    with pytest.raises(ValueError, match="max_angular_rate"):
+        QuadrotorEnv(max_angular_rate=0.0)
+
+
 def test_bad_xi_and_actions(env):
     with pytest.raises(ValueError, match=r"'mass'.*\[0.01, 20\] kg"):
         env.reset(options={"xi": [25.0]})
