@@ -237,7 +237,7 @@ def make_parser() -> argparse.ArgumentParser:
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(func=_cmd_demo)
 
-    from learning.methods import METHODS
+    from learning.methods import METHODS, SAMPLER_SIGNALS
     train = sub.add_parser("train", help="train a policy with a DR sampler (GoFlow protocol)")
     _add_run_flags(train, 200_000)
     train.add_argument("--sampler", required=True, choices=METHODS)
@@ -254,7 +254,7 @@ def make_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     experiment.add_argument("--method-kwarg", action="append", metavar="METHOD.KEY=VALUE",
                             help="a sampler option of one method, e.g. goflow.alpha=0.1")
-    experiment.add_argument("--sampler-signal", choices=["return", "success"], default="return",
+    experiment.add_argument("--sampler-signal", choices=SAMPLER_SIGNALS, default="return",
                             help="what GoFlow and LSDR learn from (ADR and DORAEMON always use returns)")
     _add_experiment_flags(experiment)
     experiment.set_defaults(func=_cmd_experiment)

@@ -35,7 +35,7 @@ from tqdm import tqdm
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, NoDR, Sampler
-from learning.methods import GRADIENT_METHODS, METHODS, THRESHOLD_METHODS
+from learning.methods import GRADIENT_METHODS, METHODS, SAMPLER_SIGNALS, THRESHOLD_METHODS
 from learning.ppo import PPO, PPOConfig
 
 
@@ -94,8 +94,8 @@ class TrainConfig:
         if self.sampler_batch not in ("validation", "training"):
             raise ValueError(f"TrainConfig.sampler_batch = {self.sampler_batch!r}; expected 'validation' or "
                              "'training'")
-        if self.sampler_signal not in ("return", "success"):
-            raise ValueError(f"TrainConfig.sampler_signal = {self.sampler_signal!r}; expected 'return' or 'success'")
+        if self.sampler_signal not in SAMPLER_SIGNALS:
+            raise ValueError(f"TrainConfig.sampler_signal = {self.sampler_signal!r}; expected one of {SAMPLER_SIGNALS}")
         if self.sampler_signal == "success" and self.method in THRESHOLD_METHODS:
             raise ValueError(f"{self.method} compares returns with J_T itself: sampler_signal must be 'return'")
         if self.method == "doraemon" and self.sampler_batch != "validation":
@@ -276,8 +276,8 @@ class SamplerFitConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"SamplerFitConfig.{name} must be a positive integer, got {v!r}")
-        if self.signal not in ("return", "success"):
-            raise ValueError(f"SamplerFitConfig.signal = {self.signal!r}; expected 'return' or 'success'")
+        if self.signal not in SAMPLER_SIGNALS:
+            raise ValueError(f"SamplerFitConfig.signal = {self.signal!r}; expected one of {SAMPLER_SIGNALS}")
 
 
 def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -> dict:
@@ -464,7 +464,7 @@ def format_summary(summary: dict) -> str:
     lines = [f"{summary['env']}  ({summary['steps']} steps per run)",
              f"{'method':<10} {'final success':>14} {'final return':>18} {'seeds':>6} {'sampler time':>13}"]
     for method, res in summary["methods"].items():
-        ret = f"{res['final_return_mean']:.1f} +- {res['final_return_se']:.1f}" if "final_return_mean" in res else "-"
+        ret = f"{res['final_return_mean']:.1f} +- {res['final_return_se']:.1f}"
         lines.append(f"{method:<10} {res['final_success_mean']:>7.3f} +- {res['final_success_se']:<5.3f}"
                      f" {ret:>18} {res['seeds']:>6} {100 * res['sampler_time_share']:>12.1f}%")
     return "\n".join(lines)
