@@ -451,6 +451,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = True) -> dict:
     with ctx.Pool(config.workers) as pool:
         logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress,
                          desc=f"experiment {config.stem()}", unit="run"))
+        pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
+        pool.join()
     summary = summarize(logs, config.total_steps, config.env)
     summary["command"] = os.environ.get("GOFLOW_COMMAND", "")
     config.results.mkdir(parents=True, exist_ok=True)
