@@ -27,6 +27,7 @@ import numpy as np
 import scipy.linalg
 
 from assembly.envs.cartpole import CARTPOLE_SPACE, CartpoleEnv
+from assembly.samplers import FullDR
 
 GRAVITY = 9.81  # [m/s^2]
 CONTROL_WEIGHTS = (1e-4, 1e-3, 1e-2)  # R [1/N^2] against Q = diag(1, 100, 1, 1) on (x, theta, xdot, thetadot)
@@ -36,8 +37,9 @@ def lqr_gain(env: CartpoleEnv, pole_mass: float, cart_mass: float, control_weigh
     """State-feedback gain K (force = -K s, s = (x, theta, xdot, thetadot)) of the linearized cart-pole."""
     cfg = env.config
     l = cfg.pole_com
-    # the env keeps the pole's unit inertia (a 0.04 x 0.06 x length box) and scales it by the mass
-    inertia = pole_mass * ((0.04**2 + cfg.pole_length**2) / 12.0 + l**2)  # about the pivot [kg m^2]
+    # the env keeps the pole's unit inertia (its body is built at 1 kg, origin at the pivot) and
+    # scales it by the mass: the pitch moment about the pivot [kg m^2], read from the env's model
+    inertia = pole_mass * env._pole.default_rotational_inertia().get_moments()[1]
     mass_matrix_inv = np.linalg.inv(np.array([[pole_mass + cart_mass, pole_mass * l], [pole_mass * l, inertia]]))
     a = np.zeros((4, 4))
     a[0, 2] = a[1, 3] = 1.0
@@ -77,7 +79,7 @@ def main() -> None:
         raise SystemExit(f"--episodes must be >= 1, got {args.episodes}")
     env = CartpoleEnv()
     rng = np.random.default_rng(args.seed)
-    xis = CARTPOLE_SPACE.low + rng.uniform(size=(args.episodes, 3)) * (CARTPOLE_SPACE.high - CARTPOLE_SPACE.low)
+    xis = FullDR(CARTPOLE_SPACE).sample(args.episodes, rng)
     friction_force = xis[:, 2] * (xis[:, 0] + xis[:, 1]) * GRAVITY
     immovable = friction_force >= env.config.max_force
     controllers = [(w, c) for w in CONTROL_WEIGHTS for c in (False, True)]

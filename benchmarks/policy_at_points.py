@@ -14,31 +14,30 @@ import argparse
 import json
 from pathlib import Path
 
-import gymnasium
 import numpy as np
 import torch
 
 import assembly  # noqa: F401  (registers the goflow/* ids)
 from assembly.samplers import NoDR
-from learning.experiment import load_run
+from learning.experiment import _make_vector_env, load_run
 
 VECTOR_ENVS = 4
 
 
-def evaluate_at(run: Path, point: np.ndarray, episodes: int, seed: int = 0) -> dict:
-    """Success rate and mean return of the run's final policy with the env's parameters fixed at `point`."""
+def evaluate_at(run: Path, points: list[np.ndarray], episodes: int, seed: int = 0) -> list[dict]:
+    """Success rate and mean return of the run's final policy with the env's parameters fixed at each point."""
     loaded = load_run(run)
-    if len(point) != loaded.space.dim:
-        raise ValueError(f"point {point.tolist()} has {len(point)} numbers; {run} needs {loaded.space.dim} "
-                         f"({', '.join(loaded.space.names)})")
-    sampler = NoDR(loaded.space, point=point)  # NoDR raises if the point is outside the box
-    config = loaded.config
-    vec_env = gymnasium.vector.SyncVectorEnv(
-        [lambda: gymnasium.make(config.env, sampler=sampler, **config.env_kwargs) for _ in range(VECTOR_ENVS)],
-        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
-    _, returns, success = loaded.agent.evaluate(vec_env, episodes, seed=seed)
+    vec_env = _make_vector_env(loaded.config, VECTOR_ENVS)
+    rows = []
+    for point in points:
+        if len(point) != loaded.space.dim:
+            raise ValueError(f"point {point.tolist()} has {len(point)} numbers; {run} needs {loaded.space.dim} "
+                             f"({', '.join(loaded.space.names)})")
+        vec_env.set_attr("sampler", NoDR(loaded.space, point=point))  # NoDR raises if the point is outside the box
+        _, returns, success = loaded.agent.evaluate(vec_env, episodes, seed=seed)
+        rows.append({"point": point.tolist(), "success": float(success.mean()), "return": float(returns.mean())})
     vec_env.close()
-    return {"point": point.tolist(), "success": float(success.mean()), "return": float(returns.mean())}
+    return rows
 
 
 def main() -> None:
@@ -58,10 +57,9 @@ def main() -> None:
     rows = []
     print(f"{'run':44} {'point':>16} {'success':>8} {'return':>9}")
     for run in args.runs:
-        for point in points:
-            row = {"run": str(run), **evaluate_at(run, point, args.episodes)}
-            rows.append(row)
-            print(f"{str(run):44} {','.join(f'{v:g}' for v in point):>16} {row['success']:>8.3f} {row['return']:>9.2f}")
+        for row in evaluate_at(run, points, args.episodes):
+            rows.append({"run": str(run), **row})
+            print(f"{str(run):44} {','.join(f'{v:g}' for v in row['point']):>16} {row['success']:>8.3f} {row['return']:>9.2f}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"episodes": args.episodes, "rows": rows}, indent=2))
