@@ -97,11 +97,10 @@ def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, n
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    import os
     from learning.experiment import format_summary, run_experiment
-    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    command = "goflow " + " ".join(sys.argv[1:])
     config = _experiment_config(args, args.methods, _method_kwargs(args.method_kwarg, args.methods))
-    summary = run_experiment(config)
+    summary = run_experiment(config, command=command)
     print(format_summary(summary))
     if args.env.startswith("goflow/Toy2D"):
         from learning.plots import plot_toy2d_densities
@@ -112,10 +111,9 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    import os
     from learning.experiment import format_summary, run_experiment
     from learning.plots import plot_sweep
-    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    command = "goflow " + " ".join(sys.argv[1:])
     stem = args.name or f"sweep-{args.env.split('/')[-1].lower()}-{args.method}-{args.param}"
     results = Path(args.results)
     rows = []
@@ -123,14 +121,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         v = json.loads(value) if value[:1].isdigit() or value[:1] in "-[" else value
         # each value's experiment (its JSON and curves) goes to <results>/<stem>/
         summary = run_experiment(_experiment_config(
-            args, [args.method], {args.method: {args.param: v}}, name=f"{stem}-{value}", results=results / stem))
+            args, [args.method], {args.method: {args.param: v}}, name=f"{stem}-{value}", results=results / stem), command=command)
         print(format_summary(summary))
         res = summary["methods"][args.method]
         rows.append({"value": v, "final_success_mean": res["final_success_mean"],
                      "final_success_se": res["final_success_se"], "seeds": res["seeds"]})
     results.mkdir(parents=True, exist_ok=True)
     sweep = {"env": args.env, "method": args.method, "param": args.param, "steps": args.steps, "rows": rows,
-             "command": os.environ["GOFLOW_COMMAND"]}
+             "command": command}
     (results / f"{stem}.json").write_text(json.dumps(sweep, indent=2))
     plot_sweep(sweep, results / f"{stem}.png")
     best = max(rows, key=lambda r: r["final_success_mean"])
@@ -203,24 +201,22 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_collect(args: argparse.Namespace) -> int:
-    import os
     from learning.estimation.collect import CollectConfig, collect_to_file
-    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    command = "goflow " + " ".join(sys.argv[1:])
     config = CollectConfig(env=args.env, xi=args.xi, episodes=args.episodes, steps=args.steps,
                            policy=args.policy, seed=args.seed)
-    ds = collect_to_file(config, args.out, progress=True)
+    ds = collect_to_file(config, args.out, progress=True, command=command)
     print(f"{ds.num_episodes} trajectories, {ds.num_transitions} transitions of {ds.env_id} "
           f"(xi {args.xi}, policy {args.policy}) -> {args.out}")
     return 0
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
-    import os
     from learning.estimation.estimate import EstimateConfig, estimate_file
-    os.environ["GOFLOW_COMMAND"] = "goflow " + " ".join(sys.argv[1:])
+    command = "goflow " + " ".join(sys.argv[1:])
     config = EstimateConfig(method=args.method, seed=args.seed, sim_budget=args.sim_budget,
                             workers=args.workers, options=_key_values(args.option, "--option"))
-    info = estimate_file(args.data, args.out, config)
+    info = estimate_file(args.data, args.out, config, command=command)
     print(f"{args.method}: {info['sim_calls']} simulator calls, {info['seconds']:.1f} s -> {args.out}")
     return 0
 

@@ -442,9 +442,10 @@ def plot_curves(summary: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run_experiment(config: ExperimentConfig, progress: bool = True) -> dict:
+def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "") -> dict:
     """Run every (method, seed) in `config.workers` processes (resuming finished or interrupted
-    runs from their checkpoints); write docs/results/<stem>.json and .png; return the summary."""
+    runs from their checkpoints); write <results>/<stem>.json and .png with `command` as provenance;
+    return the summary."""
     import multiprocessing as mp
     runs = config.runs()
     ctx = mp.get_context("spawn")
@@ -454,7 +455,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = True) -> dict:
         pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
         pool.join()
     summary = summarize(logs, config.total_steps, config.env)
-    summary["command"] = os.environ.get("GOFLOW_COMMAND", "")
+    summary["command"] = command
     config.results.mkdir(parents=True, exist_ok=True)
     _atomic_json(summary, config.results / f"{config.stem()}.json")
     plot_curves(summary, config.results / f"{config.stem()}.png")

@@ -91,7 +91,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.envs.base import ParamEnv, SimulationError
+from common.config import config_with_overrides
 from assembly.envs.drake_sim import advance
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler

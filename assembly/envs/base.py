@@ -17,10 +17,9 @@ The contract every goflow env keeps (subclasses implement only `_reset_model` an
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any, TypeVar
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -28,22 +27,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
+from common.errors import SimulationError
 
-__all__ = ["ParamEnv", "SimulationError", "clipped_float32", "config_with_overrides"]
-
-C = TypeVar("C")
-
-
-def config_with_overrides(config_type: type[C], config: C | None, overrides: dict[str, Any],
-                          owner: str) -> C:
-    """`config` (or the type's defaults) with keyword overrides of its fields applied; TypeError
-    naming any keyword that is not a field."""
-    known = {f.name for f in dataclasses.fields(config_type)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise TypeError(f"{owner}: unknown option(s) {unknown}; known: {sorted(known)}")
-    return dataclasses.replace(config or config_type(), **overrides)
-
+__all__ = ["ParamEnv", "SimulationError", "clipped_float32"]
 
 def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[np.float32]:
     """values clipped to [-high, high] as a float32 array, in plain Python (an env's per-step path:
@@ -51,10 +37,6 @@ def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[n
     if all(-h <= v <= h for v, h in zip(values, high)):
         return np.array(values, dtype=np.float32)
     return np.array([min(h, max(-h, v)) for v, h in zip(values, high)], dtype=np.float32)
-
-
-class SimulationError(RuntimeError):
-    """A physics step failed (solver divergence, non-finite state): the episode cannot go on."""
 
 
 class ParamEnv(gymnasium.Env):

@@ -52,7 +52,8 @@ from numpy.typing import NDArray
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
-from assembly.envs.base import ParamEnv, SimulationError, config_with_overrides
+from assembly.envs.base import ParamEnv, SimulationError
+from common.config import config_with_overrides
 from assembly.envs.drake_sim import advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.params import Param, ParamSpace

@@ -61,7 +61,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.envs.base import SimulationError, clipped_float32, config_with_overrides
+from assembly.envs.base import SimulationError, clipped_float32
+from common.config import config_with_overrides
 from assembly.envs.drake_sim import HeldInput, PlantEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler

@@ -43,7 +43,8 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
-from assembly.envs.base import ParamEnv, config_with_overrides
+from assembly.envs.base import ParamEnv
+from common.config import config_with_overrides
 from assembly.samplers import Sampler
 
 __all__ = ["Toy2DConfig", "Toy2DEnv"]

@@ -68,7 +68,8 @@ def _load_policy(path: str) -> Callable[[NDArray[np.float32]], NDArray[np.float6
     return lambda obs: np.asarray(agent.act(obs, deterministic=True), dtype=np.float64)
 
 
-def collect(config: CollectConfig, progress: bool = False) -> tuple[TransitionDataset, NDArray[np.float64]]:
+def collect(config: CollectConfig, progress: bool = False, command: str = ""
+            ) -> tuple[TransitionDataset, NDArray[np.float64]]:
     """Run `episodes` trajectories, each with its own true xi; return (dataset, true xi (E, d))."""
     sim = make_transition_sim(config.env)
     steps = int(config.steps or DEFAULT_STEPS.get(config.env, 100))
@@ -96,7 +97,7 @@ def collect(config: CollectConfig, progress: bool = False) -> tuple[TransitionDa
     collection = {"xi": config.xi, "target": target_description(config.target), "policy": config.policy,
                   "episodes": len(kept), "steps_per_episode": steps, "seed": config.seed,
                   "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                  "command": os.environ.get("GOFLOW_COMMAND", "")}
+                  "command": command}
     ds = TransitionDataset(env_id=config.env, space=sim.space,
                            states=np.array([r[0] for r in rows]), actions=np.array([r[1] for r in rows]),
                            next_states=np.array([r[2] for r in rows]),
@@ -105,8 +106,9 @@ def collect(config: CollectConfig, progress: bool = False) -> tuple[TransitionDa
     return ds, np.array(kept)
 
 
-def collect_to_file(config: CollectConfig, out: str | Path, progress: bool = False) -> TransitionDataset:
-    """collect() and save the dataset (with its truth) to `out`."""
-    ds, truth = collect(config, progress=progress)
+def collect_to_file(config: CollectConfig, out: str | Path, progress: bool = False, command: str = ""
+                    ) -> TransitionDataset:
+    """collect() and save the dataset (with its truth) to `out`; `command` is recorded as provenance."""
+    ds, truth = collect(config, progress=progress, command=command)
     save_dataset(out, ds, truth)
     return ds

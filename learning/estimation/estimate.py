@@ -4,7 +4,6 @@ simulator and the same simulator budget for each."""
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -86,11 +85,12 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None
     return EstimatedSampler(data.space, dist), info, budget
 
 
-def estimate_file(data_path: str | Path, out: str | Path, config: EstimateConfig) -> dict[str, Any]:
-    """Read a dataset (without its truth), estimate, save the estimate file; return its info."""
+def estimate_file(data_path: str | Path, out: str | Path, config: EstimateConfig, command: str = "") -> dict[str, Any]:
+    """Read a dataset (without its truth), estimate, save the estimate file; return its info
+    (`command` is recorded as provenance)."""
     data = load_dataset(data_path)
     sampler, info, _ = estimate(data, config)
     info["data"] = str(data_path)
-    info["command"] = os.environ.get("GOFLOW_COMMAND", "")
+    info["command"] = command
     save_estimate(out, sampler, config.method, data.env_id, info)
     return info
