@@ -3,9 +3,16 @@
 A sampler is a distribution p(xi) over a `ParamSpace`. Environments call `sample` at reset;
 learners call `update(xi, returns)` with the parameters and undiscounted episode returns of a batch
 of episodes; planners and diagnostics call `log_prob` and `entropy`. The learned samplers (ADR, LSDR,
-DORAEMON, GoFlow in `learning/`) implement the same protocol and must validate their inputs
-with `check_update_inputs`, `check_sample_args` and `check_state_dict`, so that every method
-fails the same way on the same bad input.
+DORAEMON, GoFlow, estimates in `learning/samplers/`) implement the same protocol and must validate
+their inputs with `check_update_inputs`, `check_sample_args` and `check_state_dict`, so that every
+method fails the same way on the same bad input.
+
+Construction has one signature for every sampler, `Cls(space, success_threshold=None, config=None,
+**overrides)`: `config` is the sampler's config dataclass, a mapping of its fields or None (its
+defaults), and keyword `overrides` are fields of that dataclass applied last
+(`common.config.config_with_overrides`). Methods that compare returns with J_T (ADR, DORAEMON)
+need a finite `success_threshold`; the others keep it for reference. `learning.samplers.registry`
+builds any of them by name.
 
 Conventions:
 - `log_prob` is the log density with respect to Lebesgue measure in the parameters' own units
@@ -28,6 +35,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
+from common.checks import check_number
+from common.config import config_with_overrides
+from common.errors import InputError
 
 __all__ = [
     "Sampler",
@@ -36,7 +46,8 @@ __all__ = [
     "check_update_inputs",
     "check_sample_args",
     "check_state_dict",
-    "sampler_config",
+    "NoDRConfig",
+    "FullDRConfig",
     "check_sampler_args",
 ]
 
@@ -133,19 +144,41 @@ def _diagnostics(returns: NDArray[np.float64], entropy: float) -> dict[str, Any]
 # -- the fixed samplers ---------------------------------------------------------------------------
 
 
+@dataclasses.dataclass(frozen=True)
+class NoDRConfig:
+    """Where NoDR puts its point mass."""
+
+    point: tuple[float, ...] | None = None  # parameter units; None: the space's nominal point
+
+
+@dataclasses.dataclass(frozen=True)
+class FullDRConfig:
+    """FullDR has no settings (the dataclass keeps the one constructor signature)."""
+
+
 class NoDR:
     """No randomization: every episode runs at one fixed point (the space's nominal point by default).
 
     The distribution is a point mass. Its "density" is reported as log_prob = +inf at exactly the
     point and -inf elsewhere, and its differential entropy as -inf: the limits of a Gaussian of
     vanishing width. Code that mixes samplers must therefore handle infinite log_prob/entropy.
+
+    Arguments:
+        space: the parameter box.
+        success_threshold: J_T (kept for reference; NoDR learns nothing).
+        config: a NoDRConfig, a mapping of its fields, or None; `overrides` (e.g. `point=[...]`)
+            are its fields, applied last.
     """
 
-    def __init__(self, space: ParamSpace, point: ArrayLike | None = None) -> None:
+    def __init__(self, space: ParamSpace, success_threshold: float | None = None,
+                 config: NoDRConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
+        self.success_threshold = check_sampler_args(space, success_threshold, "NoDR")
         self.space = space
+        self.config = config_with_overrides(NoDRConfig, config, overrides, "NoDR")
+        point = self.config.point
         chosen = space.nominal() if point is None else np.asarray(point, dtype=np.float64)
         if chosen.ndim != 1:
-            raise ValueError(f"NoDR: point must have shape ({space.dim},), got {chosen.shape}")
+            raise InputError(f"NoDR: point must have shape ({space.dim},), got {chosen.shape}")
         self.point: NDArray[np.float64] = space.validate(chosen, what="NoDR point")
 
     def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -186,10 +219,15 @@ class NoDR:
 
 
 class FullDR:
-    """Uniform randomization over the whole box: log_prob = -log(volume) inside, entropy = log(volume)."""
+    """Uniform randomization over the whole box: log_prob = -log(volume) inside, entropy = log(volume).
 
-    def __init__(self, space: ParamSpace) -> None:
+    Arguments: as every sampler (`space`, `success_threshold`, `config`: FullDRConfig, empty)."""
+
+    def __init__(self, space: ParamSpace, success_threshold: float | None = None,
+                 config: FullDRConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
+        self.success_threshold = check_sampler_args(space, success_threshold, "FullDR")
         self.space = space
+        self.config = config_with_overrides(FullDRConfig, config, overrides, "FullDR")
 
     def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
         """n independent uniform draws from the box, shape (n, d)."""
@@ -224,34 +262,11 @@ class FullDR:
         return f"FullDR(space={self.space})"
 
 
-def sampler_config(config_type: type, config: Any, owner: str,
-                   overrides: Mapping[str, Any] | None = None) -> Any:
-    """A `config_type` dataclass from None (its defaults), a mapping of field values (e.g. options
-    read from JSON or the command line), or an instance, with keyword `overrides` applied last;
-    ValueError naming unknown keys."""
-    if overrides:
-        base = sampler_config(config_type, config, owner)
-        return sampler_config(config_type, {**dataclasses.asdict(base), **overrides}, owner)
-    if config is None:
-        return config_type()
-    if isinstance(config, config_type):
-        return config
-    if not isinstance(config, Mapping):
-        raise ValueError(f"{owner} config must be a mapping or {config_type.__name__}, "
-                         f"got {type(config).__name__}")
-    known = {f.name for f in dataclasses.fields(config_type)}
-    unknown = sorted(set(config) - known)
-    if unknown:
-        raise ValueError(f"{owner} config: unknown keys {unknown}; known keys are {sorted(known)}")
-    return config_type(**dict(config))
-
-
-def check_sampler_args(space: Any, success_threshold: float, owner: str) -> float:
-    """ValueError unless `space` is a ParamSpace and J_T is a finite number; returns J_T."""
+def check_sampler_args(space: Any, success_threshold: Any, owner: str, required: bool = False) -> float | None:
+    """Check a sampler's constructor arguments: `space` must be a ParamSpace and J_T a finite
+    number, or None where the method does not need it (`required=False`); returns J_T."""
     if not isinstance(space, ParamSpace):
-        raise ValueError(f"{owner}: space must be a ParamSpace, got {type(space).__name__}")
-    if (isinstance(success_threshold, bool)
-            or not isinstance(success_threshold, (int, float, np.integer, np.floating))
-            or not math.isfinite(float(success_threshold))):
-        raise ValueError(f"{owner}: success_threshold must be a finite number, got {success_threshold!r}")
-    return float(success_threshold)
+        raise InputError(f"{owner}: space must be a ParamSpace, got {type(space).__name__}")
+    if success_threshold is None and not required:
+        return None
+    return check_number(success_threshold, f"{owner}: success_threshold")

@@ -39,6 +39,8 @@ def write_atomic(path: str | os.PathLike[str], data: bytes | str, mode: int = 0o
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data.encode() if isinstance(data, str) else data)
+            f.flush()
+            os.fsync(f.fileno())
         os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
@@ -48,27 +50,34 @@ def write_atomic(path: str | os.PathLike[str], data: bytes | str, mode: int = 0o
     return path
 
 
-def to_strict_json(obj: Any) -> Any:
-    """`obj` with every non-finite float replaced by None (strict JSON has no NaN or Infinity);
-    tuples become lists and Paths strings."""
+def to_strict_json(obj: Any, nonfinite: str = "null", where: str = "$") -> Any:
+    """`obj` as plain strict-JSON data: tuples become lists, Paths strings, numpy/torch scalars
+    numbers. Strict JSON has no NaN or Infinity: a non-finite float becomes None with
+    `nonfinite="null"`, or raises ValueError naming where it is with `nonfinite="error"`."""
+    if hasattr(obj, "item") and getattr(obj, "ndim", None) == 0:  # numpy / torch scalars
+        obj = obj.item()
     if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
+        if math.isfinite(obj):
+            return obj
+        if nonfinite == "error":
+            raise ValueError(f"{where} = {obj}: not a finite number, which strict JSON cannot hold")
+        return None
     if isinstance(obj, dict):
-        return {str(k): to_strict_json(v) for k, v in obj.items()}
+        return {str(k): to_strict_json(v, nonfinite, f"{where}.{k}") for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [to_strict_json(v) for v in obj]
+        return [to_strict_json(v, nonfinite, f"{where}[{i}]") for i, v in enumerate(obj)]
     if isinstance(obj, Path):
         return str(obj)
-    if hasattr(obj, "item") and getattr(obj, "ndim", None) == 0:  # numpy / torch scalars
-        return to_strict_json(obj.item())
     return obj
 
 
-def write_json(path: str | os.PathLike[str], obj: Any, indent: int | None = 2) -> Path:
-    """Write `obj` as strict JSON (non-finite floats become null), atomically; creates the folder."""
+def write_json(path: str | os.PathLike[str], obj: Any, indent: int | None = 2, nonfinite: str = "null") -> Path:
+    """Write `obj` as strict JSON, atomically, creating the folder. Non-finite floats become null
+    (`nonfinite="null"`) or raise ValueError before anything is written (`nonfinite="error"`)."""
     path = Path(path)
+    text = json.dumps(to_strict_json(obj, nonfinite), indent=indent, allow_nan=False)
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_atomic(path, json.dumps(to_strict_json(obj), indent=indent, allow_nan=False))
+    return write_atomic(path, text)
 
 
 def _reject_constant(name: str) -> Any:

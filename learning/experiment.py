@@ -13,15 +13,15 @@ Each round:
      which sees successes as often as the flow finds them (a departure from the paper, used to
      refine skills whose success region is a tiny part of the box: docs/skills.md).
 A run writes `log.json` (config, curve, timings) and `checkpoint.pt` (policy, value function,
-optimizer, normalizers, sampler, ParamSpace, round, RNG) into its folder after every round; a run
-started on a folder that holds a checkpoint resumes from it, and reproduces the uninterrupted run.
+optimizer, normalizers, sampler, ParamSpace, round, RNG: tensors and plain data only, loaded with
+`torch.load(weights_only=True)`) into its folder after every round; a run started on a folder that
+holds a checkpoint resumes from it, and reproduces the uninterrupted run. A run holds an OS lock on
+its folder while it works, so a second run into the same folder is refused at once.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,36 +34,44 @@ from tqdm import tqdm
 
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.params import ParamSpace
-from assembly.samplers import FullDR, NoDR, Sampler
-from learning.methods import GRADIENT_METHODS, METHODS, SAMPLER_SIGNALS, THRESHOLD_METHODS
+from assembly.samplers import FullDR, Sampler
+from common.config import config_to_dict, config_with_overrides
+from common.errors import InputError
+from common.files import check_output_dir, load_tensors, run_folder_lock, save_tensors, write_json
 from learning.ppo import PPO, PPOConfig
+from learning.samplers.registry import (
+    GRADIENT_METHODS, METHODS, SAMPLER_SIGNALS, THRESHOLD_METHODS, make_sampler, sampler_config,
+)
+
+__all__ = ["TrainConfig", "Run", "load_run", "train", "SamplerFitConfig", "fit_sampler", "ExperimentConfig",
+           "run_experiment", "summarize", "format_summary", "plot_curves", "protocol_sampler_kwargs",
+           "probe_env", "load_checkpoint"]
+
+#: What a checkpoint file is called in messages.
+_CHECKPOINT = "goflow training checkpoint (checkpoint.pt of a `goflow train` run folder)"
 
 
-
-
-def make_sampler(method: str, space: ParamSpace, success_threshold: float, **kwargs: Any) -> Sampler:
-    """The sampler called `method` over `space`, with its options (for GoFlow and LSDR: alpha,
-    beta, and their config fields); ValueError naming the known methods otherwise."""
-    if method == "nodr":
-        return NoDR(space, **kwargs)
-    if method == "fulldr":
-        return FullDR(space, **kwargs)
-    if method == "adr":
-        from learning.samplers.adr import ADRSampler
-        return ADRSampler(space, success_threshold, **kwargs)
-    if method == "lsdr":
-        from learning.samplers.lsdr import LSDRSampler
-        alpha = kwargs.pop("alpha", 1.0)  # the rest are LSDRConfig fields
-        return LSDRSampler(space, alpha=alpha, config=kwargs or None)
+def protocol_sampler_kwargs(method: str, sampler_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The sampler options the protocol runs `method` with: the user's, plus DORAEMON's
+    `proposal="uniform"` (the protocol updates it with the uniform validation batch, so its
+    importance weights are p'/U) unless the user set it."""
     if method == "doraemon":
-        from learning.samplers.doraemon import DORAEMONSampler
-        # The protocol updates it with the uniform validation batch: importance weights p'/U.
-        return DORAEMONSampler(space, success_threshold, **{"proposal": "uniform", **kwargs})
-    if method == "goflow":
-        from learning.samplers.goflow import GoFlowSampler
-        alpha, beta = kwargs.pop("alpha", 1.0), kwargs.pop("beta", 1.0)  # the rest: GoFlowConfig
-        return GoFlowSampler(space, alpha=alpha, beta=beta, config=kwargs or None)
-    raise ValueError(f"unknown sampler {method!r}; expected one of {list(METHODS)}")
+        return {"proposal": "uniform", **sampler_kwargs}
+    return dict(sampler_kwargs)
+
+
+def probe_env(env_id: str, env_kwargs: dict[str, Any]) -> gymnasium.Env:
+    """Build environment `env_id` with `env_kwargs` once and return its unwrapped env.
+
+    Raises InputError naming the id (and the registered goflow ids) when it is unknown, and the
+    environment's own error (UnknownOptionError, InputError) for a bad option."""
+    try:
+        gymnasium.spec(env_id)
+    except gymnasium.error.Error:
+        known = sorted(k for k in gymnasium.registry if k.startswith("goflow/"))
+        raise InputError(f"unknown environment id {env_id!r}; expected one of {known}") from None
+    env = gymnasium.make(env_id, **env_kwargs)
+    return env.unwrapped
 
 
 @dataclass
@@ -107,21 +115,23 @@ class TrainConfig:
         for name in ("total_steps", "iterations_per_round", "eval_episodes"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"TrainConfig.{name} = {getattr(self, name)}; expected >= 1")
+        # Options are checked now, before any work: an unknown key or a bad value fails here.
+        sampler_config(self.method, protocol_sampler_kwargs(self.method, self.sampler_kwargs))
         if self.out is not None:
             self.out = Path(self.out)
 
+    def steps_per_round(self) -> int:
+        """Training environment steps per round: iterations_per_round x num_envs x num_steps."""
+        return self.iterations_per_round * self.ppo.num_envs * self.ppo.num_steps
+
     def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["out"] = None if self.out is None else str(self.out)
-        return d
+        """Plain JSON data (the run's log["config"])."""
+        return config_to_dict(self)
 
     @classmethod
     def from_json(cls, d: dict) -> TrainConfig:
         """The inverse of to_json (a run's log["config"])."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        kwargs = {k: v for k, v in d.items() if k in known}
-        kwargs["ppo"] = PPOConfig(**d["ppo"])
-        return cls(**kwargs)
+        return config_with_overrides(cls, d)
 
 
 def _sampler_signal(kind: str, returns: np.ndarray, successes: np.ndarray) -> np.ndarray:
@@ -140,17 +150,30 @@ class Run:
     agent: PPO
 
 
+def load_checkpoint(path: Path | str) -> dict[str, Any]:
+    """A `goflow train` checkpoint file as data (torch.load with weights_only=True).
+
+    Raises FileNotFoundError if missing and FileFormatError (a ValueError) naming the file if it
+    is empty, truncated, foreign or holds anything but tensors and plain data."""
+    state = load_tensors(path, _CHECKPOINT)
+    if not isinstance(state, dict) or not {"agent", "sampler", "space", "log"} <= set(state):
+        raise InputError(f"{path}: not a {_CHECKPOINT} (it lacks agent, sampler, space or log)")
+    return state
+
+
 def load_run(run: Path | str) -> Run:
-    """Load run folder `run`; FileNotFoundError if it holds no checkpoint."""
+    """Load run folder `run`; FileNotFoundError if it holds no checkpoint, FileFormatError if the
+    checkpoint is not one."""
     run = Path(run)
     checkpoint = run / "checkpoint.pt"
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{run} has no checkpoint.pt: is it a `goflow train` run folder?")
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    state = load_checkpoint(checkpoint)
     log = state["log"]
     config = TrainConfig.from_json(log["config"])
     space = ParamSpace.from_dict(state["space"])
-    sampler = make_sampler(config.method, space, log["success_threshold"], **dict(config.sampler_kwargs))
+    sampler = make_sampler(config.method, space, log["success_threshold"],
+                           protocol_sampler_kwargs(config.method, config.sampler_kwargs))
     sampler.load_state_dict(state["sampler"])
     return Run(state, config, space, sampler, PPO.from_state_dict(state["agent"]))
 
@@ -162,16 +185,11 @@ def _make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
 
 
-def _atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def _atomic_json(obj: Any, path: Path) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
+def _same_run(saved: dict[str, Any], config: TrainConfig) -> list[str]:
+    """What makes a checkpoint's run another run than `config`: the env, its options, the method
+    or the seed (a later stage may change the budget, the round size or the batch, not these)."""
+    return [f"{key}: checkpoint {saved.get(key)!r} vs now {getattr(config, key)!r}"
+            for key in ("env", "env_kwargs", "method", "seed") if saved.get(key) != config_to_dict(getattr(config, key))]
 
 
 def train(config: TrainConfig, progress: bool = True) -> dict:
@@ -179,15 +197,28 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     mean_return], ...] on the uniform box, "train_curve": the same on the training episodes (xi
     from the sampler), "seconds", "sampler_seconds", "rounds"}.
 
+    With `config.out`, the run folder is checked and locked before any work (RunFolderBusyError if
+    another run holds it), the checkpoint is written after every round, and a checkpoint of
+    another run (env, env options, method, seed or ParamSpace) is refused. An interruption
+    (KeyboardInterrupt) loses at most the round in progress: it is re-raised after the
+    environments are closed, and the same call resumes from the last checkpoint.
+
     Torch runs on one thread: the networks are small, and a second thread only contends with the
-    simulator (a GoFlow update took 2 s on one thread and 23 s on two, with other jobs running)."""
+    simulator (docs/learning.md, "Speed")."""
+    if config.out is None:
+        return _train(config, progress)
+    with run_folder_lock(config.out):
+        return _train(config, progress)
+
+
+def _train(config: TrainConfig, progress: bool) -> dict:
     torch.set_num_threads(1)
     torch.manual_seed(config.seed)
-    probe = gymnasium.make(config.env, **config.env_kwargs).unwrapped
+    probe = probe_env(config.env, config.env_kwargs)
     space, J_T = probe.space, float(probe.success_threshold)
     obs_dim = int(np.prod(probe.observation_space.shape))
     critic_dim = obs_dim + space.dim
-    sampler = make_sampler(config.method, space, J_T, **config.sampler_kwargs)
+    sampler = make_sampler(config.method, space, J_T, protocol_sampler_kwargs(config.method, config.sampler_kwargs))
     ppo_config = dataclasses.replace(config.ppo, seed=config.seed)
     agent = PPO(obs_dim, critic_dim, probe.action_space, ppo_config)
     train_envs = _make_vector_env(config, ppo_config.num_envs)
@@ -198,23 +229,41 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
            "rounds": 0}
     checkpoint = config.out / "checkpoint.pt" if config.out else None
     if checkpoint is not None and checkpoint.exists():
-        state = torch.load(checkpoint, weights_only=False)
+        state = load_checkpoint(checkpoint)
         if ParamSpace.from_dict(state["space"]) != space:
-            raise ValueError(f"checkpoint {checkpoint} was trained on another ParamSpace: "
+            raise InputError(f"checkpoint {checkpoint} was trained on another ParamSpace: "
                              + "; ".join(space.diff(ParamSpace.from_dict(state["space"]))))
+        other = _same_run(state["log"]["config"], config)
+        if other:
+            raise InputError(f"{config.out} holds a checkpoint of another run ({'; '.join(other)}); "
+                             "choose another run folder, or remove it to start over")
         agent.load_state_dict(state["agent"])
         sampler.load_state_dict(state["sampler"])
         log = state["log"]
         if log["config"] != config.to_json():  # a later stage continues the run with new settings
             log.setdefault("stages", []).append({"from_round": log["rounds"], "config": config.to_json()})
             log["config"] = config.to_json()
-    steps_per_round = config.iterations_per_round * ppo_config.num_envs * ppo_config.num_steps
+    steps_per_round = config.steps_per_round()
     # Rounds left from the training steps already done, so that a later stage with another round
     # size continues the run to config.total_steps (a fresh run does at least one round).
     done = log.get("steps", log["curve"][-1][0] if log["curve"] else 0)
     rounds = log["rounds"] + max(0 if done else 1, (config.total_steps - done) // steps_per_round)
     bar = tqdm(total=rounds, initial=log["rounds"], disable=not progress,
                desc=f"{config.method} seed {config.seed}", unit="round")
+    try:
+        _rounds(config, log, rounds, done, agent, sampler, space, train_envs, val_envs, checkpoint, bar)
+    finally:
+        bar.close()
+        train_envs.close()
+        val_envs.close()
+    return log
+
+
+def _rounds(config: TrainConfig, log: dict, rounds: int, done: int, agent: PPO, sampler: Sampler, space: ParamSpace,
+            train_envs: gymnasium.vector.VectorEnv, val_envs: gymnasium.vector.VectorEnv, checkpoint: Path | None,
+            bar: tqdm) -> None:
+    """The protocol's rounds until `rounds`, checkpointing after each."""
+    steps_per_round = config.steps_per_round()
     while log["rounds"] < rounds:
         r = log["rounds"]
         t0 = time.perf_counter()
@@ -249,17 +298,12 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         log["sampler_seconds"] += t2 - t1
         log["last_sampler"] = {k: v for k, v in diagnostics.items()
                                if isinstance(v, (int, float, bool, str))}
-        if config.out is not None:
-            config.out.mkdir(parents=True, exist_ok=True)
-            _atomic_save({"agent": agent.state_dict(), "sampler": sampler.state_dict(),
-                          "space": space.to_dict(), "log": log}, checkpoint)
-            _atomic_json(log, config.out / "log.json")
+        if checkpoint is not None:
+            save_tensors(checkpoint, {"agent": agent.state_dict(), "sampler": sampler.state_dict(),
+                                      "space": space.to_dict(), "log": log})
+            write_json(config.out / "log.json", log)
         bar.set_postfix(success=f"{log['curve'][-1][1]:.2f}")
         bar.update(1)
-    bar.close()
-    train_envs.close()
-    val_envs.close()
-    return log
 
 
 @dataclass
@@ -289,11 +333,16 @@ def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -
     The update oscillates (a batch that all succeeds carries no signal, so the entropy term widens
     the flow until it fails again), so the stage keeps the evaluated sampler with the highest
     success (ties: the highest entropy), and when the rounds are done the checkpoint's sampler is
-    that one (log["sampler_fit_best"]). The checkpoint is written after every round. Returns the log."""
+    that one (log["sampler_fit_best"]). The checkpoint is written after every round, and the run
+    folder is locked while the stage works. Returns the log."""
     if not isinstance(fit, SamplerFitConfig):
         raise TypeError(f"fit must be a SamplerFitConfig, got {type(fit).__name__}")
+    with run_folder_lock(run):
+        return _fit_sampler(Path(run), fit, progress)
+
+
+def _fit_sampler(run: Path, fit: SamplerFitConfig, progress: bool) -> dict:
     torch.set_num_threads(1)
-    run = Path(run)
     loaded = load_run(run)
     state, config, sampler, agent = loaded.state, loaded.config, loaded.sampler, loaded.agent
     if config.method not in GRADIENT_METHODS:
@@ -327,8 +376,8 @@ def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -
             if len(done) == fit.rounds:  # finished: the checkpoint carries the selected sampler
                 state["sampler"] = best["sampler"]
                 log["sampler_fit_best"] = {k: best[k] for k in ("round", "success", "entropy")}
-            _atomic_save(state, checkpoint)
-            _atomic_json(log, run / "log.json")
+            save_tensors(checkpoint, state)
+            write_json(run / "log.json", log)
             bar.set_postfix(success=f"{done[-1][1]:.2f}")
             bar.update(1)
     finally:
@@ -352,16 +401,21 @@ class ExperimentConfig:
     sampler_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)  # per method
     sampler_signal: str = "return"  # TrainConfig.sampler_signal of every run (THRESHOLD_METHODS keep returns)
     workers: int = 2
-    out: Path = Path("runs")
-    results: Path = Path("docs/results")
+    out: Path = Path("runs")  # run folders: <out>/<stem>/<method>/seed<k>
+    # the result JSON and plots; the committed tables in docs/results are written only when asked
+    results: Path = Path("runs/results")
     name: str | None = None  # results file stem; default derived from env id (+ kwargs)
 
     def __post_init__(self) -> None:
         for m in self.methods:
             if m not in METHODS:
                 raise ValueError(f"unknown sampler {m!r}; expected one of {list(METHODS)}")
+        extra = sorted(set(self.sampler_kwargs) - set(self.methods))
+        if extra:
+            raise ValueError(f"sampler options for {extra}, which are not among the methods {list(self.methods)}")
         if self.seeds < 1 or self.workers < 1:
             raise ValueError(f"seeds = {self.seeds}, workers = {self.workers}; expected >= 1")
+        self.out, self.results = Path(self.out), Path(self.results)
 
     def stem(self) -> str:
         if self.name:
@@ -444,21 +498,39 @@ def plot_curves(summary: dict, path: Path) -> None:
 
 def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "") -> dict:
     """Run every (method, seed) in `config.workers` processes (resuming finished or interrupted
-    runs from their checkpoints); write <results>/<stem>.json and .png with `command` as provenance;
-    return the summary."""
+    runs from their checkpoints); write <results>/<stem>.json and .png (and, for Toy2D, the
+    learned densities <stem>-densities.png) with `command` as provenance; return the summary, whose
+    "figures" lists the figures written.
+
+    The environment, the options and the output folders are checked before any run starts."""
     import multiprocessing as mp
-    runs = config.runs()
+    runs = config.runs()  # validates every run's options
+    probe_env(config.env, config.env_kwargs)
+    check_output_dir(config.out, "run folder")
+    check_output_dir(config.results, "results folder")
     ctx = mp.get_context("spawn")
-    with ctx.Pool(config.workers) as pool:
+    pool = ctx.Pool(config.workers)
+    try:
         logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress,
                          desc=f"experiment {config.stem()}", unit="run"))
+    except BaseException:
+        pool.terminate()  # an interrupted or failed experiment: every run keeps its last checkpoint
+        raise
+    else:
         pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
+    finally:
         pool.join()
     summary = summarize(logs, config.total_steps, config.env)
     summary["command"] = command
-    config.results.mkdir(parents=True, exist_ok=True)
-    _atomic_json(summary, config.results / f"{config.stem()}.json")
-    plot_curves(summary, config.results / f"{config.stem()}.png")
+    stem = config.results / config.stem()
+    plot_curves(summary, stem.with_name(stem.name + ".png"))
+    summary["figures"] = [str(stem.with_name(stem.name + ".png"))]
+    if gymnasium.spec(config.env).name == "Toy2D":
+        from learning.plots import plot_toy2d_densities
+        densities = stem.with_name(stem.name + "-densities.png")
+        plot_toy2d_densities(config, densities)
+        summary["figures"].append(str(densities))
+    write_json(stem.with_name(stem.name + ".json"), summary)
     return summary
 
 

@@ -6,21 +6,16 @@ from pathlib import Path
 
 import gymnasium
 import numpy as np
-import torch
 
 import assembly  # noqa: F401  (registers the environment ids)
-from learning.experiment import ExperimentConfig, make_sampler
+from learning.experiment import ExperimentConfig, load_run
 
 
 def load_final_sampler(config: ExperimentConfig, method: str, seed: int = 0):
-    """The sampler of run (method, seed) as saved in its last checkpoint."""
+    """(env, sampler): the experiment's environment and the sampler of run (method, seed) as saved
+    in its last checkpoint."""
     env = gymnasium.make(config.env, **config.env_kwargs).unwrapped
-    sampler = make_sampler(method, env.space, env.success_threshold,
-                           **config.sampler_kwargs.get(method, {}))
-    state = torch.load(config.out / config.stem() / method / f"seed{seed}" / "checkpoint.pt",
-                       weights_only=False)
-    sampler.load_state_dict(state["sampler"])
-    return env, sampler
+    return env, load_run(config.out / config.stem() / method / f"seed{seed}").sampler
 
 
 def plot_toy2d_densities(config: ExperimentConfig, path: Path, seed: int = 0, grid: int = 120) -> None:

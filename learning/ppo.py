@@ -1,49 +1,28 @@
 """PPO for continuous actions with a privileged critic, on gymnasium 1.x vector environments.
 
-Written after CleanRL's `ppo_continuous_action.py` (clipped surrogate, GAE, advantage
-normalization, clipped value loss, global gradient clipping, optional learning-rate annealing and
-KL early stop, observation normalization and reward scaling), with three differences that matter
-for this project:
+Written after CleanRL's `ppo_continuous_action.py`. The actor sees `obs`; the critic sees
+`info["critic_obs"]` = concat(obs, normalized xi) that every goflow env returns, each with its own
+running normalizer. A truncated step (time limit or failed physics step) bootstraps from
+V(final critic_obs); a terminated one does not (`compute_gae`).
 
-1. Privileged critic. The actor sees `obs`; the critic sees `info["critic_obs"]` =
-   concat(obs, normalized xi) that every goflow env (assembly/envs/base.py) returns. Each has its
-   own running normalizer.
-2. Truncation is not termination. The envs end an episode *terminated* (the task ended it) or
-   *truncated* (time limit, or a failed physics step: info["sim_error"]). For a truncated step the
-   advantage bootstraps from V(final critic_obs) of the episode that just ended; for a terminated
-   step it does not (see `compute_gae`). CleanRL's script treats both as termination.
-3. Exact resume. `state_dict()` holds networks, optimizer, normalizers, RNG states and counters;
-   with `reset_each_rollout=True` every rollout starts from `vec_env.reset(seed=s_k)`, s_k derived
-   from (config.seed, iteration k), so a run resumed from a checkpoint at an iteration boundary
-   continues exactly as the uninterrupted run (same losses, same parameters).
+Conventions a caller needs:
+- `collect` requires `autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP`: an ended
+  episode's last observation and info are in info["final_obs"][i] and info["final_info"][key][i].
+- Seeding: networks, action sampling and minibatches draw from generators seeded by `config.seed`
+  (the global RNGs are untouched); `collect` resets the vector env itself with seed
+  `rollout_seed(iteration)` at the first rollout and (`reset_each_rollout=True`, the default) at
+  every rollout, or with `reset_seed=`. Build the envs deterministically; the rest follows.
+- Exact resume: `state_dict()` holds networks, optimizer, normalizers, RNG states and counters, so
+  a run resumed at an iteration boundary continues exactly as the uninterrupted one (with
+  `reset_each_rollout=False`, only statistically).
+- Episodes still running at a rollout's end are cut there (bootstrapped, not reported as
+  completed): choose num_steps as a multiple of the episode length where you can.
 
-Autoreset. `collect` requires `autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP`
-(gymnasium 1.x): when a sub-env's episode ends at a step, that step already returns the *next*
-episode's first observation (and its reset info: info["critic_obs"], info["xi"]), while the
-ended episode's last observation and info are in info["final_obs"][i] and
-info["final_info"][key][i] (masks info["_final_info"][i] and info["final_info"]["_" + key][i]).
-With the default NEXT_STEP mode a step after each episode end is a dummy transition that a PPO
-buffer would have to mask out; SAME_STEP has none, so every stored transition is a real one.
+Design notes (the three departures from CleanRL, autoreset, seeding, why every rollout starts from
+a seeded reset): docs/learning.md#ppo.
 
-Seeding. Network initialization, action sampling and minibatch shuffling draw from generators
-seeded by `config.seed` (the global torch/numpy RNGs are neither used nor changed). The
-environments are seeded through `vec_env.reset(seed=...)`: `collect` resets the vector env
-itself, with seed `rollout_seed(iteration)`, at the first rollout and (default) at every rollout;
-the caller only has to build the envs deterministically (and, for a learned sampler living in
-the envs, restore its state). Pass `reset_seed=` to `collect` to choose the seed yourself. With
-`reset_each_rollout=False` rollouts continue the running episodes (CleanRL's behaviour), and a
-resumed run restarts the episodes that were running at the checkpoint: it is then statistically,
-but not bit-for-bit, the same run.
-
-Why reset each rollout? The state of a vector env (Drake contexts, sub-env RNGs, episodes
-halfway through, possibly in other processes) cannot be pickled into a checkpoint. Starting every
-rollout from a seeded reset makes the env state at a rollout boundary a function of (seed,
-iteration) only. The cost: episodes still running at the end of a rollout are cut there (their
-last step bootstraps from V, exactly as at any rollout end, so nothing is biased, but they are not
-reported as completed episodes). Choose num_steps as a multiple of the episode length where you
-can (Cartpole: 120 steps per episode; Toy2D: 1) and no episode is cut. In the GoFlow protocol it
-also means each training phase's episodes are drawn from the sampler as it is after the last
-sampler update.
+References: Schulman et al., "Proximal Policy Optimization Algorithms", arXiv:1707.06347, 2017;
+CleanRL (github.com/vwxyzjn/cleanrl, cleanrl/ppo_continuous_action.py).
 """
 
 from __future__ import annotations
@@ -51,10 +30,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tempfile
 import weakref
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import gymnasium
@@ -65,11 +42,14 @@ from gymnasium.vector import AutoresetMode
 from numpy.typing import ArrayLike, NDArray
 from torch import nn
 
+from common.errors import FileFormatError
+from common.files import check_output_file, load_tensors, save_tensors
 from learning.networks import Actor, Critic, RunningMeanStd
 
 __all__ = ["PPOConfig", "PPO", "RolloutStats", "NonFiniteError", "compute_gae"]
 
 _CHECKPOINT_FORMAT = "goflow.ppo/1"
+_CHECKPOINT_WHAT = "PPO checkpoint (written by PPO.save)"
 # Purposes mixed into derived seeds (np.random.SeedSequence([seed, purpose, ...])).
 _SEED_INIT, _SEED_ROLLOUT, _SEED_EVAL, _SEED_ACT, _SEED_SAMPLE, _SEED_SHUFFLE = 0, 1, 2, 3, 4, 5
 
@@ -626,7 +606,8 @@ class PPO:
         return np.clip(a.numpy(), self._low, self._high)
 
     def evaluate(self, vec_env: gymnasium.vector.VectorEnv, n_episodes: int, deterministic: bool = False,
-                 seed: int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+                 seed: int | None = None, progress: bool = False
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         """Run n_episodes full episodes without learning: (xi (n, d), returns (n,), successes (n,)).
 
         Nothing of the training run changes: no normalizer update, no parameter update, and the
@@ -634,8 +615,10 @@ class PPO:
         the iteration), which also seeds vec_env.reset. Each sub-env contributes episodes in turn
         (round k takes the k-th episode of every sub-env), so short episodes are not over-represented.
         If vec_env is the env collect() runs on, its running episodes are forgotten and the next
-        collect resets it.
+        collect resets it. `progress` shows a bar of the episodes finished.
         """
+        from tqdm import tqdm
+
         if isinstance(n_episodes, bool) or not isinstance(n_episodes, (int, np.integer)) or n_episodes < 1:
             raise ValueError(f"PPO.evaluate: n_episodes must be a positive integer, got {n_episodes!r}")
         n = self._check_vec_env(vec_env, "evaluate")
@@ -648,18 +631,20 @@ class PPO:
         quota = -(-int(n_episodes) // n)
         got: list[list[tuple[NDArray[np.float64], float, bool]]] = [[] for _ in range(n)]
         step = 0
-        while any(len(g) < quota for g in got):
-            obs, reward, term, trunc, info = vec_env.step(self._policy(obs, deterministic, gen))
-            _check_finite(np.asarray(reward, dtype=np.float64), "reward", step)
-            obs, _ = self._read_obs(obs, info, n, "vec_env.step", step)
-            done = np.asarray(term, dtype=bool) | np.asarray(trunc, dtype=bool)
-            if done.any():
-                final = self._final_info(info, done, step)
-                for j, i in enumerate(np.flatnonzero(done)):
-                    if len(got[i]) < quota:
-                        got[i].append((np.asarray(final["xi"][j], dtype=np.float64),
-                                       float(final["episode_return"][j]), bool(final["success"][j])))
-            step += 1
+        with tqdm(total=int(n_episodes), disable=not progress, desc="evaluate", unit="episode") as bar:
+            while any(len(g) < quota for g in got):
+                obs, reward, term, trunc, info = vec_env.step(self._policy(obs, deterministic, gen))
+                _check_finite(np.asarray(reward, dtype=np.float64), "reward", step)
+                obs, _ = self._read_obs(obs, info, n, "vec_env.step", step)
+                done = np.asarray(term, dtype=bool) | np.asarray(trunc, dtype=bool)
+                if done.any():
+                    final = self._final_info(info, done, step)
+                    for j, i in enumerate(np.flatnonzero(done)):
+                        if len(got[i]) < quota:
+                            got[i].append((np.asarray(final["xi"][j], dtype=np.float64),
+                                           float(final["episode_return"][j]), bool(final["success"][j])))
+                    bar.update(min(sum(map(len, got)), int(n_episodes)) - bar.n)
+                step += 1
         ordered = [got[i][k] for k in range(quota) for i in range(n)][:n_episodes]
         xi = np.stack([e[0] for e in ordered])
         return xi, np.array([e[1] for e in ordered]), np.array([e[2] for e in ordered], dtype=bool)
@@ -731,32 +716,19 @@ class PPO:
         self._clear_env_state()
 
     def save(self, path: str | os.PathLike[str]) -> None:
-        """torch.save the state_dict atomically (temporary file in the same folder, then os.replace)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        state = self.state_dict()
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                torch.save(state, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write the state_dict atomically (tensors and plain data: loadable with weights_only=True)."""
+        save_tensors(check_output_file(path, "PPO checkpoint"), self.state_dict())
 
     def load(self, path: str | os.PathLike[str], strict_config: bool = True) -> None:
-        """Load a checkpoint written by save()."""
-        self.load_state_dict(torch.load(path, map_location="cpu", weights_only=True), strict_config)
+        """Load a checkpoint written by save() (as data only)."""
+        self.load_state_dict(load_tensors(path, _CHECKPOINT_WHAT), strict_config)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike[str]) -> "PPO":
         """A PPO built with the checkpoint's dimensions, action bounds and config, then loaded."""
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = load_tensors(path, _CHECKPOINT_WHAT)
         if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
-            raise ValueError(f"PPO.from_checkpoint: {path} is not a PPO checkpoint")
+            raise FileFormatError(f"{path}: not a {_CHECKPOINT_WHAT}")
         return cls.from_state_dict(state)
 
     @classmethod

@@ -18,7 +18,6 @@ import dataclasses
 import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,13 +32,18 @@ import assembly  # noqa: F401  (registers the environment ids)
 from assembly.gearset import GEARS
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, make_sampler, train
+from common.errors import FileFormatError
+from common.files import check_output_file, load_tensors, save_tensors
+from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, protocol_sampler_kwargs, train
 from learning.ppo import PPO, PPOConfig
+from learning.samplers.registry import make_sampler
 
-__all__ = ["SKILLS", "SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill", "export_skill",
-           "flow_width", "load_skill", "skill_path", "train_skill"]
+__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill",
+           "export_skill", "flow_width", "load_skill", "skill_path", "train_skill"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
+#: Where `train_skill` and `goflow skill train/export` write by default (never the shipped files).
+RUNS_SKILL_DIR = Path("runs") / "skills"
 SKILLS = ("insert",)
 _FORMAT = "goflow-skill-1"
 _ENV = {"insert": "goflow/GearInsertion-v0"}
@@ -52,10 +56,10 @@ def _check_name(name: str, gear: str) -> None:
         raise ValueError(f"unknown gear {gear!r}; expected one of {sorted(GEARS)}")
 
 
-def skill_path(name: str, gear: str) -> Path:
-    """Where the shipped file of skill `name` for `gear` lives."""
+def skill_path(name: str, gear: str, folder: str | os.PathLike[str] = SKILL_DIR) -> Path:
+    """The file of skill `name` for `gear` in `folder` (default: where the shipped file lives)."""
     _check_name(name, gear)
-    return SKILL_DIR / f"{name}-{gear}.pt"
+    return Path(folder) / f"{name}-{gear}.pt"
 
 
 @dataclass
@@ -164,41 +168,34 @@ class Skill:
         return env
 
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the skill file atomically; return its path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        """Write the skill file atomically (tensors and plain data only); return its path."""
+        path = check_output_file(path, "skill file")
         agent_state = self.agent.state_dict()
         state = {"format": _FORMAT, "name": self.name, "gear": self.gear, "env": self.env_id,
                  "env_kwargs": self.env_kwargs, "method": self.method,
                  "success_threshold": self.success_threshold, "space": self.space.to_dict(),
                  "agent": {k: v for k, v in agent_state.items() if k != "optimizer"},
                  "sampler": self.sampler.state_dict(), "provenance": self.provenance}
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                torch.save(state, f)
-            os.chmod(tmp, 0o644)  # a file to commit, readable like any other
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        return save_tensors(path, state)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Skill:
-        """Read a skill file written by `save`; ValueError if it is not one."""
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"no skill file at {path}")
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        """Read a skill file written by `save`, as data only (torch.load with weights_only=True).
+
+        Raises FileNotFoundError if there is no file and FileFormatError (a ValueError) naming the
+        file when it is empty, truncated, foreign or not a goflow skill file."""
+        what = f"goflow skill file (format {_FORMAT!r})"
+        state = load_tensors(path, what)
         if not isinstance(state, dict) or state.get("format") != _FORMAT:
-            raise ValueError(f"{path} is not a goflow skill file (expected format {_FORMAT!r})")
-        space = ParamSpace.from_dict(state["space"])
-        agent = PPO.from_state_dict(state["agent"], optimizer=False)  # skills ship without Adam's moments
-        sampler_kwargs = dict(state["provenance"].get("sampler_kwargs", {}))
-        sampler = make_sampler(state["method"], space, state["success_threshold"], **sampler_kwargs)
-        sampler.load_state_dict(state["sampler"])
+            raise FileFormatError(f"{path}: not a {what}")
+        try:
+            space = ParamSpace.from_dict(state["space"])
+            agent = PPO.from_state_dict(state["agent"], optimizer=False)  # skills ship without Adam's moments
+            sampler_kwargs = protocol_sampler_kwargs(state["method"], state["provenance"].get("sampler_kwargs", {}))
+            sampler = make_sampler(state["method"], space, state["success_threshold"], sampler_kwargs)
+            sampler.load_state_dict(state["sampler"])
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise FileFormatError(f"{path}: a malformed {what} ({type(exc).__name__}: {exc})") from None
         return cls(state["name"], state["gear"], state["env"], state["env_kwargs"], state["method"], agent,
                    sampler, state["success_threshold"], state["provenance"])
 
@@ -218,8 +215,10 @@ def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLi
 
 def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | os.PathLike[str],
                  command: str = "") -> Skill:
-    """Package a `goflow train` run folder (checkpoint.pt, log.json) as a skill file at `out`."""
+    """Package a `goflow train` run folder (checkpoint.pt, log.json) as a skill file at `out`
+    (`command` is recorded as provenance)."""
     _check_name(name, gear)
+    check_output_file(out, "skill file")
     loaded = load_run(run)
     log = loaded.state["log"]
     cfg = log["config"]
@@ -241,23 +240,28 @@ def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | o
     return skill
 
 
-def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: str | os.PathLike[str] = "runs/skills",
+def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: str | os.PathLike[str] = RUNS_SKILL_DIR,
                 out: str | os.PathLike[str] | None = None, command: str = "", progress: bool = True) -> Skill:
-    """Train (or resume) skill `name` for `gear` with `recipe`, then export it (default: the
-    shipped location)."""
+    """Train (or resume) skill `name` for `gear` with `recipe` in run folder `<runs>/<name>-<gear>`,
+    then export it to `out` (default: `<runs>/<name>-<gear>.pt`; the shipped file in
+    learning/skill_files is replaced only when `out` names it). The output paths are checked
+    before training starts."""
     recipe = recipe or SkillRecipe()
+    _check_name(name, gear)
+    out = check_output_file(out or skill_path(name, gear, runs), "skill file")
     run = Path(runs) / f"{name}-{gear}"
     for config in recipe.stages(name, gear, run):
         train(config, progress=progress)
     if recipe.fit_rounds > 0:
         fit_sampler(run, SamplerFitConfig(rounds=recipe.fit_rounds, episodes=recipe.fit_episodes), progress=progress)
-    return export_skill(run, name, gear, out or skill_path(name, gear), command=command)
+    return export_skill(run, name, gear, out, command=command)
 
 
 def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episodes: int = 100, seed: int = 0,
                    num_envs: int = 4, progress: bool = False) -> dict[str, Any]:
     """Run `episodes` episodes of the skill's deterministic policy with xi from its flow or uniform
-    over the box: {"gear", "variant", "xi", "episodes", "success_rate", "mean_return", ...}."""
+    over the box: {"gear", "variant", "xi", "episodes", "success_rate", "mean_return", ...};
+    `progress` shows a bar of the episodes finished."""
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     t0 = time.perf_counter()
@@ -265,7 +269,8 @@ def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episod
     vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
                                          autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
     try:
-        xis, returns, successes = skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
+        xis, returns, successes = skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed,
+                                                       progress=progress)
     finally:
         vec.close()
     rate = float(np.mean(successes))

@@ -49,14 +49,7 @@ class ParamEnv(gymnasium.Env):
 
     def __init__(self, space: ParamSpace, sampler: Sampler | None) -> None:
         self.space = space
-        sampler = FullDR(space) if sampler is None else sampler
-        if not isinstance(sampler, Sampler):
-            raise TypeError(f"{type(self).__name__}: sampler must implement assembly.samplers.Sampler, "
-                            f"got {type(sampler).__name__}")
-        if sampler.space != space:
-            raise ValueError(f"{type(self).__name__}: the sampler's ParamSpace differs from the "
-                             "environment's (env vs sampler): " + "; ".join(space.diff(sampler.space)))
-        self.sampler = sampler
+        self.sampler = FullDR(space) if sampler is None else sampler
         self._xi: NDArray[np.float64] | None = None
         self._obs: NDArray[np.float32] | None = None
         self._steps = 0
@@ -76,6 +69,23 @@ class ParamEnv(gymnasium.Env):
         raise NotImplementedError
 
     # -- the shared contract -------------------------------------------------------------------
+
+    @property
+    def sampler(self) -> Sampler:
+        """The distribution xi is drawn from at reset. Setting it (directly, or through a vector
+        env's `set_attr("sampler", ...)`) runs the same checks as the constructor: it must
+        implement the Sampler protocol over exactly this env's ParamSpace."""
+        return self._sampler
+
+    @sampler.setter
+    def sampler(self, sampler: Sampler) -> None:
+        if not isinstance(sampler, Sampler):
+            raise TypeError(f"{type(self).__name__}: sampler must implement assembly.samplers.Sampler, "
+                            f"got {type(sampler).__name__}")
+        if sampler.space != self.space:
+            raise ValueError(f"{type(self).__name__}: the sampler's ParamSpace differs from the "
+                             "environment's (env vs sampler): " + "; ".join(self.space.diff(sampler.space)))
+        self._sampler = sampler
 
     @property
     def xi(self) -> NDArray[np.float64] | None:

@@ -4,8 +4,6 @@ known target distribution (assembly/transition_sim.py is the "real system" here)
 from __future__ import annotations
 
 import datetime
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -13,6 +11,8 @@ from typing import Callable
 import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
+
+from common.errors import FileFormatError
 
 from assembly.transition_sim import make_transition_sim
 from learning.estimation.dataset import TransitionDataset, save_dataset
@@ -52,19 +52,18 @@ class CollectConfig:
 
 
 def _load_policy(path: str) -> Callable[[NDArray[np.float32]], NDArray[np.float64]]:
-    """Deterministic actions of a PPO checkpoint (a PPO.save file or a `goflow train` checkpoint.pt)."""
-    import torch
-
+    """Deterministic actions of a PPO checkpoint (a PPO.save file or a `goflow train` checkpoint.pt),
+    loaded as data only; FileFormatError naming the file if it is neither."""
+    from common.files import load_tensors
     from learning.ppo import PPO
 
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = load_tensors(path, "PPO checkpoint or `goflow train` checkpoint.pt")
     if isinstance(state, dict) and "agent" in state:  # goflow train's checkpoint.pt
-        with tempfile.TemporaryDirectory() as tmp:
-            p = os.path.join(tmp, "agent.pt")
-            torch.save(state["agent"], p)
-            agent = PPO.from_checkpoint(p)
-    else:
-        agent = PPO.from_checkpoint(path)
+        state = state["agent"]
+    try:
+        agent = PPO.from_state_dict(state)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise FileFormatError(f"{path}: not a PPO checkpoint or `goflow train` checkpoint.pt ({exc})") from None
     return lambda obs: np.asarray(agent.act(obs, deterministic=True), dtype=np.float64)
 
 

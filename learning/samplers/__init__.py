@@ -1,8 +1,10 @@
-"""Learned domain-randomization samplers on the Sampler protocol (assembly.samplers)."""
+"""Learned domain-randomization samplers on the Sampler protocol (assembly.samplers): ADR, LSDR,
+DORAEMON, GoFlow, and fixed estimates; `learning.samplers.registry` builds any sampler by name.
 
-from learning.samplers.adr import ADRSampler
-from learning.samplers.doraemon import DORAEMONSampler
-from learning.samplers.goflow import GoFlowSampler
-from learning.samplers.lsdr import LSDRSampler
+Importing this package imports no sampler module (each pulls torch or scipy): import the one you
+need, e.g. `from learning.samplers.goflow import GoFlowSampler`, or use the registry.
+"""
 
-__all__ = ["ADRSampler", "DORAEMONSampler", "GoFlowSampler", "LSDRSampler"]
+from learning.samplers.registry import METHODS, SAMPLERS, make_sampler
+
+__all__ = ["METHODS", "SAMPLERS", "make_sampler"]

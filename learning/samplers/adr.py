@@ -11,39 +11,26 @@ that bound's queue; when a queue holds `queue_length` returns its mean decides t
   (so lo_i <= nominal_i <= hi_i always holds, and a bound never crosses the other one);
 - otherwise nothing moves;
 
-and the queue is cleared in all three cases. Defaults are the GoFlow paper's ADR baseline
-(REFERENCES.md, appendix A.2): t+ = J_T, t- = 0.5 x t+ (swept over {0.1, 0.25, 0.5, 0.75, 0.9}),
-Delta_i = 0.1 x (high_i - low_i), boundary probability 0.5.
+and the queue is cleared in all three cases. Defaults (the GoFlow paper's ADR baseline): t+ = J_T,
+t- = 0.5 x t+, Delta_i = 0.1 x (high_i - low_i), boundary probability 0.5; initial width 0.05 of
+the box (`init_width_fraction`; 0 gives the paper's zero-width start).
 
-The public port this replaces started at zero width *and* inverted expand/contract, so it never
-left the nominal point (NoDR in disguise). Here good performance at a bound widens the range
-(see tests/learning/test_adr.py), and the initial width is configurable (`init_width_fraction`,
-default 0.05 of the box width; 0 gives the paper's zero-width start).
+`update(xi, returns)` counts a row toward bound (i, side) exactly when xi[row, i] equals that
+bound (exact float equality), so feed it the episodes it sampled; a batch with no row on any bound
+changes nothing and raises a UserWarning.
 
-Recognising boundary samples. `update(xi, returns)` receives only parameter vectors, so a row
-counts towards the queue of bound (i, side) exactly when xi[row, i] == bound value (exact float
-equality against the bounds current at that moment; rows are processed in order and a bound that
-moved makes later rows pinned to its old value stale, as in the reference implementations). For a
-dimension of positive width a uniform draw hits a bound with probability zero, so in practice only
-pinned rows match. For a zero-width dimension (lo_i == hi_i) *every* row sits at both of its bounds
-and is counted for both: every such episode was indeed run with that parameter at its bound, which
-is what the queue estimates. Rows need not come back in the order they were sampled, and rows from
-elsewhere (e.g. a uniform validation batch) are simply not counted unless they sit on a bound; a
-batch with no row on any bound changes nothing and raises a UserWarning, because feeding ADR such
-batches (e.g. only the GoFlow protocol's uniform-box validation episodes) silently turns it into
-a fixed distribution.
+Density conventions (assembly/samplers.py): `log_prob` and `entropy` describe the uniform
+distribution on the current intervals, without boundary sampling's point masses:
+log_prob = -sum_i log(hi_i - lo_i) inside the closed intervals, -inf outside; entropy =
+sum_i log(hi_i - lo_i). With a zero-width dimension entropy = -inf and log_prob = +inf on the
+degenerate set (-inf off it), as for NoDR.
 
-Thresholds for non-positive J_T. t- = ratio x t+ only makes sense for t+ > 0 (for t+ < 0 it would
-lie above t+). The general rule used here is t- = t+ - (1 - ratio) x |t+|, which equals ratio x t+
-for t+ > 0 and stays below t+ for t+ < 0. For t+ == 0 it gives t- = t+ = 0 (no dead band: a mean of
-exactly 0 expands, since expansion is tested first); set `t_minus` explicitly in that case.
+Details (boundary-row matching, t- for J_T <= 0, the defects of the port this replaces):
+docs/learning.md#adr.
 
-Density conventions (assembly/samplers.py). `log_prob` and `entropy` describe the uniform
-distribution on the current intervals and ignore the point masses that boundary sampling adds
-(those atoms have Lebesgue measure zero and would make every density infinite; the uniform part is
-what ADR calls its distribution). log_prob = -sum_i log(hi_i - lo_i) inside the closed intervals,
--inf outside; entropy = sum_i log(hi_i - lo_i). With any zero-width dimension the uniform part is
-degenerate: entropy = -inf and log_prob = +inf on the degenerate set (-inf off it), as for NoDR.
+References: OpenAI et al., "Solving Rubik's Cube with a Robot Hand", arXiv:1910.07113, 2019;
+Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic Skills",
+ICML 2025, appendix A.2 (baseline settings).
 """
 
 from __future__ import annotations
@@ -59,8 +46,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
 from assembly.samplers import (
-    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs, sampler_config,
+    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
+from common.config import config_with_overrides
 
 __all__ = ["ADRConfig", "ADRSampler"]
 
@@ -69,7 +57,7 @@ _SIDES = ("low", "high")
 
 @dataclass(frozen=True)
 class ADRConfig:
-    """Hyperparameters of ADR (defaults: GoFlow paper appendix A.2, via REFERENCES.md)."""
+    """Hyperparameters of ADR (defaults: GoFlow paper, Curtis et al., ICML 2025, appendix A.2)."""
 
     # t- = t+ - (1 - ratio)|t+| (= ratio * t+ for t+ > 0); swept over {0.1, 0.25, 0.5, 0.75, 0.9}.
     t_minus_ratio: float = 0.5
@@ -133,9 +121,9 @@ class ADRSampler:
         config: ADRConfig | Mapping[str, Any] | None = None,
         **overrides: Any,
     ) -> None:
-        self.success_threshold = check_sampler_args(space, success_threshold, "ADRSampler")
+        self.success_threshold = check_sampler_args(space, success_threshold, "ADRSampler", required=True)
         self.space = space
-        self.config = sampler_config(ADRConfig, config, "ADR", overrides)
+        self.config = config_with_overrides(ADRConfig, config, overrides, "ADR")
         c = self.config
         self.t_plus = self.success_threshold if c.t_plus is None else c.t_plus
         if c.t_minus is not None:

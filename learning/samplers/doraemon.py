@@ -1,12 +1,9 @@
 """DORAEMON: Domain Randomization via Entropy Maximization (Tiboni et al., ICLR 2024).
 
 The distribution p_phi is a product of independent Beta distributions, one per parameter, each
-affinely mapped from [0, 1] onto the parameter's interval [low_i, high_i]. Following the official
-code (github.com/gabrieletiboni/doraemon, doraemon/doraemon.py), every Beta starts at a = b = 100
-(a narrow bump at the box centre) and the optimizer works on unconstrained variables theta mapped
-through a scaled sigmoid, a = lo + (hi - lo) * sigmoid(theta), with (lo, hi) = (0.8, init + 10).
-
-Each `update(xi, returns)` solves, with scipy's trust-constr and analytic gradients,
+affinely mapped from [0, 1] onto the parameter's interval [low_i, high_i], starting at
+a = b = 100 (a narrow bump at the box centre) as in the official code. Each `update(xi, returns)`
+solves, with scipy's trust-constr and analytic gradients,
 
     max_phi'  H(p_phi')   (equivalently min KL(p_phi' || Uniform(box)) = -H_unit(p_phi'))
     s.t.      KL(p_phi || p_phi') <= eps                                 (trust region)
@@ -16,22 +13,21 @@ where s_i = 1[return_i >= J_T] and w_i = p_phi'(xi_i) / q(xi_i) are importance w
 distribution the batch was actually drawn from. By default q is the current p_phi (the batch came
 from this sampler, as in the paper); pass `proposal_log_prob` (log q(xi_i) in parameter units) when
 it came from elsewhere, or set config proposal="uniform" when every batch comes from the uniform
-box (the GoFlow protocol's validation phase). (The public port this replaces divided by the
-wrong proposal density and broadcast an (N, 1) array against an (N,) one into an (N, N) matrix;
-every array here has its shape asserted.) When the current estimated success rate is below alpha,
-the inverted problem  max J(phi') s.t. KL(p_phi || p_phi') <= eps  is solved first; if its optimum
-reaches alpha it is the starting point of the main problem, otherwise the sampler moves to it and
-stops there (the official code's behaviour). Both trust regions are measured from the distribution
-before the update. A final safeguard (not in the official code) backtracks along the segment in
-theta from the old to the new parameters until KL <= eps holds exactly (and J >= alpha - 1e-4, when
-the start was feasible), so the trust region is never exceeded because of solver tolerances.
-
-Defaults: eps = 0.05, alpha = 0.5 (the GoFlow paper sweeps eps in {0.005, 0.01, 0.05, 0.1, 0.5}
-and alpha in {0.1, 0.25, 0.5, 0.75, 0.9}; REFERENCES.md appendix A.2).
+box (the GoFlow protocol's validation phase). When the estimated success rate is below alpha, the
+inverted problem (max J within the same trust region) is solved first. The trust region is never
+exceeded (a final backtracking step enforces it exactly). Defaults: eps = 0.05, alpha = 0.5.
 
 Density conventions (assembly/samplers.py): log_prob(xi) = sum_i [log Beta(u_i; a_i, b_i) -
 log(high_i - low_i)] with u = normalize(xi), -inf outside the box; entropy = sum_i [H(Beta(a_i, b_i))
 + log(high_i - low_i)] in nats.
+
+Details (the sigmoid parametrization, the inverted problem, the safeguard, the defects of the port
+this replaces, the swept settings): docs/learning.md#doraemon.
+
+References: Tiboni et al., "Domain Randomization via Entropy Maximization", ICLR 2024, and the
+official code github.com/gabrieletiboni/doraemon (doraemon/doraemon.py); Curtis et al.,
+"Flow-based Domain Randomization for Learning and Sequencing Robotic Skills", ICML 2025,
+appendix A.2 (swept eps and alpha).
 """
 
 from __future__ import annotations
@@ -49,8 +45,9 @@ from scipy.special import betaln, digamma, polygamma, xlog1py, xlogy
 
 from assembly.params import ParamSpace
 from assembly.samplers import (
-    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs, sampler_config,
+    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
+from common.config import config_with_overrides
 
 __all__ = ["DORAEMONConfig", "DORAEMONSampler", "beta_entropy", "beta_kl"]
 
@@ -251,9 +248,9 @@ class DORAEMONSampler:
         config: DORAEMONConfig | Mapping[str, Any] | None = None,
         **overrides: Any,
     ) -> None:
-        self.success_threshold = check_sampler_args(space, success_threshold, "DORAEMONSampler")
+        self.success_threshold = check_sampler_args(space, success_threshold, "DORAEMONSampler", required=True)
         self.space = space
-        self.config = sampler_config(DORAEMONConfig, config, "DORAEMON", overrides)
+        self.config = config_with_overrides(DORAEMONConfig, config, overrides, "DORAEMON")
         d = space.dim
         self.a: NDArray[np.float64] = np.full(d, self.config.init_beta)
         self.b: NDArray[np.float64] = np.full(d, self.config.init_beta)

@@ -1,54 +1,32 @@
 """GoFlow: flow-based maximum-entropy domain randomization (Curtis et al., ICML 2025).
 
-The sampler is a neural spline flow (zuko NSF: 3 autoregressive transforms, hidden (64, 64), 8 bins;
-../shared/REFERENCES.md) over the parameter box, mapped affinely to zuko's spline domain [-5, 5]^d
-("box coordinates" below). Each `update(xi, returns)` takes K Adam steps (lr 1e-3, K = 100) on
+The sampler is a neural spline flow (zuko NSF: 3 autoregressive transforms, hidden (64, 64), 8
+bins) over the parameter box, mapped affinely to zuko's spline domain [-5, 5]^d ("box coordinates"
+below). Each `update(xi, returns)` takes K Adam steps (lr 1e-3, K = 100) on
 
     loss = -(1/B) sum_i log q(y_i) R_i  -  alpha * H_hat(q)  +  beta * KL_hat(q_old || q)
 
 where y_i are the batch's parameters in box coordinates, R_i the per-batch standardized returns
-(`standardize_returns`),
-H_hat = -vol * E_{u ~ U(box)}[q(u) log q(u)] the entropy over the box estimated with fresh uniform
-samples at every step, and KL_hat the KL from the flow as it was at the start of the update,
-estimated with samples of that frozen flow (a pool drawn once per update, with their log densities,
-which is all of the old flow the estimator needs; each step uses a fresh subset of the pool). Entropy and KL are in box coordinates, so alpha and beta
-mean the same thing whatever the parameters' units. Adam starts fresh at every update, so an update
-depends only on the current flow, the batch and (config.seed, update count), and a run resumed from a
-`state_dict` reproduces the uninterrupted one. Steps with a non-finite loss or gradient are skipped,
-gradients are clipped at norm 1, and the flow reverts to its pre-update parameters if any parameter
-ends non-finite (all reported in the returned diagnostics).
+(`standardize_returns`), H_hat = -vol * E_{u ~ U(box)}[q(u) log q(u)] the entropy over the box
+estimated with fresh uniform samples at every step, and KL_hat the KL from the flow as it was at
+the start of the update, estimated with samples of that frozen flow. Steps with a non-finite loss
+or gradient are skipped, gradients are clipped at norm 1, and the flow reverts to its pre-update
+parameters if any parameter ends non-finite (all reported in the returned diagnostics).
 
-Geometry and normalization (a property of zuko's splines we rely on and test): every spline maps
-[-5, 5] onto [-5, 5] and is the identity outside, whatever its conditioning, so the box [-5, 5]^d is
-invariant under the whole flow. The flow's mass inside the box is therefore always the base's mass
-there, Z = erf(5 / (sigma sqrt 2))^d, known exactly and unchanged by training. Consequences:
-- sampling draws the base truncated to the box and pushes it through the flow: an exact draw from
-  the flow truncated to the box, no rejection needed. Draws that leave the box by more than float
-  rounding (only possible if the invariant broke, e.g. non-finite parameters) are redrawn a bounded
-  number of times, then a RuntimeError says so.
-- `log_prob` is the truncated density, normalized exactly over the box:
-  log q(y) - log Z + log|dy/dxi|, with log|dy/dxi| = -sum_j log((high_j - low_j) / 10); -inf outside.
+Conventions: `sample` draws exactly from the flow truncated to the box; `log_prob` is that
+truncated density in parameter units, normalized exactly over the box (-inf outside); `entropy()`
+is -E_p[log p] in parameter units from a fixed-seed set of flow draws (deterministic). The flow
+starts as the identity on a N(0, 2.5^2) base in box coordinates (broad, close to uniform). An
+update depends only on the flow, the batch and (config.seed, update count), so a run resumed from
+a `state_dict` reproduces the uninterrupted one.
 
-Initialization (identity): the last layer of every conditioner MLP is zeroed (zeroing every layer
-would also give the identity, but with all-zero hidden ReLU units no gradient would ever reach the
-hidden layers), and for d = 1 (where
-zuko's NSF has no conditioner network at all: it silently ignores hidden_features and keeps 23 random
-spline parameters per transform, a spiky start) the spline parameters themselves are zeroed, so every
-spline is exactly the identity and the initial distribution is the base. The base is N(0, sigma^2 I)
-in box coordinates with sigma = `base_scale` = 2.5 (zuko's default is sigma = 1, i.e. a std of a tenth
-of the box width, entropy 1.42 nats per dimension in box coordinates against log 10 = 2.30 for the
-uniform box). With sigma = 2.5 the initial distribution is a broad truncated Gaussian, close to the
-uniform box that the authors' method aims at: entropy 2.18 nats per dimension in box coordinates
-(0.13 below uniform), density ratio centre/edge exp(2) = 7.4, mass inside the box 0.954 per
-dimension (so 0.79 in 5-D; this only costs base draws, since sampling is truncated exactly).
-In parameter units the initial entropy is d * 2.176 + sum_j log((high_j - low_j) / 10) nats.
+Derivation (box invariance and exact normalization, the identity initialization and base scale,
+the entropy estimators): docs/learning.md#goflow; sample sizes: docs/learning.md, "Departures
+from the paper".
 
-`entropy()` reports -E_p[log p] of the normalized truncated density, estimated with a fixed-seed set
-of `report_samples` draws of the flow (so it is a deterministic function of the parameters; its
-Monte Carlo error is about std(log p) / sqrt(N), ~0.01 nats at N = 10^4), in parameter units. The
-uniform-sample estimator of the training loss (H_hat) has a much larger variance once the flow
-concentrates; it is reported as `entropy_objective` in the update diagnostics (box coordinates,
-unnormalized flow density, as optimized).
+References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
+Skills", ICML 2025 (arXiv:2502.01800), and the authors' code github.com/aidan-curtis/goflow;
+Durkan et al., "Neural Spline Flows", NeurIPS 2019; zuko (github.com/probabilists/zuko).
 """
 
 from __future__ import annotations
@@ -57,7 +35,7 @@ import copy
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from functools import partial
 from typing import Any
 
@@ -71,11 +49,15 @@ from zuko.lazy import UnconditionalDistribution
 from zuko.transforms import MonotonicRQSTransform
 
 from assembly.params import ParamSpace
-from assembly.samplers import _diagnostics, check_sample_args, check_state_dict, check_update_inputs
+from assembly.samplers import (
+    _diagnostics, check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
+)
+from common.checks import check_number
+from common.config import config_with_overrides
 
 __all__ = ["GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
 
-BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (REFERENCES.md: the authors map the box onto it)
+BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (the GoFlow authors' code maps the box onto it)
 _BOX_TOL = 1e-4  # float32 rounding slack (box coordinates) before a draw counts as outside
 _LOG_Q_FLOOR = -1e4  # clamp for log q in the entropy term: exp underflows to 0 well before this
 _CHUNK = 65536  # rows per flow evaluation outside training
@@ -143,15 +125,19 @@ def update_diagnostics(returns: NDArray[np.float64], entropy: float, *, first: d
 
 @dataclass(frozen=True)
 class GoFlowConfig:
-    """GoFlow flow architecture and update settings (defaults: REFERENCES.md / the seed paper)."""
+    """GoFlow flow architecture and update settings (defaults: the GoFlow paper and its code)."""
 
+    alpha: float = 1.0  # entropy weight (the seed swept {0.1, 0.5, 1.0, 1.5, 2.0})
+    # weight of KL(q_old || q), a trust region to the flow before the update (the authors' released
+    # configs use 0.0 for Cartpole/Anymal and 1.0 for Ant)
+    beta: float = 1.0
     transforms: int = 3
     hidden_features: tuple[int, ...] = (64, 64)
     bins: int = 8
-    base_scale: float = 2.5  # std of the Gaussian base in box coordinates (see module docstring)
+    base_scale: float = 2.5  # std of the Gaussian base in box coordinates (docs/learning.md#goflow)
     lr: float = 1e-3
     steps: int = 100  # K gradient steps per update
-    # REFERENCES.md: the authors use ~10k samples for H_hat and KL_hat. On a 2-core CPU that makes
+    # The GoFlow authors' code uses ~10k samples for H_hat and KL_hat. On a 2-core CPU that makes
     # one update 16-34 s (d = 2..5), far above the 5 % share of training time the sampler may take.
     # The uniform samples are fresh at every step, so over K = 100 steps H_hat averages 51k points;
     # the KL draws are a fresh subset of a pool of `kl_pool` pre-update draws at every step. 512
@@ -168,6 +154,8 @@ class GoFlowConfig:
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_features)
         object.__setattr__(self, "hidden_features", hidden)
+        for name in ("alpha", "beta"):
+            object.__setattr__(self, name, check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0))
         for name in ("transforms", "bins", "steps", "entropy_samples", "kl_samples", "kl_pool", "report_samples",
                      "max_redraws"):
             value = getattr(self, name)
@@ -192,12 +180,8 @@ class GoFlowConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> GoFlowConfig:
-        """Inverse of `to_dict` (unknown keys raise ValueError)."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"GoFlowConfig: unknown keys {unknown}")
-        return cls(**dict(d))
+        """Inverse of `to_dict` (unknown keys raise UnknownOptionError, a ValueError)."""
+        return config_with_overrides(cls, d)
 
     # fields that define the flow's parameter shapes and density (must match to load a state)
     ARCHITECTURE = ("transforms", "hidden_features", "bins", "base_scale")
@@ -212,37 +196,36 @@ def _tensor_from_json(d: Mapping[str, Any]) -> torch.Tensor:
     return torch.tensor(d["data"], dtype=dtype).reshape(d["shape"])
 
 
+def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
+    """The config dict of a GoFlowSampler or LSDRSampler state, with the weights that older
+    states kept beside it (top-level "alpha", "beta") folded in."""
+    config = dict(state["config"])
+    for key in ("alpha", "beta"):
+        if key in state and key not in config:
+            config[key] = state[key]
+    return config
+
+
 class GoFlowSampler:
     """Flow-based maximum-entropy DR sampler (GoFlow) on the Sampler protocol.
 
     Arguments:
         space: the parameter box.
-        alpha: entropy weight (the seed swept {0.1, 0.5, 1.0, 1.5, 2.0}).
-        beta: weight of KL(q_old || q), a trust region to the flow before the update (the released
-            configs use 0.0 for Cartpole/Anymal and 1.0 for Ant).
-        config: architecture and update settings (a GoFlowConfig or a dict of its fields).
+        success_threshold: J_T (kept for reference: GoFlow learns from the signal it is given).
+        config: weights (alpha, beta), architecture and update settings: a GoFlowConfig, a mapping
+            of its fields, or None (defaults); keyword `overrides` are its fields, applied last.
     """
 
     def __init__(
         self,
         space: ParamSpace,
-        alpha: float = 1.0,
-        beta: float = 1.0,
+        success_threshold: float | None = None,
         config: GoFlowConfig | Mapping[str, Any] | None = None,
+        **overrides: Any,
     ) -> None:
-        if not isinstance(space, ParamSpace):
-            raise TypeError(f"GoFlowSampler: space must be a ParamSpace, got {type(space).__name__}")
-        for name, value in (("alpha", alpha), ("beta", beta)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ValueError(f"GoFlowSampler: {name} must be a finite number >= 0, got {value!r}")
+        self.success_threshold = check_sampler_args(space, success_threshold, "GoFlowSampler")
         self.space = space
-        self.alpha = float(alpha)
-        self.beta = float(beta)
-        if isinstance(config, Mapping):  # e.g. sampler kwargs read from JSON / the command line
-            config = GoFlowConfig.from_dict(config)
-        self.config = GoFlowConfig() if config is None else config
-        if not isinstance(self.config, GoFlowConfig):
-            raise TypeError(f"GoFlowSampler: config must be a GoFlowConfig, got {type(self.config).__name__}")
+        self.config = config_with_overrides(GoFlowConfig, config, overrides, "GoFlowSampler")
         self.n_updates = 0
         d = space.dim
         self._low = space.low
@@ -254,6 +237,16 @@ class GoFlowSampler:
         self._log_jac = -float(np.sum(np.log(self._half_scale)))  # log|dy/dxi|
         self._flow = self._build_flow()
         self._entropy_cache: float | None = None
+
+    @property
+    def alpha(self) -> float:
+        """Entropy weight (config.alpha)."""
+        return self.config.alpha
+
+    @property
+    def beta(self) -> float:
+        """KL trust-region weight (config.beta)."""
+        return self.config.beta
 
     # -- construction ----------------------------------------------------------------------------
 
@@ -436,26 +429,25 @@ class GoFlowSampler:
     # -- checkpoints -----------------------------------------------------------------------------
 
     def state_dict(self) -> dict[str, Any]:
-        """JSON-serializable: type, space, alpha, beta, config, update count and the flow's tensors."""
+        """JSON-serializable: type, space, config (alpha and beta included), update count and the
+        flow's tensors."""
         return {
             "type": type(self).__name__,
             "space": self.space.to_dict(),
-            "alpha": self.alpha,
-            "beta": self.beta,
             "config": self.config.to_dict(),
             "n_updates": self.n_updates,
             "flow": {k: _tensor_to_json(v) for k, v in self._flow.state_dict().items()},
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore the flow and update count (alpha, beta, config and its seed are restored too).
+        """Restore the flow and update count (the config, alpha, beta and seed are restored too;
+        states that hold alpha and beta beside the config, as older checkpoints do, load as well).
 
         Raises ValueError for another sampler type, another ParamSpace, or another flow architecture.
         """
         check_state_dict(self.space, state, type(self).__name__)
         try:
-            config = GoFlowConfig.from_dict(state["config"])
-            alpha, beta = float(state["alpha"]), float(state["beta"])
+            config = GoFlowConfig.from_dict(_config_of(state))
             n_updates = int(state["n_updates"])
             tensors = {k: _tensor_from_json(v) for k, v in state["flow"].items()}
         except (KeyError, TypeError, AttributeError) as exc:
@@ -473,14 +465,14 @@ class GoFlowSampler:
             self._flow.load_state_dict(tensors)
         except RuntimeError as exc:
             raise ValueError(f"load_state_dict: flow tensors do not fit this architecture: {exc}") from exc
-        self.alpha, self.beta, self.config, self.n_updates = alpha, beta, config, n_updates
+        self.config, self.n_updates = config, n_updates
         self._entropy_cache = None
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> GoFlowSampler:
         """Build a sampler from a `state_dict` alone."""
         space = ParamSpace.from_dict(state["space"])
-        sampler = cls(space, float(state["alpha"]), float(state["beta"]), GoFlowConfig.from_dict(state["config"]))
+        sampler = cls(space, None, _config_of(state))
         sampler.load_state_dict(state)
         return sampler
 

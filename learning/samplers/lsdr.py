@@ -1,37 +1,31 @@
 """LSDR: learning the sampling distribution for domain randomization (Mozifian et al., 2019).
 
-p is a Gaussian N(mu, Sigma) over the *normalized* parameters u = (xi - low) / (high - low) (the unit
-box), truncated to the unit box when sampling and when reporting densities. Each `update(xi, returns)`
-takes K Adam steps on mu and the Cholesky factor L of Sigma (log-parametrized diagonal; off-diagonal
-entries too unless `full_covariance=False`) minimizing
+p is a Gaussian N(mu, Sigma) over the *normalized* parameters u = (xi - low) / (high - low) (the
+unit box), truncated to the unit box when sampling and when reporting densities. Each
+`update(xi, returns)` takes K Adam steps on mu and the Cholesky factor L of Sigma (log-parametrized
+diagonal; off-diagonal entries too unless `full_covariance=False`) minimizing
 
     loss = -( mean_i(R_i log N(u_i; mu, Sigma)) - alpha * KL(U || N(mu, Sigma)) )
 
-with R_i the per-batch standardized returns and U the uniform distribution on the unit box. Both terms
-are evaluated on the normalized contexts with the normalized Gaussian (the released port evaluated a
-de-normalized Gaussian on normalized contexts; REFERENCES.md). Notes on the two terms:
-- the log density in the return term is the untruncated Gaussian's. The truncated one differs by
-  -log Z(mu, Sigma) for every sample, and since the standardized returns sum to zero that term has no
-  effect on the loss or its gradient: the two choices are the same update.
-- KL(U || N) = -E_U[log N(u)] (U has density 1 on the unit box) has the closed form
-  d/2 log(2 pi) + log|L| + 1/2 tr(Sigma^-1 (I/12 + (1/2 - mu)(1/2 - mu)^T)); alone it is minimized by the
-  moment-matched N(1/2, I/12).
-After each step mu is clamped to the unit box and the Cholesky diagonal to [min_std, max_std]
-(unit-box units), as the released port clamped mu; steps with a non-finite loss or gradient are skipped
-and the update reverts if the parameters end non-finite (both reported in the diagnostics).
+with R_i the per-batch standardized returns and U the uniform distribution on the unit box, both
+terms on the normalized contexts. After each step mu is clamped to the unit box and the Cholesky
+diagonal to [min_std, max_std] (unit-box units); steps with a non-finite loss or gradient are
+skipped and the update reverts if the parameters end non-finite (both reported in the diagnostics).
 
-Initialization (the seed's appendix A.2): mu = box centre, Sigma = diag((max - min) / 10) in parameter
-units. Read literally this is a covariance whose entries are a tenth of the *width* (so units of the
-parameter, not its square); in unit-box coordinates it is diag(1 / (10 (max - min))), so a parameter's
-initial std depends on its unit (0.07 of the width for a [0.01, 20] kg mass, 0.32 for a [0, 1]
-friction, 1.0 for a 0.1 m wide grasp offset). `LSDRConfig.init_variance` overrides it (parameter units^2).
+Initialization: mu = box centre, Sigma = diag((max - min) / 10) in parameter units, read
+literally (GoFlow paper, appendix A.2); `LSDRConfig.init_variance` overrides it (parameter
+units^2).
 
 Densities are in parameter units: log_prob(xi) = log N(u; mu, Sigma) - log Z - sum_j log(high_j - low_j)
-inside the box, -inf outside, where Z = P_N(u in [0, 1]^d) is exact (erf) for a diagonal Sigma and
-otherwise computed by scipy's Genz quadrature with a fixed seed (absolute error ~1e-6). `entropy()` is
-the truncated Gaussian's entropy: exact per dimension for a diagonal Sigma, otherwise
-log Z + d/2 log(2 pi) + log|L| + 1/2 E_trunc[|L^-1 (u - mu)|^2] with the expectation by fixed-seed
-quasi Monte Carlo; plus sum_j log(high_j - low_j) for parameter units.
+inside the box, -inf outside, with Z = P_N(u in [0, 1]^d); `entropy()` is the truncated Gaussian's
+entropy plus sum_j log(high_j - low_j).
+
+Derivation (the two loss terms, the literal initial covariance, how Z and the entropy are
+computed): docs/learning.md#lsdr.
+
+References: Mozifian et al., "Learning Domain Randomization Distributions for Training Robust
+Locomotion Policies", 2019; Curtis et al., "Flow-based Domain Randomization for Learning and
+Sequencing Robotic Skills", ICML 2025, appendix A.2 (baseline settings).
 """
 
 from __future__ import annotations
@@ -39,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -50,8 +44,10 @@ from scipy.linalg import solve_triangular
 from scipy.special import log_ndtr, ndtri
 
 from assembly.params import ParamSpace
-from assembly.samplers import check_sample_args, check_state_dict, check_update_inputs
-from learning.samplers.goflow import standardize_returns, update_diagnostics
+from assembly.samplers import check_sample_args, check_sampler_args, check_state_dict, check_update_inputs
+from common.checks import check_number
+from common.config import config_with_overrides
+from learning.samplers.goflow import _config_of, standardize_returns, update_diagnostics
 
 __all__ = ["LSDRConfig", "LSDRSampler"]
 
@@ -62,6 +58,7 @@ _LOG_2PI = math.log(2.0 * math.pi)
 class LSDRConfig:
     """LSDR update settings (defaults from the released configs: Adam lr 1e-2, 10 iterations)."""
 
+    alpha: float = 1.0  # weight of KL(U || p) (the released configs use 0.5 for Cartpole, 2.0 for Ant)
     lr: float = 1e-2
     steps: int = 10  # K Adam steps per update
     full_covariance: bool = True  # learn the off-diagonal Cholesky entries too
@@ -73,6 +70,7 @@ class LSDRConfig:
     seed: int = 0  # fixed seed of the quadrature / quasi Monte Carlo (determinism)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "alpha", check_number(self.alpha, "LSDRConfig.alpha", 0.0))
         for name in ("steps", "entropy_samples", "max_draw_rounds"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -99,11 +97,8 @@ class LSDRConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> LSDRConfig:
-        """Inverse of `to_dict` (unknown keys raise ValueError)."""
-        unknown = sorted(set(d) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"LSDRConfig: unknown keys {unknown}")
-        return cls(**dict(d))
+        """Inverse of `to_dict` (unknown keys raise UnknownOptionError, a ValueError)."""
+        return config_with_overrides(cls, d)
 
 
 def kl_uniform_gaussian(mu: torch.Tensor, chol: torch.Tensor) -> torch.Tensor:
@@ -129,24 +124,21 @@ class LSDRSampler:
 
     Arguments:
         space: the parameter box.
-        alpha: weight of KL(U || p) (the released configs use 0.5 for Cartpole and 2.0 for Ant).
-        config: update settings (an LSDRConfig or a dict of its fields).
+        success_threshold: J_T (kept for reference: LSDR learns from the signal it is given).
+        config: alpha and update settings: an LSDRConfig, a mapping of its fields, or None
+            (defaults); keyword `overrides` are its fields, applied last.
     """
 
     def __init__(
-        self, space: ParamSpace, alpha: float = 1.0, config: LSDRConfig | Mapping[str, Any] | None = None
+        self,
+        space: ParamSpace,
+        success_threshold: float | None = None,
+        config: LSDRConfig | Mapping[str, Any] | None = None,
+        **overrides: Any,
     ) -> None:
-        if not isinstance(space, ParamSpace):
-            raise TypeError(f"LSDRSampler: space must be a ParamSpace, got {type(space).__name__}")
-        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not math.isfinite(alpha) or alpha < 0:
-            raise ValueError(f"LSDRSampler: alpha must be a finite number >= 0, got {alpha!r}")
+        self.success_threshold = check_sampler_args(space, success_threshold, "LSDRSampler")
         self.space = space
-        self.alpha = float(alpha)
-        if isinstance(config, Mapping):  # e.g. sampler kwargs read from JSON / the command line
-            config = LSDRConfig.from_dict(config)
-        self.config = LSDRConfig() if config is None else config
-        if not isinstance(self.config, LSDRConfig):
-            raise TypeError(f"LSDRSampler: config must be an LSDRConfig, got {type(self.config).__name__}")
+        self.config = config_with_overrides(LSDRConfig, config, overrides, "LSDRSampler")
         self._width = space.high - space.low
         d = space.dim
         if self.config.init_variance is None:
@@ -162,6 +154,11 @@ class LSDRSampler:
         self._cache: dict[str, float] = {}
 
     # -- distribution in unit-box coordinates ------------------------------------------------------
+
+    @property
+    def alpha(self) -> float:
+        """Weight of KL(U || p) (config.alpha)."""
+        return self.config.alpha
 
     def _is_diagonal(self) -> bool:
         return bool(np.all(np.tril(self.chol, -1) == 0.0))
@@ -242,7 +239,7 @@ class LSDRSampler:
         return out
 
     def entropy(self) -> float:
-        """Entropy (nats, parameter units) of the box-truncated Gaussian; see the module docstring."""
+        """Entropy (nats, parameter units) of the box-truncated Gaussian; see docs/learning.md#lsdr."""
         if "entropy" not in self._cache:
             d = self.space.dim
             if self._is_diagonal():
@@ -323,11 +320,11 @@ class LSDRSampler:
     # -- checkpoints -----------------------------------------------------------------------------
 
     def state_dict(self) -> dict[str, Any]:
-        """JSON-serializable: type, space, alpha, config, update count, mu and L (unit-box coordinates)."""
+        """JSON-serializable: type, space, config (alpha included), update count, mu and L (unit-box
+        coordinates)."""
         return {
             "type": type(self).__name__,
             "space": self.space.to_dict(),
-            "alpha": self.alpha,
             "config": self.config.to_dict(),
             "n_updates": self.n_updates,
             "mu": self.mu.tolist(),
@@ -341,8 +338,7 @@ class LSDRSampler:
         try:
             mu = np.asarray(state["mu"], dtype=np.float64)
             chol = np.asarray(state["chol"], dtype=np.float64)
-            alpha = float(state["alpha"])
-            config = LSDRConfig.from_dict(state["config"])
+            config = LSDRConfig.from_dict(_config_of(state))
             n_updates = int(state["n_updates"])
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"load_state_dict: malformed LSDRSampler state_dict ({exc!r})") from exc
@@ -350,13 +346,13 @@ class LSDRSampler:
             raise ValueError(f"load_state_dict: mu {mu.shape} / chol {chol.shape} do not fit a {d}-D space")
         if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(chol))) or np.any(np.triu(chol, 1) != 0) or np.any(np.diag(chol) <= 0):
             raise ValueError("load_state_dict: chol must be finite lower-triangular with a positive diagonal, mu finite")
-        self.mu, self.chol, self.alpha, self.config, self.n_updates = mu, chol, alpha, config, n_updates
+        self.mu, self.chol, self.config, self.n_updates = mu, chol, config, n_updates
         self._cache = {}
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> LSDRSampler:
         """Build a sampler from a `state_dict` alone."""
-        sampler = cls(ParamSpace.from_dict(state["space"]), float(state["alpha"]), LSDRConfig.from_dict(state["config"]))
+        sampler = cls(ParamSpace.from_dict(state["space"]), None, _config_of(state))
         sampler.load_state_dict(state)
         return sampler
 

@@ -218,7 +218,7 @@ def test_bad_input_is_rejected():
         s.update(np.array([[25.0, 0.0]]), np.ones(1))
     with pytest.raises(ValueError):
         s.sample(-1, np.random.default_rng(0))
-    with pytest.raises(ValueError, match="unknown keys"):
+    with pytest.raises(ValueError, match="unknown option"):
         ADRSampler(_space(), J_T, {"queue_len": 3})
     with pytest.raises(ValueError, match="boundary_prob"):
         ADRSampler(_space(), J_T, {"boundary_prob": 1.5})

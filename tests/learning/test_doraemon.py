@@ -220,7 +220,7 @@ def test_bad_input_is_rejected():
         s.update(xi, np.ones(3))
     with pytest.raises(ValueError):
         s.log_prob(np.array([[np.nan, 0.0]]))
-    with pytest.raises(ValueError, match="unknown keys"):
+    with pytest.raises(ValueError, match="unknown option"):
         DORAEMONSampler(_space(), J_T, {"epsilon": 0.1})
     with pytest.raises(ValueError, match="alpha"):
         DORAEMONSampler(_space(), J_T, {"alpha": 1.5})

@@ -85,9 +85,9 @@ def test_fit_sampler_moves_only_the_sampler_and_resumes(tmp_path):
     kwargs = {"steps": 5, "entropy_samples": 256, "kl_samples": 256}
     for name in ("full", "cut"):
         train(_config("goflow", tmp_path / name, rounds=1, **kwargs), progress=False)
-    before = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)
+    before = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=True)
     full = fit_sampler(tmp_path / "full", SamplerFitConfig(rounds=3, episodes=16), progress=False)
-    after = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)
+    after = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=True)
     assert [row[0] for row in full["sampler_fit"]] == [1, 2, 3]
     assert all(0.0 <= row[1] <= 1.0 and np.isfinite(row[3]) for row in full["sampler_fit"])
     assert after["agent"]["config"] == before["agent"]["config"]

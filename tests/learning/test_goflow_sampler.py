@@ -16,7 +16,7 @@ from scipy.stats import truncnorm
 
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR, Sampler
-from learning.samplers import GoFlowSampler
+from learning.samplers.goflow import GoFlowSampler
 from learning.samplers.goflow import GoFlowConfig, build_spline_flow, standardize_returns
 
 FAST = GoFlowConfig(entropy_samples=512, kl_samples=512, steps=60)

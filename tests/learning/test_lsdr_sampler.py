@@ -11,7 +11,7 @@ from scipy import stats
 
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR, Sampler
-from learning.samplers import LSDRSampler
+from learning.samplers.lsdr import LSDRSampler
 from learning.samplers.lsdr import LSDRConfig, kl_uniform_gaussian
 
 

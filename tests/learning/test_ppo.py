@@ -89,7 +89,7 @@ def toy2d_at_centres(n: int, vector=SyncVectorEnv):
     observation is precise (sigma = 1 cm): the policy must learn to report its observation."""
     proto = Toy2DEnv()
     centres = proto.centers
-    fns = [lambda c=centres[i % len(centres)]: gymnasium.make("goflow/Toy2D-v0", sampler=NoDR(proto.space, c))
+    fns = [lambda c=centres[i % len(centres)]: gymnasium.make("goflow/Toy2D-v0", sampler=NoDR(proto.space, point=c))
            for i in range(n)]
     return vector(fns, autoreset_mode=AutoresetMode.SAME_STEP)
 
@@ -205,7 +205,7 @@ def test_cartpole_time_limit_episodes_are_truncated_and_reported():
     from assembly.envs.cartpole import CARTPOLE_SPACE
 
     nominal = [1.0, 1.0, 0.0]  # pole 1 kg, cart 1 kg, no slider friction
-    envs = sync([lambda: gymnasium.make("goflow/Cartpole-v0", sampler=NoDR(CARTPOLE_SPACE, nominal))
+    envs = sync([lambda: gymnasium.make("goflow/Cartpole-v0", sampler=NoDR(CARTPOLE_SPACE, point=nominal))
                  for _ in range(2)])
     ppo = PPO(5, 8, envs.single_action_space, PPOConfig(num_envs=2, num_steps=120, num_minibatches=4, seed=0))
     stats = ppo.collect(envs)

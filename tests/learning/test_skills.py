@@ -97,7 +97,7 @@ def test_bad_input(tiny_skill, tmp_path):
         load_skill("insert", "huge")
     with pytest.raises(ValueError, match="unknown skill 'fly'"):
         skill_path("fly", "small")
-    with pytest.raises(FileNotFoundError, match="no skill file"):
+    with pytest.raises(FileNotFoundError, match="no goflow skill file"):
         load_skill("insert", "small", path=tmp_path / "missing.pt")
     bogus = tmp_path / "bogus.pt"
     torch.save({"format": "something else"}, bogus)
