@@ -124,6 +124,8 @@ def load_tensors(path: str | os.PathLike[str], what: str) -> Any:
         raise FileNotFoundError(f"no {what} at {path}")
     if path.stat().st_size == 0:
         raise FileFormatError(f"{path}: the file is empty; expected a {what}")
+    if not zipfile.is_zipfile(path):  # torch.save writes a zip archive; its end is read first
+        raise FileFormatError(f"{path}: not a readable {what} (truncated or foreign file: not a torch archive)")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:

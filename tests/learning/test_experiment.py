@@ -5,11 +5,14 @@ import json
 import numpy as np
 import pytest
 
+from common.errors import FileFormatError, RunFolderBusyError
+from common.files import run_folder_lock
 from learning.experiment import (
-    METHODS, ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, format_summary, make_sampler, plot_curves,
-    summarize, train,
+    ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, format_summary, load_run, plot_curves, summarize,
+    train,
 )
 from learning.ppo import PPOConfig
+from learning.samplers.registry import METHODS, make_sampler
 
 TINY = PPOConfig(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=2)
 
@@ -161,3 +164,52 @@ def test_summary_format_and_plot(tmp_path):
     assert "0.300 +-" in goflow_row and "20.0 +- 10.0" in goflow_row and goflow_row.endswith("2.0%")
     plot_curves(summary, tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 1000
+
+
+def test_a_checkpoint_of_another_layout_is_refused(tmp_path):
+    """Toy2D's layouts share one ParamSpace: the run's env options tell them apart."""
+    train(_config("fulldr", tmp_path, rounds=1), progress=False)
+    other = _config("fulldr", tmp_path, rounds=2)
+    other.env_kwargs = {"layout": "line"}
+    with pytest.raises(ValueError, match=r"checkpoint of another run \(env_kwargs: checkpoint \{\} vs now \{'layout': 'line'\}"):
+        train(other, progress=False)
+
+
+def test_a_second_writer_is_refused_at_once(tmp_path):
+    with run_folder_lock(tmp_path / "run"):
+        with pytest.raises(RunFolderBusyError, match="in use by another run"):
+            train(_config("fulldr", tmp_path / "run", rounds=1), progress=False)
+    assert not (tmp_path / "run" / "checkpoint.pt").exists()
+
+
+def test_a_crafted_checkpoint_does_not_run_code(tmp_path):
+    import os
+
+    import torch
+
+    class Exploit:
+        def __reduce__(self):
+            return (os.system, (f"touch {tmp_path / 'pwned'}",))
+
+    (tmp_path / "run").mkdir()
+    torch.save({"agent": {}, "sampler": {}, "space": {}, "log": Exploit()}, tmp_path / "run" / "checkpoint.pt")
+    with pytest.raises(FileFormatError, match="refused"):
+        load_run(tmp_path / "run")
+    with pytest.raises(FileFormatError, match="refused"):
+        train(_config("fulldr", tmp_path / "run", rounds=1), progress=False)
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_options_are_checked_before_any_work(tmp_path):
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['alpah'\]"):
+        _config("goflow", tmp_path, alpah=0.1)
+    with pytest.raises(ValueError, match="alpha = nan"):
+        _config("goflow", tmp_path, alpha=float("nan"))
+    assert not any(tmp_path.iterdir())
+
+
+def test_results_do_not_go_to_the_committed_tables_by_default():
+    from pathlib import Path
+
+    assert ExperimentConfig().results == Path("runs/results")
+    assert TrainConfig(total_steps=4000).steps_per_round() == 2 * 8 * 128  # 4000 steps train 2048

@@ -155,3 +155,33 @@ def test_shipped_skill_succeeds_on_its_own_flow(gear):
     result = evaluate_skill(skill, variant="fast", xi="flow", episodes=8, seed=5)
     assert result["success_rate"] >= 0.75, result
     assert skill.provenance["train_config"]["sampler_batch"] == "training"  # the refined recipe
+
+
+def test_skill_files_are_data_never_code(tmp_path):
+    import os
+
+    class Exploit:
+        def __reduce__(self):
+            return (os.system, (f"touch {tmp_path / 'pwned'}",))
+
+    crafted = tmp_path / "crafted.pt"
+    torch.save({"format": "goflow-skill-1", "name": "insert", "gear": "small", "x": Exploit()}, crafted)
+    with pytest.raises(ValueError, match=r"crafted\.pt: refused"):
+        load_skill("insert", "small", path=crafted)
+    assert not (tmp_path / "pwned").exists()
+    for name, content in (("empty.pt", b""), ("text.pt", b"hello")):
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(ValueError, match=f"{name}: .*goflow skill file") as info:
+            load_skill("insert", "small", path=tmp_path / name)
+        assert "\n" not in str(info.value)
+
+
+def test_training_never_overwrites_the_shipped_skills_by_default():
+    import inspect
+    from pathlib import Path
+
+    from learning.skills import RUNS_SKILL_DIR, SKILL_DIR
+
+    assert inspect.signature(train_skill).parameters["runs"].default == RUNS_SKILL_DIR == Path("runs/skills")
+    assert skill_path("insert", "small", RUNS_SKILL_DIR) == Path("runs/skills/insert-small.pt")
+    assert skill_path("insert", "small").parent == SKILL_DIR
