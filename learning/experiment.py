@@ -35,6 +35,7 @@ from tqdm import tqdm
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
+from common.checks import check_choice, check_int
 from common.config import config_to_dict, config_with_overrides
 from common.errors import InputError
 from common.files import check_output_dir, load_tensors, run_folder_lock, save_tensors, write_json
@@ -317,11 +318,8 @@ class SamplerFitConfig:
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"SamplerFitConfig.{name} must be a positive integer, got {v!r}")
-        if self.signal not in SAMPLER_SIGNALS:
-            raise ValueError(f"SamplerFitConfig.signal = {self.signal!r}; expected one of {SAMPLER_SIGNALS}")
+            check_int(getattr(self, name), f"SamplerFitConfig.{name}", 1)
+        check_choice(self.signal, SAMPLER_SIGNALS, "SamplerFitConfig.signal")
 
 
 def fit_sampler(run: Path | str, fit: SamplerFitConfig, progress: bool = True) -> dict:

@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -48,7 +48,8 @@ from assembly.params import ParamSpace
 from assembly.samplers import (
     check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
-from common.config import config_with_overrides
+from common.checks import check_int, check_number
+from common.config import config_to_dict, config_with_overrides
 
 __all__ = ["ADRConfig", "ADRSampler"]
 
@@ -75,16 +76,9 @@ class ADRConfig:
     init_width_fraction: float = 0.05
 
     def __post_init__(self) -> None:
-        def num(name: str, lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-                raise ValueError(f"ADR config: {name} must be a finite number, got {v!r}")
-            bad = (v <= lo if lo_open else v < lo) or (v >= hi if hi_open else v > hi)
-            if bad:
-                lb = "(" if lo_open else "["
-                ub = ")" if hi_open else "]"
-                raise ValueError(f"ADR config: {name} must be in {lb}{lo:g}, {hi:g}{ub}, got {v!r}")
-            object.__setattr__(self, name, float(v))
+        def num(name: str, lo: float | None, hi: float | None, lo_open: bool = False) -> None:
+            object.__setattr__(self, name, check_number(getattr(self, name), f"ADRConfig.{name}", lo, hi,
+                                                        low_open=lo_open))
 
         num("t_minus_ratio", 0.0, 1.0)
         num("step_fraction", 0.0, 1.0, lo_open=True)
@@ -93,11 +87,8 @@ class ADRConfig:
         for name in ("t_plus", "t_minus"):
             v = getattr(self, name)
             if v is not None:
-                num(name, -math.inf, math.inf)
-        q = self.queue_length
-        if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or q < 1:
-            raise ValueError(f"ADR config: queue_length must be a positive integer, got {q!r}")
-        object.__setattr__(self, "queue_length", int(q))
+                num(name, None, None)
+        object.__setattr__(self, "queue_length", check_int(self.queue_length, "ADRConfig.queue_length", 1))
 
 
 
@@ -276,7 +267,7 @@ class ADRSampler:
             "type": type(self).__name__,
             "space": self.space.to_dict(),
             "success_threshold": self.success_threshold,
-            "config": asdict(self.config),
+            "config": config_to_dict(self.config),
             "lo": self.lo.tolist(),
             "hi": self.hi.tolist(),
             "queues": [[i, s, list(q)] for (i, s), q in self.queues.items()],

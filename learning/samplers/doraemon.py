@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -47,7 +47,8 @@ from assembly.params import ParamSpace
 from assembly.samplers import (
     check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
-from common.config import config_with_overrides
+from common.checks import check_choice, check_int, check_number
+from common.config import config_to_dict, config_with_overrides
 
 __all__ = ["DORAEMONConfig", "DORAEMONSampler", "beta_entropy", "beta_kl"]
 
@@ -95,13 +96,9 @@ class DORAEMONConfig:
     proposal: str = "sampler"
 
     def __post_init__(self) -> None:
-        def num(name: str, lo: float, hi: float) -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-                raise ValueError(f"DORAEMON config: {name} must be a finite number, got {v!r}")
-            if not lo < v <= hi:
-                raise ValueError(f"DORAEMON config: {name} must be in ({lo:g}, {hi:g}], got {v!r}")
-            object.__setattr__(self, name, float(v))
+        def num(name: str, lo: float, hi: float | None) -> None:
+            object.__setattr__(self, name, check_number(getattr(self, name), f"DORAEMONConfig.{name}", lo, hi,
+                                                        low_open=True))
 
         num("eps", 0.0, math.inf)
         num("alpha", 0.0, 1.0)
@@ -117,12 +114,8 @@ class DORAEMONConfig:
                 f"DORAEMON config: need param_min < init_beta < param_max, got "
                 f"{self.param_min:g}, {self.init_beta:g}, {self.param_max:g}"
             )
-        it = self.maxiter
-        if isinstance(it, bool) or not isinstance(it, (int, np.integer)) or it < 1:
-            raise ValueError(f"DORAEMON config: maxiter must be a positive integer, got {it!r}")
-        object.__setattr__(self, "maxiter", int(it))
-        if self.proposal not in ("sampler", "uniform"):
-            raise ValueError(f"DORAEMON config: proposal must be 'sampler' or 'uniform', got {self.proposal!r}")
+        object.__setattr__(self, "maxiter", check_int(self.maxiter, "DORAEMONConfig.maxiter", 1))
+        check_choice(self.proposal, ("sampler", "uniform"), "DORAEMONConfig.proposal")
 
 
 
@@ -443,7 +436,7 @@ class DORAEMONSampler:
             "type": type(self).__name__,
             "space": self.space.to_dict(),
             "success_threshold": self.success_threshold,
-            "config": asdict(self.config),
+            "config": config_to_dict(self.config),
             "a": self.a.tolist(),
             "b": self.b.tolist(),
             "n_updates": self.n_updates,

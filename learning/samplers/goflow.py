@@ -35,7 +35,7 @@ import copy
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -52,8 +52,9 @@ from assembly.params import ParamSpace
 from assembly.samplers import (
     _diagnostics, check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
-from common.checks import check_number
-from common.config import config_with_overrides
+from common.checks import check_int, check_number
+from common.errors import InputError
+from common.config import config_to_dict, config_with_overrides
 
 __all__ = ["GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
 
@@ -158,25 +159,19 @@ class GoFlowConfig:
             object.__setattr__(self, name, check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0))
         for name in ("transforms", "bins", "steps", "entropy_samples", "kl_samples", "kl_pool", "report_samples",
                      "max_redraws"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"GoFlowConfig.{name} must be a positive integer, got {value!r}")
-        if self.bins < 2:
-            raise ValueError(f"GoFlowConfig.bins must be >= 2, got {self.bins}")
-        if not hidden or any(isinstance(h, bool) or not isinstance(h, (int, np.integer)) or h < 1 for h in hidden):
-            raise ValueError(f"GoFlowConfig.hidden_features must be positive integers, got {self.hidden_features!r}")
+            check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
+        check_int(self.bins, "GoFlowConfig.bins", 2)
+        if not hidden:
+            raise InputError("GoFlowConfig.hidden_features = (); expected at least one layer size")
+        for h in hidden:
+            check_int(h, "GoFlowConfig.hidden_features entry", 1)
         for name in ("base_scale", "lr", "grad_clip"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"GoFlowConfig.{name} must be a finite positive number, got {value!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"GoFlowConfig.seed must be a non-negative integer, got {self.seed!r}")
+            check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0, low_open=True)
+        check_int(self.seed, "GoFlowConfig.seed", 0)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serializable fields."""
-        d = asdict(self)
-        d["hidden_features"] = list(self.hidden_features)
-        return d
+        return config_to_dict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> GoFlowConfig:

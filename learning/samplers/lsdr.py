@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -45,8 +45,8 @@ from scipy.special import log_ndtr, ndtri
 
 from assembly.params import ParamSpace
 from assembly.samplers import check_sample_args, check_sampler_args, check_state_dict, check_update_inputs
-from common.checks import check_number
-from common.config import config_with_overrides
+from common.checks import check_int, check_number
+from common.config import config_to_dict, config_with_overrides
 from learning.samplers.goflow import _config_of, standardize_returns, update_diagnostics
 
 __all__ = ["LSDRConfig", "LSDRSampler"]
@@ -72,9 +72,7 @@ class LSDRConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "alpha", check_number(self.alpha, "LSDRConfig.alpha", 0.0))
         for name in ("steps", "entropy_samples", "max_draw_rounds"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"LSDRConfig.{name} must be a positive integer, got {value!r}")
+            check_int(getattr(self, name), f"LSDRConfig.{name}", 1)
         for name in ("lr", "min_std", "max_std"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
@@ -86,14 +84,11 @@ class LSDRConfig:
             if any(not math.isfinite(v) or v <= 0 for v in iv):
                 raise ValueError(f"LSDRConfig.init_variance must be finite and positive, got {self.init_variance!r}")
             object.__setattr__(self, "init_variance", iv)
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"LSDRConfig.seed must be a non-negative integer, got {self.seed!r}")
+        check_int(self.seed, "LSDRConfig.seed", 0)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serializable fields."""
-        d = asdict(self)
-        d["init_variance"] = None if self.init_variance is None else list(self.init_variance)
-        return d
+        return config_to_dict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> LSDRConfig:

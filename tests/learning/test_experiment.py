@@ -114,7 +114,7 @@ def test_fit_sampler_bad_input(tmp_path):
     train(_config("fulldr", tmp_path, rounds=1), progress=False)
     with pytest.raises(ValueError, match="gradient-updated sampler"):
         fit_sampler(tmp_path, SamplerFitConfig(rounds=1), progress=False)
-    with pytest.raises(ValueError, match="rounds must be a positive integer, got 0"):
+    with pytest.raises(ValueError, match="rounds = 0; expected an integer >= 1"):
         SamplerFitConfig(rounds=0)
     with pytest.raises(ValueError, match="signal = 'reward'"):
         SamplerFitConfig(signal="reward")
