@@ -4,10 +4,12 @@ Everything here is generated from the dimensions and frames in `assembly.gearset
 
     python -m assembly.gear_meshes
 
-to regenerate `assembly/models/gearset/` (byte-identical for the same code: fixed float formats,
-stable vertex and face order, no timestamps).
+to regenerate `assembly/models/gearset/` (byte-identical on any machine: vertices rounded to
+`OBJ_DECIMALS` as soon as they are made, every written mesh put in the canonical vertex and face order
+of `canonical_mesh`, fixed float formats, no timestamps).
 
-Geometry and contact design (see shared/REFERENCES.md, "Gear set" and "Drake facts"):
+Geometry and contact design (dimensions: IndustReal's gear assets, Tang et al., RSS 2023; contact:
+Drake's Hydroelastic Contact User Guide; sources per fact: docs/models.md#sources):
   * Gear visual: an involute spur gear (module 1 mm, 20 degree pressure angle) with a chamfered bore;
     watertight, so that mass, centre of mass and inertia come from it at `GEAR_DENSITY`.
   * Gear collision: a lean rigid-hydroelastic annulus. The outside is a prism circumscribing the tip
@@ -17,16 +19,10 @@ Geometry and contact design (see shared/REFERENCES.md, "Gear set" and "Drake fac
   * Plate: a compliant-hydroelastic 150 x 75 x 5 mm box; shafts: compliant-hydroelastic convex meshes
     (32-sided cylinders with their vertices on the 4.5 mm radius and a 1 mm top chamfer).
   * Table: a compliant-hydroelastic 1.2 x 1.0 x 0.05 m box whose top face is z = 0 of its model frame.
-Rigid gears against compliant shafts/plate/table/fingers is the split REFERENCES recommends;
-rigid-rigid pairs would fall back to point contact, where a mesh becomes its convex hull.
-
-Speed (drake 1.51, measured): a compliant `<box>` primitive is tetrahedralised by Drake's fixed
-medial-axis box mesher, which ignores `mesh_resolution_hint`; a seated gear's flat bottom then cuts
-~435 contact polygons out of it. The same box declared as a convex OBJ mesh (`<drake:declare_convex/>`,
-tetrahedra fanned from the centroid, the same linear pressure field: 0 on the faces, E at the centre
-plane) gives ~240 polygons and a ~40 % cheaper query, so plate and table collisions are convex box
-meshes. Every rigid triangle that dips into a compliant body yields at least one contact polygon
-(bottom cap, bottom chamfer and the lower ends of the walls), so the collision prisms stay coarse.
+Rigid gears against compliant shafts/plate/table/fingers: Drake does not support rigid-rigid
+hydroelastic pairs, which would fall back to point contact, where a mesh becomes its convex hull.
+Plate and table collisions are convex box meshes and the collision prisms stay coarse, for speed
+(measured: docs/models.md#contact-geometry-and-speed).
 """
 
 from __future__ import annotations
@@ -58,7 +54,10 @@ __all__ = [
     "SHAFT_CONTACT",
     "TABLE_CONTACT",
     "MassProperties",
+    "OBJ_DECIMALS",
     "TriangleMesh",
+    "canonical_mesh",
+    "canonical_obj_geometry",
     "gear_body_name",
     "shaft_collision_name",
     "involute_outline",
@@ -115,7 +114,10 @@ _TABLE_RGBA = (0.62, 0.45, 0.28, 1.0)  # wood
 # Output layout.
 _SUBDIR = "gearset"
 _MESH_SUBDIR = "meshes"
-_OBJ_FLOAT = "%.7f"  # 0.1 micrometre: far below any feature size, stable text
+#: Decimals of the vertex coordinates [m] written to the gear-set OBJ files: 0.1 micrometre, far below
+#: any feature size. Vertices are rounded to it before any step whose result depends on their order.
+OBJ_DECIMALS = 7
+_OBJ_FLOAT = f"%.{OBJ_DECIMALS}f"
 _NORMAL_FLOAT = "%.6f"
 
 
@@ -144,7 +146,8 @@ class ContactProperties:
             raise ValueError(f"mu_static ({self.mu_static}) must be >= mu_dynamic ({self.mu_dynamic})")
 
 
-# Contact parameters (REFERENCES.md, "Drake facts": modulus ~1e7 Pa, Hunt-Crossley 10-50 s/m).
+# Contact parameters (Drake's Hydroelastic Contact User Guide: modulus ~1e7 Pa, Hunt-Crossley
+# 10-50 s/m; docs/models.md#sources).
 # Friction: dry sliding of FDM-printed PLA on steel is measured in pin-on-disc tests (e.g. Palaniandy,
 # Ismail & Yap, "Tribological behaviour of 3D printed PLA sliding against steel at different sliding
 # speed", J. Phys.: Conf. Ser., 2023); reported coefficients scatter with print parameters, load and
@@ -161,7 +164,7 @@ PLATE_CONTACT = ContactProperties(
 )
 SHAFT_CONTACT = ContactProperties(
     "compliant", mu_dynamic=0.3, mu_static=0.3, hunt_crossley_dissipation=20.0,
-    # REFERENCES.md: ~1 mm resolution for a 4.5 mm shaft.
+    # ~1 mm resolution for a 4.5 mm shaft (Drake's 2 cm default is far too coarse; docs/models.md#sources).
     hydroelastic_modulus=1e7, mesh_resolution_hint=0.001,
 )
 TABLE_CONTACT = ContactProperties(
@@ -185,6 +188,60 @@ def shaft_collision_name(name: str) -> str:
 # --------------------------------------------------------------------------------------------------
 
 
+def canonical_mesh(vertices: np.ndarray, faces: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray]:
+    """The canonical form of an indexed triangle mesh: one vertex and face order for the same geometry.
+
+    Every mesh writer of the generated models (gear set and Panda) goes through this function, so that
+    a written file does not depend on the order in which a library or a CPU-specific sort produced the
+    vertices and faces (trimesh's merging and graph steps use unstable sorts whose order of ties
+    depends on numpy's SIMD dispatch), nor on float noise below the written precision.
+
+    Steps: every vertex value is rounded to `decimals` (-0.0 becomes 0.0); vertices no face uses are
+    dropped; vertex rows equal after rounding are merged; the rows are sorted lexicographically (first
+    column first) and the faces re-indexed; each face is rotated so that its smallest index comes first
+    (a cyclic shift: the winding, hence the normal, is kept); the faces are sorted lexicographically.
+    The result is the same for any permutation of the vertices, of the faces and any cyclic rotation
+    of each face's indices, and canonical_mesh of its own output returns it unchanged.
+
+    Arguments:
+        vertices: (N, D) vertex rows: the position (x, y, z), optionally followed by per-vertex
+            attributes that travel with it (e.g. a normal: D = 6). Finite.
+        faces: (M, 3) vertex indices (0-based) of the triangles.
+        decimals: decimals every vertex value is rounded to (that of the written text, so that two
+            rows that print alike are one vertex).
+
+    Returns:
+        (vertices, faces): the distinct rounded rows (K, D) in lexicographic order and the faces
+        (M, 3, int64) as indices into them, in the canonical order. Raises ValueError for non-finite
+        vertices, indices out of range, or a face whose corners merge when rounded.
+    """
+    rows = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    if rows.ndim != 2 or rows.shape[1] < 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"vertices {rows.shape}, faces {faces.shape}; expected (N, D >= 3) and (M, 3)")
+    if not np.all(np.isfinite(rows)):
+        raise ValueError("vertices must be finite")
+    if faces.size and (faces.min() < 0 or faces.max() >= len(rows)):
+        raise ValueError(f"face indices must lie in [0, {len(rows)})")
+    rows = np.round(rows, decimals) + 0.0  # round first: the order below sees only written values
+    used = np.unique(faces)
+    order = used[np.lexsort(rows[used].T[::-1])]  # first column is the primary key
+    sorted_rows = rows[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = np.any(sorted_rows[1:] != sorted_rows[:-1], axis=1)
+    new_index = np.full(len(rows), -1, dtype=np.int64)
+    new_index[order] = np.cumsum(first) - 1
+    out = new_index[faces]
+    collapsed = (out[:, 0] == out[:, 1]) | (out[:, 1] == out[:, 2]) | (out[:, 2] == out[:, 0])
+    if np.any(collapsed):
+        raise ValueError(f"{int(collapsed.sum())} faces lose a corner when vertices are rounded to "
+                         f"{decimals} decimals")
+    shift = np.argmin(out, axis=1)[:, None]
+    out = np.take_along_axis(out, (shift + np.arange(3)) % 3, axis=1)
+    out = out[np.lexsort(out.T[::-1])]
+    return sorted_rows[first], out
+
+
 @dataclass(frozen=True)
 class TriangleMesh:
     """A triangle mesh: vertices (N, 3) in metres and faces (M, 3) of vertex indices, counter-
@@ -193,9 +250,14 @@ class TriangleMesh:
     vertices: np.ndarray
     faces: np.ndarray
 
-    def rounded(self, decimals: int = 7) -> "TriangleMesh":
+    def rounded(self, decimals: int = OBJ_DECIMALS) -> "TriangleMesh":
         """The same mesh with vertices rounded as written to OBJ (and -0.0 turned into 0.0)."""
         return TriangleMesh(np.round(self.vertices, decimals) + 0.0, self.faces)
+
+    def canonical(self, decimals: int = OBJ_DECIMALS) -> "TriangleMesh":
+        """The same mesh in the canonical vertex and face order of `canonical_mesh` (rounded to
+        `decimals`; vertices that round alike merged; winding kept)."""
+        return TriangleMesh(*canonical_mesh(self.vertices, self.faces, decimals))
 
     def to_trimesh(self) -> trimesh.Trimesh:
         """A trimesh.Trimesh with the same vertices and faces (no merging or reordering)."""
@@ -218,8 +280,10 @@ class _MeshBuilder:
 
     def ring(self, xy: np.ndarray, z: float) -> np.ndarray:
         """Adds the closed loop `xy` (K, 2), counter-clockwise seen from +z, at height z; returns
-        the indices of its vertices."""
-        xyz = np.column_stack([xy, np.full(len(xy), z)])
+        the indices of its vertices. The vertices are rounded to OBJ_DECIMALS here, before the cap
+        triangulation sees them, so that float noise of the trigonometry (numpy's SIMD paths differ
+        by CPU) cannot change a triangulation."""
+        xyz = np.round(np.column_stack([xy, np.full(len(xy), z)]), OBJ_DECIMALS) + 0.0
         idx = np.arange(self._count, self._count + len(xy))
         self._vertices.append(xyz)
         self._count += len(xy)
@@ -254,9 +318,10 @@ class _MeshBuilder:
         return np.concatenate(self._vertices)[ring]
 
     def build(self) -> TriangleMesh:
-        """The mesh, with vertices rounded to the OBJ precision."""
+        """The mesh in canonical order (`canonical_mesh`), vertices at the OBJ precision: what is
+        written is what mass properties are computed from, summed in a machine-independent order."""
         mesh = TriangleMesh(np.concatenate(self._vertices), np.concatenate(self._faces).astype(np.int64))
-        return mesh.rounded()
+        return mesh.canonical()
 
 
 def _regular_polygon(sides: int, circumradius: float, phase: float = 0.0) -> np.ndarray:
@@ -448,8 +513,19 @@ def _fixed(value: float, fmt: str) -> str:
 
 
 def write_obj(mesh: TriangleMesh, path: pathlib.Path, normals: bool = False) -> pathlib.Path:
-    """Writes `mesh` as a Wavefront OBJ with fixed-precision floats (deterministic text). With
-    `normals`, per-face (flat) normals are written and referenced as `f v//vn ...`."""
+    """Writes `mesh` as a Wavefront OBJ in canonical order (`canonical_mesh` at OBJ_DECIMALS) with
+    fixed-precision floats: the same geometry gives the same bytes on any machine.
+
+    Arguments:
+        mesh: the triangle mesh (outward winding); any vertex and face order.
+        path: the file to write (its folder is created).
+        normals: also write per-face (flat) normals, numbered in order of first use and referenced
+            as `f v//vn ...`.
+
+    Returns:
+        `path`.
+    """
+    mesh = mesh.canonical()
     lines = [f"# {path.name}: generated by assembly/gear_meshes.py; units: metres",
              f"# {len(mesh.vertices)} vertices, {len(mesh.faces)} triangles"]
     lines += ["v " + " ".join(_fixed(c, _OBJ_FLOAT) for c in v) for v in mesh.vertices]
@@ -465,7 +541,7 @@ def write_obj(mesh: TriangleMesh, path: pathlib.Path, normals: bool = False) -> 
     else:
         lines += [f"f {a} {b} {c}" for a, b, c in faces]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n", newline="\n")
     return path
 
 
@@ -479,6 +555,42 @@ def read_obj(path: pathlib.Path) -> TriangleMesh:
         elif line.startswith("f "):
             faces.append([int(t.split("/")[0]) - 1 for t in line.split()[1:]])
     return TriangleMesh(np.array(vertices, float), np.array(faces, np.int64))
+
+
+def canonical_obj_geometry(path: pathlib.Path, decimals: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """The geometry of a triangle OBJ file, independent of how the file orders and indexes it.
+
+    Each face corner becomes a row: its position, followed by its normal where the face references
+    one (`f v//vn`); the rows and faces are then put in `canonical_mesh` form. Two files hold the
+    same shaded geometry exactly when their results are equal.
+
+    Arguments:
+        path: an OBJ file of `v`, optional `vn` and triangular `f` lines (such as this project writes).
+        decimals: rounding of the values read (default finer than any precision written here).
+
+    Returns:
+        (rows, faces): rows (K, 3) or (K, 6) and faces (M, 3), as `canonical_mesh` returns them.
+    """
+    positions, normals, corners = [], [], []
+    for line in pathlib.Path(path).read_text().splitlines():
+        if line.startswith("v "):
+            positions.append([float(t) for t in line.split()[1:4]])
+        elif line.startswith("vn "):
+            normals.append([float(t) for t in line.split()[1:4]])
+        elif line.startswith("f "):
+            tokens = line.split()[1:]
+            if len(tokens) != 3:
+                raise ValueError(f"{path}: {line!r}; expected a triangle")
+            for token in tokens:
+                parts = token.split("/")
+                corners.append((int(parts[0]) - 1, int(parts[2]) - 1 if len(parts) > 2 else -1))
+    index = np.array(corners, dtype=np.int64).reshape(-1, 2)
+    rows = np.asarray(positions, float)[index[:, 0]]
+    if np.any(index[:, 1] >= 0):
+        if np.any(index[:, 1] < 0):
+            raise ValueError(f"{path}: some faces reference normals and some do not")
+        rows = np.hstack([rows, np.asarray(normals, float)[index[:, 1]]])
+    return canonical_mesh(rows, np.arange(len(rows)).reshape(-1, 3), decimals)
 
 
 def _num(value: float) -> str:
@@ -587,7 +699,7 @@ def _gear_files(spec: GearSpec, out_dir: pathlib.Path) -> list[pathlib.Path]:
         _collision("collision", _mesh_geometry(_mesh_uri(collision_file)), GEAR_CONTACT),
     ])
     sdf_path = out_dir / f"{name}.sdf"
-    sdf_path.write_text(sdf)
+    sdf_path.write_text(sdf, newline="\n")
     return [sdf_path, *paths]
 
 
@@ -617,7 +729,7 @@ def _plate_files(out_dir: pathlib.Path) -> list[pathlib.Path]:
     comment = ("Gear plate with its three shafts. Link frame = plate frame P (origin at the centre of the "
                "bottom face, z up, shafts along +x). Weld it to the world.")
     sdf_path = out_dir / "gear_plate.sdf"
-    sdf_path.write_text(_sdf_model(PLATE_BODY_NAME, comment, elements))
+    sdf_path.write_text(_sdf_model(PLATE_BODY_NAME, comment, elements), newline="\n")
     return [sdf_path, *paths]
 
 
@@ -633,7 +745,7 @@ def _table_files(out_dir: pathlib.Path) -> list[pathlib.Path]:
         _collision("collision", _mesh_geometry(_mesh_uri(collision_file), convex=True), TABLE_CONTACT, center),
     ])
     sdf_path = out_dir / "table.sdf"
-    sdf_path.write_text(sdf)
+    sdf_path.write_text(sdf, newline="\n")
     return [sdf_path, mesh_path]
 
 

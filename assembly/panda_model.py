@@ -2,8 +2,11 @@
 
 Nothing here is downloaded or copied: the kinematics come from Franka's published DH table, the
 inertial parameters from the published identification of Gaz et al. (RA-L 2019), and every mesh is
-built from primitives with trimesh. The generated files live in ``assembly/models/panda`` and are
-committed; ``python -m assembly.panda_model`` regenerates them byte for byte.
+built from primitives (trimesh cylinders and capsules, our own rounded boxes). The generated files
+live in ``assembly/models/panda`` and are committed; ``python -m assembly.panda_model`` regenerates
+them byte for byte on any machine: each primitive is rounded to the written precision and put in
+canonical order (``assembly.gear_meshes.canonical_mesh``) before smooth shading, and the shaded mesh
+again before it is written.
 
 Frames follow the usual franka_description convention (each ``panda_linkI`` frame is Craig's
 modified-DH frame I), so published per-link COMs and inertias apply without change.
@@ -18,6 +21,8 @@ from typing import Literal, Sequence
 
 import numpy as np
 import trimesh
+
+from assembly.gear_meshes import canonical_mesh
 
 __all__ = [
     "ARM_JOINT_NAMES",
@@ -286,8 +291,9 @@ _FINGER_PARTS: tuple[_Part, ...] = (
     _box(_PAD_CENTER, PAD_SIZE, 0.001, "dark", collide=False),
 )
 
-# Contact parameters. Finger pads: compliant hydroelastic (REFERENCES.md: modulus ~1e7 Pa,
-# Hunt-Crossley 10-50 s/m, margin 1e-4 m); rubber-like friction ~1.
+# Contact parameters. Finger pads: compliant hydroelastic (Drake's Hydroelastic Contact User Guide:
+# modulus ~1e7 Pa, Hunt-Crossley 10-50 s/m, margin 1e-4 m; docs/models.md#sources); rubber-like
+# friction ~1.
 PAD_HYDROELASTIC_MODULUS = 5.0e6
 PAD_RESOLUTION_HINT = 0.004
 PAD_HUNT_CROSSLEY = 20.0
@@ -349,6 +355,12 @@ def _clean(v: np.ndarray) -> np.ndarray:
 
 _SECTIONS = 32  # facets around a cylinder or capsule
 _CAPSULE_COUNT = (24, 12)
+_BOX_EDGE_SEGMENTS = 2  # facets along the quarter circle of a rounded box's edges and corners
+# Edges between faces meeting at less than this are smoothed (the rounded boxes' 45 degree facets);
+# a cylinder's rim (90 degrees) stays sharp.
+_SMOOTH_ANGLE = math.radians(50)
+# Decimals of the written OBJ values: positions [m] (1 micrometre) and unit normals (%.6f).
+_OBJ_DECIMALS = 6
 
 
 def _segment_transform(a: Vec3, b: Vec3) -> tuple[np.ndarray, float]:
@@ -361,12 +373,55 @@ def _segment_transform(a: Vec3, b: Vec3) -> tuple[np.ndarray, float]:
 
 
 def _rounded_box(extents: Vec3, rounding: float) -> trimesh.Trimesh:
-    """Box with rounded edges: the convex hull of eight corner spheres."""
+    """Box centred at the origin with its edges and corners rounded, built by a fixed construction.
+
+    Each of the cube's six faces is a grid of (2n + 2)^2 vertices, n = _BOX_EDGE_SEGMENTS: along
+    each grid axis the outward direction turns from the neighbouring face's normal to this face's
+    normal in n equal angles, then again from this face's normal to the opposite neighbour's; each
+    half of the grid is pushed out to its own side by the half extents less `rounding`, so the
+    middle rows are the flat parts. No convex hull is involved (qhull's triangulation of coplanar
+    points depends on its build); the vertices that neighbouring faces share coincide up to float
+    noise and are merged when the mesh is put in canonical form.
+
+    Arguments:
+        extents: full size (x, y, z) [m].
+        rounding: radius of the rounded edges and corners [m], more than 0 and less than half of
+            every extent.
+
+    Returns:
+        The triangle mesh (outward winding), shared vertices not yet merged.
+    """
     half = np.asarray(extents, float) / 2 - rounding
-    sphere = trimesh.creation.icosphere(subdivisions=1, radius=rounding).vertices
-    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-    points = (corners[:, None, :] * half + sphere[None, :, :]).reshape(-1, 3)
-    return trimesh.convex.convex_hull(points)
+    if not rounding > 0 or np.any(half <= 0):
+        raise ValueError(f"rounding = {rounding}; expected 0 < rounding < half of every extent "
+                         f"{extents}")
+    n = _BOX_EDGE_SEGMENTS
+    slopes = np.tan(np.linspace(-math.pi / 4, 0.0, n + 1))
+    slopes[0], slopes[-1] = -1.0, 0.0
+    slopes = np.concatenate([slopes, -slopes[::-1]])  # tangent of the angle from the face normal
+    sides = np.repeat([-1.0, 1.0], n + 1)  # which half of the grid (towards which neighbour)
+    m = 2 * n + 2
+    i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    k = i[:-1, :-1] * m + j[:-1, :-1]  # lower-left corner of each grid quad
+    quads = [k, k + m, k + m + 1, k + 1]  # counter-clockwise seen from outside
+    vertices, faces = [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            b, c = (axis + 1) % 3, (axis + 2) % 3
+            if sign < 0:  # keep (b, c, outward normal) right-handed
+                b, c = c, b
+            direction = np.zeros((m, m, 3))
+            direction[..., axis], direction[..., b], direction[..., c] = sign, slopes[i], slopes[j]
+            direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+            offset = np.zeros((m, m, 3))
+            offset[..., axis] = sign * half[axis]
+            offset[..., b], offset[..., c] = sides[i] * half[b], sides[j] * half[c]
+            base = len(vertices) * m * m
+            vertices.append((offset + rounding * direction).reshape(-1, 3))
+            p00, p10, p11, p01 = (base + q for q in quads)
+            faces += [np.stack([p00, p10, p11], -1).reshape(-1, 3),
+                      np.stack([p00, p11, p01], -1).reshape(-1, 3)]
+    return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
 
 
 def _part_mesh(part: _Part) -> trimesh.Trimesh:
@@ -383,19 +438,43 @@ def _part_mesh(part: _Part) -> trimesh.Trimesh:
                                     transform=tf)
 
 
-def _obj_text(parts: Sequence[_Part], rotation_z: float = 0.0) -> str:
-    """Wavefront OBJ text (positions, smooth-shaded normals, faces) with fixed %.6f format."""
-    mesh = trimesh.util.concatenate([_part_mesh(p) for p in parts])
+def _canonical_part_mesh(part: _Part, rotation_z: float = 0.0) -> trimesh.Trimesh:
+    """`_part_mesh` rotated by `rotation_z` about z, in canonical form (`canonical_mesh`): rounded
+    to the written precision and in a fixed order before smooth shading, whose graph steps sort."""
+    mesh = _part_mesh(part)
     if rotation_z:
         mesh.apply_transform(trimesh.transformations.rotation_matrix(rotation_z, [0, 0, 1]))
-    mesh = trimesh.graph.smooth_shade(mesh, angle=math.radians(40))
-    verts = _clean(mesh.vertices)
-    normals = _clean(mesh.vertex_normals)
+    vertices, faces = canonical_mesh(mesh.vertices, mesh.faces, _OBJ_DECIMALS)
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+
+
+def _obj_text(parts: Sequence[_Part], rotation_z: float = 0.0) -> str:
+    """Wavefront OBJ text of the smooth-shaded union of `parts` (see `_smooth_obj_text`)."""
+    mesh = trimesh.util.concatenate([_canonical_part_mesh(p, rotation_z) for p in parts])
+    mesh = trimesh.graph.smooth_shade(mesh, angle=_SMOOTH_ANGLE)
+    return _smooth_obj_text(mesh.vertices, mesh.vertex_normals, mesh.faces)
+
+
+def _smooth_obj_text(positions: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> str:
+    """Wavefront OBJ text of a smooth-shaded mesh, the same for any order of its vertices and faces.
+
+    The (position, normal) rows and the faces are put in `canonical_mesh` form at _OBJ_DECIMALS,
+    then written with a fixed %.6f format, one `vn` per `v` and faces as `f i//i j//j k//k`.
+
+    Arguments:
+        positions: (N, 3) vertex positions [m].
+        normals: (N, 3) unit vertex normals.
+        faces: (M, 3) vertex indices, counter-clockwise seen from outside.
+
+    Returns:
+        The file text (newline-terminated lines).
+    """
+    rows, faces = canonical_mesh(np.hstack([positions, normals]), faces, _OBJ_DECIMALS)
     lines = ["# generated by assembly/panda_model.py; do not edit"]
-    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in verts]
-    lines += [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in normals]
-    lines += ["f " + " ".join(f"{i + 1}//{i + 1}" for i in face) for face in mesh.faces]
-    return "\n".join(lines).replace("-0.000000", "0.000000") + "\n"
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in rows[:, :3]]
+    lines += [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in rows[:, 3:]]
+    lines += ["f " + " ".join(f"{i + 1}//{i + 1}" for i in face) for face in faces]
+    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------------------------

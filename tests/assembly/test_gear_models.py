@@ -1,5 +1,6 @@
-"""The generated gear-set models: geometry, mass properties, Drake parsing, hydroelastic contact and
-byte-for-byte regeneration (assembly/gear_meshes.py -> assembly/models/gearset/)."""
+"""The generated gear-set models: geometry, mass properties, Drake parsing, hydroelastic contact,
+the canonical mesh form every mesh writer uses, and byte-for-byte regeneration
+(assembly/gear_meshes.py -> assembly/models/gearset/)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+import trimesh
 from pydrake.geometry import Convex, Role
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
@@ -16,9 +18,11 @@ from pydrake.multibody.tree import FixedOffsetFrame, PrismaticJoint
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
+from assembly.generate_models import model_differences
 from assembly.world import model_parser
 from assembly import gear_meshes as gm
 from assembly import gearset
+from assembly import panda_model as pm
 
 MODEL_PATHS = gm.gearset_model_paths()
 GEARSET_DIR = MODEL_PATHS["plate"].parent
@@ -81,13 +85,121 @@ def test_model_paths_and_files():
 
 
 def test_regeneration_is_byte_identical(tmp_path):
-    written = gm.write_gearset_models(tmp_path)
-    fresh = {p.relative_to(tmp_path / "gearset"): p.read_bytes() for p in written}
-    committed = {p.relative_to(GEARSET_DIR): p.read_bytes()
-                 for p in GEARSET_DIR.rglob("*") if p.is_file()}
-    assert sorted(fresh) == sorted(committed)
-    differing = [str(name) for name in fresh if fresh[name] != committed[name]]
-    assert not differing, f"regenerated files differ from the committed ones: {differing}"
+    """A fresh regeneration equals the committed files: the same files, the same geometry of every
+    mesh (canonical vertex and face sets, whatever their order) and the same bytes."""
+    gm.write_gearset_models(tmp_path)
+    assert model_differences(tmp_path / "gearset", GEARSET_DIR) == []
+
+
+# ------------------------------------------------------------------------------- canonical meshes
+
+
+def _reindexed(rows: np.ndarray, faces: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The same mesh indexed otherwise: vertices and faces randomly permuted, each face's indices
+    cyclically rotated (winding kept), and float noise far below the written precision added."""
+    rng = np.random.default_rng(seed)
+    moved_to = rng.permutation(len(rows))
+    new_rows = np.empty_like(rows)
+    new_rows[moved_to] = rows
+    new_faces = moved_to[faces][rng.permutation(len(faces))]
+    shift = rng.integers(0, 3, len(new_faces))[:, None]
+    new_faces = np.take_along_axis(new_faces, (shift + np.arange(3)) % 3, axis=1)
+    return new_rows + rng.uniform(-1e-12, 1e-12, rows.shape), new_faces
+
+
+def _gear_visual() -> tuple[np.ndarray, np.ndarray]:
+    mesh = gm.gear_visual_mesh(gearset.gear_spec("small"))
+    return mesh.vertices, mesh.faces
+
+
+def _capsule_with_normals() -> tuple[np.ndarray, np.ndarray]:
+    mesh = trimesh.creation.capsule(height=0.05, radius=0.02, count=[12, 6])
+    return np.round(np.hstack([mesh.vertices, mesh.vertex_normals]), 6), mesh.faces
+
+
+def _gear_obj(rows: np.ndarray, faces: np.ndarray, path: pathlib.Path, normals: bool) -> bytes:
+    return gm.write_obj(gm.TriangleMesh(rows, faces), path, normals=normals).read_bytes()
+
+
+# Every mesh writer of the generated models: name -> (input mesh, (rows, faces, path) -> file bytes).
+MESH_WRITERS = {
+    "gear_obj": (_gear_visual, lambda rows, faces, path: _gear_obj(rows, faces, path, False)),
+    "gear_obj_with_normals": (_gear_visual, lambda rows, faces, path: _gear_obj(rows, faces, path, True)),
+    "panda_smooth_obj": (_capsule_with_normals, lambda rows, faces, path: pm._smooth_obj_text(
+        rows[:, :3], rows[:, 3:], faces).encode()),
+}
+
+
+@pytest.mark.parametrize("writer", sorted(MESH_WRITERS))
+def test_mesh_writers_ignore_vertex_and_face_order(writer, tmp_path):
+    """The same geometry gives the same bytes whatever the order of vertices and faces, the rotation
+    of each face's indices, or float noise below the written precision: what a library's sort or
+    another CPU may change."""
+    make_mesh, write = MESH_WRITERS[writer]
+    rows, faces = make_mesh()
+    reference = write(rows, faces, tmp_path / "reference" / "mesh.obj")
+    for seed in range(3):
+        assert write(*_reindexed(rows, faces, seed), tmp_path / f"reindexed{seed}" / "mesh.obj") == reference
+
+
+def test_canonical_mesh_contract():
+    rows, faces = _gear_visual()
+    canon_rows, canon_faces = gm.canonical_mesh(rows, faces, gm.OBJ_DECIMALS)
+    # Invariant under re-indexing, and its own canonical form.
+    for seed in range(3):
+        again = gm.canonical_mesh(*_reindexed(rows, faces, seed), gm.OBJ_DECIMALS)
+        np.testing.assert_array_equal(again[0], canon_rows)
+        np.testing.assert_array_equal(again[1], canon_faces)
+    fixed_point = gm.canonical_mesh(canon_rows, canon_faces, gm.OBJ_DECIMALS)
+    np.testing.assert_array_equal(fixed_point[0], canon_rows)
+    np.testing.assert_array_equal(fixed_point[1], canon_faces)
+    # Rows sorted and distinct, each face starting at its smallest index, faces sorted.
+    assert np.all(np.lexsort(canon_rows.T[::-1]) == np.arange(len(canon_rows)))
+    assert len(np.unique(canon_rows, axis=0)) == len(canon_rows)
+    assert np.all(canon_faces[:, 0] == canon_faces.min(axis=1))
+    assert np.all(np.lexsort(canon_faces.T[::-1]) == np.arange(len(canon_faces)))
+    # The winding, hence the outward normals and the volume, is kept.
+    before = trimesh.Trimesh(rows, faces, process=False)
+    after = trimesh.Trimesh(canon_rows, canon_faces, process=False)
+    assert after.is_volume and after.volume == pytest.approx(before.volume, rel=1e-9)
+
+
+def test_canonical_mesh_merges_rows_that_round_alike_and_drops_unused_ones():
+    rows, faces = gm.box_mesh((0.1, 0.2, 0.3)).vertices, gm.box_mesh((0.1, 0.2, 0.3)).faces
+    reference = gm.canonical_mesh(rows, faces, gm.OBJ_DECIMALS)
+    # A duplicate of vertex 0 (1e-10 away) used by the faces that held vertex 0, plus an unused vertex.
+    duplicated = np.vstack([rows, rows[0] + 1e-10, [[5.0, 5.0, 5.0]]])
+    redirected = np.where(faces == 0, len(rows), faces)
+    result = gm.canonical_mesh(duplicated, redirected, gm.OBJ_DECIMALS)
+    np.testing.assert_array_equal(result[0], reference[0])
+    np.testing.assert_array_equal(result[1], reference[1])
+
+
+def test_canonical_mesh_rejects_bad_input():
+    rows = np.array([[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    with pytest.raises(ValueError, match="lose a corner"):
+        gm.canonical_mesh(rows, np.array([[0, 1, 2]]), gm.OBJ_DECIMALS)
+    with pytest.raises(ValueError, match="finite"):
+        gm.canonical_mesh(np.where(rows == 1.0, np.nan, rows), np.array([[0, 1, 2]]), gm.OBJ_DECIMALS)
+    with pytest.raises(ValueError, match="indices"):
+        gm.canonical_mesh(rows, np.array([[0, 1, 3]]), gm.OBJ_DECIMALS)
+
+
+def test_committed_meshes_are_canonical():
+    """Every committed OBJ under assembly/models lists its vertices and faces in canonical order (a
+    Panda mesh's vertex is a position with its own normal, `f i//i`)."""
+    for path in sorted(GEARSET_DIR.parent.rglob("*.obj")):
+        lines = path.read_text().splitlines()
+        positions = [[float(t) for t in line.split()[1:]] for line in lines if line.startswith("v ")]
+        normals = [[float(t) for t in line.split()[1:]] for line in lines if line.startswith("vn ")]
+        corners = np.array([[int(i or 0) for i in token.split("/")[::2]]
+                            for line in lines if line.startswith("f ") for token in line.split()[1:]])
+        per_vertex_normals = corners.shape[1] == 2 and np.array_equal(corners[:, 0], corners[:, 1])
+        rows = np.hstack([positions, normals]) if per_vertex_normals else np.array(positions)
+        faces = corners[:, 0].reshape(-1, 3) - 1
+        canon_rows, canon_faces = gm.canonical_mesh(rows, faces, decimals=9)
+        np.testing.assert_array_equal(canon_rows, rows, err_msg=str(path))
+        np.testing.assert_array_equal(canon_faces, faces, err_msg=str(path))
 
 
 # ----------------------------------------------------------------------------------------- parsing
