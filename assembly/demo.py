@@ -12,8 +12,9 @@ from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
 from assembly.gearset import gear_spec
-from assembly.scripted_skill import (
-    InsertSkillConfig, PlanSource, SkillPlan, plan_pick_and_insert, plan_return, start_plan,
+from assembly.scripted_motion import (
+    KeyframePlan, KeyframePlayer, ScriptedInsertionConfig, append_pick_and_insert, append_return,
+    start_keyframe_plan,
 )
 from assembly.station import Station, StationConfig, build_station, drive_station
 from assembly.world import planar_pose
@@ -21,12 +22,12 @@ from assembly.world import planar_pose
 
 @dataclass
 class AssemblyConfig:
-    """A scripted run: which gears, in which order, and what the skill believes."""
+    """A scripted run: which gears, in which order, and what the script believes."""
 
     station: StationConfig = field(default_factory=StationConfig)
-    skill: InsertSkillConfig = field(default_factory=InsertSkillConfig)
+    motion: ScriptedInsertionConfig = field(default_factory=ScriptedInsertionConfig)
     order: tuple[str, ...] = ("large", "medium", "small")
-    # Per gear, how far (x, y in W, metres) the skill's belief of the gear's position is off the
+    # Per gear, how far (x, y in W, metres) the script's belief of the gear's position is off the
     # truth. Zero by default; a test sets one to show that contact, not the script, decides.
     belief_offsets: dict[str, tuple[float, float]] = field(default_factory=dict)
 
@@ -45,7 +46,7 @@ class AssemblyRun:
     """A built assembly: station, plan, diagram, simulator."""
 
     station: Station
-    plan: SkillPlan
+    plan: KeyframePlan
     simulator: Simulator
 
     @property
@@ -58,14 +59,14 @@ def build_assembly(config: AssemblyConfig, meshcat: Meshcat | None = None) -> As
     station = build_station(config.station, meshcat)
     world = config.station.world
     X_WT0 = station.controller.tool_pose(np.asarray(world.q_arm_start, dtype=float))
-    plan = start_plan(X_WT0, world.finger_width_start)
+    plan = start_keyframe_plan(X_WT0, world.finger_width_start)
     for gear in config.order:
         x, y, yaw = world.gear_start_poses[gear]
         dx, dy = config.belief_offsets.get(gear, (0.0, 0.0))
-        plan_pick_and_insert(plan, gear, planar_pose(x + dx, y + dy, yaw),
-                             station.models.X_WS(gear), config.skill)
-    plan_return(plan, X_WT0, config.skill)
-    simulator = Simulator(drive_station(station, PlanSource(plan)))
+        append_pick_and_insert(plan, gear, planar_pose(x + dx, y + dy, yaw),
+                               station.models.X_WS(gear), config.motion)
+    append_return(plan, X_WT0, config.motion)
+    simulator = Simulator(drive_station(station, KeyframePlayer(plan)))
     simulator.Initialize()
     return AssemblyRun(station, plan, simulator)
 

@@ -28,10 +28,11 @@ from pydrake.systems.framework import Context, LeafSystem, ValueProducer
 class ImpedanceGains:
     """Stiffness and damping of the hand frame and of the null-space posture.
 
-    Stiffness follows the task-space gains used for gear insertion in REFERENCES.md
-    (Kp = [300, 300, 300, 50, 50, 50]). Damping is not 2 sqrt(Kp) (that assumes unit mass): the
-    Panda's apparent mass at the hand, rotor inertia included, is several kg, and the values
-    below settle a 17 cm step in about 2 s without overshoot beyond a few mm (docs/station.md).
+    Stiffness follows IndustReal's task-space gains for gear insertion (Tang et al., RSS 2023;
+    IsaacGymEnvs IndustRealTaskGearsInsert.yaml: Kp = [300, 300, 300, 50, 50, 50]). Damping is
+    not 2 sqrt(Kp) (that assumes unit mass): the Panda's apparent mass at the hand, rotor inertia
+    included, is several kg, and the values below settle a 17 cm step in about 2 s without
+    overshoot beyond a few mm (docs/station.md).
     """
 
     # [rx, ry, rz, x, y, z] order is Drake's SpatialVelocity order (rotational first).

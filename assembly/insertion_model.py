@@ -7,10 +7,11 @@ the physics loop), and each joint carries as reflected inertia the Panda's appar
 space) inertia at the insertion pose, so the reduced tool is as heavy as the arm feels. Gravity on
 the tool and gear is cancelled by a constant feedforward force, as the station's controller does.
 
-Contact spends resolution only where insertion needs it (REFERENCES.md): the gear's rigid mesh
-meets the compliant shafts hydroelastically, while the plate is a point-contact box (the gear's
-flat bottom on a compliant plate is what dominates the full station's cost). The hand's own
-geometry is not modelled: only the held gear touches anything.
+Contact spends resolution only where insertion needs it: the gear's rigid mesh meets the
+compliant shafts hydroelastically, while the plate is a point-contact box (the gear's flat bottom
+on a compliant plate is what dominates the full station's cost; measured in
+docs/models.md#contact-geometry-and-speed). The hand's own geometry is not modelled: only the held
+gear touches anything.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""inspect(gear): a free-space motion that brings the wrist camera close above a gear, looking
-straight down at it, and holds still there so the camera can take a sharp picture.
+"""Inspection: inspect(gear), a free-space motion that brings the wrist camera close above a gear,
+looking straight down at it, and holds still there so the camera can take a sharp picture.
 
-The motion is planned as tool-frame keyframes (assembly.scripted_skill) and played by PlanSource
-through the impedance controller, like every scripted motion of the station.
+The motion is planned as tool-frame keyframes (`assembly.scripted_motion`) and played by
+`KeyframePlayer` through the impedance controller, like every scripted motion of the station.
 """
 
 from __future__ import annotations
@@ -16,8 +16,11 @@ from pydrake.systems.analysis import Simulator
 from assembly.cameras import CameraConfig, default_wrist_camera
 from assembly.gearset import GEAR_THICKNESS, gear_spec
 from assembly.panda_model import HAND_TCP_OFFSET
-from assembly.scripted_skill import PlanSource, SkillPlan, start_plan
+from assembly.scripted_motion import KeyframePlan, KeyframePlayer, start_keyframe_plan
 from assembly.station import Station, StationConfig, build_station, drive_station
+
+__all__ = ["InspectConfig", "InspectRun", "X_HT", "append_inspect", "inspect_tool_pose",
+           "run_inspect"]
 
 # Tool frame T (panda_hand_tcp) in the hand frame H: HAND_TCP_OFFSET along the hand's z.
 X_HT = RigidTransform([0.0, 0.0, HAND_TCP_OFFSET])
@@ -63,14 +66,15 @@ def inspect_tool_pose(gear_xy: tuple[float, float], camera: CameraConfig | None 
     return RigidTransform(R_WT, p_WT)
 
 
-def plan_inspect(plan: SkillPlan, gear: str, gear_xy: tuple[float, float],
-                 camera: CameraConfig | None = None, config: InspectConfig | None = None) -> float:
+def append_inspect(plan: KeyframePlan, gear: str, gear_xy: tuple[float, float],
+                   camera: CameraConfig | None = None, config: InspectConfig | None = None) -> float:
     """Append inspect(gear) to `plan` (from its last keyframe): move to the inspection pose above
     the believed gear position `gear_xy` and hold still. Returns the time of the picture."""
     gear_spec(gear)
     config = config or InspectConfig()
     if not plan.keyframes:
-        raise ValueError("plan has no start keyframe; begin it with start_plan(X_WT_now, width)")
+        raise ValueError("plan has no start keyframe; "
+                         "begin it with start_keyframe_plan(X_WT_now, width)")
     last = plan.keyframes[-1]
     R = last.X_WT.rotation().matrix()
     current_yaw = float(np.arctan2(R[1, 0], R[0, 0]))
@@ -103,7 +107,7 @@ class InspectRun:
 
     station: Station
     simulator: Simulator
-    plan: SkillPlan
+    plan: KeyframePlan
     picture_time: float
 
     @property
@@ -119,10 +123,10 @@ def run_inspect(gear: str, gear_xy: tuple[float, float], station_config: Station
     station = build_station(station_config)
     world = station_config.world
     X_WT0 = station.controller.tool_pose(np.asarray(world.q_arm_start, dtype=float))
-    plan = start_plan(X_WT0, world.finger_width_start)
+    plan = start_keyframe_plan(X_WT0, world.finger_width_start)
     wrist = station_config.cameras.wrist
-    t = plan_inspect(plan, gear, gear_xy, wrist, config)
-    simulator = Simulator(drive_station(station, PlanSource(plan)))
+    t = append_inspect(plan, gear, gear_xy, wrist, config)
+    simulator = Simulator(drive_station(station, KeyframePlayer(plan)))
     simulator.Initialize()
     simulator.AdvanceTo(t)
     # The impedance controller lags its target; wait (up to max_wait) until the tool is there.

@@ -1,9 +1,15 @@
-"""A scripted pick-and-insert skill: approach, grasp a gear from the table, transport, align above
-its shaft, insert under impedance, release, retreat.
+"""Scripted motions: open-loop keyframe plans of the tool pose and gripper width, and the system
+that plays them.
 
-The skill is open loop: it plans tool-frame keyframes from where it *believes* the gear is and
-plays them through the impedance controller. Compliance and the chamfers absorb small errors;
-larger ones make it fail, which is what learned skills are for.
+A `KeyframePlan` is a list of timed tool-frame keyframes (`Keyframe`); `append_*` functions add a
+motion to a plan from its last keyframe, and `KeyframePlayer` plays a plan through the impedance
+controller as minimum-jerk segments. `append_pick_and_insert` scripts the gearbox's pick-and-insert
+(approach, grasp a gear from the table, transport, align above its shaft, insert under impedance,
+release, retreat); `assembly.inspection` adds the wrist-camera inspect motion.
+
+A scripted motion is open loop: it plans from where it *believes* the gear is. Compliance and the
+chamfers absorb small errors; larger ones make it fail, which is what trained skills
+(`learning.skills`) are for. "Skill" in goflow means only such a trained policy.
 """
 
 from __future__ import annotations
@@ -20,10 +26,14 @@ from assembly.gearset import GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
 from assembly.panda_model import FINGER_MAX_WIDTH
 from assembly.world import nominal_grasp, validate_tool_target
 
+__all__ = ["Keyframe", "KeyframePlan", "KeyframePlayer", "ScriptedInsertionConfig",
+           "append_pick_and_insert", "append_return", "down_pose", "min_jerk",
+           "start_keyframe_plan"]
+
 
 @dataclass
-class InsertSkillConfig:
-    """Geometry and timing of the scripted skill (SI units)."""
+class ScriptedInsertionConfig:
+    """Geometry and timing of the scripted pick-and-insert motion (SI units)."""
 
     grasp_depth: float = 0.006  # tool frame this far below the gear's top face when grasping
     approach_height: float = 0.08  # above the gear top before descending to grasp
@@ -43,10 +53,11 @@ class InsertSkillConfig:
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             if not np.isfinite(value) or value < 0:
-                raise ValueError(f"InsertSkillConfig.{name} = {value}; expected a finite value >= 0")
+                raise ValueError(f"ScriptedInsertionConfig.{name} = {value}; "
+                                 "expected a finite value >= 0")
         for name in ("speed", "insert_speed", "gripper_time"):
             if getattr(self, name) <= 0:
-                raise ValueError(f"InsertSkillConfig.{name} must be > 0")
+                raise ValueError(f"ScriptedInsertionConfig.{name} must be > 0")
 
 
 @dataclass
@@ -60,8 +71,9 @@ class Keyframe:
 
 
 @dataclass
-class SkillPlan:
-    """Keyframes of one or more pick-and-insert skills, and per gear the [start, release] times."""
+class KeyframePlan:
+    """Timed keyframes of one or more scripted motions, and per gear the [start, release] times of
+    its pick-and-insert."""
 
     keyframes: list[Keyframe] = field(default_factory=list)
     gear_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -90,15 +102,16 @@ def _grasp_yaw(current: RigidTransform) -> float:
     return float(candidates[np.argmin(diffs)])
 
 
-def plan_pick_and_insert(plan: SkillPlan, gear: str, X_WG_believed: RigidTransform,
-                         X_WS: RigidTransform, config: InsertSkillConfig) -> None:
+def append_pick_and_insert(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform,
+                           X_WS: RigidTransform, config: ScriptedInsertionConfig) -> None:
     """Append one pick-and-insert of `gear` to `plan`, starting from its last keyframe.
 
-    X_WG_believed: where the skill thinks the gear is (frame G at the bore axis, bottom face).
+    X_WG_believed: where the script believes the gear is (frame G at the bore axis, bottom face).
     X_WS: the shaft frame (on the axis at the plate top).
     """
     if not plan.keyframes:
-        raise ValueError("plan has no start keyframe; begin it with start_plan(X_WT_now, width)")
+        raise ValueError("plan has no start keyframe; "
+                         "begin it with start_keyframe_plan(X_WT_now, width)")
     spec = gear_spec(gear)
     c = config
     start = plan.end_time
@@ -139,16 +152,16 @@ def plan_pick_and_insert(plan: SkillPlan, gear: str, X_WG_believed: RigidTransfo
     move(retreat, open_w, f"{gear}: retreat")
 
 
-def plan_return(plan: SkillPlan, X_WT: RigidTransform, config: InsertSkillConfig) -> None:
+def append_return(plan: KeyframePlan, X_WT: RigidTransform, config: ScriptedInsertionConfig) -> None:
     """Append a free-space move back to X_WT (e.g. the start pose), keeping the gripper as is."""
     last = plan.keyframes[-1]
     d = np.linalg.norm(X_WT.translation() - last.X_WT.translation())
     plan.append(max(d / config.speed, config.min_segment), X_WT, last.width, "return")
 
 
-def start_plan(X_WT_now: RigidTransform, width_now: float) -> SkillPlan:
+def start_keyframe_plan(X_WT_now: RigidTransform, width_now: float) -> KeyframePlan:
     """A plan whose first keyframe holds the current tool pose and gripper width at t = 0."""
-    return SkillPlan([Keyframe(0.0, X_WT_now, width_now, "start")])
+    return KeyframePlan([Keyframe(0.0, X_WT_now, width_now, "start")])
 
 
 def min_jerk(tau: float) -> tuple[float, float, float]:
@@ -158,20 +171,20 @@ def min_jerk(tau: float) -> tuple[float, float, float]:
             60 * tau * (1 - tau) * (1 - 2 * tau))
 
 
-class PlanSource(LeafSystem):
-    """Plays a SkillPlan: outputs "X_WT_desired" (abstract RigidTransform), its velocity
-    "V_WT_desired" and acceleration "A_WT_desired" (6 each, [w; v] in W) and "gripper_width" (1). Each segment between keyframes is a
-    minimum-jerk move (straight line, slerp for rotation) that starts and ends at rest; the last
-    keyframe is held."""
+class KeyframePlayer(LeafSystem):
+    """Plays a KeyframePlan: outputs "X_WT_desired" (abstract RigidTransform), its velocity
+    "V_WT_desired" and acceleration "A_WT_desired" (6 each, [w; v] in W) and "gripper_width" (1).
+    Each segment between keyframes is a minimum-jerk move (straight line, slerp for rotation) that
+    starts and ends at rest; the last keyframe is held."""
 
-    def __init__(self, plan: SkillPlan) -> None:
+    def __init__(self, plan: KeyframePlan) -> None:
         super().__init__()
         if len(plan.keyframes) < 2:
-            raise ValueError("a SkillPlan needs at least two keyframes to play")
+            raise ValueError("a KeyframePlan needs at least two keyframes to play")
         self.plan = plan
         self._times = np.array([k.t for k in plan.keyframes])
         if np.any(np.diff(self._times) <= 0):
-            raise ValueError("SkillPlan keyframe times must increase strictly")
+            raise ValueError("KeyframePlan keyframe times must increase strictly")
         self.DeclareAbstractOutputPort(
             "X_WT_desired", lambda: AbstractValue.Make(RigidTransform()), self._calc_pose)
         self.DeclareVectorOutputPort(

@@ -285,7 +285,8 @@ def gear_body(plant: MultibodyPlant, instance: ModelInstanceIndex) -> RigidBody:
 
 def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, gears) -> None:
     """No robot self-collision (a held gear counts as part of the robot: its grasp is ideal);
-    gears never touch each other (two rigid meshes: REFERENCES.md)."""
+    gears never touch each other (two rigid meshes: Drake's hydroelastic contact does not support
+    rigid-rigid pairs; docs/models.md#sources)."""
     def geometries(instances) -> GeometrySet:
         ids = []
         for inst in instances:

@@ -18,14 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from assembly.gearset import gear_spec
-from assembly.inspect import run_inspect
+from assembly.inspection import run_inspect
 from assembly.world import WorldConfig
 from assembly.cameras import default_scene_camera
 from perception.bench import BenchConfig, bench_posteriors, bench_renderers, close_camera
 from perception.drake_scene import DrakeScene, SceneConfig
 from perception.gear_model import gear_model
 from perception.calibration import CalibrationConfig, pose_error, run_calibration
-from perception.observe import observe
+from perception.station_views import observe
 from perception.likelihood import LikelihoodConfig
 from perception.search import Prior, SearchConfig, estimate_pose
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from assembly.demo import AssemblyConfig, build_assembly
 from assembly.station import StationConfig
 
-# Phases of the scripted skill (labels "<gear>: <phase>") and the bucket each one counts toward.
+# Phases of the scripted pick-and-insert motion (labels "<gear>: <phase>") and the bucket each one counts toward.
 FREE = ("approach", "steady above gear", "descend")
 INSERTION = ("steady above shaft", "insert", "settle")
 

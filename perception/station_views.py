@@ -1,4 +1,8 @@
-"""Observations from the station's cameras: colour, depth, intrinsics and the camera's pose."""
+"""Station views: an `Observation` rendered by one of the station's cameras at a given state.
+
+`perception.observation` defines what an observation is (images, intrinsics, camera pose); this
+module reads one off a built `assembly.station.Station` ("scene" on the world, "wrist" on the hand).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,8 @@ from pydrake.systems.framework import Context
 
 from assembly.station import Station
 from perception.observation import Intrinsics, Observation
+
+__all__ = ["camera_pose", "observe"]
 
 
 def camera_pose(station: Station, root: Context, camera: str):

@@ -1,83 +1,25 @@
 """goflow/Ant-v0: a torque-controlled quadruped (MuJoCo-Ant layout) built in Drake; xi = torso mass.
 
-Task (GoFlow paper appendix A.1, ../shared/REFERENCES.md): run forward (+x) for t_max = 2 s; the
-randomized parameter is the torso mass in [0.01, 20] kg; success is an undiscounted return >= J_T
-(700 in the seed, re-derived for our reward below).
+Run forward (+x) for t_max = 2 s. The robot is our own model, built with MultibodyPlant API calls
+(no files, no downloads) from the numbers of IsaacGymEnvs' nv_ant.xml: discrete plant, point
+contact, `lagged`, 1/128 s steps, 2 per action (control_dt = 1/64 s, 128 steps). Reward terms and
+weights are the GoFlow seed's (its Isaac Lab Ant task), each scaled to a rate, so the return does
+not depend on the control rate.
 
-The seed's task, as read from the authors' public code (github.com/aidan-curtis/goflow, commit
-294d0ee3):
-- goflow/environments/ant/ant_env.py: an Isaac Lab DirectRLEnv (the Isaac Lab "Ant" locomotion
-  task) with sim dt = 1/120 s and decimation 2, i.e. a 60 Hz policy; episode_length_s = 2.0, and
-  Isaac Lab times out when episode_length_buf >= max_episode_length - 1, so an episode that does
-  not fall has 119 rewarded steps (119/60 = 1.983 s). Torques = action_scale (0.5) * joint_gears
-  (15) * action, actions clipped to [-1, 1] (agents/*.yaml: clip_actions 1.0), i.e. 7.5 N m per
-  joint. Termination (death) when the torso height < 0.31 m. No initial-state noise: every episode
-  starts from the asset's default pose (torso at z = 0.5 m, hips 0, ankles +-0.785 rad).
-  Per-step reward:
-      progress  = (potential - prev_potential), potential = -|target - torso|_xy / sim_dt with the
-                  target 1000 m ahead on +x: i.e. 120 * (forward progress in metres) per step
-      alive     = 0.5
-      up        = 0.1 if the torso's up axis has z-component > 0.93
-      heading   = 0.5 if heading_proj > 0.8 else 0.5 * heading_proj / 0.8
-      - 0.005 * sum(a^2)                          (actions cost)
-      - 0.05 * sum(|a * qdot * 0.2|)              (electricity cost)
-      - number of joints with scaled position > 0.98 ("dof at limit" cost)
-      and the whole step's reward is replaced by death_cost = -2 on the step that falls.
-  There is no contact-force cost. dr_ranges there is torso_mass (0.01, 30) with midpoint 0.4839 kg
-  (the asset's torso: the sphere plus the four fixed "aux" capsules at density 5 kg/m^3); the
-  paper's box is [0.01, 20] kg, which we use.
-- goflow/environments/ant/agents/GOFLOW.yaml (and ADR.yaml): success_threshold 650 in the code,
-  while the paper reports J_T = 700; we follow the paper (REFERENCES.md).
-- goflow/rl_components/my_a2c_common.py (play_steps): the return compared with the threshold is
-  the plain sum of the environment's (unshaped) per-step rewards over the episode.
-- The robot is the IsaacGymEnvs nv_ant.xml (read at assets/mjcf/nv_ant.xml in erush91/IsaacGymEnvs):
-  torso sphere r = 0.25 m and four aux capsules (r = 0.08 m, to (+-0.2, +-0.2, 0)); per leg a hip
-  (yaw, axis z, +-40 deg) carrying a 0.2*sqrt(2) m thigh capsule and an ankle (pitch, axis
-  (-+1, 1, 0), 30..100 deg in magnitude) carrying a 0.4*sqrt(2) m shin capsule; density 5 kg/m^3,
-  joint damping 0.1 N m s/rad, armature 0.01 kg m^2, motor gear 15. Our model below is built from
-  these numbers with MultibodyPlant API calls (no files, no downloads).
+- xi: torso mass [0.01, 20] kg.
+- Observation (27, float32): torso height, torso quaternion (w, x, y, z), 8 joint angles, torso
+  linear and angular velocity (world frame), 8 joint rates. Joint order hip_1, ankle_1, ...,
+  hip_4, ankle_4 for the legs front-left, front-right, back-left, back-right.
+- Action (8,): normalized joint torques in [-1, 1] (clipped), times 7.5 N m; same joint order.
+- Termination (a fall) when the torso is below 0.31 m; success: return >= J_T = 705.9, the
+  seed's 700 re-derived for our reward.
 
-Our task. Same robot, torques, termination height, reward terms and weights, with these choices:
-- Simulation: discrete MultibodyPlant, point contact, `lagged` approximation, time step
-  1/128 s (7.8 ms), 2 substeps per action: control_dt = 1/64 s (64 Hz, the nearest rate to the
-  seed's 60 Hz whose step is an exact binary fraction, so Simulator.AdvanceTo(k * control_dt) never
-  meets a rounding ambiguity with the plant's periodic update), max_episode_steps = 128.
-  Time-step measurement (this machine, one core, 2 s rollouts with random torques, deviation of
-  the final torso position from a 1 ms reference with the same contact parameters): see
-  AntConfig.time_step. Point contact is used because hydroelastic gives no benefit for capsules
-  on a plane and costs more.
-- Rates: every per-step term except progress and the death cost is multiplied by
-  control_dt / (1/60 s), so each term of the return is a time integral of the seed's rate and the
-  return does not depend on the control rate (at 64 Hz the factor is 0.9375).
-- Progress is forward displacement along +x (the seed's target is 1000 m ahead on +x; its
-  potential difference equals 120 * dx up to O(y^2 / 1000) terms).
-- The joint-limit cost counts joints within 2 % of EITHER limit (|scaled q| > 0.98); the seed's
-  one-sided test (> 0.98) depends on the sign convention of each joint axis in its USD asset.
-- Initial state: the seed's default pose, plus optional uniform noise of +-reset_noise_scale on
-  the joint positions and on the torso's height offset and Gaussian noise of that std on all
-  velocities (Gymnasium Ant's form), drawn from self.np_random; default 0.01 (small: the seed
-  starts noise-free; set 0 to reproduce that exactly).
-- Observation (27, float32): torso height z, torso quaternion (w, x, y, z), 8 joint angles,
-  torso linear velocity (world frame), torso angular velocity (world frame), 8 joint rates; like
-  Gymnasium's Ant without x, y and contact forces. Joint order: hip_1, ankle_1, ..., hip_4,
-  ankle_4 for the legs front-left, front-right, back-left, back-right (the action uses the same
-  order). Actions are normalized torques in [-1, 1]^8 (finite values outside are clipped, as the
-  seed's rl_games wrapper does), scaled by the effort limit 7.5 N m.
+Derivation (the seed's task as read from the authors' code, our choices, J_T, measured speed):
+docs/envs.md#ant.
 
-J_T derivation. In the seed, every term of the return accrues per 1/60 s of an episode that lasts
-119/60 s; in ours each term accrues at the same rate per second (the rate scaling above; progress is
-a displacement) over t_max = 2 s. The same behaviour (same average forward speed, uprightness,
-heading and costs) therefore earns (2.0 / (119/60)) = 120/119 times the seed's return, and the
-seed's threshold 700 becomes J_T = 700 * 120 / 119 = 705.9. (Matching the same forward distance
-instead of the same speed would give 700 + 1.1 * (128 * 0.9375 - 119) = 701.1: within 0.7 %.)
-What the threshold demands: an upright, heading-aligned ant collects (0.5 + 0.1 + 0.5) * 120 = 132
-in bonuses, so it must cover about (706 - 132 + costs) / 120 = 4.8 m + costs/120 in 2 s (~2.4 m/s).
-
-Speed. The diagram (plant + scene graph) is built once; Simulator and Context are reused; each
-step fixes the actuation input port and calls AdvanceTo; there are no Python systems in the loop.
-Measured on this machine (one process, 20 episodes of random torques over the whole mass box):
-~2100 env steps/s (33x real time); the bare simulator through the same actions (bare_rollout)
-~2360 steps/s (37x), i.e. ~12 % wrapper overhead, about half of it in ParamEnv.step/_info.
+References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
+Skills", ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at 294d0ee3
+(goflow/environments/ant/); IsaacGymEnvs assets/mjcf/nv_ant.xml.
 """
 
 from __future__ import annotations
@@ -92,14 +34,16 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
+from common.checks import check_choice, check_number
 from common.config import config_with_overrides
+from common.errors import InputError
 from assembly.envs.drake_sim import advance
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
 __all__ = ["AntConfig", "AntEnv", "NOMINAL_TORSO_MASS", "SEED_J_T"]
 
-# -- the seed's task (see the module docstring for the files these come from) -------------------
+# -- the seed's task (docs/envs.md#ant names the files these come from) ---------------------------
 SEED_J_T = 700.0  # paper appendix A.1 (the code's yaml says 650)
 SEED_CONTROL_DT = 1.0 / 60.0  # [s] Isaac Lab sim dt 1/120 s x decimation 2
 SEED_EPISODE_STEPS = 119  # rewarded steps before Isaac Lab's time-out (max_episode_length - 1)
@@ -176,22 +120,23 @@ class AntConfig:
 
     def __post_init__(self) -> None:
         for name in ("time_step", "control_dt", "t_max", "point_stiffness", "effort_limit", "initial_height"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"Ant: {name} must be a finite positive number, got {value!r}")
+            check_number(getattr(self, name), f"AntConfig.{name}", 0.0, low_open=True)
         for name in ("friction", "hunt_crossley_dissipation", "reset_noise_scale", "termination_height"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"Ant: {name} must be a finite non-negative number, got {value!r}")
+            check_number(getattr(self, name), f"AntConfig.{name}", 0.0)
+        for name in ("progress_weight", "alive_reward", "up_weight", "heading_weight", "actions_cost", "energy_cost",
+                     "dof_vel_scale", "joint_limit_cost", "death_cost"):
+            check_number(getattr(self, name), f"AntConfig.{name}")
+        if self.success_threshold is not None:
+            check_number(self.success_threshold, "AntConfig.success_threshold")
+        check_choice(self.terminate_when_unhealthy, (True, False), "AntConfig.terminate_when_unhealthy")
         ratio = self.control_dt / self.time_step
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(f"Ant: control_dt ({self.control_dt:g} s) must be an integer multiple of "
+            raise InputError(f"Ant: control_dt ({self.control_dt:g} s) must be an integer multiple of "
                              f"time_step ({self.time_step:g} s)")
-        if self.contact_approximation not in ("lagged", "similar", "sap", "tamsi"):
-            raise ValueError("Ant: contact_approximation must be 'lagged', 'similar', 'sap' or 'tamsi', "
-                             f"got {self.contact_approximation!r}")
+        check_choice(self.contact_approximation, ("lagged", "similar", "sap", "tamsi"),
+                     "AntConfig.contact_approximation")
         if self.initial_height <= self.termination_height:
-            raise ValueError(f"Ant: initial_height {self.initial_height} m must exceed termination_height "
+            raise InputError(f"Ant: initial_height {self.initial_height} m must exceed termination_height "
                              f"{self.termination_height} m")
 
     @property
@@ -200,7 +145,7 @@ class AntConfig:
         return self.control_dt / SEED_CONTROL_DT
 
     def j_t(self) -> float:
-        """J_T for this config: the seed's 700 scaled to our episode length (module docstring)."""
+        """J_T for this config: the seed's 700 scaled to our episode length (docs/envs.md#ant)."""
         if self.success_threshold is not None:
             return float(self.success_threshold)
         return SEED_J_T * self.t_max / (SEED_EPISODE_STEPS * SEED_CONTROL_DT)

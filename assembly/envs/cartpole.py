@@ -1,59 +1,24 @@
 """goflow/Cartpole-v0: balance a pole on a cart, with randomized pole mass, cart mass and slider friction.
 
-A Drake MultibodyPlant built in code (discrete, SAP "lagged" contact), simulated with one Simulator and one Context
-reused for every episode; the per-episode parameters xi are written into that Context.
+A Drake MultibodyPlant built in code (discrete, SAP "lagged" contact), simulated with one Simulator
+and one Context reused for every episode; the per-episode parameters xi are written into that
+Context. Task, reward and box are the GoFlow seed's (its Isaac Lab cartpole balance task).
 
-The seed's task (read from the authors' code, github.com/aidan-curtis/goflow, commit 294d0ee,
-files `goflow/environments/cartpole/cartpole_env.py` and
-`goflow/environments/cartpole/agents/GOFLOW.yaml`; the robot is Isaac Lab's CARTPOLE_CFG, whose
-model is IsaacGymEnvs' `assets/urdf/cartpole.urdf`):
+- xi: pole mass [0.01, 20] kg, cart mass [0.01, 20] kg, slider Coulomb friction coefficient [0, 1]
+  (the cart rides on a frictional contact: Drake joints have no Coulomb friction).
+- Reset: cart at 0 m, at rest, pole angle uniform in +-pi/4 rad from upright.
+- Observation (5,): cart position [m], cart velocity [m/s], cos theta, sin theta, pole angular
+  velocity [rad/s]; theta = 0 upright, positive leaning toward +x.
+- Action (1,): normalized slider force in [-1, 1] (clipped), times max_force = 100 N.
+- Reward per step: 1 - theta^2 - 0.01 |cart velocity| - 0.005 |pole angular velocity|; 120 steps
+  of 1/60 s, no early termination; success: return >= J_T = 54.
 
-- Task: balance (not swing-up). Reset: cart at 0 m, all velocities 0, pole angle uniform in
-  [-0.25 pi, 0.25 pi] rad from upright (`initial_pole_angle_range` is multiplied by pi there).
-  No early termination (their out-of-bounds checks are commented out); the episode lasts
-  `episode_length_s = 2.0` s.
-- Control: physics dt 1/120 s, decimation 2, so the policy acts at 60 Hz (control_dt = 1/60 s);
-  action in [-1, 1] (rl_games clips it) times `action_scale = 100` N, applied as the slider force.
-- Reward per step: +1 alive, -1 * theta^2, -0.01 * |cart velocity|, -0.005 * |pole angular
-  velocity|; in their code the time-out is also reported as `terminated`, so the last step earns
-  -2 instead of +1.
-- Success: undiscounted return >= `success_threshold: 50` (GOFLOW.yaml; paper appendix A.1 J_T = 50).
-- Randomized: pole mass [0.01, 20] kg, cart mass [0.01, 20] kg, `slider_to_cart` friction [0, 1]
-  set through PhysX `set_dof_friction_coefficients`. A PhysX articulation joint friction
-  coefficient is unitless: the friction force resisting the joint's motion is at most the
-  coefficient times the force the joint transmits, i.e. a Coulomb coefficient.
-- Robot: cart 1 kg, pole 1 kg with its centre of mass 0.47 m above the pivot, a 0.04 x 0.06 x 1.0 m
-  box; slider limits +-4 m. Isaac Lab's cart actuator is an implicit PD with stiffness 0 and
-  damping 10, i.e. a 10 N s/m viscous damper on the slider that is always on.
+Derivation (the seed's task as read from the authors' code, our model of friction and masses,
+J_T = 54 from the seed's 50): docs/envs.md#cartpole.
 
-Our model of it:
-
-- Slider friction is a Coulomb coefficient mu (as in the seed). Drake joints have no Coulomb
-  friction, so the cart runs on a frictional contact: the cart is on a prismatic x joint followed
-  by a free vertical prismatic z joint (no rotation), and a sphere under the cart rests on a ground
-  box. The normal force is the true vertical reaction ((m_cart + m_pole) g plus the pole's dynamic
-  load), the friction force is at most mu times it, static and kinetic mu equal. mu is written into
-  SceneGraph's Context (proximity properties of both geometries, combined mu = mu), so the diagram
-  is built once. With mu = 1 and heavy masses the friction (up to ~390 N) exceeds the 100 N
-  actuator: the cart cannot move, which is part of the infeasible region a sampler should find.
-- Masses are set with RigidBody.SetMass in the plant Context; Drake keeps each body's unit inertia,
-  so a heavier pole is a denser pole of the same shape (the inertia scales with the mass). PhysX's
-  set_masses in the seed changes the mass only, not the rotational inertia.
-- The 10 N s/m slider damping is the prismatic joint's damping (default, not randomized); the
-  +-4 m slider limits are joint limits.
-- The pole angle theta (0 upright, positive leaning toward +x) is wrapped to [-pi, pi) in the reward
-  and observed as (cos, sin): the seed uses the raw, unwrapped joint angle, which only differs once
-  the pole has turned over, i.e. in failed episodes.
-
-Horizon and J_T: max_episode_steps = round(2 s / (1/60 s)) = 120 steps, every step rewarded as above
-with no last-step penalty. The seed's episode has 119 steps (`time_out = episode_length_buf >=
-max_episode_length - 1` with max_episode_length = 120) and its last step earns -2 instead of +1, so
-for the same trajectory our return = seed return + 3 + r_120, where r_120 is our 120th reward, ~1
-for a pole still balanced at the end (the episodes near the threshold). Hence J_T = 50 + 3 + 1 = 54
-(the best possible return is 120 here vs 116 in the seed).
-
-Observation (5,): cart position [m], cart velocity [m/s], cos theta, sin theta, pole angular
-velocity [rad/s]. Action (1,): normalized slider force in [-1, 1] (clipped), times max_force = 100 N.
+References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
+Skills", ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at 294d0ee
+(goflow/environments/cartpole/).
 """
 
 from __future__ import annotations
@@ -67,14 +32,16 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs.base import clipped_float32
+from common.checks import check_finite_array, check_number
 from common.config import config_with_overrides
+from common.errors import InputError
 from assembly.envs.drake_sim import HeldInput, PlantEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
 __all__ = ["CartpoleConfig", "CartpoleEnv", "CARTPOLE_SPACE"]
 
-#: Paper appendix A.1 DR box (REFERENCES.md "DR boxes"); the nominal point is the box centre (NoDR's default).
+#: GoFlow paper appendix A.1 DR box; the nominal point is the box centre (NoDR's default).
 CARTPOLE_SPACE = ParamSpace((
     Param("pole_mass", 0.01, 20.0, "kg"),
     Param("cart_mass", 0.01, 20.0, "kg"),
@@ -84,7 +51,7 @@ CARTPOLE_SPACE = ParamSpace((
 
 @dataclass(frozen=True)
 class CartpoleConfig:
-    """Task, model and reward settings (SI units). Defaults follow the seed (see the module docstring)."""
+    """Task, model and reward settings (SI units); defaults follow the seed (docs/envs.md#cartpole)."""
 
     t_max: float = 2.0  # [s] episode length
     control_dt: float = 1.0 / 60.0  # [s] policy period (seed: sim dt 1/120, decimation 2)
@@ -103,26 +70,23 @@ class CartpoleConfig:
     rew_pole_angle: float = -1.0  # times theta^2 [rad^2]
     rew_cart_vel: float = -0.01  # times |cart velocity| [m/s]
     rew_pole_vel: float = -0.005  # times |pole angular velocity| [rad/s]
-    success_threshold: float = 54.0  # J_T, re-derived from the seed's 50 (module docstring)
+    success_threshold: float = 54.0  # J_T from the seed's 50 (docs/envs.md#horizon-and-j_t)
 
     def __post_init__(self) -> None:
         for name in ("t_max", "control_dt", "sim_dt", "max_force", "slider_limit", "pole_length", "wheel_radius",
                      "contact_stiffness", "contact_dissipation"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"Cartpole: {name} must be a finite positive number, got {value!r}")
+            check_number(getattr(self, name), f"CartpoleConfig.{name}", 0.0, low_open=True)
         for name in ("slider_damping", "initial_pole_angle"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"Cartpole: {name} must be a finite number >= 0, got {value!r}")
+            check_number(getattr(self, name), f"CartpoleConfig.{name}", 0.0)
+        for name in ("rew_alive", "rew_pole_angle", "rew_cart_vel", "rew_pole_vel", "success_threshold"):
+            check_number(getattr(self, name), f"CartpoleConfig.{name}")
         ratio = self.control_dt / self.sim_dt
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(f"Cartpole: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
+            raise InputError(f"Cartpole: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
                              f"of sim_dt ({self.sim_dt:g} s)")
-        if not 0 < self.pole_com <= self.pole_length:
-            raise ValueError(f"Cartpole: pole_com must be in (0, pole_length={self.pole_length:g}] m, got {self.pole_com!r}")
-        if len(self.cart_size) != 3 or not all(s > 0 for s in self.cart_size):
-            raise ValueError(f"Cartpole: cart_size must be three positive lengths [m], got {self.cart_size!r}")
+        check_number(self.pole_com, "CartpoleConfig.pole_com", 0.0, self.pole_length, low_open=True)
+        if not np.all(check_finite_array(self.cart_size, "CartpoleConfig.cart_size", (3,)) > 0):
+            raise InputError(f"CartpoleConfig.cart_size = {self.cart_size!r}; expected three lengths > 0 [m]")
 
 
 def _proximity(mu: float, cfg: CartpoleConfig):

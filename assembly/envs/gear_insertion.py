@@ -1,43 +1,34 @@
 """goflow/GearInsertion-v0: insert a gear held with a grasp error onto its shaft.
 
 xi = (x, y, yaw): the grasp error, the gear's offset in the hand from the nominal centred grasp,
-along the tool's x and y axes [m] and about the gear's axis [rad]. The default box is the GoFlow
-seed's (x, y in +-5 cm, yaw in +-0.393 rad; REFERENCES.md, appendix A.1; the authors' code used
-+-2 cm and +-pi); much of it is infeasible (the bore cannot find the shaft), and finding the
-feasible part is the learned sampler's job. The grasp is ideal (the gear does not slip) in both
-variants, through a grasp frame whose pose is set per episode.
-
-Each episode starts with the tool at the pre-insertion pose: where a centred gear would hover
+along the tool's x and y axes [m] and about the gear's axis [rad]; default box x, y in +-5 cm,
+yaw in +-0.393 rad (the GoFlow paper's, appendix A.1), much of it infeasible. The grasp is ideal
+(the gear does not slip). Each episode starts with the tool where a centred gear would hover
 `start_height` above its shaft's top. The policy never sees xi.
 
 - action (4,) in [-1, 1]: pose offsets (dx, dy, dz, dyaw) scaled by `action_scale`, applied to
-  the *measured* tool pose to make the impedance target (as IndustReal does), at `control_dt`
-  (25 Hz by default). The target is kept within `workspace` of the seated tool pose.
+  the *measured* tool pose to make the impedance target, at `control_dt` (25 Hz by default). The
+  target is kept within `workspace` of the seated tool pose.
 - observation (80,): the last `history` (10) tool poses (x, y, z, yaw) relative to the seated
   tool pose and their finite-difference velocities, newest first (zeros before the first step).
-- reward per step: 1 while the gear is seated (assembly.station criterion: lateral < 2.5 mm,
-  |height| < 1 mm) plus two shaping terms, 0.1 (1 - tanh(d / 1 cm)) + 0.1 (1 - tanh(d / 5 cm)),
-  d the gear's distance to its seated pose. The 1 cm term guides the last centimetre; the 5 cm
-  term spans the whole grasp-error box, so that failed episodes still rank grasp errors (a gear
-  stuck on the shaft top 1 cm off earns more than one 4 cm off): a sampler learning from the
-  returns of a uniform batch, where almost nothing succeeds, needs that gradient. A third term
-  rewards progress, `progress_weight` (d_prev - d) with progress_weight = 100 /m (potential-based
-  shaping, Ng et al. 1999: it leaves the optimal policy unchanged and sums to 100 (d_0 - d_T) over
-  an episode: 2.5 for a full insertion, at most ~7.5). It credits each action for the distance it gains at once; without
-  it, lowering the gear 3 mm earned ~0.0003 per later step, which PPO did not pick out of the
-  noise in 40k steps (the policy hovered; docs/skills.md).
-- success: return >= J_T = 50 (the seed's J_T). With our reward (at most 1.2 per step, 100 steps
-  in t_max = 4 s; about 0.1 per step while unseated near the shaft) that means the gear is seated
-  from step ~65 on at the latest, i.e. inserted within ~2.6 s and kept there; the seed's reward
-  differs, so 50 is kept as a threshold of the same meaning (seated for much of the episode) rather
-  than of the same units. A gear stuck on the shaft top earns about 6 per episode.
+- reward per step: 1 while the gear is seated (the assembly.station criterion: lateral < 2.5 mm,
+  |height| < 1 mm), plus 0.1 (1 - tanh(d / 1 cm)) + 0.1 (1 - tanh(d / 5 cm)), plus the
+  potential-based progress `progress_weight` (d_prev - d) (100 /m); d is the gear's distance to
+  its seated pose.
+- success: return >= J_T = 50 (100 steps in t_max = 4 s: seated for much of the episode).
 
 Variants:
 - "fast": assembly.insertion_model (tool on x-y-z-yaw joints under the same impedance law with
-  the Panda's apparent inertia, shafts hydroelastic, plate point contact), 40 ms physics steps
+  the Panda's apparent inertia, shafts hydroelastic, plate point contact), 40 ms physics steps;
 - "panda": the full station (assembly.station) with the gear held in the Panda's hand, 8 ms
   steps, the arm starting at an inverse-kinematics solution of the pre-insertion pose.
-docs/envs.md measures how far the two variants' outcomes differ for the same xi and actions.
+
+Why the reward has these terms and what J_T = 50 means: docs/envs.md#reward-design; how far the
+two variants' outcomes differ for the same xi and actions: docs/envs.md#how-far-the-variants-differ.
+
+References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
+Skills", ICML 2025, appendix A.1 (box, J_T); Tang et al., "IndustReal", RSS 2023 (actions relative
+to the measured pose); Ng et al., "Policy invariance under reward transformations", ICML 1999.
 """
 
 from __future__ import annotations
@@ -53,7 +44,9 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from assembly.envs.base import ParamEnv, SimulationError
+from common.checks import check_choice, check_finite_array, check_int, check_number
 from common.config import config_with_overrides
+from common.errors import InputError
 from assembly.envs.drake_sim import advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.params import Param, ParamSpace
@@ -71,7 +64,7 @@ class GearInsertionConfig:
     variant: str = "fast"
     grasp_xy: float = 0.05  # [m] half-width of the grasp-error box in x and y
     grasp_yaw: float = 0.393  # [rad] half-width of the grasp-error box in yaw
-    control_dt: float = 0.04  # [s] policy period (25 Hz; REFERENCES: 15-60 Hz)
+    control_dt: float = 0.04  # [s] policy period (25 Hz; IsaacLab Factory 15 Hz, IndustReal 60 Hz)
     t_max: float = 4.0  # [s]
     start_height: float = 0.005  # [m] centred gear's bottom above the shaft top at the start
     # Per step. The impedance target is the measured pose plus this, so the pushing force stays
@@ -92,21 +85,24 @@ class GearInsertionConfig:
 
     def __post_init__(self) -> None:
         gear_spec(self.gear)
-        if self.variant not in VARIANTS:
-            raise ValueError(f"GearInsertion: variant {self.variant!r}; expected one of {VARIANTS}")
+        check_choice(self.variant, VARIANTS, "GearInsertionConfig.variant")
         for name in ("grasp_xy", "grasp_yaw", "control_dt", "t_max", "start_height", "shaping_near",
-                     "shaping_far"):
+                     "shaping_far", "fast_time_step", "panda_time_step"):
+            check_number(getattr(self, name), f"GearInsertionConfig.{name}", 0.0, low_open=True)
+        for name in ("success_threshold", "shaping_weight", "progress_weight"):
+            check_number(getattr(self, name), f"GearInsertionConfig.{name}")
+        for name in ("action_scale", "workspace"):  # per action: x, y, z [m], yaw [rad]
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"GearInsertion: {name} = {value!r}; expected a finite value > 0")
+            if not np.all(check_finite_array(value, f"GearInsertionConfig.{name}", (4,)) > 0):
+                raise InputError(f"GearInsertionConfig.{name} = {value!r}; expected 4 numbers > 0 "
+                                 "(x, y, z [m], yaw [rad])")
         for name in ("fast_time_step", "panda_time_step"):
             dt = getattr(self, name)
             steps = self.control_dt / dt
-            if not (dt > 0 and abs(steps - round(steps)) < 1e-9):
-                raise ValueError(f"GearInsertion: {name} = {dt} must divide control_dt = "
-                                 f"{self.control_dt} into whole physics steps")
-        if self.history < 2:
-            raise ValueError(f"GearInsertion: history = {self.history}; expected >= 2")
+            if abs(steps - round(steps)) >= 1e-9:
+                raise InputError(f"GearInsertionConfig.{name} = {dt!r}; expected a step that divides "
+                                 f"control_dt = {self.control_dt} into whole physics steps")
+        check_int(self.history, "GearInsertionConfig.history", 2)
 
 
 def _yaw(R: RotationMatrix) -> float:

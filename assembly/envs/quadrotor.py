@@ -1,54 +1,25 @@
 """goflow/Quadrotor-v0: fly a quadrotor of randomized mass to a random goal.
 
-A Drake MultibodyPlant free body (discrete, SAP "lagged" contact) driven by Drake's `Propeller` system (four
-rotor thrusts and their drag moments, a C++ LeafSystem: no Python in the simulation loop), above a
-ground box; one Simulator and one Context are reused for every episode.
+A Drake MultibodyPlant free body (discrete, SAP "lagged" contact) driven by Drake's `Propeller`
+system (a C++ LeafSystem: no Python in the simulation loop) above a ground box; one Simulator and
+one Context are reused for every episode. Task and reward are the GoFlow seed's (its Isaac Lab
+quadcopter env); the airframe is Drake's quadrotor example's.
 
-The seed's task (read from the authors' code, github.com/aidan-curtis/goflow, commit 294d0ee,
-file `goflow/environments/quadcopter/quadcopter_env.py`, Isaac Lab's quadcopter direct env with
-its CRAZYFLIE_CFG robot):
+- xi: mass [0.01, 20] kg. The rotors are sized for the nominal 0.775 kg (thrust-to-weight 1.9), so
+  above 1.47 kg the drone cannot hover: the infeasible region a learned sampler should find.
+- Reset: at (0, 0, 0.5) m, level, at rest; goal uniform in x, y in [-2, 2] m, z in [0.5, 1.5] m.
+- Action (4,): normalized rotor thrusts in [-1, 1] (clipped), thrust_i = T_max (a_i + 1) / 2 with
+  T_max = 3.61 N.
+- Observation (12,): body-frame linear and angular velocity, gravity direction and goal position
+  in the body frame.
+- Reward per step: dt (-0.05 |v_b|^2 - 0.01 |w_b|^2 + 15 (1 - tanh(d / 0.8))), d the distance to
+  the goal; 100 steps of 0.02 s; success: return >= J_T = 15.
 
-- Physics dt 1/100 s, decimation 2: the policy acts at 50 Hz (control_dt = 0.02 s); episode 2 s;
-  no early termination (their crash check is commented out); ground plane at z = 0.
-- Reset: the drone at (0, 0, 0.5) m, level, at rest; goal uniform in x, y in [-2, 2] m and
-  z in [0.5, 1.5] m.
-- Action (4,) clipped to [-1, 1]: a[0] maps to a body-z collective thrust in
-  [0, thrust_to_weight * nominal weight] with thrust_to_weight = 1.9 (the weight of the default
-  model, computed once: the thrust limit does NOT follow the randomized mass), a[1:4] to body
-  moments of 0.01 N m each.
-- Observation (12,): body-frame linear velocity, body-frame angular velocity, gravity direction in
-  the body frame, goal position in the body frame.
-- Reward per step: dt * (-0.05 |v_b|^2 - 0.01 |w_b|^2 + 15 (1 - tanh(d / 0.8))), d the distance to
-  the goal, dt = 0.02 s; at most 0.3 per step, 30 per episode.
-- Randomized: mass only. Their code's box is (0.001, 0.4) kg for a ~0.03 kg Crazyflie; the paper's
-  appendix A.1 (REFERENCES.md) states [0.01, 20] kg, which we use. Success: return >= J_T = 15
-  (paper A.1; their agents/*.yaml carry the threshold per method).
+Derivation (the seed's task as read from the authors' code, our airframe and thrust model, the
+rotational damping, why J_T stays 15): docs/envs.md#quadrotor.
 
-Our model of it:
-
-- Airframe: the parameters of Drake's own quadrotor example (pydrake.examples.QuadrotorPlant
-  defaults): nominal mass 0.775 kg, arm length 0.15 m, inertia diag(0.0015, 0.0025, 0.0035) kg m^2,
-  rotor drag moment / thrust 0.0245 m; rotors in "+" layout at +x, +y, -x, -y, spinning
-  alternately. QuadrotorPlant keeps its mass in the system, not in the Context, so the same body is
-  built as a MultibodyPlant free body whose mass is set per episode with RigidBody.SetMass; Drake
-  keeps the unit inertia, so a heavier drone is a denser one of the same shape (the seed's PhysX
-  set_masses changed the mass only).
-- Action: four normalized rotor thrusts a_i in [-1, 1] (clipped), thrust_i = T_max (a_i + 1) / 2,
-  T_max = thrust_to_weight * nominal_mass * g / 4 = 1.9 * 0.775 * 9.81 / 4 = 3.61 N per rotor
-  (14.4 N in all). As in the seed, the limit is that of the physical rotors, fixed: a drone heavier
-  than 1.9 * 0.775 = 1.47 kg cannot hover, and a very light one has a huge thrust-to-weight ratio
-  and a tiny inertia (hard to control at 50 Hz). That is the infeasible region a learned sampler
-  should find; with the box [0.01, 20] kg the hoverable masses are about 7 % of it. (The seed's
-  action is a collective thrust plus three body moments; ours are the rotor thrusts the issue
-  asks for.)
-- Rotational damping 0.01 N m s on the body (rotor aerodynamic drag against body rotation; the
-  seed's PhysX body is damped and its angular velocity capped by PhysX): it keeps a light drone under
-  bang-bang thrusts from spinning up until the discrete step's explicit gyroscopic term diverges.
-- The drone carries a collision sphere of radius 0.05 m and rests on a ground box (top at z = 0)
-  when it cannot lift off.
-- Observation and reward as in the seed (above), horizon 100 steps. The seed's episode has 99
-  steps (`time_out = episode_length_buf >= max_episode_length - 1`) with no last-step term, so our
-  extra step adds at most 0.3 to the return: J_T = 15 is kept.
+References: Curtis et al., ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at
+294d0ee (goflow/environments/quadcopter/quadcopter_env.py); pydrake.examples.QuadrotorPlant.
 """
 
 from __future__ import annotations
@@ -62,14 +33,16 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import SimulationError, clipped_float32
+from common.checks import check_finite_array, check_number
 from common.config import config_with_overrides
+from common.errors import InputError
 from assembly.envs.drake_sim import HeldInput, PlantEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
 __all__ = ["QuadrotorConfig", "QuadrotorEnv", "QUADROTOR_SPACE"]
 
-#: Paper appendix A.1 DR box (REFERENCES.md "DR boxes"); the nominal point is the box centre (NoDR's default).
+#: GoFlow paper appendix A.1 DR box; the nominal point is the box centre (NoDR's default).
 QUADROTOR_SPACE = ParamSpace((Param("mass", 0.01, 20.0, "kg"),))
 
 GRAVITY = 9.81  # [m/s^2] Drake's default gravity magnitude
@@ -77,7 +50,7 @@ GRAVITY = 9.81  # [m/s^2] Drake's default gravity magnitude
 
 @dataclass(frozen=True)
 class QuadrotorConfig:
-    """Task, airframe and reward settings (SI units). Defaults follow the seed (see the module docstring)."""
+    """Task, airframe and reward settings (SI units); defaults: the seed (docs/envs.md#quadrotor)."""
 
     t_max: float = 2.0  # [s] episode length
     control_dt: float = 0.02  # [s] policy period (seed: sim dt 1/100, decimation 2)
@@ -108,18 +81,22 @@ class QuadrotorConfig:
     def __post_init__(self) -> None:
         for name in ("t_max", "control_dt", "sim_dt", "nominal_mass", "thrust_to_weight", "arm_length",
                      "collision_radius", "distance_scale", "angular_damping", "max_angular_rate"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"Quadrotor: {name} must be a finite positive number, got {value!r}")
+            check_number(getattr(self, name), f"QuadrotorConfig.{name}", 0.0, low_open=True)
+        for name in ("moment_ratio", "goal_xy_range"):
+            check_number(getattr(self, name), f"QuadrotorConfig.{name}", 0.0)
+        for name in ("rew_lin_vel", "rew_ang_vel", "rew_distance", "success_threshold"):
+            check_number(getattr(self, name), f"QuadrotorConfig.{name}")
         ratio = self.control_dt / self.sim_dt
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(f"Quadrotor: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
+            raise InputError(f"Quadrotor: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
                              f"of sim_dt ({self.sim_dt:g} s)")
-        if len(self.inertia) != 3 or not all(i > 0 for i in self.inertia):
-            raise ValueError(f"Quadrotor: inertia must be three positive moments [kg m^2], got {self.inertia!r}")
-        lo, hi = self.goal_z_range
+        if not np.all(check_finite_array(self.inertia, "QuadrotorConfig.inertia", (3,)) > 0):
+            raise InputError(f"QuadrotorConfig.inertia = {self.inertia!r}; expected three moments > 0 [kg m^2]")
+        check_finite_array(self.start_position, "QuadrotorConfig.start_position", (3,))
+        lo, hi = check_finite_array(self.goal_z_range, "QuadrotorConfig.goal_z_range", (2,))
         if not lo <= hi:
-            raise ValueError(f"Quadrotor: goal_z_range must be (low, high) with low <= high, got {self.goal_z_range!r}")
+            raise InputError(f"QuadrotorConfig.goal_z_range = {self.goal_z_range!r}; expected (low, high) with "
+                             "low <= high [m]")
 
     @property
     def max_rotor_thrust(self) -> float:

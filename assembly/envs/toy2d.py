@@ -1,12 +1,10 @@
 """goflow/Toy2D-v0: the GoFlow paper's illustrative 2-D domain, with an analytic feasible set.
 
-Source: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
-Skills", ICML 2025 (arXiv:2502.01800), the 2-D illustrative example: the randomized parameter xi
-is the agent's position in a 2-D box; an energy function made of Gaussians laid out in a circular
-or a linear array sets how precisely the agent observes its position (high energy, precise
-observation); the agent cannot move and is rewarded for guessing where it is. The authors' public
-code (github.com/aidan-curtis/goflow) does not include this domain, so the functional forms and
-numbers below are ours, chosen so that the feasible set has a closed form:
+The randomized parameter xi is the agent's position in a 2-D box; an energy function made of
+Gaussians laid out in a circular or a linear array sets how precisely the agent observes its
+position (high energy, precise observation); the agent cannot move and is rewarded for guessing
+where it is. The functional forms and numbers are ours (the authors' code does not include this
+domain), chosen so that the feasible set has a closed form:
 
     energy      E(p)     = sum_k exp(-||p - c_k||^2 / (2 w_k^2))                 (dimensionless, ~1 at a centre)
     noise scale sigma(p) = sigma_max * (sigma_min / sigma_max) ** min(E(p), 1)   [m] (log-linear in E)
@@ -16,25 +14,18 @@ numbers below are ours, chosen so that the feasible set has a closed form:
 
 The episode is a single step (nothing moves, so a longer horizon adds nothing): reset gives the
 observation, step scores the guess and terminates. control_dt (1 s by default) is the nominal
-duration of that one decision; no dynamics are simulated.
+duration of that one decision; no dynamics are simulated. The feasible set is
+{xi : P(success | xi) >= feasible_level} with P(success | xi) = 1 - exp(-tolerance^2 / (2 sigma(xi)^2));
+with the defaults, 8 disks on a circle (9.2 % of the box) or 4 on a line (4.5 %).
 
-Feasible set. The guesser that reports its observation (the maximum-likelihood estimate from one
-observation, and what a policy trained on the feasible set learns) misses by e = sigma(xi) * z with
-z ~ N(0, I_2), so ||e|| / sigma is Rayleigh distributed and
+Derivation of the feasible set: docs/envs.md#feasible-set.
 
-    P(success | xi) = 1 - exp(-tolerance^2 / (2 sigma(xi)^2)),
-
-exactly (actions are scored as given, never clipped). The feasible set is {xi : P(success | xi) >=
-feasible_level} (0.9 by default), i.e. sigma(xi) <= tolerance / sqrt(-2 ln(1 - feasible_level)).
-With the defaults that is sigma <= 4.66 cm, i.e. E >= 0.607, about one width w around each
-centre: 8 disjoint disks of radius ~0.12 m on a circle of radius 0.6 m (circle layout, 9.2% of the
-box) or 4 disjoint disks on the x axis (line layout, 4.5%). A learned sampler should put its mass
-on these modes and cover all of them.
+References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
+Skills", ICML 2025 (arXiv:2502.01800), the 2-D illustrative example.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +35,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
 from assembly.envs.base import ParamEnv
+from common.checks import check_choice, check_finite_array, check_int, check_number
 from common.config import config_with_overrides
+from common.errors import InputError
 from assembly.samplers import Sampler
 
 __all__ = ["Toy2DConfig", "Toy2DEnv"]
@@ -72,22 +65,17 @@ class Toy2DConfig:
     control_dt: float = 1.0  # [s] nominal duration of the single decision
 
     def __post_init__(self) -> None:
-        if self.layout not in LAYOUTS:
-            raise ValueError(f"Toy2D: layout must be one of {LAYOUTS}, got {self.layout!r}")
-        n = self.num_gaussians()
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"Toy2D: n_gaussians must be a positive integer, got {n!r}")
+        check_choice(self.layout, LAYOUTS, "Toy2DConfig.layout")
+        n = check_int(self.num_gaussians(), "Toy2DConfig.n_gaussians", 1)
         for name in ("radius", "spacing", "sigma_min", "sigma_max", "tolerance", "half_extent", "control_dt"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"Toy2D: {name} must be a finite positive number, got {value!r}")
-        widths = (self.width,) * n if isinstance(self.width, (int, float)) else tuple(self.width)
-        if len(widths) != n or not all(isinstance(w, (int, float)) and math.isfinite(w) and w > 0 for w in widths):
-            raise ValueError(f"Toy2D: width must be a positive number or {n} positive numbers, got {self.width!r}")
+            check_number(getattr(self, name), f"Toy2DConfig.{name}", 0.0, low_open=True)
+        if isinstance(self.width, (int, float)) and not isinstance(self.width, bool):  # one width, as widths()
+            check_number(self.width, "Toy2DConfig.width", 0.0, low_open=True)
+        elif not np.all(check_finite_array(self.width, "Toy2DConfig.width", (n,)) > 0):
+            raise InputError(f"Toy2DConfig.width = {self.width!r}; expected a number > 0 or {n} numbers > 0 [m]")
         if not self.sigma_min < self.sigma_max:
-            raise ValueError(f"Toy2D: need sigma_min < sigma_max, got {self.sigma_min} >= {self.sigma_max} m")
-        if not 0.0 < self.feasible_level < 1.0:
-            raise ValueError(f"Toy2D: feasible_level must be in (0, 1), got {self.feasible_level!r}")
+            raise InputError(f"Toy2D: need sigma_min < sigma_max, got {self.sigma_min} >= {self.sigma_max} m")
+        check_number(self.feasible_level, "Toy2DConfig.feasible_level", 0.0, 1.0, low_open=True, high_open=True)
 
     def num_gaussians(self) -> int:
         """K: n_gaussians, or the layout's default when it is None (kept None so replace(layout=...) re-resolves)."""

@@ -5,7 +5,9 @@ import pytest
 
 from assembly.demo import AssemblyConfig
 from assembly.gearset import gear_spec
-from assembly.scripted_skill import InsertSkillConfig, down_pose, plan_pick_and_insert, start_plan
+from assembly.scripted_motion import (
+    ScriptedInsertionConfig, append_pick_and_insert, down_pose, start_keyframe_plan,
+)
 from assembly.station import StationConfig, build_station
 from assembly.world import WorldConfig, planar_pose, validate_tool_target
 
@@ -64,11 +66,11 @@ def test_target_outside_workspace(p):
         validate_tool_target(down_pose(np.array(p), 0.0))
 
 
-def test_skill_rejects_unreachable_shaft():
-    plan = start_plan(down_pose(np.array([0.3, 0.0, 0.4]), 0.0), 0.08)
+def test_scripted_insertion_rejects_unreachable_shaft():
+    plan = start_keyframe_plan(down_pose(np.array([0.3, 0.0, 0.4]), 0.0), 0.08)
     with pytest.raises(ValueError, match="outside the workspace"):
-        plan_pick_and_insert(plan, "medium", planar_pose(0.4, 0.0, 0.0), planar_pose(1.5, 0.0, 0.0),
-                             InsertSkillConfig())
+        append_pick_and_insert(plan, "medium", planar_pose(0.4, 0.0, 0.0),
+                               planar_pose(1.5, 0.0, 0.0), ScriptedInsertionConfig())
 
 
 def test_bad_configs():
@@ -77,4 +79,36 @@ def test_bad_configs():
     with pytest.raises(ValueError, match="contact_model"):
         StationConfig(contact_model="rigid")
     with pytest.raises(ValueError, match="insert_speed"):
-        InsertSkillConfig(insert_speed=0.0)
+        ScriptedInsertionConfig(insert_speed=0.0)
+
+
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize("env_id, option, value, message", [
+    ("goflow/GearInsertion-v0", "action_scale", [NAN] * 4,
+     r"GearInsertionConfig\.action_scale must be finite; 4 entries are not \(first: flat index 0 = nan\)"),
+    ("goflow/GearInsertion-v0", "action_scale", [0.003, 0.003, 0.02],
+     r"GearInsertionConfig\.action_scale has shape \(3,\); expected \(4,\)"),
+    ("goflow/GearInsertion-v0", "workspace", [0.06, 0.06, 0.06, 0.0],
+     r"GearInsertionConfig\.workspace = \[0\.06, 0\.06, 0\.06, 0\.0\]; expected 4 numbers > 0"),
+    ("goflow/GearInsertion-v0", "success_threshold", NAN,
+     r"GearInsertionConfig\.success_threshold = nan; expected a finite number"),
+    ("goflow/Cartpole-v0", "success_threshold", NAN, r"CartpoleConfig\.success_threshold = nan; expected a finite"),
+    ("goflow/Cartpole-v0", "rew_alive", INF, r"CartpoleConfig\.rew_alive = inf; expected a finite number"),
+    ("goflow/Quadrotor-v0", "success_threshold", NAN, r"QuadrotorConfig\.success_threshold = nan; expected"),
+    ("goflow/Quadrotor-v0", "start_position", [0.0, 0.0, NAN],
+     r"QuadrotorConfig\.start_position must be finite; 1 entries are not \(first: flat index 2 = nan\)"),
+    ("goflow/Quadrotor-v0", "inertia", [0.0015, 0.0025, INF], r"QuadrotorConfig\.inertia must be finite"),
+    ("goflow/Ant-v0", "success_threshold", NAN, r"AntConfig\.success_threshold = nan; expected a finite number"),
+    ("goflow/Ant-v0", "death_cost", NAN, r"AntConfig\.death_cost = nan; expected a finite number"),
+])
+def test_env_options_are_checked_with_value_and_expectation(env_id, option, value, message):
+    import gymnasium
+
+    import assembly.envs  # noqa: F401 (registers the goflow/ ids)
+    from common.errors import InputError
+
+    with pytest.raises(InputError, match=message) as info:
+        gymnasium.make(env_id, **{option: value})
+    assert "\n" not in str(info.value)

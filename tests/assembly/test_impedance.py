@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 
 from assembly.impedance import ImpedanceGains, rotation_error
 from assembly.panda_model import HAND_TCP_OFFSET, Q_HOME
-from assembly.scripted_skill import PlanSource, down_pose, start_plan
+from assembly.scripted_motion import KeyframePlayer, down_pose, start_keyframe_plan
 from assembly.station import StationConfig, build_station, drive_station
 from assembly.world import WorldConfig
 
@@ -57,13 +57,13 @@ def _press(offset: float, gains: ImpedanceGains | None = None, hold: float = 5.0
     after holding there."""
     station = build_station(StationConfig(world=WorldConfig(gears=()), gains=gains or ImpedanceGains()))
     X0 = station.controller.tool_pose(Q_HOME)
-    plan = start_plan(X0, 0.0)
+    plan = start_keyframe_plan(X0, 0.0)
     above = down_pose(np.array([0.45, 0.0, FINGERTIP_BELOW_TCP + 0.03]), np.pi / 2)
     plan.append(2.0, above, 0.0, "above table")
     plan.append(1.0, down_pose(np.array([0.45, 0.0, FINGERTIP_BELOW_TCP - offset]), np.pi / 2),
                 0.0, "press")
     plan.append(hold, plan.keyframes[-1].X_WT, 0.0, "hold")
-    diagram = drive_station(station, PlanSource(plan))
+    diagram = drive_station(station, KeyframePlayer(plan))
     simulator = Simulator(diagram)
     simulator.AdvanceTo(plan.end_time)
     return station, simulator.get_context()

@@ -37,7 +37,7 @@ def test_demo_json_schema(demo_summary):
     assert summary["wall_time_s"] > 0
 
 
-def test_scripted_skill_seats_every_gear(demo_summary):
+def test_scripted_insertion_seats_every_gear(demo_summary):
     summary, stdout = demo_summary
     for name, gear in summary["gears"].items():
         assert gear["inserted"], (name, gear)
@@ -48,7 +48,7 @@ def test_scripted_skill_seats_every_gear(demo_summary):
 
 
 def test_grasp_error_beyond_capture_range_does_not_seat():
-    # The skill believes the medium gear is 4 mm further along world y than it is: the fingers
+    # The script believes the medium gear is 4 mm further along world y than it is: the fingers
     # close along x, so the gear ends up 4 mm off-centre in the hand, beyond the chamfers'
     # capture range (0.5 mm clearance + 1 mm bore chamfer + 1 mm shaft chamfer). Nothing
     # corrects it, so the bore lands on the shaft top and the gear cannot go down.

@@ -7,11 +7,11 @@ import pytest
 
 from assembly.gearset import GEAR_THICKNESS, gear_spec
 from assembly.cameras import default_wrist_camera
-from assembly.inspect import X_HT, InspectConfig, inspect_tool_pose, plan_inspect, run_inspect
-from assembly.scripted_skill import start_plan
+from assembly.inspection import X_HT, InspectConfig, append_inspect, inspect_tool_pose, run_inspect
+from assembly.scripted_motion import start_keyframe_plan
 from assembly.world import WorldConfig
 from perception.calibration import pose_error
-from perception.observe import camera_pose, observe
+from perception.station_views import camera_pose, observe
 from perception.search import Prior, estimate_pose
 
 GEAR = "medium"
@@ -78,6 +78,6 @@ def test_inspect_pose_puts_the_camera_above_the_gear_and_validates():
     np.testing.assert_allclose(X_WC.rotation().matrix()[:, 2], [0, 0, -1], atol=1e-9)
     with pytest.raises(ValueError, match="camera_height"):
         InspectConfig(camera_height=0.01)
-    plan = start_plan(X_WT, 0.08)
+    plan = start_keyframe_plan(X_WT, 0.08)
     with pytest.raises(ValueError, match="fingertips"):
-        plan_inspect(plan, "small", (0.4, 0.0), wrist, InspectConfig(camera_height=0.05))
+        append_inspect(plan, "small", (0.4, 0.0), wrist, InspectConfig(camera_height=0.05))
