@@ -30,7 +30,8 @@ def check_number(value: Any, name: str, low: float | None = None, high: float | 
                  low_open: bool = False, high_open: bool = False, allow_inf: bool = False) -> float:
     """`value` as a float; InputError unless it is a real number (not a bool), finite unless
     `allow_inf`, and inside [low, high] (an open end where `low_open` / `high_open`)."""
-    lb, ub = "(" if low_open else "[", ")" if high_open else "]"
+    lb = "(" if low_open or low is None else "["
+    ub = ")" if high_open or high is None else "]"
     bounds = "" if low is None and high is None else (
         f" in {lb}{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}{ub}")
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):

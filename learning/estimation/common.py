@@ -1,5 +1,6 @@
 """What every estimator shares: the simulator budget and its bookkeeping (calls, wall time, a trace
-of snapshots for OT-vs-time plots), trajectory segments, and the one-step prediction loss."""
+of snapshots for OT-vs-time plots, a progress bar), the check that a budget buys one iteration,
+trajectory segments, and the one-step prediction loss."""
 
 from __future__ import annotations
 
@@ -9,11 +10,14 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from tqdm import tqdm
 
+from common.checks import check_int
+from common.errors import InputError
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import UnitBoxDistribution
 
-__all__ = ["Budget", "BudgetExhausted", "segment_rows", "prediction_loss", "FAILED_LOSS"]
+__all__ = ["Budget", "BudgetExhausted", "check_sim_budget", "segment_rows", "prediction_loss", "FAILED_LOSS"]
 
 FAILED_LOSS = 1e6  # loss of a row whose simulation failed (NaN prediction)
 
@@ -25,7 +29,8 @@ class BudgetExhausted(RuntimeError):
 @dataclass
 class Budget:
     """Steps the simulator for an estimator while counting calls (one call = one row stepped) and
-    wall time; `snapshot` records samples of the current estimate (outside the timed region)."""
+    wall time; `snapshot` records samples of the current estimate (outside the timed region).
+    With `progress`, a tqdm bar shows the calls used against `max_calls`; `close()` ends it."""
 
     data: TransitionDataset
     sim: Any  # a TransitionSim
@@ -33,11 +38,14 @@ class Budget:
     snapshot_samples: int = 500
     calls: int = 0
     trace: list[dict[str, Any]] = field(default_factory=list)
+    progress: bool = False
+    desc: str = "estimate"  # the progress bar's label
 
     def __post_init__(self) -> None:
-        if self.max_calls < 1:
-            raise ValueError(f"sim budget must be >= 1 simulator call, got {self.max_calls}")
+        self.max_calls = check_int(self.max_calls, "sim_budget", 1)
         self.scale = self.data.delta_scale()
+        self._bar = tqdm(total=self.max_calls, initial=self.calls, disable=not self.progress, desc=self.desc,
+                         unit="call", unit_scale=True)
         self._t0 = time.perf_counter()
         self._paused = 0.0
 
@@ -64,7 +72,7 @@ class Budget:
         a = np.tile(self.data.actions[rows], (m, 1))
         x = np.repeat(xi, r, axis=0)
         out = self.sim.step(s, a, x)
-        self.calls += m * r
+        self._count(m * r)
         return out.reshape(m, r, -1)
 
     def step_rows(self, rows: NDArray[np.int64], u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -73,8 +81,16 @@ class Budget:
             raise BudgetExhausted(f"{len(rows)} calls requested, {self.remaining()} left")
         xi = self.data.space.denormalize(np.clip(u, 0.0, 1.0))
         out = self.sim.step(self.data.states[rows], self.data.actions[rows], xi)
-        self.calls += len(rows)
+        self._count(len(rows))
         return out
+
+    def _count(self, calls: int) -> None:
+        self.calls += calls
+        self._bar.update(calls)
+
+    def close(self) -> None:
+        """End the progress bar (the counts stay readable)."""
+        self._bar.close()
 
     def snapshot(self, dist: UnitBoxDistribution, **extra: Any) -> None:
         """Record (calls, seconds, samples of dist) without counting the sampling time."""
@@ -85,17 +101,25 @@ class Budget:
         self._paused += time.perf_counter() - t
 
 
+def check_sim_budget(sim_budget: int, method: str, need: tuple[int, str]) -> None:
+    """InputError unless `sim_budget` buys one iteration of `method`; `need` is (calls, how they
+    add up), as the methods' `min_sim_calls(config, data)` return it."""
+    calls, why = need
+    if sim_budget < calls:
+        raise InputError(f"sim_budget = {sim_budget}; {method} needs at least {calls} simulator calls for one "
+                         f"iteration on this dataset ({why})")
+
+
 def segment_rows(data: TransitionDataset, length: int) -> NDArray[np.int64]:
     """Non-overlapping windows of `length` consecutive transitions of one trajectory, (S, length)."""
-    if length < 1:
-        raise ValueError(f"segment length must be >= 1, got {length}")
+    check_int(length, "segment_length", 1)
     out = []
     for e in range(data.num_episodes):
         rows = data.episode_rows(e)
         for k in range(len(rows) // length):
             out.append(rows[k * length:(k + 1) * length])
     if not out:
-        raise ValueError(f"no trajectory has {length} transitions (the longest has "
+        raise InputError(f"segment_length = {length}; no trajectory has {length} transitions (the longest has "
                          f"{max(len(data.episode_rows(e)) for e in range(data.num_episodes))})")
     return np.array(out, dtype=np.int64)
 

@@ -16,9 +16,9 @@ One file, a NumPy `.npz` archive (`np.savez_compressed`), holding:
   true_xi       (E, d)  float64  the parameters each trajectory ran with, for EVALUATION ONLY
 
 Estimators read a file through `load_dataset`, which returns the transitions without `true_xi`;
-only `load_truth` (used by metrics and benchmarks) returns it. Both validate everything (keys,
-shapes, dtypes, finite values, parameter names) and raise `DatasetError` naming the file, the bad
-field, what it was and what was expected.
+only `load_truth` (used by metrics and benchmarks) returns it. Both, and `save_dataset`, validate
+everything (keys, shapes, dtypes, finite values, actions in [-1, 1], parameter names) and raise
+`DatasetError` naming the file, the bad field, what it was and what was expected.
 """
 
 from __future__ import annotations
@@ -159,6 +159,11 @@ def _check_arrays(p: str, ds: TransitionDataset, true_xi: NDArray[np.float64] | 
             r, c = map(int, np.argwhere(bad)[0])
             raise _fail(p, f"{name!r} has {int(bad.sum())} non-finite value(s) (first: row {r}, column {c} "
                            f"= {arr[r, c]}); every value must be finite")
+    outside = np.abs(a) > 1.0
+    if outside.any():
+        r, c = map(int, np.argwhere(outside)[0])
+        raise _fail(p, f"'actions' has {int(outside.sum())} value(s) outside [-1, 1] (first: row {r}, column {c} "
+                       f"= {a[r, c]:g}); expected normalized actions in [-1, 1]")
     if ep.min() < 0 or np.any(np.diff(ep) < 0):
         raise _fail(p, "'episode' must be non-negative and non-decreasing (trajectories stored in order)")
     e = int(ep.max()) + 1

@@ -1,8 +1,8 @@
 """DROPO (Tiboni et al., "DROPO: Sim-to-Real Transfer with Offline Domain Randomization"; the
-official code's recipe as summarized in REFERENCES.md): independent truncated normals over the
-parameters, scored by the likelihood of each logged next state under a Gaussian fitted to the next
-states the simulator predicts for samples of the candidate distribution, optimized with CMA-ES
-(the `cma` package).
+recipe of the official code, github.com/gabrieletiboni/dropo): independent truncated normals over
+the parameters, scored by the likelihood of each logged next state under a Gaussian fitted to the
+next states the simulator predicts for samples of the candidate distribution, optimized with
+CMA-ES (the `cma` package).
 
 Search space (unit-box coordinates): x = (mu_1..d in [0, 1], log sigma_1..d in
 [log sigma_min, log sigma_max]). A candidate's objective: draw S parameters from it; for a fixed
@@ -19,10 +19,13 @@ from dataclasses import dataclass
 import cma
 import numpy as np
 
-from learning.estimation.common import Budget, BudgetExhausted
+from common.checks import check_int, check_number
+from common.errors import InputError
+from learning.estimation.common import Budget, BudgetExhausted, check_sim_budget
+from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import TruncNormalProduct
 
-__all__ = ["DROPOConfig", "fit_dropo", "gaussian_fit_loglik"]
+__all__ = ["DROPOConfig", "fit_dropo", "gaussian_fit_loglik", "min_sim_calls"]
 
 
 @dataclass
@@ -42,12 +45,29 @@ class DROPOConfig:
     popsize: int | None = None  # CMA-ES population; None: cma's default 4 + 3 ln(2d)
 
     def __post_init__(self) -> None:
-        if self.samples < 2 or self.transitions < 1:
-            raise ValueError(f"DROPOConfig: samples must be >= 2 and transitions >= 1, got "
-                             f"{self.samples}, {self.transitions}")
-        if not 0 < self.sigma_min < self.init_sigma <= self.sigma_max:
-            raise ValueError("DROPOConfig: need 0 < sigma_min < init_sigma <= sigma_max, got "
+        self.samples = check_int(self.samples, "DROPOConfig.samples", 2)  # a covariance needs 2 draws
+        self.transitions = check_int(self.transitions, "DROPOConfig.transitions", 1)
+        for name in ("epsilon", "sigma0", "sigma_min", "sigma_max", "init_sigma"):
+            setattr(self, name, check_number(getattr(self, name), f"DROPOConfig.{name}", 0.0, low_open=True))
+        if self.popsize is not None:
+            self.popsize = check_int(self.popsize, "DROPOConfig.popsize", 2)
+        if not self.sigma_min < self.init_sigma <= self.sigma_max:
+            raise InputError("DROPOConfig: need 0 < sigma_min < init_sigma <= sigma_max, got "
                              f"{self.sigma_min}, {self.init_sigma}, {self.sigma_max}")
+
+
+def _popsize(config: DROPOConfig, d: int) -> int:
+    """CMA-ES population: config.popsize, else cma's default int(4 + 3 ln n) for n = 2 d unknowns."""
+    return config.popsize or int(4 + 3 * math.log(2 * d))
+
+
+def min_sim_calls(config: DROPOConfig, data: TransitionDataset) -> tuple[int, str]:
+    """Simulator calls one CMA-ES generation needs on `data`, and how they add up: the smallest
+    budget that moves the estimate off its start."""
+    pop = _popsize(config, data.space.dim)
+    rows = min(config.transitions, data.num_transitions)
+    return pop * config.samples * rows, (f"one CMA-ES generation: {pop} candidates x {config.samples} samples x "
+                                         f"{rows} transitions, set by the options popsize, samples, transitions")
 
 
 def gaussian_fit_loglik(pred: np.ndarray, target: np.ndarray, epsilon: float) -> float:
@@ -81,9 +101,8 @@ def fit_dropo(budget: Budget, config: DROPOConfig, seed: int) -> tuple[TruncNorm
     lo = [0.0] * d + [math.log(config.sigma_min)] * d
     hi = [1.0] * d + [math.log(config.sigma_max)] * d
     x0 = [0.5] * d + [math.log(config.init_sigma)] * d
-    opts = {"bounds": [lo, hi], "seed": int(seed) + 1, "verbose": -9}
-    if config.popsize:
-        opts["popsize"] = config.popsize
+    check_sim_budget(budget.remaining(), "dropo", min_sim_calls(config, data))
+    opts = {"bounds": [lo, hi], "seed": int(seed) + 1, "verbose": -9, "popsize": _popsize(config, d)}
     es = cma.CMAEvolutionStrategy(x0, config.sigma0, opts)
     per_candidate = config.samples * len(rows)
     # The same S uniforms for every candidate (pushed through each candidate's inverse CDF): the
@@ -113,5 +132,7 @@ def fit_dropo(budget: Budget, config: DROPOConfig, seed: int) -> tuple[TruncNorm
         es.tell(xs, fs)
         gen += 1
         budget.snapshot(_dist(best_x, d), generation=gen, best_objective=best_f)
+    if not math.isfinite(best_f):  # no candidate scored: the start is no estimate (was `Infinity` in the file)
+        raise RuntimeError(f"dropo: no candidate was scored within {budget.max_calls} simulator calls")
     return _dist(best_x, d), {"generations": gen, "best_objective": best_f, "popsize": es.popsize,
                               "calls_per_candidate": per_candidate}

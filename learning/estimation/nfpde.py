@@ -17,13 +17,12 @@ Each iteration:
      r_m = p(xi_m) / p_old(xi_m)  (PPO clipping optional: clip = None gives the plain
      importance-sampled surrogate).
 
-Why these weights: at r = 1 the surrogate's gradient is sum_m A_m grad log p(xi_m), a weighted
-maximum-likelihood step. With the Softmax weights, iterating it is the EM fixed-point iteration of
-the marginal likelihood sum_j log E_p[exp(-beta l_j(xi))]: every segment keeps a say, so a mixture
-of trajectories with different parameters is recovered as a mixture. With the CAI weights the step
-moves p toward p_old(xi) sum_j exp(-l_j(xi)/tau): iterated, it concentrates on the single xi that
-explains the data best on average (a mode), which is why the Softmax variant should win on
-mixed targets.
+Softmax weights keep a mixture of trajectory parameters a mixture; CAI weights concentrate on a
+mode. Why: docs/nfpde.md#nfpde-why-these-weights.
+
+References: "Normalizing Flow-based Parameter Distribution Estimation for Offline Adaptive Domain
+Randomization" (the seed paper), section IV; Dinh et al., "Density estimation using Real NVP",
+ICLR 2017; zuko (github.com/probabilists/zuko).
 """
 
 from __future__ import annotations
@@ -34,10 +33,14 @@ import numpy as np
 import torch
 from scipy.special import expit, log_softmax
 
-from learning.estimation.common import Budget, BudgetExhausted, prediction_loss, segment_rows
+from common.checks import check_int, check_number
+from common.errors import InputError
+from learning.estimation.common import (Budget, BudgetExhausted, check_sim_budget, prediction_loss,
+                                        segment_rows)
+from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import FlowDistribution
 
-__all__ = ["NFPDEConfig", "fit_nfpde"]
+__all__ = ["NFPDEConfig", "fit_nfpde", "min_sim_calls"]
 
 
 @dataclass
@@ -60,19 +63,27 @@ class NFPDEConfig:
 
     def __post_init__(self) -> None:
         if self.likelihood not in ("softmax", "cai"):
-            raise ValueError(f"NFPDE likelihood must be 'softmax' or 'cai', got {self.likelihood!r}")
-        for name in ("samples", "segments", "segment_length", "epochs", "transforms"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"NFPDEConfig.{name} must be >= 1, got {getattr(self, name)!r}")
-        if self.samples < 2:
-            raise ValueError("NFPDEConfig.samples must be >= 2 (weights compare samples)")
-        if not (self.beta > 0 and self.tau > 0 and self.lr > 0):
-            raise ValueError(f"NFPDEConfig: beta, tau and lr must be > 0, got {self.beta}, {self.tau}, {self.lr}")
-        if int(self.replay) < 1:
-            raise ValueError(f"NFPDEConfig.replay must be >= 1, got {self.replay!r}")
-        if self.clip is not None and not 0 < self.clip < 1:
-            raise ValueError(f"NFPDEConfig.clip must be in (0, 1) or None, got {self.clip!r}")
-        self.hidden = tuple(self.hidden)
+            raise InputError(f"NFPDE likelihood must be 'softmax' or 'cai', got {self.likelihood!r}")
+        self.samples = check_int(self.samples, "NFPDEConfig.samples", 2)  # weights compare samples
+        for name in ("segments", "segment_length", "epochs", "transforms", "replay"):
+            setattr(self, name, check_int(getattr(self, name), f"NFPDEConfig.{name}", 1))
+        for name in ("beta", "tau", "lr", "y_scale"):
+            setattr(self, name, check_number(getattr(self, name), f"NFPDEConfig.{name}", 0.0, low_open=True))
+        if self.clip is not None:
+            self.clip = check_number(self.clip, "NFPDEConfig.clip", 0.0, 1.0, low_open=True,
+                                     high_open=True)
+        if isinstance(self.hidden, (str, bytes)) or not hasattr(self.hidden, "__iter__"):
+            raise InputError(f"NFPDEConfig.hidden = {self.hidden!r}; expected a list of layer widths")
+        self.hidden = tuple(check_int(h, f"NFPDEConfig.hidden[{i}]", 1) for i, h in enumerate(self.hidden))
+
+
+def min_sim_calls(config: NFPDEConfig, data: TransitionDataset) -> tuple[int, str]:
+    """Simulator calls one NFPDE iteration needs on `data`, and how they add up: the smallest
+    budget that changes the flow (InputError if no trajectory holds one segment)."""
+    segments = min(config.segments, len(segment_rows(data, config.segment_length)))
+    calls = config.samples * segments * config.segment_length
+    return calls, (f"{config.samples} samples x {segments} segments x {config.segment_length} transitions, "
+                   "set by the options samples, segments, segment_length")
 
 
 def _advantages(loss: np.ndarray, config: NFPDEConfig) -> np.ndarray:
@@ -94,7 +105,9 @@ def fit_nfpde(budget: Budget, config: NFPDEConfig, seed: int) -> tuple[FlowDistr
     dist = FlowDistribution(data.space.dim, config.transforms, config.hidden, config.y_scale, seed=seed)
     opt = torch.optim.Adam(dist.flow.parameters(), lr=config.lr)
     segs = segment_rows(data, config.segment_length)
-    per_iter = config.samples * min(config.segments, len(segs)) * config.segment_length
+    need = min_sim_calls(config, data)
+    check_sim_budget(budget.remaining(), f"nfpde-{config.likelihood}", need)
+    per_iter = need[0]
     budget.snapshot(dist, iteration=0)
     it, skipped = 0, 0
     batches: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []

@@ -11,6 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.params import ParamSpace
+from common.checks import check_finite_array
+from common.errors import InputError
 
 __all__ = ["TargetConfig", "TargetSampler", "sample_target", "target_description", "TARGETS"]
 
@@ -31,10 +33,12 @@ class TargetConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in TARGETS:
-            raise ValueError(f"target kind {self.kind!r} is unknown; expected one of {list(TARGETS)}")
+            raise InputError(f"target kind {self.kind!r} is unknown; expected one of {list(TARGETS)}")
         if not (0 < self.std < 1 and 0 < self.l_std < 1 and 0 < self.mean < 1):
-            raise ValueError(f"target mean/std/l_std must lie in (0, 1) (unit box), got "
+            raise InputError(f"target mean/std/l_std must lie in (0, 1) (unit box), got "
                              f"{self.mean}, {self.std}, {self.l_std}")
+        if len(check_finite_array(self.l_means, "TargetConfig.l_means", (None, 2), 0.0, 1.0)) < 1:
+            raise InputError("TargetConfig.l_means = (); expected at least one (u_1, u_2) mean in the unit box")
 
 
 def _truncated_normal(mean: NDArray, std: NDArray, rng: np.random.Generator) -> NDArray[np.float64]:

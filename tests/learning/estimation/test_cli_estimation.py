@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 GOFLOW = Path(sys.executable).parent / "goflow"
 
@@ -24,9 +25,9 @@ def test_collect_then_estimate_gives_a_sampler_file(tmp_path):
     assert ds.num_episodes == 6 and ds.collection["command"].startswith("goflow collect")
     out = tmp_path / "est.json"
     proc = _run("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000",
-                "--option", "samples=10", "--option", "transitions=8", "--out", str(out))
+                "--method-kwarg", "samples=10", "--method-kwarg", "transitions=8", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
-    from learning.estimation.sampler import load_estimate
+    from learning.estimation.estimate_file import load_estimate
     sampler, doc = load_estimate(out)
     assert doc["method"] == "dropo" and doc["info"]["sim_calls"] <= 3000
     assert np.all(ds.space.contains(sampler.sample(10, np.random.default_rng(0))))
@@ -45,3 +46,85 @@ def test_bad_flags_are_explained(tmp_path):
     assert proc.returncode != 0 and "no such file" in proc.stderr
     proc = _run("estimate", "--data", str(tmp_path / "m.npz"), "--method", "mle", "--out", "e.json")
     assert proc.returncode == 2 and "invalid choice: 'mle'" in proc.stderr
+
+
+# Budgets (issue 15, defect 6): a budget below one iteration used to make 0 simulator calls and
+# write the untouched prior with exit code 0 (DROPO's with `Infinity` in it).
+
+METHOD_OPTION = "--method-kwarg"  # `goflow estimate`'s KEY=VALUE flag for the method's config
+
+@pytest.fixture(scope="module")
+def small_data(tmp_path_factory):
+    from learning.estimation.collect import CollectConfig, collect_to_file
+
+    path = tmp_path_factory.mktemp("data") / "pm.npz"
+    ds = collect_to_file(CollectConfig(env="goflow/PointMass-v0", xi="mixture", episodes=6, steps=20, seed=1), path)
+    return path, ds
+
+
+def test_budget_below_one_iteration_is_refused_by_the_cli(tmp_path, small_data):
+    data, _ = small_data
+    out = tmp_path / "est.json"
+    # DROPO's defaults on 2 parameters: 8 candidates x 32 draws x 16 transitions per generation
+    proc = _run("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000", "--out", str(out))
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert ("sim_budget = 3000; dropo needs at least 4096 simulator calls for one iteration on this dataset "
+            "(one CMA-ES generation: 8 candidates x 32 samples x 16 transitions") in lines[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("method", ["nfpde-softmax", "nfpde-cai", "dropo", "bayessim"])
+def test_every_method_refuses_a_budget_below_its_minimum_before_simulating(small_data, method):
+    from common.errors import InputError
+    from learning.estimation.estimate import EstimateConfig, estimate, min_sim_calls
+
+    _, ds = small_data
+    need, _ = min_sim_calls(EstimateConfig(method=method), ds)
+    assert need == {"nfpde-softmax": 64 * 16 * 2, "nfpde-cai": 64 * 16 * 2, "dropo": 8 * 32 * 16,
+                    "bayessim": 2 * 16}[method]
+    with pytest.raises(InputError, match=f"sim_budget = {need - 1}; {method} needs at least {need} simulator calls"):
+        estimate(ds, EstimateConfig(method=method, sim_budget=need - 1), sim=object())  # the sim is never touched
+
+
+def test_one_iteration_budget_gives_strict_json_and_a_progress_bar(tmp_path, small_data):
+    data, _ = small_data
+    out = tmp_path / "est.json"
+    # 8 candidates x 10 draws x 8 transitions = 640 calls: exactly one CMA-ES generation
+    proc = _run("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "640",
+                METHOD_OPTION, "samples=10", METHOD_OPTION, "transitions=8", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "estimate dropo" in proc.stderr and "640/640" in proc.stderr  # tqdm bar over simulator calls
+    doc = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"{c} in the estimate file"))
+    details = doc["info"]["details"]
+    assert doc["info"]["sim_calls"] == 640 and details["generations"] == 1
+    assert np.isfinite(details["best_objective"])
+
+
+def test_non_finite_method_option_is_one_line(tmp_path, small_data):
+    data, _ = small_data
+    # beta=nan: the issue's command; epsilon=abc reaches DROPOConfig (it used to fail deep in numpy)
+    for method, option in (("nfpde-softmax", "beta=nan"), ("dropo", "epsilon=abc")):
+        out = tmp_path / "est.json"
+        proc = _run("estimate", "--data", str(data), "--method", method, METHOD_OPTION, option, "--out", str(out))
+        assert proc.returncode != 0
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and option.split("=")[0] in lines[0] and "expected" in lines[0], proc.stderr
+        assert not out.exists()
+
+
+@pytest.mark.parametrize("method, option, value, message", [
+    ("nfpde-softmax", "beta", float("nan"), r"NFPDEConfig\.beta = nan; expected a finite number in \(0, "),
+    ("nfpde-cai", "tau", "0.1", r"NFPDEConfig\.tau = '0.1'; expected a number"),
+    ("nfpde-softmax", "clip", 1.5, r"NFPDEConfig\.clip = 1.5; expected a number in \(0, 1\)"),
+    ("dropo", "epsilon", float("nan"), r"DROPOConfig\.epsilon = nan; expected a finite number"),
+    ("dropo", "sigma0", float("inf"), r"DROPOConfig\.sigma0 = inf; expected a finite number"),
+    ("dropo", "popsize", 1, r"DROPOConfig\.popsize = 1; expected an integer >= 2"),
+])
+def test_method_configs_check_their_options(method, option, value, message):
+    from common.errors import InputError
+    from learning.estimation.estimate import EstimateConfig
+
+    with pytest.raises(InputError, match=message):
+        EstimateConfig(method=method, options={option: value}).method_config()

@@ -42,7 +42,7 @@ def test_round_trip_and_truth_kept_apart(tmp_path, small):
 
 
 def test_logged_transitions_replay_exactly(small):
-    from assembly.transition_sim import make_transition_sim
+    from assembly.transition import make_transition_sim
 
     ds, truth = small
     sim = make_transition_sim(ds.env_id)
@@ -79,7 +79,7 @@ def test_reader_rejects_missing_garbage_and_wrong_params(tmp_path, small):
     with pytest.raises(DatasetError, match="not a readable .npz"):
         load_dataset(tmp_path / "junk.npz")
     good = save_dataset(tmp_path / "good.npz", ds, truth)
-    from assembly.transition_sim import CartpoleTransitionSim  # noqa: F401 (import only)
+    from assembly.transition.cartpole import CartpoleTransitionSim  # noqa: F401 (import only)
     from assembly.envs.cartpole import CARTPOLE_SPACE
     with pytest.raises(DatasetError, match="parameters differ from the simulator's.*parameter names differ"):
         load_dataset(good, expected_space=CARTPOLE_SPACE)
@@ -96,3 +96,21 @@ def test_writer_refuses_bad_truth(tmp_path, small):
     ds, truth = small
     with pytest.raises(DatasetError, match="'true_xi' has shape"):
         save_dataset(tmp_path / "x.npz", ds, truth[:, :1])
+
+
+def test_actions_outside_the_unit_box_are_refused_on_save_and_load(tmp_path, small):
+    import dataclasses
+
+    ds, truth = small
+    arrays = _arrays(save_dataset(tmp_path / "good.npz", ds, truth))
+    arrays["actions"][5, 0] = 1.5
+    arrays["actions"][7, 0] = -3.0
+    bad = _write(tmp_path / "bad.npz", arrays)
+    message = r"'actions' has 2 value\(s\) outside \[-1, 1\] \(first: row 5, column 0 = 1.5\); expected normalized"
+    for read in (load_dataset, load_truth):
+        with pytest.raises(DatasetError, match=message):
+            read(bad)
+    wild = dataclasses.replace(ds, actions=np.where(np.arange(ds.num_transitions)[:, None] == 3, 2.0, ds.actions))
+    with pytest.raises(DatasetError, match=r"'actions' has \d+ value\(s\) outside \[-1, 1\] \(first: row 3, column 0 = 2\)"):
+        save_dataset(tmp_path / "wild.npz", wild, truth)
+    assert not (tmp_path / "wild.npz").exists()
