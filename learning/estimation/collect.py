@@ -1,5 +1,5 @@
 """`goflow collect`: log trajectories of a simulator whose parameters are drawn per trajectory from a
-known target distribution (assembly/transition_sim.py is the "real system" here)."""
+known target distribution (assembly/transition/ is the "real system" here)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from common.errors import FileFormatError
 
-from assembly.transition_sim import make_transition_sim
+from assembly.transition import make_transition_sim
 from learning.estimation.dataset import TransitionDataset, save_dataset
 from learning.estimation.targets import TargetConfig, sample_target, target_description
 

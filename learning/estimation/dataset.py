@@ -4,7 +4,7 @@ One file, a NumPy `.npz` archive (`np.savez_compressed`), holding:
 
   meta          0-d string array: JSON with
                   "format": "goflow-transitions", "version": 1,
-                  "env_id": the simulator that can replay it (assembly/transition_sim.py),
+                  "env_id": the simulator that can replay it (assembly/transition/),
                   "params": [{"name", "low", "high", "unit", "nominal"}, ...]  (ParamSpace.to_dict),
                   "state_dim", "action_dim", "control_dt" [s],
                   "collection": how it was collected (xi distribution and its settings, policy,

@@ -8,16 +8,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
-from assembly.transition_sim import ParallelTransitionSim
+from assembly.transition import ParallelTransitionSim
 from learning.estimation import ESTIMATORS
 from learning.estimation.common import Budget
 from learning.estimation.dataset import TransitionDataset, load_dataset
-from learning.estimation.sampler import EstimatedSampler, save_estimate
+from learning.estimation.estimate_file import save_estimate
+from learning.samplers.estimated import EstimatedSampler
 
-__all__ = ["ESTIMATORS", "EstimateConfig", "estimate", "estimate_file"]
+__all__ = ["ESTIMATORS", "EstimateConfig", "estimate", "estimate_file", "min_sim_calls"]
 
 
 @dataclass
@@ -31,10 +31,14 @@ class EstimateConfig:
     options: dict[str, Any] = field(default_factory=dict)  # fields of the method's config dataclass
 
     def __post_init__(self) -> None:
+        from common.checks import check_int
+        from common.errors import InputError
+
         if self.method not in ESTIMATORS:
-            raise ValueError(f"unknown estimation method {self.method!r}; expected one of {list(ESTIMATORS)}")
-        if isinstance(self.sim_budget, bool) or int(self.sim_budget) < 1:
-            raise ValueError(f"sim_budget must be a positive number of simulator calls, got {self.sim_budget!r}")
+            raise InputError(f"unknown estimation method {self.method!r}; expected one of {list(ESTIMATORS)}")
+        self.seed = check_int(self.seed, "seed", 0)
+        self.sim_budget = check_int(self.sim_budget, "sim_budget", 1)
+        self.workers = check_int(self.workers, "workers", 1)
 
     def method_config(self) -> Any:
         """The method's config dataclass with `options` applied (ValueError naming unknown keys)."""
@@ -49,19 +53,34 @@ class EstimateConfig:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(opts) - known)
         if unknown:
-            raise ValueError(f"{self.method}: unknown option(s) {unknown}; known: {sorted(known)}")
+            from common.errors import UnknownOptionError
+            raise UnknownOptionError(f"{self.method}: unknown option(s) {unknown}; known: {sorted(known)}")
         return cls(**opts)
 
 
-def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None
+def min_sim_calls(config: EstimateConfig, data: TransitionDataset) -> tuple[int, str]:
+    """The simulator calls one iteration of `config.method` needs on `data`, and how they add up
+    (each method's own `min_sim_calls`)."""
+    from learning.estimation import bayessim, dropo, nfpde
+
+    module = {"dropo": dropo, "bayessim": bayessim}.get(config.method, nfpde)
+    return module.min_sim_calls(config.method_config(), data)
+
+
+def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None, progress: bool = False
              ) -> tuple[EstimatedSampler, dict[str, Any], Budget]:
     """Fit `config.method` to `data` (the simulator: `sim`, else the dataset's env id); return the
-    estimate as a Sampler, a JSON-able info dict and the Budget (its trace holds the snapshots)."""
+    estimate as a Sampler, a JSON-able info dict and the Budget (its trace holds the snapshots).
+
+    Raises InputError before any simulation when `config.sim_budget` is below one iteration of the
+    method (`min_sim_calls`). `progress` shows a bar of the simulator calls used against the budget."""
     from learning.estimation.bayessim import fit_bayessim
+    from learning.estimation.common import check_sim_budget
     from learning.estimation.dropo import fit_dropo
     from learning.estimation.nfpde import fit_nfpde
 
     method_config = config.method_config()
+    check_sim_budget(config.sim_budget, config.method, min_sim_calls(config, data))
     own = sim is None
     if own:
         sim = ParallelTransitionSim(data.env_id, workers=config.workers)
@@ -70,11 +89,14 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None
                          + "; ".join(data.space.diff(sim.space)))
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # small networks: threads only contend with the simulator processes
+    budget = None
     try:
-        budget = Budget(data, sim, int(config.sim_budget))
+        budget = Budget(data, sim, config.sim_budget, progress=progress, desc=f"estimate {config.method}")
         fit = {"dropo": fit_dropo, "bayessim": fit_bayessim}.get(config.method, fit_nfpde)
         dist, details = fit(budget, method_config, config.seed)
     finally:
+        if budget is not None:
+            budget.close()
         torch.set_num_threads(threads)
         if own and hasattr(sim, "close"):
             sim.close()
@@ -82,14 +104,16 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None
             "sim_calls": budget.calls, "seconds": budget.seconds, "details": details,
             "config": dataclasses.asdict(method_config), "env_id": data.env_id,
             "transitions": data.num_transitions, "episodes": data.num_episodes}
-    return EstimatedSampler(data.space, dist), info, budget
+    return EstimatedSampler.of(data.space, dist), info, budget
 
 
-def estimate_file(data_path: str | Path, out: str | Path, config: EstimateConfig, command: str = "") -> dict[str, Any]:
+def estimate_file(data_path: str | Path, out: str | Path, config: EstimateConfig, command: str = "",
+                  progress: bool = False) -> dict[str, Any]:
     """Read a dataset (without its truth), estimate, save the estimate file; return its info
-    (`command` is recorded as provenance)."""
+    (`command` is recorded as provenance; `progress`: a bar of simulator calls). Nothing is written
+    when the estimation fails (a budget below one iteration fails before any simulation)."""
     data = load_dataset(data_path)
-    sampler, info, _ = estimate(data, config)
+    sampler, info, _ = estimate(data, config, progress=progress)
     info["data"] = str(data_path)
     info["command"] = command
     save_estimate(out, sampler, config.method, data.env_id, info)

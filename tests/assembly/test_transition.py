@@ -1,15 +1,150 @@
-"""Step-from-state simulators: they reproduce their environments' steps, batch over xi, split
-across processes, and refuse bad input."""
+"""Transition simulators (assembly/transition/): they reproduce their environments' steps, batch
+over xi without changing any row, turn a failed row into NaN, split across processes, and refuse
+bad input."""
 
 from __future__ import annotations
+
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from assembly.transition_sim import ParallelTransitionSim, make_transition_sim
+from assembly.params import Param, ParamSpace
+from assembly.transition import (TRANSITION_SIMS, BatchTransitionSim, ParallelTransitionSim,
+                                 TransitionSim, make_transition_sim, register_transition_sim,
+                                 xi_groups)
+from common.errors import SimulationError, UnknownOptionError
+
+IDS = sorted(TRANSITION_SIMS)
+DRAKE_IDS = [i for i in IDS if i != "goflow/PointMass-v0"]
 
 
-def test_cartpole_step_matches_the_env():
+@pytest.fixture(scope="module")
+def sims():
+    """One simulator per registered id, built on first use."""
+    cache = {}
+
+    def get(env_id):
+        if env_id not in cache:
+            cache[env_id] = make_transition_sim(env_id)
+        return cache[env_id]
+
+    return get
+
+
+def _batch(sim, n, rng):
+    """n rows from the sim's own initial states (speeds perturbed), random actions, random xi."""
+    xi = sim.space.denormalize(rng.uniform(size=(n, sim.space.dim)))
+    states = np.stack([sim.initial_state(x, rng) for x in xi])
+    states = states + 0.05 * rng.normal(size=states.shape)
+    actions = np.stack([sim.random_action(rng) for _ in range(n)])
+    return states, actions, xi
+
+
+# -- the registry ---------------------------------------------------------------------------------
+
+
+def test_registry_is_data_and_every_id_keeps_the_contract(sims):
+    assert all(isinstance(v, str) and v.count(":") == 1 for v in TRANSITION_SIMS.values())
+    for env_id in IDS:
+        sim = sims(env_id)
+        assert isinstance(sim, TransitionSim) and sim.env_id == env_id
+        assert sim.random_action(np.random.default_rng(0)).shape == (sim.action_dim,)
+        s0 = sim.initial_state(sim.space.nominal(), np.random.default_rng(0))
+        assert s0.shape == (sim.state_dim,) and sim.observe(s0).dtype == np.float32
+    unknown = r"no step-from-state simulator for env 'x'; known: \[.*PandaArm"
+    with pytest.raises(UnknownOptionError, match=unknown):
+        make_transition_sim("x")
+    with pytest.raises(ValueError, match="already registered"):
+        register_transition_sim("goflow/PointMass-v0", TRANSITION_SIMS["goflow/PointMass-v0"])
+    with pytest.raises(ValueError, match="expected 'module:Class'"):
+        register_transition_sim("goflow/New-v0", "assembly.transition.point_mass")
+
+
+def test_importing_the_package_imports_no_drake():
+    code = "import sys, assembly.transition; assert 'pydrake' not in sys.modules, 'pydrake'"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# -- the batch loop -------------------------------------------------------------------------------
+
+
+def test_xi_groups_cover_every_row_once_with_equal_xi():
+    xi = np.array([[2.0, 1.0], [1.0, 3.0], [2.0, 1.0], [1.0, 2.0], [1.0, 3.0]])
+    groups = xi_groups(xi)
+    assert sorted(np.concatenate(groups).tolist()) == list(range(5))
+    assert [sorted(g.tolist()) for g in groups] == [[3], [1, 4], [0, 2]]
+    assert xi_groups(np.zeros((0, 2))) == []
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_grouping_does_not_change_any_row(sims, env_id):
+    sim = sims(env_id)
+    rng = np.random.default_rng(3)
+    states, actions, xi = _batch(sim, 9, rng)
+    xi[[2, 5, 7]] = xi[0]  # repeated parameters (distinct states and actions)
+    xi[8] = xi[4]
+    order = rng.permutation(9)
+    states, actions, xi = states[order], actions[order], xi[order]
+    batch = sim.step(states, actions, xi)
+    assert np.all(np.isfinite(batch))
+    for i in range(9):
+        alone = sim.step(states[i:i + 1], actions[i:i + 1], xi[i:i + 1])[0]
+        np.testing.assert_array_equal(batch[i], alone, err_msg=f"{env_id} row {i}")
+
+
+@pytest.mark.parametrize("env_id", DRAKE_IDS)
+def test_a_failing_row_is_nan_and_the_others_are_finite(sims, env_id):
+    sim = sims(env_id)
+    rng = np.random.default_rng(4)
+    states, actions, xi = _batch(sim, 4, rng)
+    nq = {"goflow/Ant-v0": 15}.get(env_id, sim.state_dim // 2)  # Ant: a quaternion, so nq = nv + 1
+    states[1, nq:] = 1e150  # absurd speeds: Drake fails or diverges
+    out = sim.step(states, actions, xi)
+    assert np.all(np.isnan(out[1]))
+    assert np.all(np.isfinite(np.delete(out, 1, axis=0)))
+
+
+class _Toy(BatchTransitionSim):
+    """x' = x + a for xi = (k,); k > 0.9 raises, k in (0.8, 0.9] gives inf (failure paths)."""
+
+    env_id, state_dim, action_dim, control_dt = "toy", 1, 1, 1.0
+    space = ParamSpace((Param("k", 0.0, 1.0, "1"),))
+
+    def __init__(self):
+        self.applied = []
+
+    def _apply_xi(self, xi):
+        self.applied.append(float(xi[0]))
+
+    def _set_state(self, state):
+        self._x = float(state[0])
+
+    def _apply_action(self, state, action):
+        self._a = float(action[0])
+
+    def _advance(self):
+        if self.applied[-1] > 0.9:
+            raise SimulationError("toy: diverged")
+        self._x = np.inf if self.applied[-1] > 0.8 else self._x + self._a
+
+    def _read_state(self):
+        return np.array([self._x])
+
+
+def test_the_loop_applies_xi_once_per_group_and_returns_nan_rows_on_failure():
+    sim = _Toy()
+    xi = [[0.5], [0.95], [0.5], [0.85], [0.1]]
+    out = sim.step([[1.0], [2.0], [3.0], [4.0], [5.0]], [[1.0]] * 5, xi)
+    np.testing.assert_array_equal(out[:, 0], [2.0, np.nan, 4.0, np.nan, 6.0])
+    assert sim.applied == [0.1, 0.5, 0.85, 0.95]
+
+
+# -- the models -----------------------------------------------------------------------------------
+
+
+def test_cartpole_step_matches_the_env(sims):
     from assembly.envs.cartpole import CartpoleEnv
 
     env = CartpoleEnv()
@@ -17,17 +152,18 @@ def test_cartpole_step_matches_the_env():
     env.reset(seed=1, options={"xi": xi})
     s0 = env.plant_state
     env.step(np.array([0.6], dtype=np.float32))
-    sim = make_transition_sim("goflow/Cartpole-v0")
+    sim = sims("goflow/Cartpole-v0")
     nxt = sim.step(s0[None], [[0.6]], xi[None])[0]
     np.testing.assert_allclose(nxt, env.plant_state, atol=1e-9)
     # batched over xi: heavier pole, different next state; rows independent of their order
-    batch = sim.step(np.tile(s0, (3, 1)), [[0.6]] * 3, [[3.0, 7.0, 0.4], [15.0, 7.0, 0.4], [3.0, 7.0, 0.4]])
+    xis = [[3.0, 7.0, 0.4], [15.0, 7.0, 0.4], [3.0, 7.0, 0.4]]
+    batch = sim.step(np.tile(s0, (3, 1)), [[0.6]] * 3, xis)
     np.testing.assert_allclose(batch[0], nxt, atol=1e-9)
     np.testing.assert_allclose(batch[2], nxt, atol=1e-9)
     assert np.abs(batch[1] - nxt).max() > 1e-4
 
 
-def test_ant_step_matches_the_env_at_nominal_damping():
+def test_ant_step_matches_the_env_at_nominal_damping(sims):
     from assembly.envs.ant import AntEnv
 
     env = AntEnv()
@@ -35,7 +171,7 @@ def test_ant_step_matches_the_env_at_nominal_damping():
     s0 = env.state()
     a = np.linspace(-1, 1, 8).astype(np.float32).astype(np.float64)  # what the env receives
     env.step(a.astype(np.float32))
-    sim = make_transition_sim("goflow/Ant-v0")
+    sim = sims("goflow/Ant-v0")
     nxt = sim.step(s0[None], a[None], [[4.0, 0.1]])[0]
     np.testing.assert_allclose(nxt, env.state(), atol=1e-9)
     damped = sim.step(s0[None], a[None], [[4.0, 2.0]])[0]
@@ -43,8 +179,8 @@ def test_ant_step_matches_the_env_at_nominal_damping():
     assert sim.observe(s0).shape == env.observation_space.shape
 
 
-def test_panda_arm_parameters_change_the_motion():
-    sim = make_transition_sim("goflow/PandaArm-v0")
+def test_panda_arm_parameters_change_the_motion(sims):
+    sim = sims("goflow/PandaArm-v0")
     rng = np.random.default_rng(0)
     s0 = sim.initial_state(sim.space.nominal(), rng)
     s0[7:] = 0.5  # moving joints: damping and friction act
@@ -58,14 +194,17 @@ def test_panda_arm_parameters_change_the_motion():
         assert np.abs(moved - base).max() > 1e-6, f"{sim.space.names[k]} has no effect"
 
 
-def test_bad_batches_are_refused_and_parallel_matches_serial():
-    sim = make_transition_sim("goflow/PointMass-v0")
+# -- input checks and processes -------------------------------------------------------------------
+
+
+def test_bad_batches_are_refused_and_parallel_matches_serial(sims):
+    sim = sims("goflow/PointMass-v0")
     with pytest.raises(ValueError, match=r"xi has shape \(2, 3\), expected \(2, 2\)"):
         sim.step(np.zeros((2, 2)), np.zeros((2, 1)), np.ones((2, 3)))
     with pytest.raises(ValueError, match="parameter 'mass' = 9 kg is outside its bounds"):
         sim.step(np.zeros((1, 2)), np.zeros((1, 1)), [[9.0, 1.0]])
-    with pytest.raises(ValueError, match="no step-from-state simulator for env 'x'"):
-        make_transition_sim("x")
+    with pytest.raises(ValueError, match="states must be finite"):
+        sim.step([[np.nan, 0.0]], np.zeros((1, 1)), [[1.0, 1.0]])
     rng = np.random.default_rng(0)
     s, a = rng.normal(size=(40, 2)), rng.uniform(-1, 1, (40, 1))
     xi = sim.space.denormalize(rng.uniform(size=(40, 2)))
