@@ -3,332 +3,569 @@
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
+import functools
+import inspect
+import io
 import json
+import shlex
 import sys
+import tempfile
+import textwrap
+import tokenize
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+from common.errors import GoflowError, InputError, OutputPathError
+from common.files import check_output_file, write_atomic, write_json
+
+__all__ = ["main", "make_parser", "parse_value", "key_values"]
+
+# ---------------------------------------------------------------------------------------------
+# Values and KEY=VALUE options
+# ---------------------------------------------------------------------------------------------
+
+_NON_FINITE = {"nan", "inf", "infinity"}
 
 
-def _cmd_demo(args: argparse.Namespace) -> int:
-    if not args.scripted:
-        print("goflow demo: only the scripted assembly exists so far; run `goflow demo --scripted`",
-              file=sys.stderr)
-        return 2
-    from assembly.demo import AssemblyConfig, format_summary, run_assembly
-    from assembly.station import make_meshcat
+def parse_value(text: str, what: str) -> Any:
+    """A value given on the command line: strict JSON when it is JSON (numbers, true, false, null,
+    lists, objects), else the string itself. NaN and Infinity (in any spelling) are refused with an
+    InputError naming `what`."""
+    def refuse(constant: str) -> Any:
+        raise InputError(f"{what}: {constant} is not allowed; expected a finite number")
 
-    meshcat = None
-    if args.meshcat or args.record:
-        meshcat = make_meshcat()
-        print(f"Meshcat: {meshcat.web_url()}", flush=True)
-    summary = run_assembly(AssemblyConfig(), meshcat=meshcat,
-                           record=Path(args.record) if args.record else None,
-                           realtime=args.meshcat and not args.record, progress=not args.quiet)
-    print(format_summary(summary))
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(summary, indent=2))
-    if args.meshcat and not args.record:
-        input("Press Enter to close Meshcat...") if sys.stdin.isatty() else None
-    return 1 if "sim_error" in summary else 0
+    if text.strip().lower().lstrip("+-") in _NON_FINITE:
+        refuse(text.strip())
+    try:
+        return json.loads(text, parse_constant=refuse)
+    except json.JSONDecodeError:
+        return text
 
 
-def _key_values(pairs: list[str] | None, flag: str) -> dict:
-    """["a=1", "b=x"] -> {"a": 1, "b": "x"} (values parsed as JSON when they are JSON)."""
-    out = {}
+def key_values(pairs: Iterable[str] | None, flag: str) -> dict[str, Any]:
+    """["a=1", "b=x"] -> {"a": 1, "b": "x"}: the one parser of every KEY=VALUE flag (values by
+    `parse_value`); InputError for a pair without "=" or a key given twice."""
+    out: dict[str, Any] = {}
     for pair in pairs or []:
-        if "=" not in pair:
-            raise SystemExit(f"goflow: {flag} {pair!r}: expected KEY=VALUE")
-        key, value = pair.split("=", 1)
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
+        key, eq, value = pair.partition("=")
+        if not eq or not key:
+            raise InputError(f"{flag} {pair!r}: expected KEY=VALUE")
+        if key in out:
+            raise InputError(f"{flag} {key}: given twice")
+        out[key] = parse_value(value, f"{flag} {pair}")
     return out
 
 
-def _method_kwargs(pairs: list[str] | None, methods) -> dict:
+def _method_kwargs(pairs: Iterable[str] | None, methods: Iterable[str]) -> dict[str, dict[str, Any]]:
     """["goflow.alpha=0.1"] -> {"goflow": {"alpha": 0.1}}: sampler options per method."""
-    out: dict = {}
-    for key, value in _key_values(pairs, "--method-kwarg").items():
+    methods = list(methods)
+    out: dict[str, dict[str, Any]] = {}
+    for key, value in key_values(pairs, "--method-kwarg").items():
         method, dot, name = key.partition(".")
         if not dot or method not in methods:
-            raise SystemExit(f"goflow: --method-kwarg {key}=...: expected METHOD.KEY=VALUE with METHOD one of "
-                             f"{list(methods)}")
+            raise InputError(f"--method-kwarg {key}=...: expected METHOD.KEY=VALUE with METHOD one of {methods}")
         out.setdefault(method, {})[name] = value
     return out
 
 
-def _ppo_config(args: argparse.Namespace):
-    import dataclasses
+def _ppo_config(args: argparse.Namespace) -> Any:
+    from common.config import config_with_overrides
     from learning.ppo import PPOConfig
-    overrides = _key_values(args.ppo, "--ppo")
-    known = {f.name for f in dataclasses.fields(PPOConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise SystemExit(f"goflow: unknown --ppo option(s) {unknown}; known: {sorted(known)}")
-    return PPOConfig(**overrides)
+    return config_with_overrides(PPOConfig, key_values(args.ppo, "--ppo"), owner="--ppo")
+
+
+# ---------------------------------------------------------------------------------------------
+# Flags from config dataclasses: the default is the field's, the help its comment
+# ---------------------------------------------------------------------------------------------
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows "(default: ...)" after the help of every flag that has a default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        if action.default is None or action.default is False or not action.option_strings:
+            return action.help or ""
+        return super()._get_help_string(action)
+
+
+@functools.lru_cache(maxsize=None)
+def _field_docs(config_type: type) -> dict[str, str]:
+    """Each field's comment in the class source: the one ending its line, else the comment lines
+    right above it."""
+    try:
+        source = textwrap.dedent(inspect.getsource(config_type))
+    except (OSError, TypeError):
+        return {}
+    comments = {tok.start[0]: tok.string.lstrip("#").strip()
+                for tok in tokenize.generate_tokens(io.StringIO(source).readline) if tok.type == tokenize.COMMENT}
+    lines = source.splitlines()
+    docs = {}
+    for node in ast.parse(source).body[0].body:
+        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
+            continue
+        text = comments.get(node.end_lineno)
+        if text is None:
+            above, line = [], node.lineno - 1
+            while line in comments and lines[line - 1].lstrip().startswith("#"):
+                above.insert(0, comments[line])
+                line -= 1
+            text = " ".join(above)
+        if text:
+            docs[node.target.id] = text
+    return docs
+
+
+def _field_default(config_type: type, name: str) -> Any:
+    """The default of field `name` of `config_type` (its factory called)."""
+    f = {f.name: f for f in dataclasses.fields(config_type)}[name]
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else None
+
+
+def _add_field(parser: argparse.ArgumentParser, config_type: type, name: str, flag: str | None = None,
+               doc: str | None = None, **kwargs: Any) -> None:
+    """Add the flag (`flag`, default --<name>) of field `name` of `config_type`, stored as
+    `args.<name>`: its default is the field's (unless required) and its help the field's comment
+    (`doc` where the field has none); int, float, str and Path defaults give the value's type."""
+    if not kwargs.get("required"):
+        kwargs.setdefault("default", _field_default(config_type, name))
+    default = kwargs.get("default")
+    if "type" not in kwargs and "action" not in kwargs and not isinstance(default, bool) \
+            and isinstance(default, (int, float, str, Path)):
+        kwargs["type"] = Path if isinstance(default, Path) else type(default)
+    flag = flag or "--" + name.replace("_", "-")
+    if "action" not in kwargs and "choices" not in kwargs:
+        kwargs.setdefault("metavar", flag.lstrip("-").replace("-", "_").upper())
+    help_text = _field_docs(config_type).get(name) or doc or ""
+    parser.add_argument(flag, dest=name, help=help_text.replace("%", "%%"), **kwargs)
+
+
+def _signature_default(function: Callable[..., Any], name: str) -> Any:
+    """The default of parameter `name` of `function`."""
+    return inspect.signature(function).parameters[name].default
+
+
+# ---------------------------------------------------------------------------------------------
+# Work that may be interrupted, checks before it
+# ---------------------------------------------------------------------------------------------
+
+class _Interrupted(Exception):
+    """Ctrl-C during resumable work; the message says what was kept and how to go on."""
+
+
+@contextmanager
+def _resumable(kept: Callable[[], str]) -> Iterator[None]:
+    """Ctrl-C inside the block becomes one line: `kept()` (asked then) and how to resume."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        raise _Interrupted(f"interrupted; {kept()}; run the same command to resume") from None
+
+
+def _checkpoint_kept(run: Path) -> str:
+    checkpoint = run / "checkpoint.pt"
+    if checkpoint.is_file():
+        return f"{checkpoint} keeps the last finished round"
+    return f"no round had finished, so {run} holds no checkpoint yet"
+
+
+def _round_note(config: Any, command: str) -> None:
+    """Say so on stderr when `config.total_steps` (a TrainConfig's) is not whole rounds: a run
+    trains whole rounds only."""
+    per_round = config.steps_per_round()
+    if config.total_steps % per_round:
+        trained = max(1, config.total_steps // per_round) * per_round
+        print(f"{command}: note: --steps {config.total_steps} is not a whole number of rounds (a round is "
+              f"--iterations-per-round x num_envs x num_steps = {config.iterations_per_round} x "
+              f"{config.ppo.num_envs} x {config.ppo.num_steps} = {per_round} steps); a run trains {trained} steps",
+              file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# demo
+# ---------------------------------------------------------------------------------------------
+
+def _demo_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scripted", action="store_true", help="scripted pick-and-insert of all three gears")
+    p.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
+    p.add_argument("--record", metavar="FILE.html", type=Path, help="save a Meshcat recording")
+    p.add_argument("--json", metavar="PATH", type=Path, help="write the per-gear summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    if not args.scripted:
+        raise InputError("only the scripted assembly exists so far; run `goflow demo --scripted`")
+    record = check_output_file(args.record, "--record") if args.record else None
+    json_path = check_output_file(args.json, "--json") if args.json else None
+    from assembly.demo import AssemblyConfig, format_summary, run_assembly
+    from assembly.station import make_meshcat
+
+    meshcat = None
+    if args.meshcat or record:
+        meshcat = make_meshcat()
+        print(f"Meshcat: {meshcat.web_url()}", flush=True)
+    with tempfile.TemporaryDirectory(prefix="goflow-demo-") as tmp:
+        # The recording goes to a scratch file first: the summary and its JSON are out before it
+        # is moved into place, so a recording that cannot be saved loses nothing else.
+        scratch = Path(tmp) / "recording.html" if record else None
+        summary = run_assembly(AssemblyConfig(), meshcat=meshcat, record=scratch,
+                               realtime=args.meshcat and not record, progress=not args.quiet)
+        print(format_summary(summary))
+        if json_path:
+            write_json(json_path, summary)
+        if record:
+            try:
+                write_atomic(record, scratch.read_bytes())
+            except OSError as exc:
+                kept = f"the summary was printed{f' and written to {json_path}' if json_path else ''}"
+                raise OutputPathError(f"--record {record}: the recording was not saved ({exc.strerror or exc}); "
+                                      f"{kept}") from None
+            print(f"recording: {record}")
+    if args.meshcat and not record and sys.stdin.isatty():
+        input("Press Enter to close Meshcat...")
+    return 1 if "sim_error" in summary else 0
+
+
+# ---------------------------------------------------------------------------------------------
+# train, experiment, sweep
+# ---------------------------------------------------------------------------------------------
+
+def _env_flags(p: argparse.ArgumentParser, config_type: type) -> None:
+    _add_field(p, config_type, "env", required=True, doc="environment id, e.g. goflow/Toy2D-v0")
+    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE", help="an environment option")
+
+
+def _budget_flags(p: argparse.ArgumentParser, config_type: type) -> None:
+    _add_field(p, config_type, "total_steps", "--steps", doc="training environment steps per run")
+    _add_field(p, config_type, "iterations_per_round", doc="PPO iterations between validations")
+    _add_field(p, config_type, "eval_episodes", doc="validation episodes per round, xi uniform on the box")
+    p.add_argument("--ppo", action="append", metavar="KEY=VALUE", help="a PPOConfig field, e.g. num_steps=240")
+
+
+def _train_flags(p: argparse.ArgumentParser) -> None:
+    from learning.experiment import TrainConfig
+    from learning.samplers.registry import METHODS, SAMPLER_SIGNALS
+    _env_flags(p, TrainConfig)
+    _add_field(p, TrainConfig, "method", required=True, choices=METHODS, doc="the domain-randomization method")
+    p.add_argument("--method-kwarg", action="append", metavar="KEY=VALUE", help="a sampler option, e.g. alpha=0.1")
+    _add_field(p, TrainConfig, "seed", doc="seed of the run")
+    _budget_flags(p, TrainConfig)
+    _add_field(p, TrainConfig, "sampler_batch", choices=["validation", "training"])
+    _add_field(p, TrainConfig, "sampler_signal", choices=SAMPLER_SIGNALS)
+    p.add_argument("--out", type=Path, help="run folder; a run resumes from its checkpoint "
+                                            "(default: <runs>/<env>/<method>/seed<seed>)")
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from learning.experiment import TrainConfig, train
-    out = Path(args.out) if args.out else Path("runs") / args.env.replace("/", "_") / args.sampler / f"seed{args.seed}"
-    config = TrainConfig(env=args.env, env_kwargs=_key_values(args.env_kwarg, "--env-kwarg"),
-                         method=args.sampler, sampler_kwargs=_key_values(args.sampler_kwarg, "--sampler-kwarg"),
-                         seed=args.seed, total_steps=args.steps,
-                         iterations_per_round=args.iterations_per_round,
+    from learning.experiment import ExperimentConfig, TrainConfig, probe_env, train
+    runs = _field_default(ExperimentConfig, "out")
+    out = args.out or runs / args.env.replace("/", "_") / args.method / f"seed{args.seed}"
+    config = TrainConfig(env=args.env, env_kwargs=key_values(args.env_kwarg, "--env-kwarg"), method=args.method,
+                         sampler_kwargs=key_values(args.method_kwarg, "--method-kwarg"), seed=args.seed,
+                         total_steps=args.total_steps, iterations_per_round=args.iterations_per_round,
                          eval_episodes=args.eval_episodes, ppo=_ppo_config(args), out=out,
-                         sampler_batch=args.sampler_batch)
-    log = train(config)
+                         sampler_batch=args.sampler_batch, sampler_signal=args.sampler_signal)
+    probe_env(config.env, config.env_kwargs)  # an unknown id or option fails before the run folder exists
+    _round_note(config, "goflow train")
+    with _resumable(lambda: _checkpoint_kept(out)):
+        log = train(config)
     step, success, ret = log["curve"][-1]
-    print(f"{args.sampler} seed {args.seed}: success {success:.3f} on the uniform box, mean return "
+    print(f"{config.method} seed {config.seed}: success {success:.3f} on the uniform box, mean return "
           f"{ret:.2f} after {step} steps; log {out / 'log.json'}, checkpoint {out / 'checkpoint.pt'}")
     return 0
 
 
-def _experiment_config(args: argparse.Namespace, methods, sampler_kwargs=None, name=None, results=None):
+def _experiment_flags(p: argparse.ArgumentParser) -> None:
+    """The flags experiment and sweep share: env, budget, seeds, processes, folders."""
     from learning.experiment import ExperimentConfig
-    return ExperimentConfig(env=args.env, env_kwargs=_key_values(args.env_kwarg, "--env-kwarg"),
-                            methods=tuple(methods), seeds=args.seeds, total_steps=args.steps,
-                            iterations_per_round=args.iterations_per_round,
-                            eval_episodes=args.eval_episodes, ppo=_ppo_config(args),
-                            sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
-                            sampler_signal=getattr(args, "sampler_signal", "return"),
-                            out=Path(args.out), results=Path(results or args.results), name=name or args.name)
+    from learning.samplers.registry import SAMPLER_SIGNALS
+    _env_flags(p, ExperimentConfig)
+    _budget_flags(p, ExperimentConfig)
+    _add_field(p, ExperimentConfig, "sampler_signal", choices=SAMPLER_SIGNALS)
+    _add_field(p, ExperimentConfig, "seeds", doc="seeds per method (0, 1, ...)")
+    _add_field(p, ExperimentConfig, "workers", doc="parallel processes")
+    _add_field(p, ExperimentConfig, "out")
+    _add_field(p, ExperimentConfig, "results")
+    _add_field(p, ExperimentConfig, "name")
+
+
+def _experiment_config(args: argparse.Namespace, methods: Iterable[str],
+                       sampler_kwargs: dict[str, dict[str, Any]] | None = None) -> Any:
+    from learning.experiment import ExperimentConfig
+    return ExperimentConfig(env=args.env, env_kwargs=key_values(args.env_kwarg, "--env-kwarg"),
+                            methods=tuple(methods), seeds=args.seeds, total_steps=args.total_steps,
+                            iterations_per_round=args.iterations_per_round, eval_episodes=args.eval_episodes,
+                            ppo=_ppo_config(args), sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
+                            sampler_signal=args.sampler_signal, out=args.out, results=args.results, name=args.name)
+
+
+def _experiment_cmd_flags(p: argparse.ArgumentParser) -> None:
+    from learning.experiment import ExperimentConfig
+    from learning.samplers.registry import METHODS
+    _add_field(p, ExperimentConfig, "methods", "--methods", nargs="+", type=str, choices=METHODS,
+               default=list(_field_default(ExperimentConfig, "methods")), doc="the domain-randomization methods")
+    p.add_argument("--method-kwarg", action="append", metavar="METHOD.KEY=VALUE",
+                   help="a sampler option of one method, e.g. goflow.alpha=0.1")
+    _experiment_flags(p)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
     from learning.experiment import format_summary, run_experiment
-    command = "goflow " + " ".join(sys.argv[1:])
     config = _experiment_config(args, args.methods, _method_kwargs(args.method_kwarg, args.methods))
-    summary = run_experiment(config, command=command)
+    _round_note(config.runs()[0], "goflow experiment")
+    with _resumable(lambda: f"the runs under {config.out / config.stem()} keep their last finished rounds"):
+        summary = run_experiment(config, command=args.provenance)
     print(format_summary(summary))
-    if args.env.startswith("goflow/Toy2D"):
-        from learning.plots import plot_toy2d_densities
-        path = Path(args.results) / f"{config.stem()}-densities.png"
-        plot_toy2d_densities(config, path)
-        print(f"densities: {path}")
+    print(f"results: {config.results / config.stem()}.json")
+    for figure in summary.get("figures", []):
+        print(f"figure: {figure}")
     return 0
+
+
+def _sweep_flags(p: argparse.ArgumentParser) -> None:
+    from learning.samplers.registry import METHODS
+    from learning.sweep import SweepConfig
+    _add_field(p, SweepConfig, "method", required=True, choices=METHODS)
+    _add_field(p, SweepConfig, "param", required=True)
+    _add_field(p, SweepConfig, "values", nargs="+", required=True, type=str)
+    p.add_argument("--method-kwarg", action="append", metavar="KEY=VALUE",
+                   help="another option of the method, the same for every value")
+    _experiment_flags(p)
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from learning.experiment import format_summary, run_experiment
-    from learning.plots import plot_sweep
-    command = "goflow " + " ".join(sys.argv[1:])
-    stem = args.name or f"sweep-{args.env.split('/')[-1].lower()}-{args.method}-{args.param}"
-    results = Path(args.results)
-    rows = []
-    for value in args.values:
-        v = json.loads(value) if value[:1].isdigit() or value[:1] in "-[" else value
-        # each value's experiment (its JSON and curves) goes to <results>/<stem>/
-        summary = run_experiment(_experiment_config(
-            args, [args.method], {args.method: {args.param: v}}, name=f"{stem}-{value}", results=results / stem), command=command)
-        print(format_summary(summary))
-        res = summary["methods"][args.method]
-        rows.append({"value": v, "final_success_mean": res["final_success_mean"],
-                     "final_success_se": res["final_success_se"], "seeds": res["seeds"]})
-    results.mkdir(parents=True, exist_ok=True)
-    sweep = {"env": args.env, "method": args.method, "param": args.param, "steps": args.steps, "rows": rows,
-             "command": command}
-    (results / f"{stem}.json").write_text(json.dumps(sweep, indent=2))
-    plot_sweep(sweep, results / f"{stem}.png")
-    best = max(rows, key=lambda r: r["final_success_mean"])
-    print(f"best {args.param} = {best['value']} (success {best['final_success_mean']:.3f}); "
-          f"{results / stem}.json and .png")
+    from learning.sweep import SweepConfig, format_sweep, run_sweep
+    config = SweepConfig(method=args.method, param=args.param,
+                         values=tuple(parse_value(v, "--values") for v in args.values),
+                         method_kwargs=key_values(args.method_kwarg, "--method-kwarg"),
+                         experiment=_experiment_config(args, [args.method]))
+    _round_note(config.experiment.runs()[0], "goflow sweep")
+    with _resumable(lambda: f"the runs under {config.experiment.out} keep their last finished rounds"):
+        sweep = run_sweep(config, command=args.provenance)
+    print(format_sweep(sweep))
+    print(f"results: {config.experiment.results / config.stem()}.json")
+    for figure in sweep["figures"]:
+        print(f"figure: {figure}")
     return 0
+
+
+# ---------------------------------------------------------------------------------------------
+# skill, evaluate
+# ---------------------------------------------------------------------------------------------
+
+def _skill_flags(p: argparse.ArgumentParser) -> None:
+    from assembly.gearset import GEARS
+    from learning.skills import RUNS_SKILL_DIR, SKILLS, SkillRecipe
+    p.add_argument("action", choices=["train", "export", "show"],
+                   help="train: the recipe, then export; export: a run folder as a skill file; show: a file's provenance")
+    p.add_argument("--skill", default=SKILLS[0], choices=SKILLS, help="the skill")
+    p.add_argument("--gear", required=True, choices=sorted(GEARS), help="the gear it handles")
+    _add_field(p, SkillRecipe, "seed", doc="seed of the training run")
+    _add_field(p, SkillRecipe, "total_steps", "--steps", doc="stage 1 (GoFlow) training environment steps")
+    _add_field(p, SkillRecipe, "refine_steps")
+    _add_field(p, SkillRecipe, "fit_rounds")
+    p.add_argument("--runs", type=Path, default=RUNS_SKILL_DIR,
+                   help="train: the folder of the training run <runs>/<skill>-<gear>/ (resumable)")
+    p.add_argument("--run", type=Path, help="export: the `goflow train` run folder to package")
+    p.add_argument("--out", type=Path, help="train, export: the skill file to write (default: "
+                                            "<runs>/<skill>-<gear>.pt; the shipped files only when named)")
+    p.add_argument("--path", type=Path, help="show: a skill file other than the shipped one")
 
 
 def _cmd_skill(args: argparse.Namespace) -> int:
     from learning.skills import SkillRecipe, describe, export_skill, load_skill, skill_path, train_skill
-    if args.action == "train":
-        recipe = SkillRecipe(seed=args.seed, total_steps=args.steps, refine_steps=args.refine_steps,
-                             fit_rounds=args.fit_rounds)
-        skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=args.out,
-                            command="goflow " + " ".join(sys.argv[1:]))
-        print(f"{skill!r} -> {args.out or skill_path(args.skill, args.gear)}")
-    elif args.action == "export":
+    if args.action == "show":
+        if args.out:
+            raise InputError("show reads --path (default: the shipped file); --out is what train and export write")
+        print(describe(load_skill(args.skill, args.gear, path=args.path)))
+        return 0
+    out = args.out or skill_path(args.skill, args.gear, args.runs)  # checked before any work by the library
+    if args.action == "export":
         if not args.run:
-            raise SystemExit("goflow skill export: --run FOLDER (a `goflow train` run folder) is required")
-        out = args.out or skill_path(args.skill, args.gear)
-        skill = export_skill(args.run, args.skill, args.gear, out, command="goflow " + " ".join(sys.argv[1:]))
-        print(f"{skill!r} -> {out}")
+            raise InputError("export needs --run FOLDER (a `goflow train` run folder)")
+        skill = export_skill(args.run, args.skill, args.gear, out, command=args.provenance)
     else:
-        print(describe(load_skill(args.skill, args.gear, path=args.out)))
+        recipe = SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
+                             fit_rounds=args.fit_rounds)
+        with _resumable(lambda: _checkpoint_kept(args.runs / f"{args.skill}-{args.gear}")):
+            skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=out, command=args.provenance)
+    print(f"{skill!r} -> {out}")
     return 0
+
+
+def _evaluate_flags(p: argparse.ArgumentParser) -> None:
+    from assembly.gearset import GEARS
+    from learning.skills import SKILLS, evaluate_skill
+    p.add_argument("--skill", default=SKILLS[0], choices=SKILLS, help="the skill")
+    p.add_argument("--gear", required=True, choices=sorted(GEARS), help="the gear it handles")
+    default = functools.partial(_signature_default, evaluate_skill)
+    p.add_argument("--variant", default=default("variant"), choices=["fast", "panda"], help="the env's variant")
+    p.add_argument("--xi", default=default("xi"), choices=["uniform", "flow"],
+                   help="grasp errors from the skill's flow or uniform over the box")
+    p.add_argument("--episodes", type=int, default=default("episodes"), help="episodes to run")
+    p.add_argument("--seed", type=int, default=default("seed"), help="seed of the episodes")
+    p.add_argument("--path", type=Path, help="a skill file other than the shipped one")
+    p.add_argument("--json", metavar="PATH", type=Path, help="write the result as JSON")
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    json_path = check_output_file(args.json, "--json") if args.json else None
     from learning.skills import evaluate_skill, load_skill
     skill = load_skill(args.skill, args.gear, path=args.path)
-    result = evaluate_skill(skill, variant=args.variant, xi=args.xi, episodes=args.episodes, seed=args.seed)
+    result = evaluate_skill(skill, variant=args.variant, xi=args.xi, episodes=args.episodes, seed=args.seed,
+                            progress=True)
     print(f"{args.skill} {args.gear} ({args.variant}, xi {args.xi}): success {result['success_rate']:.3f} "
           f"+- {result['success_se']:.3f} over {args.episodes} episodes, mean return {result['mean_return']:.2f} "
           f"({result['seconds']:.0f} s)")
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result, indent=2))
+    if json_path:
+        write_json(json_path, result)
     return 0
 
 
-def _add_run_flags(p: argparse.ArgumentParser, steps: int) -> None:
-    p.add_argument("--env", required=True, help="environment id, e.g. goflow/Toy2D-v0")
-    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE", help="environment option")
-    p.add_argument("--steps", type=int, default=steps, help="training environment steps per run")
-    p.add_argument("--iterations-per-round", type=int, default=2,
-                   help="PPO iterations between validation + sampler update")
-    p.add_argument("--eval-episodes", type=int, default=64, help="validation episodes per round")
-    p.add_argument("--ppo", action="append", metavar="KEY=VALUE", help="PPOConfig field")
+# ---------------------------------------------------------------------------------------------
+# bench, collect, estimate
+# ---------------------------------------------------------------------------------------------
 
-
-def _add_experiment_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seeds", type=int, default=5)
-    p.add_argument("--workers", type=int, default=2, help="parallel processes")
-    p.add_argument("--out", default="runs", help="folder for run checkpoints and logs")
-    p.add_argument("--results", default="docs/results", help="folder for the result JSON and plot")
-    p.add_argument("--name", help="result file stem (default from the env id)")
+def _bench_flags(p: argparse.ArgumentParser) -> None:
+    from perception.bench import BenchConfig
+    p.add_argument("target", choices=["perception"], help="what to time")
+    p.add_argument("--json", metavar="PATH", type=Path, help="write the result as JSON")
+    _add_field(p, BenchConfig, "posteriors", doc="close-view posteriors timed per gear")
+    _add_field(p, BenchConfig, "seed", doc="seed of the random poses")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     from perception.bench import BenchConfig, bench_perception
     if args.posteriors < 1:
-        raise ValueError(f"--posteriors {args.posteriors}: expected at least 1")
+        raise InputError(f"--posteriors {args.posteriors}: expected at least 1")
+    json_path = check_output_file(args.json, "--json") if args.json else None
     result = bench_perception(BenchConfig(posteriors=args.posteriors, seed=args.seed))
     print(f"perception: {result['seconds_per_posterior']:.3f} s per posterior, "
           f"{result['hypotheses_per_second']:.0f} hypotheses/s ({result['renderer']})")
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result, indent=2))
+    if json_path:
+        write_json(json_path, result)
     return 0
+
+
+def _collect_flags(p: argparse.ArgumentParser) -> None:
+    from learning.estimation.collect import CollectConfig
+    _add_field(p, CollectConfig, "env", required=True, doc="simulator id, e.g. goflow/Cartpole-v0")
+    _add_field(p, CollectConfig, "xi", choices=["gaussian", "mixture"],
+               doc="true parameter distribution (mixture: means in an L shape)")
+    _add_field(p, CollectConfig, "episodes", doc="trajectories")
+    _add_field(p, CollectConfig, "steps", type=int)
+    _add_field(p, CollectConfig, "policy")
+    _add_field(p, CollectConfig, "seed", doc="seed of the true parameters, start states and actions")
+    p.add_argument("--out", required=True, type=Path, help="dataset file (.npz)")
 
 
 def _cmd_collect(args: argparse.Namespace) -> int:
     from learning.estimation.collect import CollectConfig, collect_to_file
-    command = "goflow " + " ".join(sys.argv[1:])
     config = CollectConfig(env=args.env, xi=args.xi, episodes=args.episodes, steps=args.steps,
                            policy=args.policy, seed=args.seed)
-    ds = collect_to_file(config, args.out, progress=True, command=command)
+    check_output_file(args.out, "--out")
+    ds = collect_to_file(config, args.out, progress=True, command=args.provenance)
     print(f"{ds.num_episodes} trajectories, {ds.num_transitions} transitions of {ds.env_id} "
-          f"(xi {args.xi}, policy {args.policy}) -> {args.out}")
+          f"(xi {config.xi}, policy {config.policy}) -> {args.out}")
     return 0
+
+
+def _estimate_flags(p: argparse.ArgumentParser) -> None:
+    from learning.estimation import ESTIMATORS
+    from learning.estimation.estimate import EstimateConfig
+    p.add_argument("--data", required=True, type=Path, help="dataset file written by `goflow collect`")
+    _add_field(p, EstimateConfig, "method", required=True, choices=ESTIMATORS)
+    p.add_argument("--method-kwarg", action="append", metavar="KEY=VALUE",
+                   help="a field of the method's config, e.g. beta=1000")
+    p.add_argument("--out", required=True, type=Path, help="estimate file (.json), loadable as a Sampler")
+    _add_field(p, EstimateConfig, "seed", doc="seed of the estimation")
+    _add_field(p, EstimateConfig, "sim_budget")
+    _add_field(p, EstimateConfig, "workers")
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
     from learning.estimation.estimate import EstimateConfig, estimate_file
-    command = "goflow " + " ".join(sys.argv[1:])
-    config = EstimateConfig(method=args.method, seed=args.seed, sim_budget=args.sim_budget,
-                            workers=args.workers, options=_key_values(args.option, "--option"))
-    info = estimate_file(args.data, args.out, config, command=command)
-    print(f"{args.method}: {info['sim_calls']} simulator calls, {info['seconds']:.1f} s -> {args.out}")
+    config = EstimateConfig(method=args.method, seed=args.seed, sim_budget=args.sim_budget, workers=args.workers,
+                            options=key_values(args.method_kwarg, "--method-kwarg"))
+    config.method_config()  # the method's options, checked before the work
+    check_output_file(args.out, "--out")
+    info = estimate_file(args.data, args.out, config, command=args.provenance, progress=True)
+    print(f"{config.method}: {info['sim_calls']} simulator calls, {info['seconds']:.1f} s -> {args.out}")
     return 0
 
 
-def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="goflow", description=__doc__)
+# ---------------------------------------------------------------------------------------------
+# The parser and main
+# ---------------------------------------------------------------------------------------------
+
+#: name: (summary, function adding its flags, function running it)
+_Command = tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]
+COMMANDS: dict[str, _Command] = {
+    "demo": ("run the gearbox assembly", _demo_flags, _cmd_demo),
+    "train": ("train a policy with a DR sampler (GoFlow protocol)", _train_flags, _cmd_train),
+    "experiment": ("methods x seeds; writes <results>/<name>.json and plots", _experiment_cmd_flags, _cmd_experiment),
+    "sweep": ("a hyperparameter sweep of one method (appendix A.2)", _sweep_flags, _cmd_sweep),
+    "skill": ("train, export or show a skill file", _skill_flags, _cmd_skill),
+    "evaluate": ("success rate of a skill", _evaluate_flags, _cmd_evaluate),
+    "bench": ("speed benchmarks (perception: pose posteriors per gear)", _bench_flags, _cmd_bench),
+    "collect": ("log (s, a, s') trajectories with known true parameters", _collect_flags, _cmd_collect),
+    "estimate": ("estimate a parameter distribution from a dataset", _estimate_flags, _cmd_estimate),
+}
+
+
+def make_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The `goflow` parser; only the flags of `commands` (default: all) are built, since building
+    a command's flags imports its package."""
+    wanted = set(COMMANDS if commands is None else commands)
+    parser = argparse.ArgumentParser(prog="goflow", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="run the gearbox assembly")
-    demo.add_argument("--scripted", action="store_true",
-                      help="scripted pick-and-insert of all three gears")
-    demo.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
-    demo.add_argument("--record", metavar="FILE.html", help="save a Meshcat recording")
-    demo.add_argument("--json", metavar="PATH", help="write the per-gear summary as JSON")
-    demo.add_argument("--quiet", action="store_true", help="no progress bar")
-    demo.set_defaults(func=_cmd_demo)
-
-    from learning.methods import METHODS, SAMPLER_SIGNALS
-    train = sub.add_parser("train", help="train a policy with a DR sampler (GoFlow protocol)")
-    _add_run_flags(train, 200_000)
-    train.add_argument("--sampler", required=True, choices=METHODS)
-    train.add_argument("--sampler-kwarg", action="append", metavar="KEY=VALUE")
-    train.add_argument("--seed", type=int, default=0)
-    train.add_argument("--sampler-batch", choices=["validation", "training"],
-                       help="episodes the sampler learns from (default: the method's own; "
-                            "'training' makes GoFlow learn from its own draws)")
-    train.add_argument("--out", help="run folder (resumes from its checkpoint)")
-    train.set_defaults(func=_cmd_train)
-
-    experiment = sub.add_parser("experiment", help="methods x seeds; writes docs/results/<env>.json")
-    _add_run_flags(experiment, 200_000)
-    experiment.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    experiment.add_argument("--method-kwarg", action="append", metavar="METHOD.KEY=VALUE",
-                            help="a sampler option of one method, e.g. goflow.alpha=0.1")
-    experiment.add_argument("--sampler-signal", choices=SAMPLER_SIGNALS, default="return",
-                            help="what GoFlow and LSDR learn from (ADR and DORAEMON always use returns)")
-    _add_experiment_flags(experiment)
-    experiment.set_defaults(func=_cmd_experiment)
-
-    sweep = sub.add_parser("sweep", help="a hyperparameter sweep of one method (appendix A.2)")
-    _add_run_flags(sweep, 200_000)
-    sweep.add_argument("--method", required=True, choices=METHODS)
-    sweep.add_argument("--param", required=True, help="sampler option to sweep, e.g. alpha")
-    sweep.add_argument("--values", nargs="+", required=True)
-    _add_experiment_flags(sweep)
-    sweep.set_defaults(func=_cmd_sweep)
-
-    from assembly.gearset import GEARS
-    skill = sub.add_parser("skill", help="train, export or show a shipped skill (learning/skill_files/)")
-    skill.add_argument("action", choices=["train", "export", "show"])
-    skill.add_argument("--skill", default="insert", choices=["insert"])
-    skill.add_argument("--gear", required=True, choices=sorted(GEARS))
-    skill.add_argument("--seed", type=int, default=0)
-    skill.add_argument("--steps", type=int, default=120_000, help="stage 1 (GoFlow) training environment steps")
-    skill.add_argument("--refine-steps", type=int, default=48_000,
-                       help="stage 2 steps, the flow learning from its own draws (0: none)")
-    skill.add_argument("--fit-rounds", type=int, default=30,
-                       help="stage 3 flow updates with the policy frozen (0: none)")
-    skill.add_argument("--runs", default="runs/skills", help="folder for the training run (resumable)")
-    skill.add_argument("--run", help="export: the `goflow train` run folder to package")
-    skill.add_argument("--out", help="skill file (default: the shipped location)")
-    skill.set_defaults(func=_cmd_skill)
-
-    evaluate = sub.add_parser("evaluate", help="success rate of a shipped skill")
-    evaluate.add_argument("--skill", default="insert", choices=["insert"])
-    evaluate.add_argument("--gear", required=True, choices=sorted(GEARS))
-    evaluate.add_argument("--variant", default="fast", choices=["fast", "panda"])
-    evaluate.add_argument("--xi", default="flow", choices=["uniform", "flow"],
-                          help="grasp errors from the skill's flow or uniform over the box")
-    evaluate.add_argument("--episodes", type=int, default=100)
-    evaluate.add_argument("--seed", type=int, default=0)
-    evaluate.add_argument("--path", help="a skill file other than the shipped one")
-    evaluate.add_argument("--json", metavar="PATH", help="write the result as JSON")
-    evaluate.set_defaults(func=_cmd_evaluate)
-
-    bench = sub.add_parser("bench", help="speed benchmarks (perception: pose posteriors per gear)")
-    bench.add_argument("target", choices=["perception"])
-    bench.add_argument("--json", metavar="PATH", help="write the result as JSON")
-    bench.add_argument("--posteriors", type=int, default=2, help="close-view posteriors per gear")
-    bench.add_argument("--seed", type=int, default=0)
-    bench.set_defaults(func=_cmd_bench)
-
-    collect = sub.add_parser("collect", help="log (s, a, s') trajectories with known true parameters")
-    collect.add_argument("--env", required=True, help="simulator id, e.g. goflow/Cartpole-v0")
-    collect.add_argument("--xi", required=True, choices=["gaussian", "mixture"],
-                         help="true parameter distribution (mixture: means in an L shape)")
-    collect.add_argument("--episodes", type=int, required=True)
-    collect.add_argument("--steps", type=int, help="steps per trajectory (default: the env's episode)")
-    collect.add_argument("--policy", default="random", help="'random' or a PPO checkpoint path")
-    collect.add_argument("--seed", type=int, default=0)
-    collect.add_argument("--out", required=True, help="dataset file (.npz)")
-    collect.set_defaults(func=_cmd_collect)
-
-    from learning.estimation import ESTIMATORS
-    estimate = sub.add_parser("estimate", help="estimate a parameter distribution from a dataset")
-    estimate.add_argument("--data", required=True, help="dataset file written by `goflow collect`")
-    estimate.add_argument("--method", required=True, choices=ESTIMATORS)
-    estimate.add_argument("--out", required=True, help="estimate file (.json), loadable as a Sampler")
-    estimate.add_argument("--seed", type=int, default=0)
-    estimate.add_argument("--sim-budget", type=int, default=100_000, help="simulator calls")
-    estimate.add_argument("--workers", type=int, default=1, help="simulator processes")
-    estimate.add_argument("--option", action="append", metavar="KEY=VALUE",
-                          help="a field of the method's config, e.g. beta=1000")
-    estimate.set_defaults(func=_cmd_estimate)
+    for name, (summary, add_flags, run) in COMMANDS.items():
+        p = sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
+        p.set_defaults(func=run)
+        if name in wanted:
+            add_flags(p)
     return parser
 
 
+def _expected(exc: BaseException) -> bool:
+    """Whether `exc` is a failure the user can act on (bad input, a path, an unknown id) rather
+    than a bug: those are reported in one line."""
+    if isinstance(exc, (GoflowError, ValueError, TypeError, OSError)):
+        return True
+    gym_error = sys.modules.get("gymnasium.error")
+    return gym_error is not None and isinstance(exc, gym_error.Error)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = make_parser().parse_args(argv)
+    """Run the command in `argv` (default: sys.argv[1:]); return the exit status.
+
+    Flags map to fields of the packages' config dataclasses, which give their defaults and help.
+    Output paths are checked before any work. An expected failure (bad input, an unwritable path,
+    an unknown id) is one line on stderr and status 2; Ctrl-C is one line saying what was kept
+    and how to resume, status 130."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    name = f"goflow {argv[0]}" if argv and argv[0] in COMMANDS else "goflow"
     try:
+        args = make_parser([argv[0]] if argv else []).parse_args(argv)
+        args.provenance = "goflow " + shlex.join(argv)
+        if args.command == "skill":
+            name = f"goflow skill {args.action}"
         return args.func(args)
-    except (FileNotFoundError, ValueError) as exc:  # bad input: one clear line, no traceback
-        print(f"goflow {args.command}: {exc}", file=sys.stderr)
+    except _Interrupted as exc:
+        print(f"{name}: {exc}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if not _expected(exc):
+            raise
+        print(f"{name}: {' '.join(str(exc).split()) or type(exc).__name__}", file=sys.stderr)
         return 2
 
 

@@ -1,29 +1,108 @@
-"""The `goflow` command as a user runs it: train, sweep, bad flags."""
+"""The `goflow` command as a user runs it: train, sweep, bad flags, output paths, Ctrl-C."""
 
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+import pytest
 
 GOFLOW = Path(sys.executable).parent / "goflow"
 TINY = ["--ppo", "num_envs=2", "--ppo", "num_steps=8", "--ppo", "num_minibatches=2",
         "--ppo", "update_epochs=1", "--iterations-per-round", "1", "--eval-episodes", "4"]
 
 
-def _run(*args, cwd=None):
-    return subprocess.run([str(GOFLOW), *args], capture_output=True, text=True, timeout=600, cwd=cwd)
+def _run(*args, cwd=None, timeout=600):
+    return subprocess.run([str(GOFLOW), *args], capture_output=True, text=True, timeout=timeout, cwd=cwd)
 
+
+def _one_line_error(proc, command):
+    """The failure was reported as one line `goflow <command>: ...` with exit status 2."""
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"goflow {command}: "), proc.stderr
+    return lines[0]
+
+
+def _under_a_file(tmp_path):
+    """A folder path no one can create, root included: its parent is a file."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    return blocker / "missing"
+
+
+# ---------------------------------------------------------------------------------------------
+# train, sweep, experiment
+# ---------------------------------------------------------------------------------------------
 
 def test_train_writes_log_and_checkpoint_and_resumes(tmp_path):
     out = tmp_path / "run"
-    args = ["train", "--env", "goflow/Toy2D-v0", "--sampler", "lsdr", "--steps", "32",
-            "--out", str(out), *TINY]
+    args = ["train", "--env", "goflow/Toy2D-v0", "--method", "lsdr", "--method-kwarg", "alpha=0.5",
+            "--steps", "32", "--out", str(out), *TINY]
     first = _run(*args)
     assert first.returncode == 0, first.stderr
     log = json.loads((out / "log.json").read_text())
     assert log["rounds"] == 2 and (out / "checkpoint.pt").exists()
+    assert log["config"]["method"] == "lsdr" and log["config"]["sampler_kwargs"] == {"alpha": 0.5}
+    assert "note" not in first.stderr  # 32 steps are two whole rounds of 16
     again = _run(*args)  # already finished: resumes from the checkpoint, nothing to do
     assert again.returncode == 0 and json.loads((out / "log.json").read_text()) == log
+
+
+def test_train_says_when_steps_are_not_whole_rounds(tmp_path):
+    proc = _run("train", "--env", "goflow/Toy2D-v0", "--method", "nodr", "--steps", "40",
+                "--out", str(tmp_path / "run"), *TINY)
+    assert proc.returncode == 0, proc.stderr
+    assert "--steps 40 is not a whole number of rounds" in proc.stderr and "trains 32 steps" in proc.stderr
+    assert json.loads((tmp_path / "run" / "log.json").read_text())["steps"] == 32
+
+
+def test_train_unknown_env_or_option_fails_in_one_line_and_writes_nothing(tmp_path):
+    # no --out: the default run folder would be runs/... under the working directory
+    line = _one_line_error(_run("train", "--env", "goflow/Nope-v0", "--method", "lsdr", cwd=tmp_path), "train")
+    assert "goflow/Nope-v0" in line and "goflow/Toy2D-v0" in line  # the known ids are listed
+    line = _one_line_error(_run("train", "--env", "goflow/Toy2D-v0", "--env-kwarg", "bogus=1",
+                                "--method", "lsdr", cwd=tmp_path), "train")
+    assert "bogus" in line
+    line = _one_line_error(_run("train", "--env", "goflow/Toy2D-v0", "--method", "lsdr",
+                                "--method-kwarg", "bogus=1", cwd=tmp_path), "train")
+    assert "bogus" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_train_ctrl_c_keeps_the_checkpoint_and_says_how_to_resume(tmp_path):
+    from learning.experiment import load_run
+
+    out = tmp_path / "run"
+    args = ["train", "--env", "goflow/Toy2D-v0", "--method", "lsdr", "--steps", "1000000",
+            "--out", str(out), *TINY]
+    proc = subprocess.Popen([str(GOFLOW), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "checkpoint.pt").exists():
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no checkpoint within 300 s"
+            time.sleep(0.2)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr
+    assert (f"goflow train: interrupted; {out / 'checkpoint.pt'} keeps the last finished round; "
+            "run the same command to resume") in stderr
+    rounds = load_run(out).state["log"]["rounds"]  # loadable, not half written
+    assert rounds >= 1
+    # the same run continues from it: one round more
+    more = _run(*args[:args.index("--steps")], "--steps", str(16 * (rounds + 1)), *args[args.index("--out"):])
+    assert more.returncode == 0, more.stderr
+    assert json.loads((out / "log.json").read_text())["rounds"] == rounds + 1
 
 
 def test_sweep_writes_one_row_per_value(tmp_path):
@@ -34,6 +113,7 @@ def test_sweep_writes_one_row_per_value(tmp_path):
     sweep = json.loads((tmp_path / "results" / "sweep-toy2d-v0-lsdr-alpha.json").read_text())
     assert [row["value"] for row in sweep["rows"]] == [0.5, 1.0]
     assert all(row["seeds"] == 1 for row in sweep["rows"])
+    assert sweep["command"].startswith("goflow sweep --env goflow/Toy2D-v0")
     assert (tmp_path / "results" / "sweep-toy2d-v0-lsdr-alpha.png").stat().st_size > 0
     # each value's own experiment lands in a folder named for the sweep, not beside the other results
     per_value = tmp_path / "results" / "sweep-toy2d-v0-lsdr-alpha"
@@ -42,11 +122,31 @@ def test_sweep_writes_one_row_per_value(tmp_path):
     assert "best alpha" in proc.stdout
 
 
+def test_sweep_and_experiment_refuse_bad_paths_and_options_before_any_run(tmp_path):
+    blocked = _under_a_file(tmp_path)
+    common = ["--env", "goflow/Toy2D-v0", "--seeds", "1", "--workers", "1", "--steps", "16", *TINY]
+    line = _one_line_error(_run("sweep", "--method", "lsdr", "--param", "alpha", "--values", "0.5", *common,
+                                "--out", str(tmp_path / "runs"), "--results", str(blocked)), "sweep")
+    assert str(blocked) in line
+    line = _one_line_error(_run("sweep", "--method", "lsdr", "--param", "alphaa", "--values", "0.5", *common,
+                                "--out", str(tmp_path / "runs"), "--results", str(tmp_path / "results")), "sweep")
+    assert "alphaa" in line
+    line = _one_line_error(_run("experiment", "--methods", "nodr", *common, "--out", str(blocked),
+                                "--results", str(tmp_path / "results")), "experiment")
+    assert str(blocked) in line
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "results").exists()
+
+
 def test_bad_flags_are_explained():
-    proc = _run("train", "--env", "goflow/Toy2D-v0", "--sampler", "sac")
+    proc = _run("train", "--env", "goflow/Toy2D-v0", "--method", "sac")
     assert proc.returncode == 2 and "invalid choice: 'sac'" in proc.stderr
-    proc = _run("train", "--env", "goflow/Toy2D-v0", "--sampler", "goflow", "--ppo", "learning_rat=1")
-    assert proc.returncode != 0 and "learning_rat" in proc.stderr
+    proc = _run("train", "--env", "goflow/Toy2D-v0", "--method", "goflow", "--ppo", "learning_rat=1")
+    assert proc.returncode == 2 and "learning_rat" in proc.stderr and "Traceback" not in proc.stderr
+    proc = _run("train", "--env", "goflow/Toy2D-v0", "--method", "goflow", "--ppo", "learning_rate=NaN")
+    assert "NaN is not allowed" in _one_line_error(proc, "train")
+    # the old spellings are gone: one flag name per concept
+    proc = _run("train", "--env", "goflow/Toy2D-v0", "--sampler", "goflow")
+    assert proc.returncode == 2 and "--method" in proc.stderr
 
 
 def test_experiment_passes_sampler_options_per_method(tmp_path):
@@ -60,5 +160,119 @@ def test_experiment_passes_sampler_options_per_method(tmp_path):
     nodr = json.loads((tmp_path / "runs" / "tiny" / "nodr" / "seed0" / "log.json").read_text())
     assert nodr["config"]["sampler_kwargs"] == {}
     assert set(json.loads((tmp_path / "results" / "tiny.json").read_text())["methods"]) == {"goflow", "nodr"}
+    assert f"figure: {tmp_path / 'results' / 'tiny-densities.png'}" in proc.stdout  # Toy2D's densities
     bad = _run("experiment", "--env", "goflow/Toy2D-v0", "--methods", "nodr", "--method-kwarg", "alpha=0.1")
-    assert bad.returncode != 0 and "METHOD.KEY=VALUE" in bad.stderr
+    assert "METHOD.KEY=VALUE" in _one_line_error(bad, "experiment")
+
+
+def test_defaults_write_under_runs_not_into_committed_files(tmp_path):
+    from goflow_cli import make_parser
+
+    args = make_parser(["experiment"]).parse_args(["experiment", "--env", "goflow/Toy2D-v0"])
+    assert args.results == Path("runs/results") and args.out == Path("runs")
+    args = make_parser(["sweep"]).parse_args(["sweep", "--env", "goflow/Toy2D-v0", "--method", "goflow",
+                                              "--param", "alpha", "--values", "1"])
+    assert args.results == Path("runs/results")
+    # skill export without --out: the file would go to runs/skills/, never to learning/skill_files/
+    shipped = Path(__file__).parents[1] / "learning" / "skill_files" / "insert-medium.pt"
+    before = shipped.stat().st_mtime_ns
+    proc = _run("skill", "export", "--gear", "medium", "--run", str(tmp_path / "no-run"), cwd=tmp_path)
+    assert "no-run" in _one_line_error(proc, "skill export")
+    assert (tmp_path / "runs" / "skills").is_dir() and shipped.stat().st_mtime_ns == before
+
+
+# ---------------------------------------------------------------------------------------------
+# Output paths are checked before the work
+# ---------------------------------------------------------------------------------------------
+
+def test_demo_refuses_an_unwritable_record_path_at_once(tmp_path):
+    record = _under_a_file(tmp_path) / "r.html"
+    t0 = time.monotonic()
+    proc = _run("demo", "--scripted", "--quiet", "--record", str(record), "--json", str(tmp_path / "s.json"))
+    assert f"--record {record}" in _one_line_error(proc, "demo")
+    assert "Meshcat" not in proc.stdout and time.monotonic() - t0 < 60  # no simulation ran
+    assert not (tmp_path / "s.json").exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_demo_refuses_a_read_only_folder_at_once(tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        proc = _run("demo", "--scripted", "--quiet", "--json", str(locked / "missing" / "s.json"))
+        assert "--json" in _one_line_error(proc, "demo")
+    finally:
+        locked.chmod(0o700)
+
+
+@pytest.mark.slow
+def test_demo_writes_summary_json_and_recording_into_missing_folders(tmp_path):
+    record, summary = tmp_path / "rec" / "missing" / "r.html", tmp_path / "json" / "missing" / "s.json"
+    proc = _run("demo", "--scripted", "--quiet", "--record", str(record), "--json", str(summary))
+    assert proc.returncode == 0, proc.stderr
+    assert set(json.loads(summary.read_text())["gears"]) == {"large", "medium", "small"}
+    assert record.stat().st_size > 0 and f"recording: {record}" in proc.stdout
+
+
+def test_json_and_out_paths_are_refused_before_the_work(tmp_path):
+    blocked = _under_a_file(tmp_path)
+    for command, args in [("evaluate", ["--gear", "small", "--episodes", "1", "--json", str(blocked / "e.json")]),
+                          ("bench", ["perception", "--json", str(blocked / "b.json")]),
+                          ("collect", ["--env", "goflow/PointMass-v0", "--episodes", "2", "--out",
+                                       str(blocked / "d.npz")])]:
+        t0 = time.monotonic()
+        line = _one_line_error(_run(command, *args), command)
+        assert str(blocked) in line and time.monotonic() - t0 < 60, line
+
+
+def test_estimate_refuses_non_finite_options_and_bad_outputs_at_once(tmp_path):
+    data = tmp_path / "d.npz"
+    proc = _run("collect", "--env", "goflow/PointMass-v0", "--episodes", "2", "--steps", "4", "--out", str(data))
+    assert proc.returncode == 0, proc.stderr
+    line = _one_line_error(_run("estimate", "--data", str(data), "--method", "nfpde-softmax",
+                                "--method-kwarg", "beta=nan", "--out", str(tmp_path / "e.json")), "estimate")
+    assert "beta=nan" in line
+    line = _one_line_error(_run("estimate", "--data", str(data), "--method", "dropo", "--out",
+                                str(_under_a_file(tmp_path) / "e.json")), "estimate")
+    assert "--out" in line
+    assert not (tmp_path / "e.json").exists()
+
+
+def test_key_value_values_are_strict_json_or_strings():
+    from common.errors import InputError
+    from goflow_cli import key_values
+
+    assert key_values(["a=1", "b=x", "c=[1, 2.5]", "d=true", "e=null", "f=a=b"], "--x") == {
+        "a": 1, "b": "x", "c": [1, 2.5], "d": True, "e": None, "f": "a=b"}
+    for bad in (["nokey"], ["=1"], ["a=1", "a=2"], ["a=NaN"], ["a=-Infinity"], ["a=inf"], ["a=[1, NaN]"]):
+        with pytest.raises(InputError):
+            key_values(bad, "--x")
+
+
+def test_demo_writes_the_summary_even_when_the_recording_cannot_be_saved(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    import assembly.demo
+    import assembly.station
+    from goflow_cli import main
+
+    record, summary_path = tmp_path / "rec" / "r.html", tmp_path / "out" / "s.json"
+    summary = {"gears": {"small": {"inserted": True, "lateral_error_m": 1e-4, "height_error_m": 1e-8,
+                                   "time_s": 9.0}}, "sim_time_s": 9.0, "wall_time_s": 1.0}
+
+    class FakeMeshcat:
+        def web_url(self):
+            return "http://localhost:7000"
+
+    def fake_run(config, meshcat=None, record=None, realtime=False, progress=True):
+        Path(record).write_text("<html></html>")
+        shutil.rmtree(tmp_path / "rec")  # the destination vanishes while the assembly runs
+        return summary
+
+    monkeypatch.setattr(assembly.station, "make_meshcat", FakeMeshcat)
+    monkeypatch.setattr(assembly.demo, "run_assembly", fake_run)
+    assert main(["demo", "--scripted", "--quiet", "--record", str(record), "--json", str(summary_path)]) == 2
+    out, err = capsys.readouterr()
+    assert "small" in out and json.loads(summary_path.read_text()) == summary
+    assert err.startswith(f"goflow demo: --record {record}: the recording was not saved") and err.count("\n") == 1
