@@ -262,7 +262,7 @@ def _train_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from learning.experiment import ExperimentConfig, TrainConfig, probe_env, train
+    from learning.experiment import ExperimentConfig, TrainConfig, train
     runs = _field_default(ExperimentConfig, "out")
     out = args.out or runs / args.env.replace("/", "_") / args.method / f"seed{args.seed}"
     config = TrainConfig(env=args.env, env_kwargs=key_values(args.env_kwarg, "--env-kwarg"), method=args.method,
@@ -270,7 +270,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
                          total_steps=args.total_steps, iterations_per_round=args.iterations_per_round,
                          eval_episodes=args.eval_episodes, ppo=_ppo_config(args), out=out,
                          sampler_batch=args.sampler_batch, sampler_signal=args.sampler_signal)
-    probe_env(config.env, config.env_kwargs)  # an unknown id or option fails before the run folder exists
     _round_note(config, "goflow train")
     with _resumable(lambda: _checkpoint_kept(out)):
         log = train(config)
@@ -378,7 +377,9 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_skill(args: argparse.Namespace) -> int:
-    from learning.skills import SkillRecipe, describe, export_skill, load_skill, skill_path, train_skill
+    from learning.skills import (
+        SkillRecipe, describe, export_skill, load_skill, skill_path, skill_run_folder, train_skill,
+    )
     if args.action == "show":
         if args.out:
             raise InputError("show reads --path (default: the shipped file); --out is what train and export write")
@@ -392,7 +393,7 @@ def _cmd_skill(args: argparse.Namespace) -> int:
     else:
         recipe = SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
                              fit_rounds=args.fit_rounds)
-        with _resumable(lambda: _checkpoint_kept(args.runs / f"{args.skill}-{args.gear}")):
+        with _resumable(lambda: _checkpoint_kept(skill_run_folder(args.skill, args.gear, args.runs))):
             skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=out, command=args.provenance)
     print(f"{skill!r} -> {out}")
     return 0

@@ -155,6 +155,9 @@ def check_output_file(path: str | os.PathLike[str], what: str = "output") -> Pat
     path = Path(path)
     if path.is_dir():
         raise OutputPathError(f"{what} {path}: is a folder; expected a file path")
+    blocking = next((p for p in reversed(path.parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise OutputPathError(f"{what} {path}: cannot create the folder {path.parent} ({blocking} is a file)")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

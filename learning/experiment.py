@@ -206,16 +206,16 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
 
     Torch runs on one thread: the networks are small, and a second thread only contends with the
     simulator (docs/learning.md, "Speed")."""
+    probe = probe_env(config.env, config.env_kwargs)  # a bad env id or option fails before the folder exists
     if config.out is None:
-        return _train(config, progress)
+        return _train(config, probe, progress)
     with run_folder_lock(config.out):
-        return _train(config, progress)
+        return _train(config, probe, progress)
 
 
-def _train(config: TrainConfig, progress: bool) -> dict:
+def _train(config: TrainConfig, probe: gymnasium.Env, progress: bool) -> dict:
     torch.set_num_threads(1)
     torch.manual_seed(config.seed)
-    probe = probe_env(config.env, config.env_kwargs)
     space, J_T = probe.space, float(probe.success_threshold)
     obs_dim = int(np.prod(probe.observation_space.shape))
     critic_dim = obs_dim + space.dim
@@ -433,9 +433,32 @@ class ExperimentConfig:
                 for m in self.methods for s in range(self.seeds)]
 
 
-def _run_quiet(config: TrainConfig) -> dict:
+_STOP: Any = None  # a pool worker's view of the experiment's stop event
+
+
+def _init_worker(stop: Any) -> None:
+    """A pool worker ignores Ctrl-C except while it trains (`_run_quiet`), and skips the runs
+    left once the experiment is stopped."""
+    import signal
+    global _STOP
+    _STOP = stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_quiet(config: TrainConfig) -> dict | None:
+    """One run of an experiment in a pool worker; None when the experiment was interrupted (the
+    run keeps its last checkpoint)."""
+    import signal
+    if _STOP is not None and _STOP.is_set():
+        return None
     torch.set_num_threads(1)
-    return train(config, progress=False)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return train(config, progress=False)
+    except KeyboardInterrupt:
+        return None
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _mean_se(runs: list[dict], column: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -502,22 +525,33 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
 
     The environment, the options and the output folders are checked before any run starts."""
     import multiprocessing as mp
+    import os
+    import signal
     runs = config.runs()  # validates every run's options
     probe_env(config.env, config.env_kwargs)
     check_output_dir(config.out, "run folder")
     check_output_dir(config.results, "results folder")
     ctx = mp.get_context("spawn")
-    pool = ctx.Pool(config.workers)
+    stop = ctx.Event()
+    pool = ctx.Pool(config.workers, initializer=_init_worker, initargs=(stop,))
     try:
         logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress,
                          desc=f"experiment {config.stem()}", unit="run"))
-    except BaseException:
-        pool.terminate()  # an interrupted or failed experiment: every run keeps its last checkpoint
-        raise
-    else:
-        pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
-    finally:
+    except KeyboardInterrupt:
+        # Stop every run at its next step (each keeps its last checkpoint) and let the workers
+        # exit on their own, so that nothing is killed mid-write and no traceback is printed.
+        stop.set()
+        for child in mp.active_children():
+            os.kill(child.pid, signal.SIGINT)
+        pool.close()
         pool.join()
+        raise
+    except BaseException:
+        pool.terminate()
+        pool.join()
+        raise
+    pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
+    pool.join()
     summary = summarize(logs, config.total_steps, config.env)
     summary["command"] = command
     stem = config.results / config.stem()

@@ -39,7 +39,7 @@ from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import make_sampler
 
 __all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill",
-           "export_skill", "flow_width", "load_skill", "skill_path", "train_skill"]
+           "export_skill", "flow_width", "load_skill", "skill_path", "skill_run_folder", "train_skill"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
 #: Where `train_skill` and `goflow skill train/export` write by default (never the shipped files).
@@ -54,6 +54,12 @@ def _check_name(name: str, gear: str) -> None:
         raise ValueError(f"unknown skill {name!r}; expected one of {list(SKILLS)}")
     if gear not in GEARS:
         raise ValueError(f"unknown gear {gear!r}; expected one of {sorted(GEARS)}")
+
+
+def skill_run_folder(name: str, gear: str, runs: str | os.PathLike[str] = RUNS_SKILL_DIR) -> Path:
+    """The `goflow train` run folder in which `train_skill` trains skill `name` for `gear`."""
+    _check_name(name, gear)
+    return Path(runs) / f"{name}-{gear}"
 
 
 def skill_path(name: str, gear: str, folder: str | os.PathLike[str] = SKILL_DIR) -> Path:
@@ -249,7 +255,7 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
     recipe = recipe or SkillRecipe()
     _check_name(name, gear)
     out = check_output_file(out or skill_path(name, gear, runs), "skill file")
-    run = Path(runs) / f"{name}-{gear}"
+    run = skill_run_folder(name, gear, runs)
     for config in recipe.stages(name, gear, run):
         train(config, progress=progress)
     if recipe.fit_rounds > 0:

@@ -105,6 +105,30 @@ def test_train_ctrl_c_keeps_the_checkpoint_and_says_how_to_resume(tmp_path):
     assert json.loads((out / "log.json").read_text())["rounds"] == rounds + 1
 
 
+def test_experiment_ctrl_c_stops_every_run_cleanly(tmp_path):
+    """Ctrl-C in a terminal reaches the whole process group: the workers stop their runs at the
+    next step (each keeps its last checkpoint), with one message and no traceback or warning."""
+    args = ["experiment", "--env", "goflow/Toy2D-v0", "--methods", "fulldr", "--seeds", "3", "--steps", "1000000",
+            "--workers", "2", "--out", str(tmp_path / "runs"), "--results", str(tmp_path / "results"), *TINY]
+    proc = subprocess.Popen([str(GOFLOW), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not list((tmp_path / "runs").glob("*/fulldr/seed*/checkpoint.pt")):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no checkpoint within 300 s"
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "leaked" not in stderr, stderr
+    assert "goflow experiment: interrupted;" in stderr and "run the same command to resume" in stderr
+    assert not list((tmp_path / "results").glob("*.json"))  # no summary of unfinished runs
+
+
 def test_sweep_writes_one_row_per_value(tmp_path):
     proc = _run("sweep", "--env", "goflow/Toy2D-v0", "--method", "lsdr", "--param", "alpha",
                 "--values", "0.5", "1.0", "--seeds", "1", "--workers", "1", "--steps", "16",
