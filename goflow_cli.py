@@ -420,11 +420,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     skill = load_skill(args.skill, args.gear, path=args.path)
     result = evaluate_skill(skill, variant=args.variant, xi=args.xi, episodes=args.episodes, seed=args.seed,
                             progress=True)
-    print(f"{args.skill} {args.gear} ({args.variant}, xi {args.xi}): success {result['success_rate']:.3f} "
-          f"+- {result['success_se']:.3f} over {args.episodes} episodes, mean return {result['mean_return']:.2f} "
-          f"({result['seconds']:.0f} s)")
+    print(f"{args.skill} {args.gear} ({args.variant}, xi {args.xi}): success {result.success_rate:.3f} "
+          f"+- {result.success_se:.3f} over {result.episodes} episodes, mean return {result.mean_return:.2f} "
+          f"({result.seconds:.0f} s)")
     if json_path:
-        write_json(json_path, result)
+        write_json(json_path, result.to_json())
     return 0
 
 

@@ -41,7 +41,7 @@ def main() -> None:
         widths = [flow_width(skill, eps=ratio / volume) for ratio in args.eps_ratio]
         for variant, episodes in (("fast", args.episodes), ("panda", args.panda_episodes)):
             for xi in ("flow", "uniform"):
-                result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed)
+                result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed).to_json()
                 result["flow"] = widths
                 result["provenance"] = {k: skill.provenance.get(k) for k in
                                         ("command", "steps", "train_seconds", "final_uniform_success")}

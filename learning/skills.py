@@ -32,13 +32,14 @@ import assembly  # noqa: F401  (registers the environment ids)
 from assembly.gearset import GEARS
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
+from common.checks import check_int
 from common.errors import FileFormatError
 from common.files import check_output_file, load_tensors, save_tensors
 from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, protocol_sampler_kwargs, train
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import make_sampler
 
-__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "Skill", "SkillRecipe", "describe", "evaluate_skill",
+__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "Skill", "SkillEvaluation", "SkillRecipe", "describe", "evaluate_skill",
            "export_skill", "flow_width", "load_skill", "skill_path", "skill_run_folder", "train_skill"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
@@ -263,13 +264,33 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
     return export_skill(run, name, gear, out, command=command)
 
 
+@dataclass(frozen=True)
+class SkillEvaluation:
+    """What `evaluate_skill` measured: the success rate (with its binomial standard error) and mean
+    return of the deterministic policy, and where xi came from (the flow or the uniform box)."""
+
+    gear: str
+    variant: str  # the env variant ("fast" or "panda")
+    xi: str  # "flow" or "uniform"
+    episodes: int
+    success_rate: float
+    success_se: float
+    mean_return: float
+    seed: int
+    seconds: float  # wall time
+    xi_mean: list[float]  # mean and std of the episodes' xi (parameter units)
+    xi_std: list[float]
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain JSON data (the `goflow evaluate --json` file)."""
+        return dataclasses.asdict(self)
+
+
 def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episodes: int = 100, seed: int = 0,
-                   num_envs: int = 4, progress: bool = False) -> dict[str, Any]:
+                   num_envs: int = 4, progress: bool = False) -> SkillEvaluation:
     """Run `episodes` episodes of the skill's deterministic policy with xi from its flow or uniform
-    over the box: {"gear", "variant", "xi", "episodes", "success_rate", "mean_return", ...};
-    `progress` shows a bar of the episodes finished."""
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    over the box, in `num_envs` environments; `progress` shows a bar of the episodes finished."""
+    episodes = check_int(episodes, "episodes", 1)
     t0 = time.perf_counter()
     n = max(1, min(int(num_envs), int(episodes)))
     vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
@@ -280,11 +301,10 @@ def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episod
     finally:
         vec.close()
     rate = float(np.mean(successes))
-    return {"gear": skill.gear, "variant": variant, "xi": xi, "episodes": int(episodes),
-            "success_rate": rate, "mean_return": float(np.mean(returns)),
-            "success_se": float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
-            "seed": int(seed), "seconds": time.perf_counter() - t0,
-            "xi_mean": xis.mean(axis=0).tolist(), "xi_std": xis.std(axis=0).tolist()}
+    return SkillEvaluation(gear=skill.gear, variant=variant, xi=xi, episodes=episodes, success_rate=rate,
+                           success_se=float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
+                           mean_return=float(np.mean(returns)), seed=int(seed), seconds=time.perf_counter() - t0,
+                           xi_mean=xis.mean(axis=0).tolist(), xi_std=xis.std(axis=0).tolist())
 
 
 def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) -> dict[str, float]:

@@ -74,12 +74,14 @@ def test_flow_env_draws_from_the_flow_and_uniform_from_the_box(tiny_skill):
 def test_evaluate_schema(tiny_skill):
     _, skill, _ = tiny_skill
     result = evaluate_skill(skill, variant="fast", xi="uniform", episodes=3, seed=1, num_envs=3)
+    data = result.to_json()
     for key, kind in (("gear", str), ("variant", str), ("xi", str), ("episodes", int), ("success_rate", float),
                       ("mean_return", float)):
-        assert isinstance(result[key], kind), key
-    assert result["episodes"] == 3 and 0.0 <= result["success_rate"] <= 1.0
+        assert isinstance(data[key], kind), key
+    assert json.loads(json.dumps(data)) == data
+    assert result.episodes == 3 and 0.0 <= result.success_rate <= 1.0
     again = evaluate_skill(skill, variant="fast", xi="uniform", episodes=3, seed=1, num_envs=3)
-    assert again["mean_return"] == result["mean_return"]  # seeded
+    assert again.mean_return == result.mean_return  # seeded
 
 
 def test_flow_width(tiny_skill):
@@ -153,7 +155,7 @@ def test_shipped_skill_succeeds_on_its_own_flow(gear):
     docs/skills.md measures 95-99 % over 100 episodes, and 93-100 % on the full Panda over 30)."""
     skill = load_skill("insert", gear)
     result = evaluate_skill(skill, variant="fast", xi="flow", episodes=8, seed=5)
-    assert result["success_rate"] >= 0.75, result
+    assert result.success_rate >= 0.75, result
     assert skill.provenance["train_config"]["sampler_batch"] == "training"  # the refined recipe
 
 
