@@ -79,11 +79,11 @@ def probe_env(env_id: str, env_kwargs: dict[str, Any]) -> gymnasium.Env:
 class TrainConfig:
     """One training run. Every `goflow train` flag maps to a field."""
 
-    env: str = "goflow/Toy2D-v0"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    method: str = "goflow"
-    sampler_kwargs: dict[str, Any] = field(default_factory=dict)
-    seed: int = 0
+    env: str = "goflow/Toy2D-v0"  # environment id, e.g. goflow/Cartpole-v0
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # the environment's config fields
+    method: str = "goflow"  # the sampler (learning.samplers.registry.METHODS)
+    sampler_kwargs: dict[str, Any] = field(default_factory=dict)  # the sampler's config fields, e.g. alpha
+    seed: int = 0  # of the policy, the sampler and the validation episodes
     total_steps: int = 200_000  # environment steps in training phases
     iterations_per_round: int = 2  # PPO iterations between validations
     eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
@@ -388,17 +388,17 @@ def _fit_sampler(run: Path, fit: SamplerFitConfig, progress: bool) -> dict:
 class ExperimentConfig:
     """Methods x seeds of one environment, run in parallel processes."""
 
-    env: str = "goflow/Toy2D-v0"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    methods: tuple[str, ...] = METHODS
-    seeds: int = 5
-    total_steps: int = 200_000
-    iterations_per_round: int = 2
-    eval_episodes: int = 64
+    env: str = "goflow/Toy2D-v0"  # environment id
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # the environment's config fields
+    methods: tuple[str, ...] = METHODS  # samplers compared
+    seeds: int = 5  # runs per method, seeds 0 .. seeds - 1
+    total_steps: int = 200_000  # training environment steps per run
+    iterations_per_round: int = 2  # PPO iterations between validations
+    eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
     ppo: PPOConfig = field(default_factory=PPOConfig)
     sampler_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)  # per method
     sampler_signal: str = "return"  # TrainConfig.sampler_signal of every run (THRESHOLD_METHODS keep returns)
-    workers: int = 2
+    workers: int = 2  # runs in parallel, one process each
     out: Path = Path("runs")  # run folders: <out>/<stem>/<method>/seed<k>
     # the result JSON and plots; the committed tables in docs/results are written only when asked
     results: Path = Path("runs/results")

@@ -12,9 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from common.errors import FileFormatError
-
 from assembly.transition import make_transition_sim
+from common.errors import FileFormatError
 from learning.estimation.dataset import TransitionDataset, save_dataset
 from learning.estimation.targets import TargetConfig, sample_target, target_description
 
