@@ -31,7 +31,7 @@ from assembly.samplers import FullDR  # noqa: E402
 from learning.estimation.collect import CollectConfig, collect  # noqa: E402
 from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
 from learning.estimation.metrics import ot_cost  # noqa: E402
-from learning.estimation.sampler import load_estimate, save_estimate  # noqa: E402
+from learning.estimation.estimate_file import load_estimate, save_estimate  # noqa: E402
 from learning.estimation.targets import TargetConfig, TargetSampler  # noqa: E402
 from learning.estimation.transfer import TransferConfig, train_and_evaluate  # noqa: E402
 

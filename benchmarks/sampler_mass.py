@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from learning.experiment import load_run
-from learning.methods import METHODS
+from learning.samplers.registry import METHODS
 
 
 def region_mass(run: Path, low: np.ndarray, high: np.ndarray, draws: int = 4000) -> dict:

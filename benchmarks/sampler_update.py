@@ -23,8 +23,8 @@ import zuko
 
 import learning.samplers.goflow as goflow_module
 from assembly.params import Param, ParamSpace
-from learning.experiment import make_sampler
-from learning.methods import METHODS
+from learning.experiment import protocol_sampler_kwargs
+from learning.samplers.registry import METHODS, make_sampler
 
 
 def _zuko_nsf(features: int, transforms: int, hidden_features: tuple[int, ...], bins: int) -> zuko.flows.Flow:
@@ -34,7 +34,7 @@ def _zuko_nsf(features: int, transforms: int, hidden_features: tuple[int, ...], 
 def time_update(method: str, d: int, batch: int, repeats: int) -> float:
     """Median seconds of `repeats` updates of a fresh `method` sampler on a d-dimensional unit box."""
     space = ParamSpace(tuple(Param(f"p{i}", 0.0, 1.0, "1") for i in range(d)))
-    sampler = make_sampler(method, space, success_threshold=0.5)
+    sampler = make_sampler(method, space, 0.5, protocol_sampler_kwargs(method, {}))
     rng = np.random.default_rng(0)
     times = []
     for _ in range(repeats + 1):  # the first update warms up torch and scipy

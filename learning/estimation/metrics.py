@@ -1,6 +1,7 @@
 """The evaluation metric: the optimal-transport cost (POT's exact ot.emd2) between samples of an
-estimate and the true per-trajectory parameters, both normalized by the box (REFERENCES.md: the
-seed normalizes each parameter by its box before OT)."""
+estimate and the true per-trajectory parameters, both normalized by the box (as the seed paper's
+evaluation does: "Normalizing Flow-based Parameter Distribution Estimation for Offline Adaptive
+Domain Randomization"; docs/nfpde.md#how-the-table-was-made)."""
 
 from __future__ import annotations
 
