@@ -19,7 +19,6 @@ learned policies see only the observation, not xi.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 
@@ -28,6 +27,7 @@ import scipy.linalg
 
 from assembly.envs.cartpole import CARTPOLE_SPACE, CartpoleEnv
 from assembly.samplers import FullDR
+from common.files import write_json
 
 GRAVITY = 9.81  # [m/s^2]
 CONTROL_WEIGHTS = (1e-4, 1e-3, 1e-2)  # R [1/N^2] against Q = diag(1, 100, 1, 1) on (x, theta, xdot, thetadot)
@@ -107,12 +107,12 @@ def main() -> None:
         print(f"  [{lo:g}, {hi:g}): {m.mean():.3f} of the box, success {success[m].mean() if m.any() else float('nan'):.3f}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({
+        write_json(args.json, {
             "env": "goflow/Cartpole-v0", "episodes": n, "seed": args.seed, "success_threshold": threshold,
             "success_any": float(success.mean()), "success_any_se": float(success.std(ddof=1) / math.sqrt(n)),
             "immovable_share": float(immovable.mean()),
             "controllers": {name: float(ok.mean()) for name, ok in rows[1:]}, "by_friction_bound": by_band,
-        }, indent=2))
+        })
 
 
 if __name__ == "__main__":

@@ -12,7 +12,6 @@ bare-simulator time for the same xi and actions, minus 1 (envs with a bare_rollo
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ import numpy as np
 
 import assembly  # noqa: F401  (registers the ids)
 from assembly.samplers import NoDR
+from common.files import write_json
 
 ENVS = {
     "goflow/Toy2D-v0": {},
@@ -138,7 +138,7 @@ def main() -> None:
         print(f"{name:<32} {sps:>9.1f} {rtf:>7.1f} {vps:>12.1f} {ovh_text:>9}", flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"rows": rows}, indent=2))
+        write_json(args.json, {"rows": rows})
 
 
 if __name__ == "__main__":

@@ -9,13 +9,13 @@ and compare success, return and final insertion error. Prints a table; --json wr
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from assembly.envs.gear_insertion import GearInsertionEnv
+from common.files import write_json
 
 
 def action_sequences(steps: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -82,7 +82,7 @@ def main() -> None:
                   f"{row['mean_abs_return_diff']:>9.2f} {row['mean_abs_lateral_diff_mm']:>10.2f}", flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"gear": args.gear, "rows": rows}, indent=2))
+        write_json(args.json, {"gear": args.gear, "rows": rows})
 
 
 if __name__ == "__main__":

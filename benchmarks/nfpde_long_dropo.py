@@ -17,6 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nfpde_table import RESULTS, run_one  # noqa: E402
+from common.files import write_json  # noqa: E402
 
 
 def first_reach(trace: list[dict], level: float) -> dict | None:
@@ -43,7 +44,7 @@ def main() -> int:
            "reach": {str(level): {"nfpde-softmax": first_reach(nf["trace"], level),
                                   "dropo (long)": first_reach(long["trace"], level)} for level in levels},
            "command": "python benchmarks/nfpde_long_dropo.py " + " ".join(sys.argv[1:])}
-    (RESULTS / "nfpde_long_dropo.json").write_text(json.dumps(out, indent=1))
+    write_json(RESULTS / "nfpde_long_dropo.json", out)
     print(json.dumps({k: v for k, v in out.items() if k != "dropo_long"}, indent=1))
     print("dropo long: OT", round(long["ot"], 3), "in", round(long["seconds_total"], 1), "s")
     return 0

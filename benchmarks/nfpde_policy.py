@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from learning.estimation.metrics import ot_cost  # noqa: E402
 from learning.estimation.estimate_file import load_estimate, save_estimate  # noqa: E402
 from learning.estimation.targets import TargetConfig, TargetSampler  # noqa: E402
 from learning.estimation.transfer import TransferConfig, train_and_evaluate  # noqa: E402
+from common.files import write_json  # noqa: E402
 
 ENV = "goflow/Cartpole-v0"
 #: The L of the table's mixture moved to the balanceable corner of Cartpole's box (unit-box coordinates:
@@ -87,9 +87,7 @@ def main() -> int:
             res = train_and_evaluate(sampler, true_sampler, TransferConfig(
                 env=ENV, seed=seed, iterations=args.iterations, eval_every=args.eval_every))
             doc["runs"].append({"train_on": name, "seed": seed, "target": args.target, **res})
-            tmp = res_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(doc, indent=1))
-            os.replace(tmp, res_path)
+            write_json(res_path, doc)  # atomic: an interrupted run keeps every finished one
             print(f"train on {name:<14} seed {seed}: return on the truth {res['final_mean_return']:.1f}, "
                   f"success {res['final_success']:.2f} ({res['seconds']:.0f} s)", flush=True)
 
@@ -121,7 +119,7 @@ def main() -> int:
                              "final_return_se": float(np.std(finals, ddof=1) / np.sqrt(len(finals))) if len(finals) > 1 else 0.0,
                              "seeds": len(finals)}
     doc["summary"] = summary
-    res_path.write_text(json.dumps(doc, indent=1))
+    write_json(res_path, doc)
     for name, s in summary.items():
         print(f"{name:<14} {s['final_return_mean']:8.1f} +- {s['final_return_se']:.1f} ({s['seeds']} seeds)")
     return 0

@@ -11,7 +11,6 @@ perception_posterior_close.png and perception_posterior_far.png, and prints mark
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from perception.calibration import CalibrationConfig, pose_error, run_calibratio
 from perception.station_views import observe
 from perception.likelihood import LikelihoodConfig
 from perception.search import Prior, SearchConfig, estimate_pose
+from common.files import write_json
 
 
 def _renderer_table(rows: list[dict]) -> str:
@@ -98,7 +98,7 @@ def _sweep_tempering(values: list[float], scenes: int, out: Path) -> None:
                      "median_std_x_m": float(np.median(std[:, 0])),
                      "median_std_y_m": float(np.median(std[:, 1])),
                      "median_xy_error_m": float(np.median([r["xy_error_m"] for r in calib["rows"]]))})
-    (out / "perception_tempering.json").write_text(json.dumps(rows, indent=2))
+    write_json(out / "perception_tempering.json", rows)
     print("| tempering | coverage of the 90 % region | median std x, y [mm] | median MAP x-y error [mm] |")
     print("|---|---|---|---|")
     for r in rows:
@@ -128,9 +128,9 @@ def main() -> None:
     symmetry = _symmetry()
     bench = {"cores": len(os.sched_getaffinity(0)), "renderers": renderers,
              "posteriors": posteriors, "inspect_medium": figures, "symmetry": symmetry}
-    (out / "perception_bench.json").write_text(json.dumps(bench, indent=2))
+    write_json(out / "perception_bench.json", bench)
     calib = run_calibration(CalibrationConfig(scenes=args.scenes))
-    (out / "perception_calibration.json").write_text(json.dumps(calib, indent=2))
+    write_json(out / "perception_calibration.json", calib)
 
     print(_renderer_table(renderers))
     print()

@@ -11,7 +11,6 @@ stochastic policy, as in validation, with the same seed for every run.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ import torch
 import assembly  # noqa: F401  (registers the goflow/* ids)
 from assembly.samplers import NoDR
 from learning.experiment import _make_vector_env, load_run
+from common.files import write_json
 
 VECTOR_ENVS = 4
 
@@ -62,7 +62,7 @@ def main() -> None:
             print(f"{str(run):44} {','.join(f'{v:g}' for v in row['point']):>16} {row['success']:>8.3f} {row['return']:>9.2f}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"episodes": args.episodes, "rows": rows}, indent=2))
+        write_json(args.json, {"episodes": args.episodes, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -12,13 +12,13 @@ episodes (xi from the sampler).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from learning.experiment import load_run
 from learning.samplers.registry import METHODS
+from common.files import write_json
 
 
 def region_mass(run: Path, low: np.ndarray, high: np.ndarray, draws: int = 4000) -> dict:
@@ -56,8 +56,8 @@ def main() -> None:
         print(f"{method:<9} {len(rows):>5} {mean['mass']:>15.3f} {mean['entropy']:>8.2f} {mean['uniform_return']:>15.2f} "
               f"{mean['training_return']:>16.2f}")
     if args.json:
-        args.json.write_text(json.dumps({"runs": str(args.runs), "low": args.low, "high": args.high,
-                                         "methods": table}, indent=2))
+        write_json(args.json, {"runs": str(args.runs), "low": args.low, "high": args.high,
+                                         "methods": table})
 
 
 if __name__ == "__main__":

@@ -13,7 +13,6 @@ update: the round's training + validation time at which the update is 5 % of the
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import learning.samplers.goflow as goflow_module
 from assembly.params import Param, ParamSpace
 from learning.experiment import protocol_sampler_kwargs
 from learning.samplers.registry import METHODS, make_sampler
+from common.files import write_json
 
 
 def _zuko_nsf(features: int, transforms: int, hidden_features: tuple[int, ...], bins: int) -> zuko.flows.Flow:
@@ -74,7 +74,7 @@ def main() -> None:
         print(f"{r['method']:<28} {r['dim']:>2} {r['update_s']:>11.3f} {r['round_for_5pct_s']:>18.2f}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"command": "benchmarks/sampler_update.py", "rows": rows}, indent=2))
+        write_json(args.json, {"command": "benchmarks/sampler_update.py", "rows": rows})
 
 
 if __name__ == "__main__":

@@ -14,12 +14,12 @@ and whether the gear ended seated. Run:
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 from assembly.demo import AssemblyConfig, build_assembly
 from assembly.station import StationConfig
+from common.files import write_json
 
 # Phases of the scripted pick-and-insert motion (labels "<gear>: <phase>") and the bucket each one counts toward.
 FREE = ("approach", "steady above gear", "descend")
@@ -85,7 +85,7 @@ def main() -> None:
               flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"rows": rows}, indent=2))
+        write_json(args.json, {"rows": rows})
 
 
 if __name__ == "__main__":

@@ -11,10 +11,10 @@ The trust threshold eps is given relative to the uniform density over the box (e
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from learning.skills import evaluate_skill, flow_width, load_skill, skill_path
+from common.files import write_json
 
 
 def main() -> None:
@@ -53,7 +53,7 @@ def main() -> None:
                   f"{w['eps_uniform_ratio']:g} x uniform on {100 * w['trusted_fraction']:.2f} % of the box")
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps({"rows": rows}, indent=2))
+            write_json(args.json, {"rows": rows})
 
 
 if __name__ == "__main__":
