@@ -175,7 +175,10 @@ def _checkpoint_kept(run: Path) -> str:
 
 def _round_note(config: Any, command: str) -> None:
     """Say so on stderr when `config.total_steps` (a TrainConfig's) is not whole rounds: a run
-    trains whole rounds only."""
+    trains whole rounds only. The environment is checked first, so that a bad id or option is the
+    only message."""
+    from learning.experiment import probe_env
+    probe_env(config.env, config.env_kwargs)
     per_round = config.steps_per_round()
     if config.total_steps % per_round:
         trained = max(1, config.total_steps // per_round) * per_round
