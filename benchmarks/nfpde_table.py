@@ -12,6 +12,12 @@ seconds_mean: the wall time to converge, the first snapshot from which the OT st
 (+ 0.01) of the run's final OT (BayesSim trains once at the end: its total time). Timing excludes
 scoring (snapshots are drawn outside the timed region).
 
+Variants of one method side by side: `--variant LABEL=METHOD[:KEY=VALUE,...]` runs METHOD with
+those options (fields of its config dataclass) under the name LABEL, after `--methods` in each cell;
+`--name NAME` writes NAME_runs.json, NAME.json and NAME-<env>-*.png instead of nfpde* (`--no-plots`
+skips the plots). `cpu_seconds` per run: the process CPU time of the estimation (simulator included:
+one worker runs in-process), less sensitive than wall time to other jobs on a shared machine.
+
 Usage: .venv/bin/python benchmarks/nfpde_table.py --envs goflow/Cartpole-v0 --seeds 3
 """
 
@@ -19,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -29,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.files import read_json, write_json  # noqa: E402
 from learning.estimation import ESTIMATORS  # noqa: E402
 from learning.estimation.collect import CollectConfig, collect  # noqa: E402
 from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
@@ -51,17 +57,46 @@ def converge_seconds(trace: list[dict]) -> float:
     return trace[k]["seconds"]
 
 
-def run_one(env: str, target: str, method: str, seed: int, budget: int, episodes: int, data_cache: dict) -> dict:
-    """One estimation run, scored along its trace."""
+def parse_variant(text: str) -> tuple[str, str, dict]:
+    """"LABEL=METHOD[:KEY=VALUE,...]" -> (label, method, options); values parsed as JSON when they are."""
+    label, eq, rest = text.partition("=")
+    method, _, opts = rest.partition(":")
+    if not eq or not label or method not in ESTIMATORS:
+        raise SystemExit(f"nfpde_table: --variant {text!r}: expected LABEL=METHOD[:KEY=VALUE,...] with METHOD one "
+                         f"of {list(ESTIMATORS)}")
+    options = {}
+    for pair in filter(None, opts.split(",")):
+        key, eq, value = pair.partition("=")
+        if not eq:
+            raise SystemExit(f"nfpde_table: --variant {text!r}: option {pair!r} is not KEY=VALUE")
+        try:
+            options[key] = json.loads(value)
+        except json.JSONDecodeError:
+            options[key] = value
+    try:  # unknown or bad options fail here, not mid-run
+        EstimateConfig(method=method, options=options).method_config()
+    except ValueError as exc:
+        raise SystemExit(f"nfpde_table: --variant {text!r}: {exc}") from None
+    return label, method, options
+
+
+def run_one(env: str, target: str, method: str, seed: int, budget: int, episodes: int, data_cache: dict,
+            options: dict | None = None, label: str | None = None) -> dict:
+    """One estimation run, scored along its trace (recorded under `label`, default the method)."""
     if (env, target, seed) not in data_cache:
         ds, truth = collect(CollectConfig(env=env, xi=target, episodes=episodes, seed=seed))
         data_cache[(env, target, seed)] = (ds, ds.space.normalize(truth))
     ds, u_true = data_cache[(env, target, seed)]
-    sampler, info, budget_state = estimate(ds, EstimateConfig(method=method, seed=seed, sim_budget=budget))
+    cpu0 = time.process_time()
+    sampler, info, budget_state = estimate(ds, EstimateConfig(method=method, seed=seed, sim_budget=budget,
+                                                              options=dict(options or {})))
+    cpu = time.process_time() - cpu0
     trace = [{"calls": t["calls"], "seconds": t["seconds"], "ot": ot_cost(t["u"], u_true)} for t in budget_state.trace]
     final_u = sampler.space.normalize(sampler.sample(500, np.random.default_rng(seed + 1000)))
-    return {"env": env, "target": target, "method": method, "seed": seed, "sim_budget": budget,
-            "ot": ot_cost(final_u, u_true), "seconds_total": info["seconds"], "sim_calls": info["sim_calls"],
+    return {"env": env, "target": target, "method": label or method, "estimator": method,
+            "options": dict(options or {}), "seed": seed, "sim_budget": budget,
+            "ot": ot_cost(final_u, u_true), "seconds_total": info["seconds"], "cpu_seconds": cpu,
+            "sim_calls": info["sim_calls"],
             "seconds_converge": converge_seconds(trace), "trace": trace, "details": info["details"],
             "samples_u": final_u[:300].round(4).tolist(), "true_u": u_true.round(4).tolist()}
 
@@ -73,12 +108,18 @@ def oracle_ot(env: str, target: str, seed: int, data_cache: dict) -> float:
     return ot_cost(ds.space.normalize(xi), u_true)
 
 
+def _labels(runs: list[dict]) -> list[str]:
+    """Method labels: the estimators first (in their order), then variants in order of appearance."""
+    seen = list(dict.fromkeys(r["method"] for r in runs))
+    return [m for m in ESTIMATORS if m in seen] + [m for m in seen if m not in ESTIMATORS]
+
+
 def summarize(runs: list[dict], oracle: dict) -> dict:
     """The rows of docs/results/nfpde.json."""
     rows = []
     for env in dict.fromkeys(r["env"] for r in runs):
         for target in ("gaussian", "mixture"):
-            for method in ESTIMATORS:
+            for method in _labels(runs):
                 sel = [r for r in runs if (r["env"], r["target"], r["method"]) == (env, target, method)]
                 if not sel:
                     continue
@@ -88,6 +129,8 @@ def summarize(runs: list[dict], oracle: dict) -> dict:
                              "ot_se": float(ot.std(ddof=1) / np.sqrt(len(ot))) if len(ot) > 1 else 0.0,
                              "seconds_mean": float(np.mean([converge_seconds(r["trace"]) for r in sel])),
                              "seconds_total_mean": float(np.mean([r["seconds_total"] for r in sel])),
+                             **({"cpu_seconds_mean": float(np.mean([r["cpu_seconds"] for r in sel]))}
+                                if all("cpu_seconds" in r for r in sel) else {}),
                              "sim_calls_mean": float(np.mean([r["sim_calls"] for r in sel])),
                              "seeds": len(sel),
                              "oracle_ot_mean": float(np.mean([oracle[f"{env}|{target}|{r['seed']}"] for r in sel
@@ -95,17 +138,18 @@ def summarize(runs: list[dict], oracle: dict) -> dict:
     return {"rows": rows}
 
 
-def plot(runs: list[dict], out: Path) -> None:
+def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
     """Per env: samples (first two params) per method and target; OT vs seconds and vs calls."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    labels = _labels(runs)
     for env in dict.fromkeys(r["env"] for r in runs):
         stem = env.split("/")[-1].split("-v")[0].lower()
-        fig, axs = plt.subplots(2, len(ESTIMATORS), figsize=(3.2 * len(ESTIMATORS), 6.4), squeeze=False)
+        fig, axs = plt.subplots(2, len(labels), figsize=(3.2 * len(labels), 6.4), squeeze=False)
         for i, target in enumerate(("gaussian", "mixture")):
-            for j, method in enumerate(ESTIMATORS):
+            for j, method in enumerate(labels):
                 ax = axs[i, j]
                 sel = [r for r in runs if (r["env"], r["target"], r["method"], r["seed"]) == (env, target, method, 0)]
                 if sel:
@@ -118,18 +162,18 @@ def plot(runs: list[dict], out: Path) -> None:
         axs[0, 0].legend(fontsize=7)
         fig.suptitle(f"{env}: samples of the estimate (seed 0), first two parameters, unit box")
         fig.tight_layout()
-        fig.savefig(out / f"nfpde-{stem}-samples.png", dpi=100)
+        fig.savefig(out / f"{name}-{stem}-samples.png", dpi=100)
         plt.close(fig)
 
         for xkey, label in (("seconds", "wall time [s]"), ("calls", "simulator calls")):
             fig, axs = plt.subplots(1, 2, figsize=(10, 4))
             for ax, target in zip(axs, ("gaussian", "mixture")):
-                for method in ESTIMATORS:
+                for method in labels:
                     sel = [r for r in runs if (r["env"], r["target"], r["method"]) == (env, target, method)]
                     for k, r in enumerate(sel):
                         x = [t[xkey] for t in r["trace"]]
                         y = [t["ot"] for t in r["trace"]]
-                        color = f"C{ESTIMATORS.index(method)}"
+                        color = f"C{labels.index(method)}"
                         ax.plot(x, y, "-o" if len(x) == 1 else "-", color=color, ms=4, alpha=0.7,
                                 label=method if k == 0 else None)
                 ax.set_xlabel(label)
@@ -137,7 +181,7 @@ def plot(runs: list[dict], out: Path) -> None:
                 ax.set_title(f"{env} / {target}")
                 ax.legend(fontsize=8)
             fig.tight_layout()
-            fig.savefig(out / f"nfpde-{stem}-ot-vs-{xkey}.png", dpi=100)
+            fig.savefig(out / f"{name}-{stem}-ot-vs-{xkey}.png", dpi=100)
             plt.close(fig)
 
 
@@ -145,41 +189,52 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--envs", nargs="+", default=["goflow/Cartpole-v0"])
     p.add_argument("--targets", nargs="+", default=["gaussian", "mixture"])
-    p.add_argument("--methods", nargs="+", default=list(ESTIMATORS), choices=ESTIMATORS)
+    p.add_argument("--methods", nargs="*", default=list(ESTIMATORS), choices=ESTIMATORS)
+    p.add_argument("--variant", action="append", default=[], metavar="LABEL=METHOD[:KEY=VALUE,...]",
+                   help="also run METHOD with these options, recorded as LABEL")
+    p.add_argument("--name", default="nfpde", help="stem of the result files")
+    p.add_argument("--no-plots", action="store_true")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--budget", type=int, default=100_000, help="simulator calls per run")
     p.add_argument("--episodes", type=int, default=48)
     p.add_argument("--out", default=str(RESULTS))
     args = p.parse_args()
+    runs_to_do = [(m, m, {}) for m in args.methods] + [parse_variant(v) for v in args.variant]
+    if len({label for label, _, _ in runs_to_do}) < len(runs_to_do):
+        raise SystemExit("nfpde_table: a label is used twice in --methods/--variant")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    runs_path = out / "nfpde_runs.json"
-    doc = json.loads(runs_path.read_text()) if runs_path.exists() else {"runs": [], "oracle": {}}
+    runs_path = out / f"{args.name}_runs.json"
+    doc = read_json(runs_path, "runs file") if runs_path.exists() else {"runs": [], "oracle": {}}
     done = {_key(r) for r in doc["runs"]}
     doc["command"] = "python benchmarks/nfpde_table.py " + " ".join(sys.argv[1:])
+    doc.setdefault("commands", []).append(doc["command"])  # every invocation on this runs file
     cache: dict = {}
+    # torch imports torch._dynamo (~3 s) at the first optimizer of a process: pay it here, not in the first run
+    import torch
+    torch.optim.Adam([torch.zeros(1, requires_grad=True)])
     for env in args.envs:
         for target in args.targets:
             for seed in range(args.seeds):
-                for method in args.methods:
-                    if (env, target, method, seed) in done:
+                for label, method, options in runs_to_do:
+                    if (env, target, label, seed) in done:
                         continue
                     t0 = time.perf_counter()
-                    run = run_one(env, target, method, seed, args.budget, args.episodes, cache)
+                    run = run_one(env, target, method, seed, args.budget, args.episodes, cache, options, label)
                     doc["oracle"][f"{env}|{target}|{seed}"] = oracle_ot(env, target, seed, cache)
                     doc["runs"].append(run)
-                    tmp = runs_path.with_suffix(".tmp")
-                    tmp.write_text(json.dumps(doc))
-                    os.replace(tmp, runs_path)
-                    print(f"{env} {target} seed {seed} {method}: OT {run['ot']:.3f}, converged "
-                          f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s "
+                    write_json(runs_path, doc, indent=None)
+                    print(f"{env} {target} seed {seed} {label}: OT {run['ot']:.3f}, converged "
+                          f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s, cpu {run['cpu_seconds']:.1f} s "
                           f"({time.perf_counter() - t0:.0f} s with scoring)", flush=True)
     summary = summarize(doc["runs"], doc["oracle"])
     summary["command"] = doc["command"]
-    (out / "nfpde.json").write_text(json.dumps(summary, indent=2))
-    plot(doc["runs"], out)
+    summary["commands"] = doc.get("commands", [doc["command"]])
+    write_json(out / f"{args.name}.json", summary)
+    if not args.no_plots:
+        plot(doc["runs"], out, args.name)
     for r in summary["rows"]:
-        print(f"{r['env']:<22} {r['target']:<9} {r['method']:<14} OT {r['ot_mean']:.3f} +- {r['ot_se']:.3f}  "
+        print(f"{r['env']:<22} {r['target']:<9} {r['method']:<16} OT {r['ot_mean']:.3f} +- {r['ot_se']:.3f}  "
               f"converge {r['seconds_mean']:6.1f} s  total {r['seconds_total_mean']:6.1f} s  "
               f"(oracle {r['oracle_ot_mean']:.3f})")
     return 0

@@ -1,5 +1,7 @@
-"""BayesSim (Ramos et al. 2019): a mixture density network posterior q(xi | x) over summary statistics
-x of trajectory data, trained on simulations with xi drawn from the uniform prior on the box.
+"""BayesSim (Ramos, Possas and Fox, "BayesSim: adaptive domain randomization via probabilistic
+inference for robotics simulators", RSS 2019): a mixture density network posterior q(xi | x) over
+summary statistics x of trajectory data, trained on simulations with xi drawn from the uniform prior
+on the box.
 
 Offline form used here (same data and simulator interface as NFPDE and DROPO): a "trajectory" is a
 segment of L consecutive logged transitions; simulating it under xi means one-step predictions
@@ -9,21 +11,31 @@ D over the segment and the mean of D_t a_t^T (BayesSim's state-action cross-corr
 standardized with the training set's mean and std. The MDN (our own, torch) maps them to a
 K-component diagonal Gaussian mixture over y = logit(u). The estimate of the parameter
 distribution is the average of the posteriors of all logged segments.
+
+Why our MDN and not `sbi`'s (Tejero-Cantero et al., "sbi: a toolkit for simulation-based
+inference", JOSS 2020; neural posterior estimation with `posterior_nn(model="mdn")`): measured on
+the docs/nfpde.md table (same simulations, prior, statistics and seeds; docs/results/bayessim_sbi.json),
+sbi 0.27's MDN ended with a higher OT cost in all 8 (env, target) cells, by 2.6 to 7.6 standard errors
+with its own training recipe, and still on PointMass's mixture and Cartpole with ours, where it took
+2.3-2.8x our training CPU time. docs/nfpde.md has the table and the commands.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from learning.estimation.common import Budget, segment_rows
+from common.checks import check_int
+from learning.estimation.common import Budget, check_sim_budget, segment_rows
+from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import EPS, GaussianMixtureAggregate, logit
 
-__all__ = ["BayesSimConfig", "MDN", "fit_bayessim", "summary_stats"]
+__all__ = ["BayesSimConfig", "MDN", "fit_bayessim", "min_sim_calls", "summary_stats"]
 
 
 @dataclass
@@ -40,9 +52,16 @@ class BayesSimConfig:
 
     def __post_init__(self) -> None:
         for name in ("segment_length", "components", "epochs", "batch_size"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"BayesSimConfig.{name} must be >= 1, got {getattr(self, name)!r}")
+            setattr(self, name, check_int(getattr(self, name), f"BayesSimConfig.{name}", 1))
         self.hidden = tuple(self.hidden)
+
+
+def min_sim_calls(config: BayesSimConfig, data: TransitionDataset) -> tuple[int, str]:
+    """Simulator calls BayesSim needs at least: 2 simulated segments (a mean and a spread of the
+    summary statistics), and how they add up (InputError if no trajectory holds one segment)."""
+    segment_rows(data, config.segment_length)
+    return 2 * config.segment_length, (f"2 simulated segments x {config.segment_length} transitions, set by the "
+                                       "option segment_length")
 
 
 def summary_stats(states: np.ndarray, actions: np.ndarray, next_states: np.ndarray,
@@ -84,16 +103,14 @@ class MDN(nn.Module):
 
 def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[GaussianMixtureAggregate, dict]:
     """Simulate segments under prior draws until the budget is spent, train the MDN, and average its
-    posteriors over the logged segments."""
+    posteriors over the logged segments. The seed fixes the prior draws, the segments, the MDN's
+    initialization and its batches (the caller's torch RNG state is left as it was)."""
     rng = np.random.default_rng(seed)
-    torch.manual_seed(seed)
     data = budget.data
     d = data.space.dim
+    check_sim_budget(budget.remaining(), "bayessim", min_sim_calls(config, data))
     segs = segment_rows(data, config.segment_length)
     n_sims = budget.remaining() // config.segment_length
-    if n_sims < 2:
-        raise ValueError(f"BayesSim: a budget of {budget.remaining()} calls buys fewer than 2 simulated "
-                         f"segments of {config.segment_length} transitions")
     u_train = rng.uniform(EPS, 1 - EPS, size=(n_sims, d))
     which = segs[rng.integers(len(segs), size=n_sims)]  # (n, L)
     # One batch per chunk of draws: each draw simulates its own segment.
@@ -110,9 +127,12 @@ def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[Gau
     x_train, y_train = x_train[ok], logit(u_train[ok])
     mu, sd = x_train.mean(0), x_train.std(0) + 1e-8
     x_obs = summary_stats(data.states[segs], data.actions[segs], data.next_states[segs], budget.scale)
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
     xt = torch.as_tensor((x_train - mu) / sd, dtype=torch.float32)
     yt = torch.as_tensor(y_train, dtype=torch.float32)
-    mdn = MDN(xt.shape[1], d, config.components, config.hidden, config.min_std)
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        mdn = MDN(xt.shape[1], d, config.components, config.hidden, config.min_std)
     opt = torch.optim.Adam(mdn.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(seed)
     for _ in range(config.epochs):
@@ -125,10 +145,10 @@ def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[Gau
             opt.step()
     with torch.no_grad():
         logw, mean, std = mdn(torch.as_tensor((x_obs - mu) / sd, dtype=torch.float32))
-    dist = GaussianMixtureAggregate(logw.exp().double().numpy(), mean.double().numpy(), std.double().numpy())
-    budget.snapshot(dist, simulations=int(ok.sum()))
-    with torch.no_grad():
         final_nll = float(-mdn.log_prob(xt, yt).mean())
+    dist = GaussianMixtureAggregate(logw.exp().double().numpy(), mean.double().numpy(), std.double().numpy())
+    train_wall, train_cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
+    budget.snapshot(dist, simulations=int(ok.sum()))
     return dist, {"simulations": int(n_sims), "valid_simulations": int(ok.sum()),
                   "train_nll": final_nll if math.isfinite(final_nll) else None,
-                  "observed_segments": int(len(segs))}
+                  "observed_segments": int(len(segs)), "train_seconds": train_wall, "train_cpu_seconds": train_cpu}

@@ -3,8 +3,6 @@ on the same budget; a seed reproduces an estimate; the estimate works as a Sampl
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -79,20 +77,18 @@ def test_baselines_share_the_budget_and_give_samplers(method, mixture_data):
 
 
 def test_bayessim_same_seed_same_estimate(mixture_data):
-    """BayesSim (sbi's NPE with its MDN): a seed fixes the simulations, the network's initialization,
-    the validation split and the batches, so the estimate is reproduced bit for bit; another seed
-    gives another estimate; sbi writes no TensorBoard logs."""
+    """A seed fixes BayesSim's prior draws, segments, MDN initialization and batches: the estimate
+    is reproduced bit for bit, another seed gives another one, and the caller's torch RNG is left alone."""
     ds, _ = mixture_data
-    cfg = EstimateConfig(method="bayessim", seed=3, sim_budget=4000)
+    cfg = EstimateConfig(method="bayessim", seed=3, sim_budget=4000, options={"epochs": 20})
     torch_state = torch.random.get_rng_state()
     a, info, _ = estimate(ds, cfg)
-    assert torch.equal(torch.random.get_rng_state(), torch_state)  # the caller's torch RNG is left alone
+    assert torch.equal(torch.random.get_rng_state(), torch_state)
     b, _, _ = estimate(ds, cfg)
     assert a.state_dict() == b.state_dict()
-    assert 0 < info["sim_calls"] <= 4000 and info["details"]["epochs"] >= 1
-    c, _, _ = estimate(ds, EstimateConfig(method="bayessim", seed=4, sim_budget=4000))
+    assert 0 < info["sim_calls"] <= 4000
+    c, _, _ = estimate(ds, EstimateConfig(method="bayessim", seed=4, sim_budget=4000, options={"epochs": 20}))
     assert c.state_dict() != a.state_dict()
-    assert not (Path.cwd() / "sbi-logs").exists()
 
 
 def test_target_and_config_errors():
