@@ -527,6 +527,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
     import multiprocessing as mp
     import os
     import signal
+    import threading
     runs = config.runs()  # validates every run's options
     probe_env(config.env, config.env_kwargs)
     check_output_dir(config.out, "run folder")
@@ -534,24 +535,31 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     pool = ctx.Pool(config.workers, initializer=_init_worker, initargs=(stop,))
+
+    def interrupt(signum: int, frame: Any) -> None:
+        # Ctrl-C: every run stops at its next step (each keeps its last checkpoint), the runs not
+        # started are skipped, and the workers exit on their own: nothing is killed mid-write.
+        if not stop.is_set():
+            stop.set()
+            for child in mp.active_children():
+                os.kill(child.pid, signal.SIGINT)
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, interrupt) if main_thread else None
     try:
         logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress,
                          desc=f"experiment {config.stem()}", unit="run"))
-    except KeyboardInterrupt:
-        # Stop every run at its next step (each keeps its last checkpoint) and let the workers
-        # exit on their own, so that nothing is killed mid-write and no traceback is printed.
-        stop.set()
-        for child in mp.active_children():
-            os.kill(child.pid, signal.SIGINT)
-        pool.close()
-        pool.join()
-        raise
     except BaseException:
         pool.terminate()
         pool.join()
         raise
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
     pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
     pool.join()
+    if stop.is_set():
+        raise KeyboardInterrupt
     summary = summarize(logs, config.total_steps, config.env)
     summary["command"] = command
     stem = config.results / config.stem()
