@@ -456,6 +456,7 @@ def _run_quiet(config: TrainConfig) -> dict | None:
     try:
         return train(config, progress=False)
     except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         return None
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -536,13 +537,25 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
     stop = ctx.Event()
     pool = ctx.Pool(config.workers, initializer=_init_worker, initargs=(stop,))
 
+    done = threading.Event()
+
+    def forward() -> None:
+        # Until the pool has drained, tell the workers every second (a Ctrl-C in a terminal has
+        # reached them already; a signal to this process alone has not): an interrupt that lands
+        # inside a finalizer is swallowed by Python, and the run would go on.
+        while not done.wait(1.0):
+            for child in mp.active_children():
+                try:
+                    os.kill(child.pid, signal.SIGINT)
+                except ProcessLookupError:
+                    pass
+
     def interrupt(signum: int, frame: Any) -> None:
         # Ctrl-C: every run stops at its next step (each keeps its last checkpoint), the runs not
         # started are skipped, and the workers exit on their own: nothing is killed mid-write.
         if not stop.is_set():
             stop.set()
-            for child in mp.active_children():
-                os.kill(child.pid, signal.SIGINT)
+            threading.Thread(target=forward, daemon=True).start()
 
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, interrupt) if main_thread else None
@@ -554,6 +567,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
         pool.join()
         raise
     finally:
+        done.set()
         if main_thread:
             signal.signal(signal.SIGINT, previous)
     pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
