@@ -80,22 +80,34 @@ def parse_variant(text: str) -> tuple[str, str, dict]:
     return label, method, options
 
 
-def run_one(env: str, target: str, method: str, seed: int, budget: int, episodes: int, data_cache: dict,
-            options: dict | None = None, label: str | None = None) -> dict:
-    """One estimation run, scored along its trace (recorded under `label`, default the method)."""
+def dataset(env: str, target: str, seed: int, episodes: int, data_cache: dict) -> tuple:
+    """The cell's dataset and its true per-trajectory parameters in the unit box (collected once
+    per (env, target, seed), dataset seed = seed)."""
     if (env, target, seed) not in data_cache:
         ds, truth = collect(CollectConfig(env=env, xi=target, episodes=episodes, seed=seed))
         data_cache[(env, target, seed)] = (ds, ds.space.normalize(truth))
-    ds, u_true = data_cache[(env, target, seed)]
+    return data_cache[(env, target, seed)]
+
+
+def score(sampler, u_true: np.ndarray, seed: int) -> tuple[np.ndarray, float]:
+    """The final score of an estimate: 500 draws (unit box) and their OT cost to the truth."""
+    final_u = sampler.space.normalize(sampler.sample(500, np.random.default_rng(seed + 1000)))
+    return final_u, ot_cost(final_u, u_true)
+
+
+def run_one(env: str, target: str, method: str, seed: int, budget: int, episodes: int, data_cache: dict,
+            options: dict | None = None, label: str | None = None) -> dict:
+    """One estimation run, scored along its trace (recorded under `label`, default the method)."""
+    ds, u_true = dataset(env, target, seed, episodes, data_cache)
     cpu0 = time.process_time()
     sampler, info, budget_state = estimate(ds, EstimateConfig(method=method, seed=seed, sim_budget=budget,
                                                               options=dict(options or {})))
     cpu = time.process_time() - cpu0
     trace = [{"calls": t["calls"], "seconds": t["seconds"], "ot": ot_cost(t["u"], u_true)} for t in budget_state.trace]
-    final_u = sampler.space.normalize(sampler.sample(500, np.random.default_rng(seed + 1000)))
+    final_u, final_ot = score(sampler, u_true, seed)
     return {"env": env, "target": target, "method": label or method, "estimator": method,
             "options": dict(options or {}), "seed": seed, "sim_budget": budget,
-            "ot": ot_cost(final_u, u_true), "seconds_total": info["seconds"], "cpu_seconds": cpu,
+            "ot": final_ot, "seconds_total": info["seconds"], "cpu_seconds": cpu,
             "sim_calls": info["sim_calls"],
             "seconds_converge": converge_seconds(trace), "trace": trace, "details": info["details"],
             "samples_u": final_u[:300].round(4).tolist(), "true_u": u_true.round(4).tolist()}

@@ -17,7 +17,8 @@ inference", JOSS 2020; neural posterior estimation with `posterior_nn(model="mdn
 the docs/nfpde.md table (same simulations, prior, statistics and seeds; docs/results/bayessim_sbi.json),
 sbi 0.27's MDN ended with a higher OT cost in all 8 (env, target) cells, by 2.6 to 7.6 standard errors
 with its own training recipe, and still on PointMass's mixture and Cartpole with ours, where it took
-2.3-2.8x our training CPU time. docs/nfpde.md has the table and the commands.
+2.3-2.8x our training CPU time. docs/nfpde.md has the table; benchmarks/bayessim_sbi.py reruns it
+(`simulate_bayessim` and `fit_mdn` are the two steps it shares with `fit_bayessim`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ from learning.estimation.common import Budget, check_sim_budget, segment_rows
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import EPS, GaussianMixtureAggregate, logit
 
-__all__ = ["BayesSimConfig", "MDN", "fit_bayessim", "min_sim_calls", "summary_stats"]
+__all__ = ["BayesSimConfig", "BayesSimSimulations", "MDN", "fit_bayessim", "fit_mdn", "min_sim_calls",
+           "simulate_bayessim", "summary_stats"]
 
 
 @dataclass
@@ -101,10 +103,20 @@ class MDN(nn.Module):
         return torch.logsumexp(logw + comp, dim=-1)
 
 
-def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[GaussianMixtureAggregate, dict]:
-    """Simulate segments under prior draws until the budget is spent, train the MDN, and average its
-    posteriors over the logged segments. The seed fixes the prior draws, the segments, the MDN's
-    initialization and its batches (the caller's torch RNG state is left as it was)."""
+@dataclass
+class BayesSimSimulations:
+    """BayesSim's training pairs and observations: what its simulation step hands to the MDN."""
+
+    u: np.ndarray  # (n, d) prior draws (unit box) of the valid simulations
+    stats: np.ndarray  # (n, n_stats) summary statistics of their simulated segments (not standardized)
+    observed: np.ndarray  # (S, n_stats) summary statistics of the logged segments
+    simulations: int  # simulated segments, failed ones included
+
+
+def simulate_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> BayesSimSimulations:
+    """Simulate segments under prior draws until the budget is spent and take their summary
+    statistics (failed simulations dropped), and those of the logged segments. The seed fixes the
+    prior draws and the segments."""
     rng = np.random.default_rng(seed)
     data = budget.data
     d = data.space.dim
@@ -124,9 +136,19 @@ def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[Gau
         stats.append(summary_stats(data.states[rows], data.actions[rows], pred, budget.scale))
     x_train = np.concatenate(stats)
     ok = np.all(np.isfinite(x_train), axis=1)  # failed simulations carry no information
-    x_train, y_train = x_train[ok], logit(u_train[ok])
-    mu, sd = x_train.mean(0), x_train.std(0) + 1e-8
     x_obs = summary_stats(data.states[segs], data.actions[segs], data.next_states[segs], budget.scale)
+    return BayesSimSimulations(u=u_train[ok], stats=x_train[ok], observed=x_obs, simulations=int(n_sims))
+
+
+def fit_mdn(sims: BayesSimSimulations, config: BayesSimConfig, seed: int
+            ) -> tuple[GaussianMixtureAggregate, dict]:
+    """Train the MDN on the simulations (standardized statistics -> logit(u)) and average its
+    posteriors over the observed segments. The seed fixes the MDN's initialization and its batches
+    (the caller's torch RNG state is left as it was)."""
+    d = sims.u.shape[1]
+    x_train, y_train = sims.stats, logit(sims.u)
+    mu, sd = x_train.mean(0), x_train.std(0) + 1e-8
+    x_obs = sims.observed
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     xt = torch.as_tensor((x_train - mu) / sd, dtype=torch.float32)
     yt = torch.as_tensor(y_train, dtype=torch.float32)
@@ -148,7 +170,18 @@ def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[Gau
         final_nll = float(-mdn.log_prob(xt, yt).mean())
     dist = GaussianMixtureAggregate(logw.exp().double().numpy(), mean.double().numpy(), std.double().numpy())
     train_wall, train_cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
-    budget.snapshot(dist, simulations=int(ok.sum()))
-    return dist, {"simulations": int(n_sims), "valid_simulations": int(ok.sum()),
-                  "train_nll": final_nll if math.isfinite(final_nll) else None,
-                  "observed_segments": int(len(segs)), "train_seconds": train_wall, "train_cpu_seconds": train_cpu}
+    return dist, {"train_nll": final_nll if math.isfinite(final_nll) else None,
+                  "train_seconds": train_wall, "train_cpu_seconds": train_cpu}
+
+
+def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[GaussianMixtureAggregate, dict]:
+    """Simulate segments under prior draws until the budget is spent (`simulate_bayessim`), train
+    the MDN, and average its posteriors over the logged segments (`fit_mdn`). The seed fixes the
+    prior draws, the segments, the MDN's initialization and its batches (the caller's torch RNG
+    state is left as it was)."""
+    sims = simulate_bayessim(budget, config, seed)
+    dist, fit = fit_mdn(sims, config, seed)
+    budget.snapshot(dist, simulations=len(sims.u))
+    return dist, {"simulations": sims.simulations, "valid_simulations": len(sims.u),
+                  "train_nll": fit["train_nll"], "observed_segments": len(sims.observed),
+                  "train_seconds": fit["train_seconds"], "train_cpu_seconds": fit["train_cpu_seconds"]}

@@ -91,6 +91,30 @@ def test_bayessim_same_seed_same_estimate(mixture_data):
     assert c.state_dict() != a.state_dict()
 
 
+def test_bayessim_steps_compose_to_the_estimator(mixture_data):
+    """BayesSim's simulation step and its MDN fit, called one after the other as
+    benchmarks/bayessim_sbi.py calls them, give `estimate`'s BayesSim estimate bit for bit."""
+    from assembly.transition import ParallelTransitionSim
+    from learning.estimation.bayessim import BayesSimConfig, fit_mdn, simulate_bayessim
+    from learning.estimation.common import Budget
+    from learning.samplers.estimated import EstimatedSampler
+
+    ds, _ = mixture_data
+    a, info, _ = estimate(ds, EstimateConfig(method="bayessim", seed=3, sim_budget=4000, options={"epochs": 20}))
+    config = BayesSimConfig(epochs=20)
+    budget = Budget(ds, ParallelTransitionSim(ds.env_id, workers=1), 4000)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as estimate() trains
+    try:
+        sims = simulate_bayessim(budget, config, 3)
+        dist, details = fit_mdn(sims, config, 3)
+    finally:
+        torch.set_num_threads(threads)
+    assert budget.calls == info["sim_calls"] and len(sims.u) == info["details"]["valid_simulations"]
+    assert details["train_nll"] == info["details"]["train_nll"]
+    assert a.state_dict() == EstimatedSampler.of(ds.space, dist).state_dict()
+
+
 def test_target_and_config_errors():
     from learning.estimation.nfpde import NFPDEConfig
 
