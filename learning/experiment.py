@@ -518,26 +518,19 @@ def plot_curves(summary: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "") -> dict:
-    """Run every (method, seed) in `config.workers` processes (resuming finished or interrupted
-    runs from their checkpoints); write <results>/<stem>.json and .png (and, for Toy2D, the
-    learned densities <stem>-densities.png) with `command` as provenance; return the summary, whose
-    "figures" lists the figures written.
+def _map_runs(runs: list[TrainConfig], workers: int, progress: bool, desc: str) -> list[dict]:
+    """The logs of `runs`, trained in `workers` spawned processes, in order.
 
-    The environment, the options and the output folders are checked before any run starts."""
+    Ctrl-C stops every run at its next step (each keeps its last checkpoint), skips the runs not
+    started, lets the workers exit on their own (nothing is killed mid-write) and then raises
+    KeyboardInterrupt here."""
     import multiprocessing as mp
     import os
     import signal
     import threading
-    runs = config.runs()  # validates every run's options
-    probe_env(config.env, config.env_kwargs)
-    check_output_dir(config.out, "run folder")
-    check_output_dir(config.results, "results folder")
     ctx = mp.get_context("spawn")
-    stop = ctx.Event()
-    pool = ctx.Pool(config.workers, initializer=_init_worker, initargs=(stop,))
-
-    done = threading.Event()
+    stop, done = ctx.Event(), threading.Event()
+    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(stop,))
 
     def forward() -> None:
         # Until the pool has drained, tell the workers every second (a Ctrl-C in a terminal has
@@ -551,8 +544,6 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
                     pass
 
     def interrupt(signum: int, frame: Any) -> None:
-        # Ctrl-C: every run stops at its next step (each keeps its last checkpoint), the runs not
-        # started are skipped, and the workers exit on their own: nothing is killed mid-write.
         if not stop.is_set():
             stop.set()
             threading.Thread(target=forward, daemon=True).start()
@@ -560,8 +551,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, interrupt) if main_thread else None
     try:
-        logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress,
-                         desc=f"experiment {config.stem()}", unit="run"))
+        logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress, desc=desc,
+                         unit="run"))
     except BaseException:
         pool.terminate()
         pool.join()
@@ -574,17 +565,32 @@ def run_experiment(config: ExperimentConfig, progress: bool = True, command: str
     pool.join()
     if stop.is_set():
         raise KeyboardInterrupt
+    return logs
+
+
+def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "") -> dict:
+    """Run every (method, seed) in `config.workers` processes (resuming finished or interrupted
+    runs from their checkpoints); write <results>/<stem>.json and .png (and, for Toy2D, the
+    learned densities <stem>-densities.png) with `command` as provenance; return the summary, whose
+    "figures" lists the figures written.
+
+    The environment, the options and the output folders are checked before any run starts; on
+    Ctrl-C the runs keep their last checkpoints and KeyboardInterrupt is raised."""
+    runs = config.runs()  # validates every run's options
+    probe_env(config.env, config.env_kwargs)
+    check_output_dir(config.out, "run folder")
+    check_output_dir(config.results, "results folder")
+    logs = _map_runs(runs, config.workers, progress, f"experiment {config.stem()}")
     summary = summarize(logs, config.total_steps, config.env)
     summary["command"] = command
     stem = config.results / config.stem()
-    plot_curves(summary, stem.with_name(stem.name + ".png"))
-    summary["figures"] = [str(stem.with_name(stem.name + ".png"))]
+    summary["figures"] = [str(stem) + ".png"]
+    plot_curves(summary, Path(summary["figures"][0]))
     if gymnasium.spec(config.env).name == "Toy2D":
         from learning.plots import plot_toy2d_densities
-        densities = stem.with_name(stem.name + "-densities.png")
-        plot_toy2d_densities(config, densities)
-        summary["figures"].append(str(densities))
-    write_json(stem.with_name(stem.name + ".json"), summary)
+        summary["figures"].append(str(stem) + "-densities.png")
+        plot_toy2d_densities(config, Path(summary["figures"][-1]))
+    write_json(str(stem) + ".json", summary)
     return summary
 
 
