@@ -4,6 +4,7 @@ simulator and the same simulator budget for each."""
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -11,6 +12,7 @@ from typing import Any
 import torch
 
 from assembly.transition import ParallelTransitionSim
+from common.config import config_with_overrides
 from learning.estimation import ESTIMATORS
 from learning.estimation.common import Budget
 from learning.estimation.dataset import TransitionDataset, load_dataset
@@ -41,29 +43,33 @@ class EstimateConfig:
         self.workers = check_int(self.workers, "workers", 1)
 
     def method_config(self) -> Any:
-        """The method's config dataclass with `options` applied (ValueError naming unknown keys)."""
-        from learning.estimation.bayessim import BayesSimConfig
-        from learning.estimation.dropo import DROPOConfig
-        from learning.estimation.nfpde import NFPDEConfig
-
-        cls = {"dropo": DROPOConfig, "bayessim": BayesSimConfig}.get(self.method, NFPDEConfig)
+        """The method's config dataclass with `options` applied (UnknownOptionError naming unknown
+        keys); NFPDE's likelihood comes from the method's name."""
+        _, config_type, _ = _implementation(self.method)
         opts = dict(self.options)
         if self.method.startswith("nfpde-"):
             opts["likelihood"] = self.method.split("-", 1)[1]
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(opts) - known)
-        if unknown:
-            from common.errors import UnknownOptionError
-            raise UnknownOptionError(f"{self.method}: unknown option(s) {unknown}; known: {sorted(known)}")
-        return cls(**opts)
+        return config_with_overrides(config_type, opts, owner=self.method)
+
+
+#: module of learning.estimation -> (its config dataclass, its fit function); "nfpde-softmax" and
+#: "nfpde-cai" are both the module nfpde.
+_IMPLEMENTATIONS = {"nfpde": ("NFPDEConfig", "fit_nfpde"), "dropo": ("DROPOConfig", "fit_dropo"),
+                    "bayessim": ("BayesSimConfig", "fit_bayessim")}
+
+
+def _implementation(method: str) -> tuple[Any, type, Any]:
+    """(module, config dataclass, fit function) of estimation method `method` (imported now)."""
+    name = method.split("-", 1)[0]
+    module = importlib.import_module(f"learning.estimation.{name}")
+    config_name, fit_name = _IMPLEMENTATIONS[name]
+    return module, getattr(module, config_name), getattr(module, fit_name)
 
 
 def min_sim_calls(config: EstimateConfig, data: TransitionDataset) -> tuple[int, str]:
     """The simulator calls one iteration of `config.method` needs on `data`, and how they add up
     (each method's own `min_sim_calls`)."""
-    from learning.estimation import bayessim, dropo, nfpde
-
-    module = {"dropo": dropo, "bayessim": bayessim}.get(config.method, nfpde)
+    module, _, _ = _implementation(config.method)
     return module.min_sim_calls(config.method_config(), data)
 
 
@@ -74,11 +80,9 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None, p
 
     Raises InputError before any simulation when `config.sim_budget` is below one iteration of the
     method (`min_sim_calls`). `progress` shows a bar of the simulator calls used against the budget."""
-    from learning.estimation.bayessim import fit_bayessim
     from learning.estimation.common import check_sim_budget
-    from learning.estimation.dropo import fit_dropo
-    from learning.estimation.nfpde import fit_nfpde
 
+    _, _, fit = _implementation(config.method)
     method_config = config.method_config()
     check_sim_budget(config.sim_budget, config.method, min_sim_calls(config, data))
     own = sim is None
@@ -92,7 +96,6 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None, p
     budget = None
     try:
         budget = Budget(data, sim, config.sim_budget, progress=progress, desc=f"estimate {config.method}")
-        fit = {"dropo": fit_dropo, "bayessim": fit_bayessim}.get(config.method, fit_nfpde)
         dist, details = fit(budget, method_config, config.seed)
     finally:
         if budget is not None:
