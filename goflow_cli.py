@@ -437,22 +437,66 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 def _bench_flags(p: argparse.ArgumentParser) -> None:
     from perception.bench import BenchConfig
-    p.add_argument("target", choices=["perception"], help="what to time")
+    from perception.calibration import CalibrationConfig
+    p.add_argument("target", choices=["perception", "calibration"],
+                   help="perception: seconds per posterior; calibration: coverage of the "
+                        "posteriors' credible regions on fresh scenes, both views, every "
+                        "perturbation group")
     p.add_argument("--json", metavar="PATH", type=Path, help="write the result as JSON")
-    _add_field(p, BenchConfig, "posteriors", doc="close-view posteriors timed per gear")
-    _add_field(p, BenchConfig, "seed", doc="seed of the random poses")
+    _add_field(p, BenchConfig, "posteriors", doc="perception: close-view posteriors timed per gear")
+    p.add_argument("--seed", type=int, default=None, metavar="SEED",
+                   help="seed of the random poses (perception: 0) or scenes (calibration: "
+                        "%d, held out from tuning)" % CalibrationConfig.seed)
+    _add_field(p, CalibrationConfig, "scenes", doc="calibration: scenes per perturbation group "
+                                                   "(three gears each)")
+    p.add_argument("--groups", nargs="+", metavar="GROUP", default=None,
+                   help="calibration: perturbation groups (default: all)")
+    _add_field(p, CalibrationConfig, "workers", doc="calibration: processes")
+    p.add_argument("--plot", metavar="PATH", type=Path,
+                   help="calibration: write the reliability plot (PNG)")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.target == "calibration":
+        return _bench_calibration(args)
     from perception.bench import BenchConfig, bench_perception
     if args.posteriors < 1:
         raise InputError(f"--posteriors {args.posteriors}: expected at least 1")
     json_path = check_output_file(args.json, "--json") if args.json else None
-    result = bench_perception(BenchConfig(posteriors=args.posteriors, seed=args.seed))
-    print(f"perception: {result['seconds_per_posterior']:.3f} s per posterior, "
-          f"{result['hypotheses_per_second']:.0f} hypotheses/s ({result['renderer']})")
+    seed = 0 if args.seed is None else args.seed
+    result = bench_perception(BenchConfig(posteriors=args.posteriors, seed=seed))
+    print(f"perception: {result['seconds_per_posterior']:.3f} s per close-view posterior, "
+          f"{result['hypotheses_per_second']:.0f} hypotheses/s ({result['renderer']}); "
+          f"{result['seconds_per_scene']:.3f} s per scene image (detection + a far posterior "
+          "per gear)")
     if json_path:
         write_json(json_path, result)
+    return 0
+
+
+def _bench_calibration(args: argparse.Namespace) -> int:
+    from perception.calibration import (
+        CalibrationConfig, markdown_table, reliability_plot, run_calibration,
+    )
+    from perception.scenes import PERTURBATIONS
+    overrides = {"scenes": args.scenes, "workers": args.workers}
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    if args.groups:
+        unknown = [g for g in args.groups if g not in PERTURBATIONS]
+        if unknown:
+            raise InputError(f"--groups {' '.join(unknown)}: unknown; expected some of "
+                             f"{', '.join(PERTURBATIONS)}")
+        overrides["groups"] = tuple(args.groups)
+    config = CalibrationConfig(**overrides)
+    json_path = check_output_file(args.json, "--json") if args.json else None
+    plot_path = check_output_file(args.plot, "--plot") if args.plot else None
+    result = run_calibration(config, progress=True)
+    print(markdown_table(result["summary"]))
+    if json_path:
+        write_json(json_path, result)
+    if plot_path:
+        reliability_plot(result, plot_path)
     return 0
 
 
@@ -516,7 +560,8 @@ COMMANDS: dict[str, _Command] = {
     "sweep": ("a hyperparameter sweep of one method (appendix A.2)", _sweep_flags, _cmd_sweep),
     "skill": ("train, export or show a skill file", _skill_flags, _cmd_skill),
     "evaluate": ("success rate of a skill", _evaluate_flags, _cmd_evaluate),
-    "bench": ("speed benchmarks (perception: pose posteriors per gear)", _bench_flags, _cmd_bench),
+    "bench": ("perception benchmarks (perception: speed of pose posteriors; calibration: their "
+              "coverage)", _bench_flags, _cmd_bench),
     "collect": ("log (s, a, s') trajectories with known true parameters", _collect_flags, _cmd_collect),
     "estimate": ("estimate a parameter distribution from a dataset", _estimate_flags, _cmd_estimate),
 }

@@ -33,6 +33,14 @@ REACH_RADIUS = (0.25, 0.80)
 REACH_HEIGHT = (-0.05, 0.80)
 # The hand is mounted on the flange rotated -pi/4 about the flange z axis (Franka's convention).
 X_FLANGE_HAND = RigidTransform(RotationMatrix.MakeZRotation(HAND_FLANGE_YAW), np.zeros(3))
+# Where gears may lie at the start of an assembly run: gear centres (x, y) in this rectangle [m].
+# Checked for every gear at every point of it (33 x 51 grid, 72 points on each of its top and bottom
+# tip circles projected): fully inside default_scene_camera()'s 640 x 480 image with at least 14.9 px
+# to spare (the large gear at the corner (0.62, -0.23) is the tightest), and within REACH_RADIUS
+# (0.30..0.66 m from the base). y stops at -0.23, not -0.28: the scene camera stands at y = -0.42,
+# and there the large gear would leave the image by 35 px at x = 0.62 (10 px margin needs y >= -0.235).
+PLACEMENT_X = (0.30, 0.62)
+PLACEMENT_Y = (-0.23, 0.22)
 
 
 def model_parser(plant: MultibodyPlant) -> Parser:
@@ -166,6 +174,42 @@ def _finite_pose(what: str, pose) -> np.ndarray:
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{what} = {pose!r}; expected three finite numbers (x [m], y [m], yaw [rad])")
     return arr
+
+
+def random_gear_poses(rng: np.random.Generator,
+                      plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
+                      gears: tuple[str, ...] = GEAR_NAMES, max_tries: int = 1000
+                      ) -> dict[str, tuple[float, float, float]]:
+    """Random start poses (x, y, yaw) for `gears`, placed one after the other in the given order:
+    x, y uniform in PLACEMENT_X x PLACEMENT_Y, yaw uniform in [-pi, pi), drawn again until
+    `validate_gear_pose` accepts the gear against the plate at `plate_pose` and the gears already
+    placed. Deterministic for a given generator state. ValueError on a bad rng, gear name or
+    max_tries; RuntimeError if a gear finds no valid pose in `max_tries` draws."""
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng is {type(rng).__name__}; expected a numpy.random.Generator "
+                         "(np.random.default_rng(seed))")
+    if isinstance(max_tries, bool) or not isinstance(max_tries, (int, np.integer)) or max_tries < 1:
+        raise ValueError(f"max_tries = {max_tries!r}; expected an integer >= 1")
+    for name in gears:
+        gear_spec(name)
+    if len(set(gears)) != len(gears):
+        raise ValueError(f"gears = {tuple(gears)}; expected each gear at most once")
+    poses: dict[str, tuple[float, float, float]] = {}
+    for name in gears:
+        for _ in range(max_tries):
+            pose = (float(rng.uniform(*PLACEMENT_X)), float(rng.uniform(*PLACEMENT_Y)),
+                    float(rng.uniform(-np.pi, np.pi)))
+            try:
+                validate_gear_pose(name, pose, plate_pose, poses)
+            except ValueError:
+                continue
+            poses[name] = pose
+            break
+        else:
+            raise RuntimeError(f"no valid pose for the {name} gear in {max_tries} draws from the "
+                               f"placement region x {PLACEMENT_X}, y {PLACEMENT_Y} m (plate at "
+                               f"{tuple(plate_pose)}, already placed: {sorted(poses)})")
+    return poses
 
 
 @dataclass
@@ -303,4 +347,5 @@ __all__ = [
     "HAND_TCP_OFFSET", "HeldGear", "WorldConfig", "WorldModels", "add_held_gear", "add_world",
     "add_panda", "gear_body", "insertion_error", "is_seated", "model_parser", "grasp_with_error", "nominal_grasp",
     "planar_pose", "tool_frame", "validate_gear_pose", "validate_plate_pose", "validate_tool_target",
+    "PLACEMENT_X", "PLACEMENT_Y", "random_gear_poses",
 ]

@@ -15,12 +15,14 @@ import numpy as np
 
 from assembly.cameras import CameraConfig, default_scene_camera, look_at
 from assembly.gearset import GEAR_NAMES
+from perception.detection import detect_gears
 from perception.drake_scene import DrakeScene, SceneConfig, crop_info
 from perception.gear_model import gear_model
 from perception.likelihood import table_prediction
 from perception.observation import Observation
 from perception.renderer import NAME as RAYCAST_NAME
 from perception.renderer import RayCaster
+from perception.scenes import SceneRenderer, random_scenes
 from perception.search import Prior, SearchConfig, estimate_pose
 
 DRAKE_NAME = "drake-vtk"
@@ -199,8 +201,35 @@ def bench_posteriors(config: BenchConfig | None = None) -> dict:
             "renderer": RAYCAST_NAME, "rows": rows}
 
 
+def bench_scenes(config: BenchConfig | None = None) -> dict:
+    """The scene camera's whole first look, per random scene (seeds from 9000, never tuned on):
+    global detection plus a far posterior for every gear found; seconds per scene (rendering
+    excluded) and per stage."""
+    config = config or BenchConfig()
+    renderer = SceneRenderer()
+    rows = []
+    for scene in random_scenes(9000 + config.seed, config.posteriors):
+        obs = renderer.render_view(scene, "scene", None, "clean", scene.rng("bench")).obs
+        t0 = time.perf_counter()
+        detections = detect_gears(obs)
+        t1 = time.perf_counter()
+        for gear, det in detections.items():
+            if det.seen:
+                estimate_pose(obs, gear_model(gear), det.prior)
+        t2 = time.perf_counter()
+        rows.append({"detect_seconds": t1 - t0, "posteriors_seconds": t2 - t1,
+                     "seen": sum(d.seen for d in detections.values())})
+    return {"seconds_per_scene": float(np.mean([r["detect_seconds"] + r["posteriors_seconds"]
+                                                for r in rows])),
+            "detect_seconds": float(np.mean([r["detect_seconds"] for r in rows])), "rows": rows}
+
+
 def bench_perception(config: BenchConfig | None = None) -> dict:
     """What `goflow bench perception` reports: {"seconds_per_posterior", "hypotheses_per_second",
-    "renderer"} for close-view posteriors with the renderer the pipeline uses."""
+    "renderer"} for close-view posteriors with the renderer the pipeline uses, and
+    "seconds_per_scene": detection plus the far posteriors of every gear, per scene-camera image
+    (`posteriors` scenes)."""
     result = bench_posteriors(config)
-    return {k: result[k] for k in ("seconds_per_posterior", "hypotheses_per_second", "renderer")}
+    out = {k: result[k] for k in ("seconds_per_posterior", "hypotheses_per_second", "renderer")}
+    out["seconds_per_scene"] = bench_scenes(config)["seconds_per_scene"]
+    return out

@@ -21,6 +21,7 @@ from functools import lru_cache
 import numpy as np
 
 from assembly.gear_meshes import gearset_model_paths
+from assembly.gearset import gear_spec
 
 
 @dataclass
@@ -33,36 +34,57 @@ class LikelihoodConfig:
     b_rgb: float = 0.15
     b_d: float = 0.004
     depth_range: float = 2.0
-    tempering: float = 0.002
+    tempering: float | None = None  # None: from the view and the gear (see tempering_for)
+    correlation_length: float = 1.0e-3  # [m] along the gear's outline (calibrated, docs)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
             raise ValueError(f"p_out = {self.p_out}; expected a probability in (0, 1)")
-        for name in ("b_rgb", "b_d", "depth_range", "tempering"):
+        for name in ("b_rgb", "b_d", "depth_range", "tempering", "correlation_length"):
             value = getattr(self, name)
+            if name == "tempering" and value is None:
+                continue
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value > 0")
 
-    def _log_terms(self, rgb, depth, rgb_hat, depth_hat) -> tuple[np.ndarray, float]:
-        colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
-        dist = np.abs(depth - depth_hat) / self.b_d
-        log_in = (np.log1p(-self.p_out) - colour - dist - 3 * np.log(2 * self.b_rgb)
-                  - np.log(2 * self.b_d))
-        return log_in, float(np.log(self.p_out) - np.log(self.depth_range))
+    def tempering_for(self, gear: str, gsd: float) -> float:
+        """The tempering exponent for `gear` seen at ground sampling distance `gsd` [m of table per
+        pixel]: the fixed `tempering` if set, else gsd^2 / (correlation_length * tip radius), at
+        most 1. The evidence about a gear's pose lies along its outline (silhouette and teeth),
+        where neighbouring pixels err together over about `correlation_length`: a pixel of area
+        gsd^2 is worth that fraction of one independent look at a piece of outline, and the
+        outline grows with the radius."""
+        if self.tempering is not None:
+            return float(self.tempering)
+        if not (np.isfinite(gsd) and gsd > 0):
+            raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
+        return float(min(1.0, gsd ** 2 / (self.correlation_length * gear_spec(gear).tip_radius)))
 
     def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                     depth_hat: np.ndarray) -> np.ndarray:
-        """Log-likelihood of observed pixels (rgb (..., 3), depth (...)) given rendered ones."""
-        log_in, log_out = self._log_terms(rgb, depth, rgb_hat, depth_hat)
+                     depth_hat: np.ndarray, b_d: float | None = None) -> np.ndarray:
+        """Log-likelihood of observed pixels (rgb (..., 3), depth (...)) given rendered ones; a
+        pixel without a valid depth (NaN, <= 0) is scored on its colour alone (its depth density
+        marginalized out). `b_d` overrides the depth scale (e.g. widened for a noisy image)."""
+        b_d = self.b_d if b_d is None else b_d
+        has_depth = np.isfinite(depth) & (depth > 0)
+        colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
+        dist = np.where(has_depth, np.abs(np.where(has_depth, depth, 0.0) - depth_hat) / b_d
+                        + np.log(2 * b_d), 0.0)
+        log_in = np.log1p(-self.p_out) - colour - 3 * np.log(2 * self.b_rgb) - dist
+        log_out = np.log(self.p_out) - np.where(has_depth, np.log(self.depth_range), 0.0)
         return np.logaddexp(log_in, log_out)
 
     def is_inlier(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                  depth_hat: np.ndarray, scales: float = 3.0) -> np.ndarray:
+                  depth_hat: np.ndarray, scales: float = 3.0, b_d: float | None = None
+                  ) -> np.ndarray:
         """Whether each pixel matches its rendering within `scales` times b_rgb (colour, L1) and
-        b_d (depth): what "the hypothesis explains this pixel" means in the sanity checks."""
+        b_d (depth; a pixel without depth on colour alone): what "the hypothesis explains this
+        pixel" means in the sanity checks."""
+        b_d = self.b_d if b_d is None else b_d
         colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
-        dist = np.abs(depth - depth_hat) / self.b_d
-        return (colour < scales) & (dist < scales)
+        with np.errstate(invalid="ignore"):
+            dist = np.abs(depth - depth_hat) / b_d
+        return (colour < scales) & ((dist < scales) | ~(np.isfinite(depth) & (depth > 0)))
 
 
 @lru_cache(maxsize=None)

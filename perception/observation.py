@@ -24,6 +24,18 @@ class Intrinsics:
     cx: float
     cy: float
 
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
+                raise ValueError(f"intrinsics {name} = {value!r}; expected a positive number of pixels")
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or (name in ("fx", "fy") and value <= 0):
+                raise ValueError(f"intrinsics {name} = {value}; expected a finite "
+                                 + ("focal length > 0 [px]" if name in ("fx", "fy") else
+                                    "principal point [px]"))
+
     @staticmethod
     def from_camera_info(info: CameraInfo) -> "Intrinsics":
         """The intrinsics of a Drake CameraInfo."""

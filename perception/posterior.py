@@ -1,8 +1,10 @@
 """PosePosterior: a gridded posterior over a gear's planar pose (x, y, yaw).
 
-The grid is a set of modes, one per repeat of the gear's appearance in yaw (every tooth pitch),
-each a local (x, y, yaw-offset) grid around the same (x, y) cells; the cell masses are normalized
-over all modes. Within a cell the density is taken as uniform.
+Yaw is over the gear's symmetry class: a plain gear looks the same after every tooth pitch, so its
+yaw is only defined modulo `period` (the pitch) and the posterior holds one mode; a marked gear has
+period 2 pi and one mode per tooth-pitch repeat. Each mode is a local (x, y, yaw-offset) grid around
+the same (x, y) cells; the cell masses are normalized over all modes. Within a cell the density is
+uniform, and cells are cut to the hard `support` box (the prior's): no mass lies outside it.
 """
 
 from __future__ import annotations
@@ -13,15 +15,18 @@ from pathlib import Path
 import numpy as np
 
 DIMS = ("x", "y", "yaw")
+TURN = 2 * np.pi
 
 
-def wrap(angle: np.ndarray | float) -> np.ndarray:
-    """Angles wrapped to [-pi, pi)."""
-    return (np.asarray(angle, float) + np.pi) % (2 * np.pi) - np.pi
+def wrap(angle: np.ndarray | float, period: float = TURN) -> np.ndarray:
+    """Angles wrapped to [-period/2, period/2) ([-pi, pi) by default)."""
+    return (np.asarray(angle, float) + period / 2) % period - period / 2
 
 
-def _overlap(centres: np.ndarray, width: float, lo: float, hi: float) -> np.ndarray:
-    """Fraction of each cell [c - w/2, c + w/2] inside [lo, hi]."""
+def cell_overlap(centres: np.ndarray, width: float, lo: float, hi: float) -> np.ndarray:
+    """Fraction of each cell [c - w/2, c + w/2] inside [lo, hi] (a point cell: 1 or 0)."""
+    if width <= 0:
+        return ((centres >= lo) & (centres <= hi)).astype(float)
     a = np.maximum(centres - width / 2, lo)
     b = np.minimum(centres + width / 2, hi)
     return np.clip(b - a, 0.0, None) / width
@@ -30,8 +35,11 @@ def _overlap(centres: np.ndarray, width: float, lo: float, hi: float) -> np.ndar
 @dataclass
 class PosePosterior:
     """Cell masses `log_mass` (modes, nx, ny, nyaw) over cells centred at (xs[i], ys[j],
-    mode_yaws[k] + yaw_offsets[l]) of size (dx, dy, dyaw). `informative` is False when the image
-    could not tell where the gear is; `reason` then says why and the posterior is the prior."""
+    mode_yaws[k] + yaw_offsets[l]) of size (dx, dy, dyaw). `period` is the yaw after which the gear
+    looks the same (yaw is a class modulo it); `support` = (x0, x1, y0, y1) is a hard box outside
+    which there is no mass (cells straddling it keep the fraction inside). `informative` is False
+    when the image could not tell where the gear is; `reason` then says why and the posterior is
+    the prior."""
 
     gear: str
     xs: np.ndarray
@@ -42,12 +50,30 @@ class PosePosterior:
     informative: bool = True
     reason: str = ""
     info: dict = field(default_factory=dict)
+    period: float = TURN
+    support: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
+        self.xs, self.ys = np.asarray(self.xs, float), np.asarray(self.ys, float)
+        self.mode_yaws = np.asarray(self.mode_yaws, float)
+        self.yaw_offsets = np.asarray(self.yaw_offsets, float)
         shape = (len(self.mode_yaws), len(self.xs), len(self.ys), len(self.yaw_offsets))
         if self.log_mass.shape != shape:
             raise ValueError(f"log_mass has shape {self.log_mass.shape}; expected {shape}")
-        lm = self.log_mass - self.log_mass.max()
+        if not (0 < self.period <= TURN and np.isclose(TURN / self.period, round(TURN / self.period))):
+            raise ValueError(f"period = {self.period}; expected 2 pi / k for a whole k >= 1")
+        lm = np.asarray(self.log_mass, float)
+        if self.support is not None:
+            x0, x1, y0, y1 = self.support
+            if not (x0 < x1 and y0 < y1):
+                raise ValueError(f"support {self.support}; expected (x0, x1, y0, y1) with x0 < x1 "
+                                 "and y0 < y1")
+            with np.errstate(divide="ignore"):
+                lm = (lm + np.log(cell_overlap(self.xs, self.dx, x0, x1))[None, :, None, None]
+                      + np.log(cell_overlap(self.ys, self.dy, y0, y1))[None, None, :, None])
+        if not np.isfinite(lm.max()):
+            raise ValueError("the posterior has no mass (every cell is -inf or outside its support)")
+        lm = lm - lm.max()
         self.log_mass = lm - np.log(np.exp(lm).sum())
 
     @property
@@ -71,7 +97,7 @@ class PosePosterior:
         return np.exp(self.log_mass)
 
     def yaws(self) -> np.ndarray:
-        """(modes, nyaw) yaw of each cell centre, wrapped to [-pi, pi)."""
+        """(modes, nyaw) yaw of each cell centre (a representative of its class), in [-pi, pi)."""
         return wrap(self.mode_yaws[:, None] + self.yaw_offsets[None, :])
 
     @property
@@ -81,7 +107,8 @@ class PosePosterior:
         return np.array([self.xs[i], self.ys[j], self.yaws()[k, l]])
 
     def sample(self, n: int, seed: int | None = None) -> np.ndarray:
-        """n poses (n, 3) drawn from the posterior (uniform within each drawn cell)."""
+        """n poses (n, 3) drawn from the posterior (uniform within each drawn cell, inside the
+        support); yaw is the representative near the drawn cell's mode."""
         if n < 0:
             raise ValueError(f"n = {n}; expected a non-negative number of samples")
         rng = np.random.default_rng(seed)
@@ -89,22 +116,31 @@ class PosePosterior:
         k, i, j, l = np.unravel_index(flat, self.log_mass.shape)
         jitter = rng.uniform(-0.5, 0.5, size=(n, 3)) * [self.dx, self.dy, self.dyaw]
         poses = np.column_stack([self.xs[i], self.ys[j], self.yaws()[k, l]]) + jitter
+        if self.support is not None:
+            poses[:, 0] = np.clip(poses[:, 0], *self.support[:2])
+            poses[:, 1] = np.clip(poses[:, 1], *self.support[2:])
         poses[:, 2] = wrap(poses[:, 2])
         return poses
+
+    def _yaw_overlap(self, lo: float, span: float) -> np.ndarray:
+        """(modes, nyaw) fraction of each yaw cell inside the arc [lo, lo + span], modulo period."""
+        if span >= self.period:
+            return np.ones((len(self.mode_yaws), len(self.yaw_offsets)))
+        rel = (self.yaws() - lo) % self.period  # cell centres measured from the arc's start
+        return sum(cell_overlap(rel + s, self.dyaw, 0.0, span) for s in (-self.period, 0.0, self.period))
 
     def probability(self, x: tuple[float, float] | None = None, y: tuple[float, float] | None = None,
                     yaw: tuple[float, float] | None = None) -> float:
         """Probability that the pose lies in the box x in [x0, x1], y in [y0, y1] and yaw in the arc
-        from yaw0 counter-clockwise to yaw1 [rad]; a dimension left as None is unconstrained."""
-        fx = _overlap(self.xs, self.dx, *x) if x is not None else np.ones(len(self.xs))
-        fy = _overlap(self.ys, self.dy, *y) if y is not None else np.ones(len(self.ys))
+        from yaw0 counter-clockwise to yaw1 [rad] (for a symmetric gear: that some yaw of its class
+        does); a dimension left as None is unconstrained."""
+        fx = cell_overlap(self.xs, self.dx, *x) if x is not None else np.ones(len(self.xs))
+        fy = cell_overlap(self.ys, self.dy, *y) if y is not None else np.ones(len(self.ys))
         if yaw is None:
             fyaw = np.ones((len(self.mode_yaws), len(self.yaw_offsets)))
         else:
-            lo = float(wrap(yaw[0]))
-            span = float((yaw[1] - yaw[0]) % (2 * np.pi)) or 2 * np.pi
-            rel = (self.yaws() - lo) % (2 * np.pi)  # cell centres measured from the arc's start
-            fyaw = sum(_overlap(rel + s, self.dyaw, 0.0, span) for s in (-2 * np.pi, 0.0, 2 * np.pi))
+            span = float((yaw[1] - yaw[0]) % TURN) or TURN
+            fyaw = np.clip(self._yaw_overlap(float(yaw[0]), span), 0.0, 1.0)
         w = fyaw[:, None, None, :] * fx[None, :, None, None] * fy[None, None, :, None]
         return float(np.clip((self.mass * w).sum(), 0.0, 1.0))
 
@@ -123,43 +159,70 @@ class PosePosterior:
         raise ValueError(f"unknown dimension {dim!r}; expected one of {DIMS}")
 
     def marginal_entropy(self, dim: str) -> float:
-        """Differential entropy [nats] of the piecewise-constant marginal density of `dim`."""
-        width = {"x": self.dx, "y": self.dy, "yaw": self.dyaw}[dim] if dim in DIMS else None
+        """Differential entropy [nats] of the piecewise-constant marginal density of `dim` (yaw:
+        over the symmetry class)."""
         _, p = self.marginal(dim)
+        width = {"x": self.dx, "y": self.dy, "yaw": self.dyaw}[dim]
         p = p[p > 0]
         return float(-(p * np.log(p / max(width, 1e-12))).sum())
 
-    def std(self) -> np.ndarray:
-        """Standard deviations of x and y [m] and the circular standard deviation of yaw [rad]."""
-        out = []
-        for dim in ("x", "y"):
-            v, p = self.marginal(dim)
-            mu = (v * p).sum()
-            out.append(np.sqrt(max(((v - mu) ** 2 * p).sum(), 0.0)))
+    def mean(self) -> np.ndarray:
+        """Posterior mean of x and y [m] and the circular mean of yaw over its class [rad]."""
+        out = [(v * p).sum() for v, p in (self.marginal("x"), self.marginal("y"))]
         v, p = self.marginal("yaw")
-        r = abs((p * np.exp(1j * v)).sum())
-        out.append(np.sqrt(-2 * np.log(max(r, 1e-12))))
+        scale = TURN / self.period
+        out.append(wrap(np.angle((p * np.exp(1j * scale * v)).sum()) / scale))
         return np.array(out)
 
+    def std(self) -> np.ndarray:
+        """Standard deviations of x and y [m] and the circular standard deviation of yaw over its
+        symmetry class [rad], each including the spread within a cell (width^2 / 12)."""
+        out = []
+        for dim, width in (("x", self.dx), ("y", self.dy)):
+            v, p = self.marginal(dim)
+            mu = (v * p).sum()
+            out.append(np.sqrt(max(((v - mu) ** 2 * p).sum(), 0.0) + width ** 2 / 12))
+        v, p = self.marginal("yaw")
+        scale = TURN / self.period
+        r = abs((p * np.exp(1j * scale * v)).sum())
+        sigma = np.sqrt(-2 * np.log(np.clip(r, 1e-12, 1.0))) / scale
+        out.append(np.sqrt(sigma ** 2 + self.dyaw ** 2 / 12))
+        return np.array(out)
+
+    def _levels(self) -> np.ndarray:
+        """Per cell, the credible level at which it enters the highest-probability region: the
+        mass of every denser cell plus half the mass of cells as dense as it."""
+        flat = self.mass.ravel()
+        order = np.argsort(-flat, kind="stable")
+        sorted_mass = flat[order]
+        before = np.cumsum(sorted_mass) - sorted_mass
+        # cells of equal mass (ties) share the level of their group's middle
+        _, first, counts = np.unique(-sorted_mass, return_index=True, return_counts=True)
+        group_mid = before[first] + 0.5 * sorted_mass[first] * counts
+        levels = np.empty(flat.size)
+        levels[order] = np.repeat(group_mid, counts)
+        return levels.reshape(self.mass.shape)
+
     def credible_mask(self, level: float = 0.9) -> np.ndarray:
-        """Cells of the highest-probability region holding `level` of the mass."""
+        """Cells of the highest-probability region holding `level` of the mass (a cell is in when
+        its own credible level, see `credible_level`, is below `level`)."""
         if not 0 < level <= 1:
             raise ValueError(f"level = {level}; expected a probability in (0, 1]")
-        flat = self.mass.ravel()
-        order = np.argsort(flat)[::-1]
-        keep = np.searchsorted(np.cumsum(flat[order]), level * (1 - 1e-12)) + 1
-        mask = np.zeros(flat.size, bool)
-        mask[order[:keep]] = True
-        return mask.reshape(self.mass.shape)
+        return self._levels() < level
 
     def cell_of(self, pose: np.ndarray) -> tuple[int, int, int, int] | None:
-        """Index (mode, i, j, l) of the cell holding `pose`, or None outside the grid."""
+        """Index (mode, i, j, l) of the cell holding `pose` (its yaw taken modulo the period), or
+        None outside the grid or the support."""
         x, y, yaw = np.asarray(pose, float)
+        if self.support is not None:
+            x0, x1, y0, y1 = self.support
+            if not (x0 <= x <= x1 and y0 <= y <= y1):
+                return None
         i = int(np.round((x - self.xs[0]) / self.dx)) if self.dx else 0
         j = int(np.round((y - self.ys[0]) / self.dy)) if self.dy else 0
         if not (0 <= i < len(self.xs) and 0 <= j < len(self.ys)):
             return None
-        off = wrap(yaw - self.mode_yaws)  # offset from each mode centre
+        off = wrap(yaw - self.mode_yaws, self.period)  # offset from each mode centre
         l = np.round((off - self.yaw_offsets[0]) / self.dyaw).astype(int) if self.dyaw else 0 * off
         ok = np.nonzero((l >= 0) & (l < len(self.yaw_offsets)))[0]
         if ok.size == 0:
@@ -167,10 +230,17 @@ class PosePosterior:
         k = ok[np.argmin(np.abs(off[ok]))]
         return int(k), i, j, int(l[k])
 
+    def credible_level(self, pose: np.ndarray) -> float:
+        """The smallest credible level whose highest-probability region holds `pose` (1.0 outside
+        the grid): uniform on (0, 1) over the truths of a calibrated posterior."""
+        cell = self.cell_of(pose)
+        return 1.0 if cell is None else float(self._levels()[cell])
+
     def contains(self, pose: np.ndarray, level: float = 0.9) -> bool:
         """Whether `pose` lies in the `level` highest-probability credible region."""
-        cell = self.cell_of(pose)
-        return cell is not None and bool(self.credible_mask(level)[cell])
+        if not 0 < level <= 1:
+            raise ValueError(f"level = {level}; expected a probability in (0, 1]")
+        return self.credible_level(pose) < level
 
     def summary(self) -> dict:
         """A JSON-ready summary: MAP, standard deviations, entropies, flags."""
@@ -217,10 +287,14 @@ class PosePosterior:
 
 
 def uniform_posterior(gear: str, centre: tuple[float, float], half_width: float, reason: str,
-                      cells: int = 21, yaw_cells: int = 72, info: dict | None = None) -> PosePosterior:
-    """The prior (uniform over the search box and every yaw), flagged uninformative."""
-    xs = centre[0] + np.linspace(-half_width, half_width, cells)
-    ys = centre[1] + np.linspace(-half_width, half_width, cells)
-    offsets = -np.pi + (np.arange(yaw_cells) + 0.5) * 2 * np.pi / yaw_cells
-    return PosePosterior(gear, xs, ys, np.zeros(1), offsets, np.zeros((1, cells, cells, yaw_cells)),
-                         informative=False, reason=reason, info=dict(info or {}))
+                      period: float = TURN, cells: int = 21, yaw_cells: int = 72,
+                      info: dict | None = None) -> PosePosterior:
+    """The prior, flagged uninformative: uniform over the square box of `half_width` around
+    `centre` (its support) and over every yaw of the symmetry class (`period`)."""
+    edges = (np.arange(cells) + 0.5) * 2 * half_width / cells - half_width
+    offsets = -period / 2 + (np.arange(yaw_cells) + 0.5) * period / yaw_cells
+    support = (centre[0] - half_width, centre[0] + half_width,
+               centre[1] - half_width, centre[1] + half_width)
+    return PosePosterior(gear, centre[0] + edges, centre[1] + edges, np.zeros(1), offsets,
+                         np.zeros((1, cells, cells, yaw_cells)), informative=False, reason=reason,
+                         info=dict(info or {}), period=period, support=support)

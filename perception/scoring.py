@@ -1,7 +1,11 @@
 """Scores pose hypotheses of one gear against one observation.
 
-The region of interest is every valid pixel whose ray passes through the vertical cylinder the
-gear can occupy anywhere in the search region. A hypothesis predicts its rendered gear where its
+The region of interest is every pixel whose ray passes through the vertical cylinder the gear can
+occupy anywhere in the search region; every m-th of them (a lattice fixed by the geometry, so that
+dropped depth pixels remove samples instead of reshuffling them) is scored, a pixel without depth
+on its colour alone. Before scoring, the image's conditions are read off the bare table around the
+gear: a colour gain per channel (the light's intensity and direction scale the table and the gear's
+top face alike) and the depth noise (which widens the depth scale). A hypothesis predicts its rendered gear where its
 rays hit the gear and the bare table elsewhere, so its log-likelihood over the region is the
 no-gear log-likelihood (the same for all hypotheses) plus the sum, over the pixels its gear
 covers, of (gear term - table term): only those pixels are rendered and summed.
@@ -27,6 +31,17 @@ class Scores:
     loglik: np.ndarray
     pixels: np.ndarray
     inliers: np.ndarray
+
+
+@dataclass
+class ImageConditions:
+    """What the bare table in the region says about the image: `gain` multiplies every predicted
+    colour (r, g, b); `depth_noise` [m] is the robust standard deviation of the table's depth
+    about its plane; `table_pixels` how many pixels they were read from (0: defaults kept)."""
+
+    gain: np.ndarray
+    depth_noise: float
+    table_pixels: int
 
 
 @dataclass
@@ -67,10 +82,18 @@ class ImageScorer:
         w = np.clip(((centre - a) * ab).sum(1) / np.maximum((ab ** 2).sum(1), 1e-18), 0.0, 1.0)
         dist = np.linalg.norm(a + w[:, None] * ab - centre, axis=1)
         valid = obs.valid[self._v, self._u]
-        self.roi = down & valid & (dist <= radius + model.tip_radius)
-        self.footprint = int(np.count_nonzero(down & valid & (dist <= model.tip_radius)))
+        self.roi = down & (dist <= radius + model.tip_radius)
+        self.footprint = int(np.count_nonzero(down & (dist <= model.tip_radius)))
         self.roi_pixels = int(np.count_nonzero(self.roi))
+        self.valid_fraction = float(valid[self.roi].mean()) if self.roi_pixels else 0.0
         self._dirs = dirs
+        self.conditions = _read_conditions(obs, self._u[self.roi & valid], self._v[self.roi & valid],
+                                           dirs[self.roi & valid], origin, self.light)
+        self.b_d = float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise))
+        # Ground sampling distance at the search centre: metres of table per pixel.
+        p_C = obs.X_WC.inverse().multiply(np.array([centre[0], centre[1], top]))
+        self.gsd = float(max(p_C[2], 1e-3) / obs.intrinsics.fx)
+        self.tempering = self.likelihood.tempering_for(model.name, self.gsd)
         self._sets: dict[int, _PixelSet] = {}
 
     def stride_for(self, target: int) -> int:
@@ -79,17 +102,23 @@ class ImageScorer:
         return max(1, int(round(self.footprint / max(target, 1))))
 
     def pixels(self, stride: int) -> _PixelSet:
-        """Every `stride`-th pixel of the region in raster order (cached)."""
+        """Every `stride`-th pixel of the region in raster order (cached); pixels without depth
+        carry NaN depth and are scored on colour."""
         if stride not in self._sets:
             idx = np.nonzero(self.roi)[0][::stride]
             dirs = self._dirs[idx]
             rgb = self.obs.rgb[self._v[idx], self._u[idx]]
-            depth = self.obs.depth[self._v[idx], self._u[idx]]
+            depth = self.obs.depth[self._v[idx], self._u[idx]].astype(np.float32)
+            depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
             bg_depth, bg_rgb = table_prediction(self.origin, dirs, self.light)
-            bg = self.likelihood.pixel_loglik(rgb, depth, bg_rgb, bg_depth)
-            weight = self.likelihood.tempering * stride
+            bg = self.likelihood.pixel_loglik(rgb, depth, self._lit(bg_rgb), bg_depth, self.b_d)
+            weight = self.tempering * stride
             self._sets[stride] = _PixelSet(self.origin, dirs, rgb, depth, bg, weight)
         return self._sets[stride]
+
+    def _lit(self, rgb: np.ndarray) -> np.ndarray:
+        """Predicted colours under the image's measured gain, saturating at 1 like a camera."""
+        return np.minimum(rgb * self.conditions.gain, 1.0).astype(np.float32)
 
     def score(self, poses: np.ndarray, stride: int) -> Scores:
         """Scores of hypotheses `poses` (N, 3) using the region's pixels on `stride`."""
@@ -97,12 +126,34 @@ class ImageScorer:
         ps = self.pixels(stride)
         hits = self.caster.render(ps.origin, ps.dirs, self.light, poses)
         lik = self.likelihood
-        ll = lik.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], hits.rgb, hits.depth)
-        inl = lik.is_inlier(ps.rgb[hits.pix], ps.depth[hits.pix], hits.rgb, hits.depth)
+        rgb_hat = self._lit(hits.rgb)
+        ll = lik.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth, self.b_d)
+        inl = lik.is_inlier(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth,
+                            b_d=self.b_d)
         n = len(poses)
         total = np.bincount(hits.hyp, weights=ll - ps.delta_bg[hits.pix], minlength=n)
         return Scores(ps.weight * total, np.bincount(hits.hyp, minlength=n),
                       np.bincount(hits.hyp, weights=inl.astype(float), minlength=n))
+
+
+def _read_conditions(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray,
+                     origin: np.ndarray, light: np.ndarray, min_pixels: int = 200
+                     ) -> ImageConditions:
+    """Colour gain and depth noise from the pixels (u, v) that see the bare table: depth within
+    2 robust standard deviations (at least 2 mm) of the table plane's."""
+    plane, shaded = table_prediction(origin, dirs, light)
+    resid = obs.depth[v, u] - plane
+    near = np.abs(resid) < 0.01
+    if np.count_nonzero(near) < min_pixels:
+        return ImageConditions(np.ones(3, np.float32), 0.0, 0)
+    centred = resid[near] - np.median(resid[near])
+    noise = float(1.4826 * np.median(np.abs(centred)))
+    table = near & (np.abs(resid) < max(0.002, 2 * noise))
+    if np.count_nonzero(table) < min_pixels or shaded[0].max() <= 0:
+        return ImageConditions(np.ones(3, np.float32), noise, 0)
+    observed = np.median(obs.rgb[v[table], u[table]], axis=0)
+    gain = np.clip(observed / np.maximum(shaded[0], 1e-3), 0.1, 10.0).astype(np.float32)
+    return ImageConditions(gain, noise, int(np.count_nonzero(table)))
 
 
 def _image_box(obs: Observation, centre: np.ndarray, radius: float, top: float

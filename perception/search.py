@@ -6,9 +6,11 @@
    the best few go on.
 2. Refine: 5 x 5 x 5 grids around the best, halving the steps, on denser pixels, down to the
    posterior's resolution.
-3. Posterior: a local grid around the MAP whose steps adapt until the mass fits inside it without
-   sitting in a single cell; then the same yaw slice is scored at every tooth-pitch repeat of the
-   MAP yaw, and each repeat gets the local grid's shape weighted by its own evidence.
+3. Posterior: a local grid around the MAP whose steps adapt until the mass fits inside it and is
+   spread over several cells, cut to the prior box (a hard support). A plain gear's yaw is a class
+   modulo the tooth pitch, so its posterior is that one grid; for a marked gear the same yaw slice
+   is scored at every tooth-pitch repeat of the MAP yaw, and each repeat gets the local grid's
+   shape weighted by its own evidence.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from assembly.gearset import gear_spec
 from perception.gear_model import GearModel, gear_model
 from perception.likelihood import LikelihoodConfig
 from perception.observation import Observation
-from perception.posterior import PosePosterior, uniform_posterior, wrap
+from perception.posterior import PosePosterior, cell_overlap, uniform_posterior, wrap
 from perception.renderer import RayCasterConfig
 from perception.scoring import ImageScorer
 
@@ -38,9 +40,22 @@ class Prior:
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.x) and np.isfinite(self.y)):
-            raise ValueError(f"prior centre ({self.x}, {self.y}) is not finite")
-        if not 0 < self.half_width <= 0.2:
+            raise ValueError(f"prior centre ({self.x}, {self.y}) is not finite; expected metres")
+        if not (np.isfinite(self.half_width) and 0 < self.half_width <= 0.2):
             raise ValueError(f"prior half_width = {self.half_width}; expected (0, 0.2] m")
+
+    @property
+    def box(self) -> tuple[float, float, float, float]:
+        """(x0, x1, y0, y1): the hard support of every posterior searched within this prior."""
+        h = self.half_width
+        return self.x - h, self.x + h, self.y - h, self.y + h
+
+    def clip(self, poses: np.ndarray) -> np.ndarray:
+        """`poses` (N, 3) with x and y moved into the box."""
+        out = np.array(poses, float)
+        out[:, 0] = np.clip(out[:, 0], self.x - self.half_width, self.x + self.half_width)
+        out[:, 1] = np.clip(out[:, 1], self.y - self.half_width, self.y + self.half_width)
+        return out
 
 
 @dataclass
@@ -50,15 +65,18 @@ class SearchConfig:
     likelihood: LikelihoodConfig = field(default_factory=LikelihoodConfig)
     raycaster: RayCasterConfig = field(default_factory=RayCasterConfig)
     coarse_pixels: int = 80         # sampled pixels on a gear in the coarse stage
-    fine_pixels: int = 300          # ... in the refining stages and the posterior
+    fine_pixels: int = 600          # ... in the refining stages and the posterior
     coarse_step: float = 0.35       # coarse x-y step, as a fraction of the tip radius
     coarse_yaw_cells: int = 4       # coarse yaw steps per appearance period ...
     coarse_yaw_cells_turn: int = 24  # ... or per turn for a model without symmetry (marked)
-    beam: int = 3                   # coarse hypotheses refined
+    beam: int = 2                   # coarse hypotheses refined (distinct basins)
+    sweep_yaw_cells: int = 16       # yaw sweep over one appearance period around the refined x-y
+    sweep_xy: float = 1.5e-3        # ... within this x-y distance [m] (3 x 3 points)
     min_step: float = 2.5e-4        # finest x-y step [m] of the refinement
     min_yaw_step: float = np.radians(0.25)
     grid: int = 7                   # posterior grid points per dimension (odd)
-    adapt: int = 4                  # posterior grid adaptations
+    adapt: int = 2                  # posterior grid adaptations
+    max_cell_mass: float = 0.5      # shrink an axis whose marginal puts more than this in one cell
     min_pixels: int = 25            # fewer gear pixels (at the fine stride) -> uninformative
     min_inlier_fraction: float = 0.5
 
@@ -69,9 +87,10 @@ class SearchConfig:
             raise ValueError(f"beam = {self.beam}, coarse_pixels = {self.coarse_pixels}, "
                              f"fine_pixels = {self.fine_pixels}; expected beam >= 1 and "
                              "10 <= coarse_pixels <= fine_pixels")
-        if self.coarse_yaw_cells < 1 or self.coarse_yaw_cells_turn < 4:
+        if self.coarse_yaw_cells < 1 or self.coarse_yaw_cells_turn < 4 or self.sweep_yaw_cells < 2:
             raise ValueError(f"coarse_yaw_cells = {self.coarse_yaw_cells}, coarse_yaw_cells_turn = "
-                             f"{self.coarse_yaw_cells_turn}; expected >= 1 and >= 4")
+                             f"{self.coarse_yaw_cells_turn}, sweep_yaw_cells = "
+                             f"{self.sweep_yaw_cells}; expected >= 1, >= 4 and >= 2")
 
 
 def _grid(centre: np.ndarray, steps: np.ndarray, n: int) -> np.ndarray:
@@ -79,6 +98,40 @@ def _grid(centre: np.ndarray, steps: np.ndarray, n: int) -> np.ndarray:
     r = (np.arange(n) - (n - 1) / 2)
     g = np.meshgrid(*(centre[d] + r * steps[d] for d in range(3)), indexing="ij")
     return np.stack([a.ravel() for a in g], axis=1)
+
+
+def _refine(centres: np.ndarray, steps: np.ndarray, score, stride: int, config: SearchConfig,
+            prior: Prior, wide_stages: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Each centre refined on its own by grids of halving steps (5^3 for the first `wide_stages`
+    stages, then 3^3) down to the finest steps; returns the refined poses and their scores."""
+    st = np.asarray(steps, float).copy()
+    floor = np.array([config.min_step, config.min_step, config.min_yaw_step])
+    last = score(centres, stride).loglik
+    stage = 0
+    while np.any(st > floor):
+        st = np.maximum(st / 2, floor)
+        n = 5 if stage < wide_stages else 3
+        cand = prior.clip(np.vstack([_grid(c, st, n) for c in centres]))
+        sc = score(cand, stride).loglik.reshape(len(centres), n ** 3)
+        centres = cand.reshape(len(centres), n ** 3, 3)[np.arange(len(centres)), sc.argmax(1)]
+        last = sc.max(1)
+        stage += 1
+    return centres, last
+
+
+def _distinct_best(poses: np.ndarray, loglik: np.ndarray, k: int, steps: np.ndarray,
+                   period: float) -> np.ndarray:
+    """Up to k best poses, each at least one grid step (x-y) or one yaw step (modulo `period`) away
+    from every better one kept: the beam covers distinct basins."""
+    kept: list[np.ndarray] = []
+    for i in np.argsort(loglik)[::-1]:
+        p = poses[i]
+        if all(np.hypot(*(p[:2] - q[:2])) > 0.99 * steps[0]
+               or abs(wrap(p[2] - q[2], period)) > 0.99 * steps[2] for q in kept):
+            kept.append(p)
+            if len(kept) == k:
+                break
+    return np.array(kept)
 
 
 def _model(gear: str | GearModel) -> GearModel:
@@ -118,28 +171,37 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
     g = np.meshgrid(prior.x + axis, prior.y + axis, yaws, indexing="ij")
     poses = np.stack([a.ravel() for a in g], axis=1)
     s = score(poses, coarse)
-    beam = poses[np.argsort(s.loglik)[::-1][:config.beam]]
     dxy = axis[1] - axis[0] if nxy > 1 else step
     steps = np.array([dxy, dxy, yaw_step])
-    # 2. Refine the beam with shrinking grids (5^3 for the beam's first stages, then 3^3 around
-    #    the single best).
-    centres = beam
-    st = steps.copy()
-    stage = 0
-    while st[0] > config.min_step or st[2] > config.min_yaw_step:
-        st = np.maximum(st / 2, [config.min_step, config.min_step, config.min_yaw_step])
-        n = 5 if stage < 2 else 3
-        cand = np.vstack([_grid(c, st, n) for c in centres])
-        sc = score(cand, fine)
-        keep = config.beam if stage < 1 else 1
-        centres = cand[np.argsort(sc.loglik)[::-1][:keep]]
-        stage += 1
-    best = centres[0]
+    centres = _distinct_best(poses, s.loglik, config.beam, steps, model.period)
+    # 2. Refine each of the beam's hypotheses on its own with shrinking grids (5^3 for the first
+    #    two stages, then 3^3), so that a yaw alias (e.g. half a tooth pitch off) cannot crowd out
+    #    the true basin; the best refined one is the MAP.
+    centres, last = _refine(centres, steps, score, fine, config, prior, wide_stages=1)
+    best, best_ll = centres[int(np.argmax(last))], float(last.max())
+    # 3. Yaw sweep at the refined position: the silhouette fixes x-y long before the teeth fix
+    #    yaw, and a tooth pattern half a pitch off is a strong local optimum. Sweep the whole
+    #    appearance period finely around the MAP's x-y and refine the best sweep hypothesis too.
+    sweep_step = model.period / config.sweep_yaw_cells
+    if model.period > 8 * config.min_yaw_step:
+        r = config.sweep_xy * np.linspace(-1.0, 1.0, 3)
+        g = np.meshgrid(best[0] + r, best[1] + r,
+                        best[2] + sweep_step * np.arange(1, config.sweep_yaw_cells), indexing="ij")
+        sweep = prior.clip(np.stack([a.ravel() for a in g], axis=1))
+        sweep_ll = score(sweep, fine).loglik
+        starts = _distinct_best(sweep, sweep_ll, 2, np.array([r[1] - r[0]] * 2 + [sweep_step]),
+                                model.period)
+        alt, alt_ll = _refine(starts, np.array([r[1] - r[0], r[1] - r[0], sweep_step]),
+                              score, fine, config, prior)
+        if alt_ll.max() > best_ll:
+            best, best_ll = alt[int(np.argmax(alt_ll))], float(alt_ll.max())
     # Sanity: does the best pose show enough of the gear, and explain what it shows?
     check = score(best[None], fine)
     pixels, inliers = int(check.pixels[0]), float(check.inliers[0])
     info.update(pixels=pixels, inlier_fraction=inliers / max(pixels, 1), stride=fine,
-                search_hypotheses=info["hypotheses"])
+                search_hypotheses=info["hypotheses"], gsd=scorer.gsd, tempering=scorer.tempering,
+                depth_noise=scorer.conditions.depth_noise,
+                valid_fraction=scorer.valid_fraction)
     reason = ""
     if pixels < config.min_pixels:
         reason = (f"only {pixels} pixels of the {model.name} gear at its best pose are in view "
@@ -150,26 +212,35 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
                   "prior says, or something hides it")
     if reason:
         info["seconds"] = time.perf_counter() - t0
-        return uniform_posterior(model.name, (prior.x, prior.y), prior.half_width, reason, info=info)
+        return uniform_posterior(model.name, (prior.x, prior.y), prior.half_width, reason,
+                                 period=model.period, info=info)
     # 3. Posterior grid around the MAP.
-    post = _posterior_grid(model, best, score, fine, config, info)
+    post = _posterior_grid(model, best, score, fine, config, prior)
     info["seconds"] = time.perf_counter() - t0
     post.info.update(info)
     return post
 
 
 def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
-                    config: SearchConfig, info: dict) -> PosePosterior:
-    """Local grid around the MAP with adapted steps, replicated over the tooth-pitch repeats."""
+                    config: SearchConfig, prior: Prior) -> PosePosterior:
+    """Local grid around the MAP with adapted steps, cut to the prior box; for a marked gear,
+    replicated over the tooth-pitch repeats."""
     n = config.grid
     half = (n - 1) // 2
     teeth = gear_spec(model.name).teeth
     pitch = 2 * np.pi / teeth
+    window = min(pitch, model.period)  # one mode's yaw window: a tooth pitch at most
+    max_xy = 2 * prior.half_width / (n - 1)  # a grid never needs to be wider than the box
     centre = map_pose.copy()
-    steps = _probe_steps(centre, score, stride, config, half, pitch)
+    steps = _probe_steps(centre, score, stride, config, half, window)
+    steps[:2] = np.minimum(steps[:2], max_xy)
+    x0, x1, y0, y1 = prior.box
     for attempt in range(config.adapt):
         poses = _grid(centre, steps, n)
-        ll = score(poses, stride).loglik.reshape(n, n, n)
+        with np.errstate(divide="ignore"):
+            cut = (np.log(cell_overlap(poses[:, 0], steps[0], x0, x1))
+                   + np.log(cell_overlap(poses[:, 1], steps[1], y0, y1)))
+        ll = (score(poses, stride).loglik + cut).reshape(n, n, n)
         p = np.exp(ll - logsumexp(ll))
         best = np.array(np.unravel_index(np.argmax(ll), ll.shape)) - half
         grow = np.zeros(3, bool)
@@ -177,29 +248,36 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
         for d in range(3):
             m = p.sum(axis=tuple(a for a in range(3) if a != d))
             grow[d] = m[0] + m[-1] > 0.01
-            shrink[d] = m.max() > 0.98
+            shrink[d] = m.max() > config.max_cell_mass
+        grow[:2] &= steps[:2] < max_xy
+        grow[2] &= steps[2] < window / n
         shift = np.abs(best) == half
         if attempt == config.adapt - 1 or not (grow.any() or shrink.any() or shift.any()):
             break
         centre = centre + np.where(shift, best * steps, 0.0)
+        centre[:2] = prior.clip(centre[None])[0, :2]
         steps = np.where(grow, steps * 2, np.where(shrink, steps / 2, steps))
-        steps[2] = min(steps[2], pitch / n)  # a mode's yaw window stays inside one tooth pitch
-    # Every tooth-pitch repeat of the MAP yaw: score its yaw slice through the MAP (x, y).
+        steps[:2] = np.minimum(steps[:2], max_xy)
+        steps[2] = min(steps[2], window / n)  # a mode's yaw window stays inside one pitch
     offsets = (np.arange(n) - half) * steps[2]
+    xs = centre[0] + (np.arange(n) - half) * steps[0]
+    ys = centre[1] + (np.arange(n) - half) * steps[1]
+    if model.symmetry > 1:  # yaw is a class modulo the period: one mode
+        return PosePosterior(model.name, xs, ys, centre[2:3], offsets, ll[None],
+                             period=model.period, support=prior.box)
+    # A marked gear: every tooth-pitch repeat of the MAP yaw, its yaw slice through the MAP (x, y).
     repeats = wrap(centre[2] + pitch * np.arange(teeth))
     slice_poses = np.array([[centre[0], centre[1], r + o] for r in repeats for o in offsets])
     slice_ll = score(slice_poses, stride).loglik.reshape(teeth, n)
     evidence = logsumexp(slice_ll, axis=1)
     log_mass = ll[None] + (evidence - evidence[0])[:, None, None, None]
-    xs = centre[0] + (np.arange(n) - half) * steps[0]
-    ys = centre[1] + (np.arange(n) - half) * steps[1]
-    post = PosePosterior(model.name, xs, ys, repeats, offsets, log_mass)
+    post = PosePosterior(model.name, xs, ys, repeats, offsets, log_mass, support=prior.box)
     post.info["repeat_log_evidence"] = (evidence - evidence.max()).tolist()
     return post
 
 
 def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, half: int,
-                 pitch: float) -> np.ndarray:
+                 window: float) -> np.ndarray:
     """Posterior grid steps from 1-D probes: along each axis, how far from the MAP the tempered
     log-likelihood falls by 4 (about 2.8 standard deviations for a Gaussian); the grid reaches
     1.25 times that far."""
@@ -218,5 +296,5 @@ def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, h
         reach = dist[far[0], d] if far.size else dist[-1, d]
         steps[d] = 1.25 * reach / half
     steps[:2] = np.maximum(steps[:2], config.min_step / 2)
-    steps[2] = min(max(steps[2], config.min_yaw_step / 2), pitch / (2 * half + 1))
+    steps[2] = min(max(steps[2], config.min_yaw_step / 2), window / (2 * half + 1))
     return steps

@@ -80,3 +80,27 @@ def test_bad_configs_are_named():
         Prior(float("nan"), 0.0)
     with pytest.raises(ValueError, match="grid"):
         SearchConfig(grid=4)
+
+
+def test_nan_intrinsics_and_zero_width_prior_are_named(obs):
+    from perception.observation import Intrinsics
+    k = obs.intrinsics
+    with pytest.raises(ValueError, match="intrinsics fx = nan"):
+        Intrinsics(k.width, k.height, float("nan"), k.fy, k.cx, k.cy)
+    with pytest.raises(ValueError, match="intrinsics width = 0"):
+        Intrinsics(0, k.height, k.fx, k.fy, k.cx, k.cy)
+    with pytest.raises(ValueError, match="half_width = 0"):
+        Prior(0.4, 0.0, 0.0)
+    with pytest.raises(ValueError, match="not finite"):
+        Prior(float("nan"), 0.0, 0.01)
+
+
+def test_prior_box_is_a_hard_support(obs, poses):
+    """Told the gear is within +-1 cm of a point 8 mm from it, the posterior keeps all of its mass
+    inside that box (it may be uninformative, never outside)."""
+    x, y, _ = poses["medium"]
+    prior = Prior(x + 0.008, y - 0.004, 0.01)
+    post = estimate_pose(obs, "medium", prior)
+    x0, x1, y0, y1 = prior.box
+    assert post.probability(x=(x0, x1), y=(y0, y1)) == pytest.approx(1.0, abs=1e-9)
+    assert np.all(post.std()[:2] <= 2 * prior.half_width / np.sqrt(12) + 1e-9)

@@ -8,13 +8,15 @@ from pathlib import Path
 GOFLOW = Path(sys.executable).parent / "goflow"
 
 
-def test_bench_perception_writes_the_three_numbers(tmp_path):
+def test_bench_perception_writes_its_numbers(tmp_path):
     out = tmp_path / "bench" / "perception.json"
     proc = subprocess.run([str(GOFLOW), "bench", "perception", "--json", str(out), "--posteriors", "1"],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(out.read_text())
-    assert set(result) == {"seconds_per_posterior", "hypotheses_per_second", "renderer"}
+    assert set(result) == {"seconds_per_posterior", "hypotheses_per_second", "renderer",
+                           "seconds_per_scene"}
+    assert result["seconds_per_scene"] > 0
     assert isinstance(result["seconds_per_posterior"], float) and result["seconds_per_posterior"] > 0
     assert result["hypotheses_per_second"] > 100
     assert result["renderer"] == "raycast-heightmap"
@@ -27,3 +29,18 @@ def test_bench_rejects_unknown_target_and_bad_counts():
     proc = subprocess.run([str(GOFLOW), "bench", "perception", "--posteriors", "0"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--posteriors 0" in proc.stderr
+
+
+def test_bench_calibration_writes_summary_and_plot(tmp_path):
+    out, plot = tmp_path / "cal.json", tmp_path / "reliability.png"
+    proc = subprocess.run([str(GOFLOW), "bench", "calibration", "--scenes", "1", "--groups", "dim",
+                           "--seed", "7999", "--json", str(out), "--plot", str(plot)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(out.read_text())
+    assert [(s["group"], s["view"]) for s in result["summary"]] == [("dim", "scene"), ("dim", "inspect")]
+    assert len(result["rows"]) == 6 and plot.stat().st_size > 10_000
+    assert "| dim | scene |" in proc.stdout
+    proc = subprocess.run([str(GOFLOW), "bench", "calibration", "--groups", "foggy"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--groups foggy" in proc.stderr

@@ -66,7 +66,7 @@ def test_far_scene_view_is_wider_than_close_view(inspected):
                         Prior(belief[0], belief[1], 0.03))
     assert far.informative, far.reason
     for dim in ("x", "y"):
-        assert far.marginal_entropy(dim) > close.marginal_entropy(dim) + 0.5, dim
+        assert far.marginal_entropy(dim) > close.marginal_entropy(dim), dim
     assert np.all(far.std()[:2] > close.std()[:2])
 
 

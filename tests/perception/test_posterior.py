@@ -91,3 +91,36 @@ def test_plot_writes_png(tmp_path):
     fig = _gaussian(modes=3).plot(tmp_path / "p.png", truth=np.array([0.4, -0.1, 3.1]))
     assert (tmp_path / "p.png").stat().st_size > 1000
     assert len(fig.axes) == 2
+
+
+def test_support_is_hard_and_std_includes_the_cell_width():
+    xs = np.linspace(0.39, 0.41, 5)
+    offs = np.linspace(-0.01, 0.01, 5)
+    ll = np.zeros((1, 5, 5, 5))
+    post = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, ll,
+                         support=(0.3925, 0.41, -0.01, 0.01))
+    assert post.probability(x=(0.0, 0.3925)) == pytest.approx(0.0, abs=1e-12)
+    assert post.sample(2000, seed=0)[:, 0].min() >= 0.3925
+    assert post.cell_of([0.39, 0.0, 0.0]) is None and post.credible_level([0.39, 0.0, 0.0]) == 1.0
+    # one cell holding all the mass still has the spread of a uniform cell
+    one = np.full((1, 5, 5, 5), -np.inf)
+    one[0, 2, 2, 2] = 0.0
+    post = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, one)
+    np.testing.assert_allclose(post.std(), [0.005, 0.005, 0.005] / np.sqrt(12), rtol=1e-6)
+
+
+def test_symmetry_class_and_credible_levels_of_own_samples_are_uniform():
+    pitch = 2 * np.pi / 40
+    post = _gaussian(sigma=(0.001, 0.002, 0.01), centre=(0.4, -0.1, 0.0))
+    post = PosePosterior("medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets * 0.5,
+                         post.log_mass, period=pitch)
+    truth = post.sample(1, seed=3)[0]
+    assert post.credible_level(truth) == post.credible_level(truth + [0, 0, 7 * pitch])
+    assert post.probability(yaw=(truth[2] + 3 * pitch - pitch / 2, truth[2] + 3 * pitch + pitch / 2)) \
+        == pytest.approx(1.0)
+    levels = np.array([post.credible_level(p) for p in post.sample(3000, seed=4)])
+    for q in (0.5, 0.68, 0.9, 0.95):
+        assert np.mean(levels < q) == pytest.approx(q, abs=0.03)
+    with pytest.raises(ValueError, match="period"):
+        PosePosterior("medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets, post.log_mass,
+                      period=0.3)
