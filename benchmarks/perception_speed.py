@@ -1,11 +1,11 @@
 """Perception benchmark: renderers per hypothesis (Drake vs our ray caster, speed and depth
-agreement), whole posteriors per gear, calibration over random scenes, and the posterior plots
-of one gear seen close (wrist camera after inspect) and far (scene camera).
+agreement), whole posteriors per gear, and the posterior plots of one gear seen close (wrist camera
+after inspect) and far (scene camera). Calibration is `goflow bench calibration`.
 
-    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python benchmarks/perception_speed.py
+    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python benchmarks/perception_speed.py --out DIR
 
-writes docs/results/perception_bench.json, perception_calibration.json,
-perception_posterior_close.png and perception_posterior_far.png, and prints markdown tables.
+writes DIR/perception_bench.json, perception_posterior_close.png and perception_posterior_far.png
+(docs/results holds the committed ones), and prints markdown tables.
 """
 
 from __future__ import annotations
@@ -87,24 +87,22 @@ def _symmetry(gear: str = "medium") -> list[dict]:
     return rows
 
 
-def _sweep_tempering(values: list[float], scenes: int, out: Path) -> None:
-    """Calibration coverage and median posterior widths for several tempering exponents."""
+def _sweep_correlation_length(values: list[float], scenes: int, out: Path) -> None:
+    """Coverage of the clean group's posteriors (tuning seed 0, both views) for several values of
+    the tempering's correlation length (LikelihoodConfig.correlation_length)."""
     rows = []
-    for tau in values:
-        search = SearchConfig(likelihood=LikelihoodConfig(tempering=tau))
-        calib = run_calibration(CalibrationConfig(scenes=scenes, search=search))
-        std = np.array([r["std"] for r in calib["rows"]])
-        rows.append({"tempering": tau, "scenes": scenes, "coverage": calib["coverage"],
-                     "median_std_x_m": float(np.median(std[:, 0])),
-                     "median_std_y_m": float(np.median(std[:, 1])),
-                     "median_xy_error_m": float(np.median([r["xy_error_m"] for r in calib["rows"]]))})
-    write_json(out / "perception_tempering.json", rows)
-    print("| tempering | coverage of the 90 % region | median std x, y [mm] | median MAP x-y error [mm] |")
+    for length in values:
+        search = SearchConfig(likelihood=LikelihoodConfig(correlation_length=length))
+        calib = run_calibration(CalibrationConfig(scenes=scenes, seed=0, groups=("clean",),
+                                                  search=search))
+        rows += [{"correlation_length_m": length, **s} for s in calib["summary"]]
+    write_json(out / "perception_correlation_length.json", rows)
+    print("| correlation length [mm] | view | coverage 50/68/80/90/95 [%] | median std x-y [mm] |")
     print("|---|---|---|---|")
     for r in rows:
-        print(f"| {r['tempering']} | {100 * r['coverage']:.0f} % of {r['scenes']} | "
-              f"{1e3 * r['median_std_x_m']:.3f}, {1e3 * r['median_std_y_m']:.3f} | "
-              f"{1e3 * r['median_xy_error_m']:.3f} |")
+        cov = "/".join(f"{100 * c:.0f}" for c in r["coverage"].values())
+        print(f"| {1e3 * r['correlation_length_m']:.2f} | {r['view']} | {cov} | "
+              f"{r['std_xy_mm']['median']:.3f} |")
 
 
 def main() -> None:
@@ -112,15 +110,16 @@ def main() -> None:
     parser.add_argument("--hypotheses", type=int, default=40)
     parser.add_argument("--posteriors", type=int, default=5)
     parser.add_argument("--scenes", type=int, default=30)
-    parser.add_argument("--out", default="docs/results")
-    parser.add_argument("--sweep-tempering", type=float, nargs="+", metavar="TAU",
-                        help="only run the calibration for each tempering exponent and print "
-                             "coverage and posterior widths (writes perception_tempering.json)")
+    parser.add_argument("--out", default="runs/bench/perception")
+    parser.add_argument("--sweep-correlation-length", type=float, nargs="+", metavar="METRES",
+                        help="only run the clean calibration (tuning seed 0) for each correlation "
+                             "length of the tempering and print coverage and widths (writes "
+                             "perception_correlation_length.json)")
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.sweep_tempering:
-        _sweep_tempering(args.sweep_tempering, args.scenes, out)
+    if args.sweep_correlation_length:
+        _sweep_correlation_length(args.sweep_correlation_length, args.scenes, out)
         return
     renderers = bench_renderers(BenchConfig(hypotheses=args.hypotheses))
     posteriors = bench_posteriors(BenchConfig(posteriors=args.posteriors))
@@ -129,8 +128,6 @@ def main() -> None:
     bench = {"cores": len(os.sched_getaffinity(0)), "renderers": renderers,
              "posteriors": posteriors, "inspect_medium": figures, "symmetry": symmetry}
     write_json(out / "perception_bench.json", bench)
-    calib = run_calibration(CalibrationConfig(scenes=args.scenes))
-    write_json(out / "perception_calibration.json", calib)
 
     print(_renderer_table(renderers))
     print()
@@ -153,12 +150,6 @@ def main() -> None:
         print(f"| {r['gear']} | {r['marked']} | {r['view']} | {r['effective_repeats']:.1f} of {r['teeth']} | "
               f"{r['true_repeat_mass']:.3f} | {r['min_repeat_mass_x_teeth']:.2f}, {r['max_repeat_mass_x_teeth']:.2f} | "
               f"{e['x']:.2f}, {e['y']:.2f}, {e['yaw']:.2f} | {r['seconds']:.2f} |")
-    rows = calib["rows"]
-    print(f"\ncalibration: truth in the 90 % region in {100 * calib['coverage']:.0f} % of "
-          f"{calib['scenes']} scenes; MAP x-y error median {1e3 * np.median([r['xy_error_m'] for r in rows]):.3f} mm, "
-          f"max {1e3 * np.max([r['xy_error_m'] for r in rows]):.3f} mm; yaw error (mod pitch) max "
-          f"{np.degrees(np.max([r['yaw_error_rad'] for r in rows])):.2f} deg; "
-          f"seconds per posterior median {np.median([r['seconds'] for r in rows]):.3f}")
 
 
 if __name__ == "__main__":

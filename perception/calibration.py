@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from assembly.gearset import GEAR_NAMES, gear_spec
+from assembly.gearset import GEAR_NAMES
 from common.checks import check_int
 from common.errors import InputError
 from perception.detection import detect_gears

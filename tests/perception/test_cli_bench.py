@@ -20,7 +20,7 @@ def test_bench_perception_writes_its_numbers(tmp_path):
     assert isinstance(result["seconds_per_posterior"], float) and result["seconds_per_posterior"] > 0
     assert result["hypotheses_per_second"] > 100
     assert result["renderer"] == "raycast-heightmap"
-    assert "s per posterior" in proc.stdout
+    assert "s per close-view posterior" in proc.stdout and "s per scene image" in proc.stdout
 
 
 def test_bench_rejects_unknown_target_and_bad_counts():

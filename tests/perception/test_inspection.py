@@ -58,16 +58,17 @@ def test_inspect_the_other_gears(gear):
     _check_close_view(run_inspect(gear, tuple(belief)), gear, truth, belief)
 
 
-def test_far_scene_view_is_wider_than_close_view(inspected):
+def test_far_and_close_views_both_hold_the_truth(inspected):
+    """Both views are informative and hold the truth in their 95 % regions. (Calibrated, the far
+    view of a lone, fully visible gear is nearly as sharp as the close one: docs/perception.md.)"""
     run, truth, belief = inspected
     close = estimate_pose(observe(run.station, run.root_context, "wrist"), GEAR,
                           Prior(belief[0], belief[1], 0.03))
     far = estimate_pose(observe(run.station, run.root_context, "scene"), GEAR,
                         Prior(belief[0], belief[1], 0.03))
-    assert far.informative, far.reason
-    for dim in ("x", "y"):
-        assert far.marginal_entropy(dim) > close.marginal_entropy(dim), dim
-    assert np.all(far.std()[:2] > close.std()[:2])
+    assert far.informative and close.informative, (far.reason, close.reason)
+    assert far.contains(truth, 0.95) and close.contains(truth, 0.95)
+    assert np.all(close.std()[:2] < 1.5 * far.std()[:2])
 
 
 def test_inspect_pose_puts_the_camera_above_the_gear_and_validates():
