@@ -201,9 +201,12 @@ def reliability_plot(result: dict, path: str | Path):
     import matplotlib.pyplot as plt
 
     levels = np.array(result["config"]["levels"])
+    lowest = min((c for s in result["summary"] for c in s["coverage"].values() if np.isfinite(c)),
+                 default=0.4)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), sharey=True)
     for ax, view in zip(axes, VIEWS):
         ax.fill_between([0.4, 1.0], [0.35, 0.95], [0.45, 1.05], color="0.9", label="+-5 points")
+        ax.set_title(f"{view} view")
         ax.plot([0.4, 1.0], [0.4, 1.0], "k--", lw=0.8)
         for s in (s for s in result["summary"] if s["view"] == view):
             observed = [s["coverage"][f"{lvl:g}"] for lvl in levels]
@@ -211,7 +214,7 @@ def reliability_plot(result: dict, path: str | Path):
         ax.set_title(f"{view} view")
         ax.set_xlabel("nominal coverage")
         ax.set_xlim(0.45, 1.0)
-        ax.set_ylim(0.4, 1.02)
+        ax.set_ylim(min(0.4, lowest - 0.05), 1.02)
     axes[0].set_ylabel("observed coverage")
     axes[1].legend(fontsize=7, loc="lower right")
     fig.tight_layout()

@@ -61,11 +61,11 @@ class LikelihoodConfig:
         return float(min(1.0, gsd ** 2 / (self.correlation_length * gear_spec(gear).tip_radius)))
 
     def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                     depth_hat: np.ndarray, b_d: float | None = None) -> np.ndarray:
+                     depth_hat: np.ndarray) -> np.ndarray:
         """Log-likelihood of observed pixels (rgb (..., 3), depth (...)) given rendered ones; a
         pixel without a valid depth (NaN, <= 0) is scored on its colour alone (its depth density
-        marginalized out). `b_d` overrides the depth scale (e.g. widened for a noisy image)."""
-        b_d = self.b_d if b_d is None else b_d
+        marginalized out)."""
+        b_d = self.b_d
         has_depth = np.isfinite(depth) & (depth > 0)
         colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
         dist = np.where(has_depth, np.abs(np.where(has_depth, depth, 0.0) - depth_hat) / b_d
@@ -75,15 +75,13 @@ class LikelihoodConfig:
         return np.logaddexp(log_in, log_out)
 
     def is_inlier(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                  depth_hat: np.ndarray, scales: float = 3.0, b_d: float | None = None
-                  ) -> np.ndarray:
+                  depth_hat: np.ndarray, scales: float = 3.0) -> np.ndarray:
         """Whether each pixel matches its rendering within `scales` times b_rgb (colour, L1) and
         b_d (depth; a pixel without depth on colour alone): what "the hypothesis explains this
         pixel" means in the sanity checks."""
-        b_d = self.b_d if b_d is None else b_d
         colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
         with np.errstate(invalid="ignore"):
-            dist = np.abs(depth - depth_hat) / b_d
+            dist = np.abs(depth - depth_hat) / self.b_d
         return (colour < scales) & ((dist < scales) | ~(np.isfinite(depth) & (depth > 0)))
 
 

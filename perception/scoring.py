@@ -5,7 +5,8 @@ occupy anywhere in the search region; every m-th of them (a lattice fixed by the
 dropped depth pixels remove samples instead of reshuffling them) is scored, a pixel without depth
 on its colour alone. Before scoring, the image's conditions are read off the bare table around the
 gear: a colour gain per channel (the light's intensity and direction scale the table and the gear's
-top face alike) and the depth noise (which widens the depth scale). A hypothesis predicts its rendered gear where its
+top face alike; the colour scale follows the brightness) and the depth noise (which widens the
+depth scale). A hypothesis predicts its rendered gear where its
 rays hit the gear and the bare table elsewhere, so its log-likelihood over the region is the
 no-gear log-likelihood (the same for all hypotheses) plus the sum, over the pixels its gear
 covers, of (gear term - table term): only those pixels are rendered and summed.
@@ -13,7 +14,7 @@ covers, of (gear term - table term): only those pixels are rendered and summed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -89,7 +90,12 @@ class ImageScorer:
         self._dirs = dirs
         self.conditions = _read_conditions(obs, self._u[self.roi & valid], self._v[self.roi & valid],
                                            dirs[self.roi & valid], origin, self.light)
-        self.b_d = float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise))
+        # The pixel model under these conditions: colour differences scale with the light's
+        # brightness (a dimmer image has smaller ones), depth residuals widen with the noise.
+        brightness = float(np.mean(self.conditions.gain))
+        self.pixels_model = replace(
+            self.likelihood, b_rgb=self.likelihood.b_rgb * float(np.clip(brightness, 0.25, 4.0)),
+            b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
         # Ground sampling distance at the search centre: metres of table per pixel.
         p_C = obs.X_WC.inverse().multiply(np.array([centre[0], centre[1], top]))
         self.gsd = float(max(p_C[2], 1e-3) / obs.intrinsics.fx)
@@ -111,7 +117,7 @@ class ImageScorer:
             depth = self.obs.depth[self._v[idx], self._u[idx]].astype(np.float32)
             depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
             bg_depth, bg_rgb = table_prediction(self.origin, dirs, self.light)
-            bg = self.likelihood.pixel_loglik(rgb, depth, self._lit(bg_rgb), bg_depth, self.b_d)
+            bg = self.pixels_model.pixel_loglik(rgb, depth, self._lit(bg_rgb), bg_depth)
             weight = self.tempering * stride
             self._sets[stride] = _PixelSet(self.origin, dirs, rgb, depth, bg, weight)
         return self._sets[stride]
@@ -125,11 +131,10 @@ class ImageScorer:
         poses = np.atleast_2d(np.asarray(poses, float))
         ps = self.pixels(stride)
         hits = self.caster.render(ps.origin, ps.dirs, self.light, poses)
-        lik = self.likelihood
+        lik = self.pixels_model
         rgb_hat = self._lit(hits.rgb)
-        ll = lik.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth, self.b_d)
-        inl = lik.is_inlier(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth,
-                            b_d=self.b_d)
+        ll = lik.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth)
+        inl = lik.is_inlier(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth)
         n = len(poses)
         total = np.bincount(hits.hyp, weights=ll - ps.delta_bg[hits.pix], minlength=n)
         return Scores(ps.weight * total, np.bincount(hits.hyp, minlength=n),
