@@ -437,21 +437,23 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 def _bench_flags(p: argparse.ArgumentParser) -> None:
     from perception.bench import BenchConfig
-    from perception.calibration import CalibrationConfig
     p.add_argument("target", choices=["perception", "calibration"],
                    help="perception: seconds per posterior; calibration: coverage of the "
                         "posteriors' credible regions on fresh scenes, both views, every "
                         "perturbation group")
     p.add_argument("--json", metavar="PATH", type=Path, help="write the result as JSON")
     _add_field(p, BenchConfig, "posteriors", doc="perception: close-view posteriors timed per gear")
+    # calibration's options default to CalibrationConfig's (not imported here: parsing any
+    # command must not load the scene renderer)
     p.add_argument("--seed", type=int, default=None, metavar="SEED",
                    help="seed of the random poses (perception: 0) or scenes (calibration: "
-                        "%d, held out from tuning)" % CalibrationConfig.seed)
-    _add_field(p, CalibrationConfig, "scenes", doc="calibration: scenes per perturbation group "
-                                                   "(three gears each)")
+                        "held out from tuning by default)")
+    p.add_argument("--scenes", type=int, default=None, metavar="SCENES",
+                   help="calibration: scenes per perturbation group (three gears each)")
     p.add_argument("--groups", nargs="+", metavar="GROUP", default=None,
                    help="calibration: perturbation groups (default: all)")
-    _add_field(p, CalibrationConfig, "workers", doc="calibration: processes")
+    p.add_argument("--workers", type=int, default=None, metavar="WORKERS",
+                   help="calibration: processes (default 1)")
     p.add_argument("--plot", metavar="PATH", type=Path,
                    help="calibration: write the reliability plot (PNG)")
 
@@ -479,9 +481,8 @@ def _bench_calibration(args: argparse.Namespace) -> int:
         CalibrationConfig, markdown_table, reliability_plot, run_calibration,
     )
     from perception.scenes import PERTURBATIONS
-    overrides = {"scenes": args.scenes, "workers": args.workers}
-    if args.seed is not None:
-        overrides["seed"] = args.seed
+    overrides = {k: getattr(args, k) for k in ("scenes", "workers", "seed")
+                 if getattr(args, k) is not None}
     if args.groups:
         unknown = [g for g in args.groups if g not in PERTURBATIONS]
         if unknown:
