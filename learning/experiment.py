@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -263,7 +265,41 @@ def _train(config: TrainConfig, probe: gymnasium.Env, progress: bool) -> dict:
 def _rounds(config: TrainConfig, log: dict, rounds: int, done: int, agent: PPO, sampler: Sampler, space: ParamSpace,
             train_envs: gymnasium.vector.VectorEnv, val_envs: gymnasium.vector.VectorEnv, checkpoint: Path | None,
             bar: tqdm) -> None:
-    """The protocol's rounds until `rounds`, checkpointing after each."""
+    """The protocol's rounds until `rounds`, checkpointing after each; Ctrl-C stops after the
+    round in progress (see `_stop_after_round`)."""
+    with _stop_after_round() as stop_requested:
+        _round_loop(config, log, rounds, done, agent, sampler, space, train_envs, val_envs,
+                    checkpoint, bar, stop_requested)
+
+
+@contextmanager
+def _stop_after_round() -> Iterator[Callable[[], bool]]:
+    """In the main thread, a first Ctrl-C (SIGINT) only asks the rounds to stop once the round in
+    progress is checkpointed (no asynchronous KeyboardInterrupt that a finalizer could swallow);
+    a second one interrupts at once. An ignored SIGINT stays ignored."""
+    import signal
+    import threading
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is signal.SIG_IGN:
+        yield lambda: False
+        return
+    requested = threading.Event()
+
+    def ask(signum, frame) -> None:
+        requested.set()
+        signal.signal(signal.SIGINT, previous if callable(previous) else signal.default_int_handler)
+
+    signal.signal(signal.SIGINT, ask)
+    try:
+        yield requested.is_set
+    finally:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+
+
+def _round_loop(config: TrainConfig, log: dict, rounds: int, done: int, agent: PPO, sampler: Sampler,
+                space: ParamSpace, train_envs: gymnasium.vector.VectorEnv,
+                val_envs: gymnasium.vector.VectorEnv, checkpoint: Path | None, bar: tqdm,
+                stop_requested: Callable[[], bool]) -> None:
     steps_per_round = config.steps_per_round()
     while log["rounds"] < rounds:
         r = log["rounds"]
@@ -305,6 +341,8 @@ def _rounds(config: TrainConfig, log: dict, rounds: int, done: int, agent: PPO, 
             write_json(config.out / "log.json", log)
         bar.set_postfix(success=f"{log['curve'][-1][1]:.2f}")
         bar.update(1)
+        if stop_requested():
+            raise KeyboardInterrupt
 
 
 @dataclass
