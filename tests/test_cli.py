@@ -11,6 +11,13 @@ from pathlib import Path
 import pytest
 
 GOFLOW = Path(sys.executable).parent / "goflow"
+
+
+def _as_from_a_shell() -> None:
+    """In the child before exec: Ctrl-C as a terminal delivers it (default disposition, not
+    blocked), whatever the test runner's own signal state has become."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
 TINY = ["--ppo", "num_envs=2", "--ppo", "num_steps=8", "--ppo", "num_minibatches=2",
         "--ppo", "update_epochs=1", "--iterations-per-round", "1", "--eval-episodes", "4"]
 
@@ -80,7 +87,8 @@ def test_train_ctrl_c_keeps_the_checkpoint_and_says_how_to_resume(tmp_path):
     out = tmp_path / "run"
     args = ["train", "--env", "goflow/Toy2D-v0", "--method", "lsdr", "--steps", "1000000",
             "--out", str(out), *TINY]
-    proc = subprocess.Popen([str(GOFLOW), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([str(GOFLOW), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_as_from_a_shell)
     try:
         deadline = time.monotonic() + 300
         while not (out / "checkpoint.pt").exists():
@@ -111,7 +119,7 @@ def test_experiment_ctrl_c_stops_every_run_cleanly(tmp_path):
     args = ["experiment", "--env", "goflow/Toy2D-v0", "--methods", "fulldr", "--seeds", "3", "--steps", "1000000",
             "--workers", "2", "--out", str(tmp_path / "runs"), "--results", str(tmp_path / "results"), *TINY]
     proc = subprocess.Popen([str(GOFLOW), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_as_from_a_shell)
     try:
         deadline = time.monotonic() + 300
         while not list((tmp_path / "runs").glob("*/fulldr/seed*/checkpoint.pt")):
