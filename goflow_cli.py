@@ -188,6 +188,18 @@ def _round_note(config: Any, command: str) -> None:
               file=sys.stderr, flush=True)
 
 
+def _ray_flag(p: argparse.ArgumentParser) -> None:
+    """--ray, the same on every command that runs a grid (learning.execution)."""
+    from learning.execution import add_ray_flag
+    add_ray_flag(p)
+
+
+def _backend(args: argparse.Namespace, workers: int, inline: bool = False) -> Any:
+    """The grid backend of --ray and `workers` (checked now; nothing starts until it is entered)."""
+    from learning.execution import make_backend
+    return make_backend(args.ray, workers, inline=inline)
+
+
 # ---------------------------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------------------------
@@ -291,6 +303,7 @@ def _experiment_flags(p: argparse.ArgumentParser) -> None:
     _add_field(p, ExperimentConfig, "sampler_signal", choices=SAMPLER_SIGNALS)
     _add_field(p, ExperimentConfig, "seeds", doc="seeds per method (0, 1, ...)")
     _add_field(p, ExperimentConfig, "workers", doc="parallel processes")
+    _ray_flag(p)
     _add_field(p, ExperimentConfig, "out")
     _add_field(p, ExperimentConfig, "results")
     _add_field(p, ExperimentConfig, "name")
@@ -303,7 +316,8 @@ def _experiment_config(args: argparse.Namespace, methods: Iterable[str],
                             methods=tuple(methods), seeds=args.seeds, total_steps=args.total_steps,
                             iterations_per_round=args.iterations_per_round, eval_episodes=args.eval_episodes,
                             ppo=_ppo_config(args), sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
-                            sampler_signal=args.sampler_signal, out=args.out, results=args.results, name=args.name)
+                            ray=args.ray, sampler_signal=args.sampler_signal, out=args.out, results=args.results,
+                            name=args.name)
 
 
 def _experiment_cmd_flags(p: argparse.ArgumentParser) -> None:
@@ -366,7 +380,8 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("action", choices=["train", "export", "show"],
                    help="train: the recipe, then export; export: a run folder as a skill file; show: a file's provenance")
     p.add_argument("--skill", default=SKILLS[0], choices=SKILLS, help="the skill")
-    p.add_argument("--gear", required=True, choices=sorted(GEARS), help="the gear it handles")
+    p.add_argument("--gear", required=True, nargs="+", choices=sorted(GEARS),
+                   help="the gear it handles (train: one or more, one job each)")
     _add_field(p, SkillRecipe, "seed", doc="seed of the training run")
     _add_field(p, SkillRecipe, "total_steps", "--steps", doc="stage 1 (GoFlow) training environment steps")
     _add_field(p, SkillRecipe, "refine_steps")
@@ -377,12 +392,21 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, help="train, export: the skill file to write (default: "
                                             "<runs>/<skill>-<gear>.pt; the shipped files only when named)")
     p.add_argument("--path", type=Path, help="show: a skill file other than the shipped one")
+    p.add_argument("--workers", type=int, default=1, help="train: gears trained at once, one process each")
+    _ray_flag(p)
 
 
 def _cmd_skill(args: argparse.Namespace) -> int:
     from learning.skills import (
         SkillRecipe, describe, export_skill, load_skill, skill_path, skill_run_folder, train_skill,
     )
+    gears = list(dict.fromkeys(args.gear))
+    if args.action != "train" and (len(gears) > 1 or args.ray):
+        raise InputError(f"{args.action} handles one gear in this process; --gear {' '.join(args.gear)}"
+                         f"{' --ray ' + args.ray if args.ray else ''}: several gears and --ray are for train")
+    args.gear = gears[0]
+    if args.action == "train" and (len(gears) > 1 or args.ray or args.workers != 1):
+        return _skill_train_grid(args, gears)
     if args.action == "show":
         if args.out:
             raise InputError("show reads --path (default: the shipped file); --out is what train and export write")
@@ -402,9 +426,23 @@ def _cmd_skill(args: argparse.Namespace) -> int:
     return 0
 
 
+def _skill_train_grid(args: argparse.Namespace, gears: list[str]) -> int:
+    """skill train of several gears, or on --ray / --workers: one job per gear."""
+    from learning.skills import SkillRecipe, skill_path, train_skills
+    backend = _backend(args, args.workers)
+    recipe = SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
+                         fit_rounds=args.fit_rounds)
+    with _resumable(lambda: f"the training runs under {args.runs} keep their last finished rounds"):
+        skills = train_skills(args.skill, gears, recipe, runs=args.runs, out=args.out, command=args.provenance,
+                              backend=backend)
+    for gear, skill in zip(gears, skills):
+        print(f"{skill!r} -> {args.out or skill_path(args.skill, gear, args.runs)}")
+    return 0
+
+
 def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     from assembly.gearset import GEARS
-    from learning.skills import SKILLS, evaluate_skill
+    from learning.skills import SKILLS, evaluate_skill, evaluate_skill_jobs
     p.add_argument("--skill", default=SKILLS[0], choices=SKILLS, help="the skill")
     p.add_argument("--gear", required=True, choices=sorted(GEARS), help="the gear it handles")
     default = functools.partial(_signature_default, evaluate_skill)
@@ -415,14 +453,28 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=default("seed"), help="seed of the episodes")
     p.add_argument("--path", type=Path, help="a skill file other than the shipped one")
     p.add_argument("--json", metavar="PATH", type=Path, help="write the result as JSON")
+    default = functools.partial(_signature_default, evaluate_skill_jobs)
+    p.add_argument("--jobs", type=int, default=default("jobs"),
+                   help="split the episodes into this many jobs, each seeded from (seed, job): the result "
+                        "depends on --jobs, not on --workers or --ray")
+    p.add_argument("--workers", type=int, default=1, help="jobs run at once, one process each")
+    _ray_flag(p)
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    json_path = check_output_file(args.json, "--json") if args.json else None
-    from learning.skills import evaluate_skill, load_skill
-    skill = load_skill(args.skill, args.gear, path=args.path)
-    result = evaluate_skill(skill, variant=args.variant, xi=args.xi, episodes=args.episodes, seed=args.seed,
-                            progress=True)
+    from learning.execution import InlineBackend
+    backend = _backend(args, args.workers, inline=True)
+    with backend:  # a Ray cluster that cannot be reached fails here, before --json's folder is made
+        json_path = check_output_file(args.json, "--json") if args.json else None
+        from learning.skills import evaluate_skill, evaluate_skill_jobs, load_skill, skill_path
+        skill = load_skill(args.skill, args.gear, path=args.path)
+        if args.jobs == 1 and isinstance(backend, InlineBackend):
+            result = evaluate_skill(skill, variant=args.variant, xi=args.xi, episodes=args.episodes,
+                                    seed=args.seed, progress=True)
+        else:
+            result = evaluate_skill_jobs(args.path or skill_path(args.skill, args.gear), variant=args.variant,
+                                         xi=args.xi, episodes=args.episodes, seed=args.seed, jobs=args.jobs,
+                                         backend=backend, progress=True)
     print(f"{args.skill} {args.gear} ({args.variant}, xi {args.xi}): success {result.success_rate:.3f} "
           f"+- {result.success_se:.3f} over {result.episodes} episodes, mean return {result.mean_return:.2f} "
           f"({result.seconds:.0f} s)")

@@ -18,6 +18,10 @@ those options (fields of its config dataclass) under the name LABEL, after `--me
 skips the plots). `cpu_seconds` per run: the process CPU time of the estimation (simulator included:
 one worker runs in-process), less sensitive than wall time to other jobs on a shared machine.
 
+The runs are independent jobs (learning.execution): `--workers N` runs N at once in local processes,
+`--ray local|auto|HOST:PORT` as Ray tasks (docs/cluster.md); each finished run is saved as it comes,
+and the numbers are the same wherever a run went (its dataset and estimator are seeded by the cell).
+
 Usage: .venv/bin/python benchmarks/nfpde_table.py --envs goflow/Cartpole-v0 --seeds 3
 """
 
@@ -27,6 +31,7 @@ import argparse
 import json
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +39,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.errors import GoflowError, GridError  # noqa: E402
 from common.files import read_json, write_json  # noqa: E402
+from learning.execution import InlineBackend, Job, add_ray_flag, make_backend, run_grid  # noqa: E402
 from learning.estimation import ESTIMATORS  # noqa: E402
 from learning.estimation.collect import CollectConfig, collect  # noqa: E402
 from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
@@ -118,6 +125,19 @@ def oracle_ot(env: str, target: str, seed: int, data_cache: dict) -> float:
     ds, u_true = data_cache[(env, target, seed)]
     xi = sample_target(TargetConfig(kind=target), ds.space, 500, np.random.default_rng(seed + 2000))
     return ot_cost(ds.space.normalize(xi), u_true)
+
+
+_CACHE: dict = {}  # datasets of the cells this process has collected (each is seeded: the same in every process)
+
+
+def run_cell(env: str, target: str, method: str, seed: int, budget: int, episodes: int, options: dict,
+             label: str) -> tuple[dict, float, float]:
+    """One run as a grid job: (the run, the cell's oracle OT, wall seconds with scoring)."""
+    import torch
+    torch.optim.Adam([torch.zeros(1, requires_grad=True)])  # torch._dynamo's import (~3 s) outside the timing
+    t0 = time.perf_counter()
+    run = run_one(env, target, method, seed, budget, episodes, _CACHE, options, label)
+    return run, oracle_ot(env, target, seed, _CACHE), time.perf_counter() - t0
 
 
 def _labels(runs: list[dict]) -> list[str]:
@@ -210,35 +230,49 @@ def main() -> int:
     p.add_argument("--budget", type=int, default=100_000, help="simulator calls per run")
     p.add_argument("--episodes", type=int, default=48)
     p.add_argument("--out", default=str(RESULTS))
+    p.add_argument("--workers", type=int, default=1, help="runs at once, one local process each (1: this process)")
+    add_ray_flag(p)
     args = p.parse_args()
+    try:
+        backend = make_backend(args.ray, args.workers, inline=True)
+    except GoflowError as exc:
+        raise SystemExit(f"nfpde_table: {exc}") from None
     runs_to_do = [(m, m, {}) for m in args.methods] + [parse_variant(v) for v in args.variant]
     if len({label for label, _, _ in runs_to_do}) < len(runs_to_do):
         raise SystemExit("nfpde_table: a label is used twice in --methods/--variant")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    runs_path = out / f"{args.name}_runs.json"
-    doc = read_json(runs_path, "runs file") if runs_path.exists() else {"runs": [], "oracle": {}}
-    done = {_key(r) for r in doc["runs"]}
-    doc["command"] = "python benchmarks/nfpde_table.py " + " ".join(sys.argv[1:])
-    doc.setdefault("commands", []).append(doc["command"])  # every invocation on this runs file
-    cache: dict = {}
-    # torch imports torch._dynamo (~3 s) at the first optimizer of a process: pay it here, not in the first run
-    import torch
-    torch.optim.Adam([torch.zeros(1, requires_grad=True)])
-    for env in args.envs:
-        for target in args.targets:
-            for seed in range(args.seeds):
-                for label, method, options in runs_to_do:
-                    if (env, target, label, seed) in done:
-                        continue
-                    t0 = time.perf_counter()
-                    run = run_one(env, target, method, seed, args.budget, args.episodes, cache, options, label)
-                    doc["oracle"][f"{env}|{target}|{seed}"] = oracle_ot(env, target, seed, cache)
-                    doc["runs"].append(run)
-                    write_json(runs_path, doc, indent=None)
-                    print(f"{env} {target} seed {seed} {label}: OT {run['ot']:.3f}, converged "
-                          f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s, cpu {run['cpu_seconds']:.1f} s "
-                          f"({time.perf_counter() - t0:.0f} s with scoring)", flush=True)
+    with ExitStack() as stack:
+        try:  # a Ray cluster that cannot be reached fails here, before anything is written
+            stack.enter_context(backend)
+        except GoflowError as exc:
+            raise SystemExit(f"nfpde_table: {exc}") from None
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        runs_path = out / f"{args.name}_runs.json"
+        doc = read_json(runs_path, "runs file") if runs_path.exists() else {"runs": [], "oracle": {}}
+        done = {_key(r) for r in doc["runs"]}
+        doc["command"] = "python benchmarks/nfpde_table.py " + " ".join(sys.argv[1:])
+        doc.setdefault("commands", []).append(doc["command"])  # every invocation on this runs file
+        cells = [(env, target, method, seed, args.budget, args.episodes, options, label)
+                 for env in args.envs for target in args.targets for seed in range(args.seeds)
+                 for label, method, options in runs_to_do if (env, target, label, seed) not in done]
+
+        def save(index: int, result: tuple[dict, float, float]) -> None:
+            run, oracle, seconds = result
+            env, target, _, seed, *_ = cells[index]
+            doc["oracle"][f"{env}|{target}|{seed}"] = oracle
+            doc["runs"].append(run)
+            write_json(runs_path, doc, indent=None)
+            print(f"{env} {target} seed {seed} {run['method']}: OT {run['ot']:.3f}, converged "
+                  f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s, cpu {run['cpu_seconds']:.1f} s "
+                  f"({seconds:.0f} s with scoring)", flush=True)
+
+        failed = None
+        try:
+            run_grid([Job(f"{c[0]} {c[1]} seed {c[3]} {c[7]}", run_cell, c) for c in cells], backend,
+                     progress=not isinstance(backend, InlineBackend), desc="nfpde",
+                     on_result=save)
+        except GridError as exc:  # the other runs are saved; the summary below covers them
+            failed = exc
     summary = summarize(doc["runs"], doc["oracle"])
     summary["command"] = doc["command"]
     summary["commands"] = doc.get("commands", [doc["command"]])
@@ -249,6 +283,9 @@ def main() -> int:
         print(f"{r['env']:<22} {r['target']:<9} {r['method']:<16} OT {r['ot_mean']:.3f} +- {r['ot_se']:.3f}  "
               f"converge {r['seconds_mean']:6.1f} s  total {r['seconds_total_mean']:6.1f} s  "
               f"(oracle {r['oracle_ot_mean']:.3f})")
+    if failed is not None:
+        print(f"nfpde_table: {failed}", file=sys.stderr)
+        return 1
     return 0
 
 

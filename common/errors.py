@@ -13,6 +13,8 @@ __all__ = [
     "OutputPathError",
     "RunFolderBusyError",
     "SimulationError",
+    "ClusterError",
+    "GridError",
 ]
 
 
@@ -44,3 +46,18 @@ class RunFolderBusyError(GoflowError, RuntimeError):
 
 class SimulationError(GoflowError, RuntimeError):
     """A physics step failed (solver divergence, non-finite state): the episode cannot go on."""
+
+
+class ClusterError(GoflowError, RuntimeError):
+    """The Ray cluster asked for cannot be used: the `ray` package is missing, or no cluster answers
+    at the address; the message says which and how to fix it."""
+
+
+class GridError(GoflowError, RuntimeError):
+    """Some jobs of a grid failed after the others had finished; `failures` maps each failed job's
+    name to its one-line message and `results` holds every job's result (None where it failed)."""
+
+    def __init__(self, message: str, failures: dict[str, str] | None = None, results: list | None = None) -> None:
+        super().__init__(message)
+        self.failures = dict(failures or {})
+        self.results = list(results or [])

@@ -41,6 +41,7 @@ from common.checks import check_choice, check_int
 from common.config import config_to_dict, config_with_overrides
 from common.errors import InputError
 from common.files import check_output_dir, load_tensors, run_folder_lock, save_tensors, write_json
+from learning.execution import Backend, Job, make_backend, parse_ray_address, run_grid
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import (
     GRADIENT_METHODS, METHODS, SAMPLER_SIGNALS, THRESHOLD_METHODS, make_sampler, sampler_config,
@@ -48,7 +49,7 @@ from learning.samplers.registry import (
 
 __all__ = ["TrainConfig", "Run", "load_run", "train", "SamplerFitConfig", "fit_sampler", "ExperimentConfig",
            "run_experiment", "summarize", "format_summary", "plot_curves", "protocol_sampler_kwargs",
-           "probe_env", "load_checkpoint"]
+           "probe_env", "load_checkpoint", "experiment_jobs", "experiment_backend", "write_experiment"]
 
 #: What a checkpoint file is called in messages.
 _CHECKPOINT = "goflow training checkpoint (checkpoint.pt of a `goflow train` run folder)"
@@ -424,7 +425,7 @@ def _fit_sampler(run: Path, fit: SamplerFitConfig, progress: bool) -> dict:
 
 @dataclass
 class ExperimentConfig:
-    """Methods x seeds of one environment, run in parallel processes."""
+    """Methods x seeds of one environment, run in parallel (local processes or Ray tasks)."""
 
     env: str = "goflow/Toy2D-v0"  # environment id
     env_kwargs: dict[str, Any] = field(default_factory=dict)  # the environment's config fields
@@ -436,7 +437,10 @@ class ExperimentConfig:
     ppo: PPOConfig = field(default_factory=PPOConfig)
     sampler_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)  # per method
     sampler_signal: str = "return"  # TrainConfig.sampler_signal of every run (THRESHOLD_METHODS keep returns)
-    workers: int = 2  # runs in parallel, one process each
+    workers: int = 2  # runs in parallel, one process each (with ray="local": the local Ray's CPUs)
+    # None: a local process pool; "local": a Ray started on this machine; "auto" or HOST:PORT: join a
+    # running Ray cluster (learning.execution, docs/cluster.md); the results are the same on each
+    ray: str | None = None
     out: Path = Path("runs")  # run folders: <out>/<stem>/<method>/seed<k>
     # the result JSON and plots; the committed tables in docs/results are written only when asked
     results: Path = Path("runs/results")
@@ -451,6 +455,8 @@ class ExperimentConfig:
             raise ValueError(f"sampler options for {extra}, which are not among the methods {list(self.methods)}")
         if self.seeds < 1 or self.workers < 1:
             raise ValueError(f"seeds = {self.seeds}, workers = {self.workers}; expected >= 1")
+        if self.ray is not None:
+            parse_ray_address(self.ray, "ExperimentConfig.ray")
         self.out, self.results = Path(self.out), Path(self.results)
 
     def stem(self) -> str:
@@ -469,35 +475,6 @@ class ExperimentConfig:
                             sampler_signal="return" if m in THRESHOLD_METHODS else self.sampler_signal,
                             out=self.out / self.stem() / m / f"seed{s}")
                 for m in self.methods for s in range(self.seeds)]
-
-
-_STOP: Any = None  # a pool worker's view of the experiment's stop event
-
-
-def _init_worker(stop: Any) -> None:
-    """A pool worker ignores Ctrl-C except while it trains (`_run_quiet`), and skips the runs
-    left once the experiment is stopped."""
-    import signal
-    global _STOP
-    _STOP = stop
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _run_quiet(config: TrainConfig) -> dict | None:
-    """One run of an experiment in a pool worker; None when the experiment was interrupted (the
-    run keeps its last checkpoint)."""
-    import signal
-    if _STOP is not None and _STOP.is_set():
-        return None
-    torch.set_num_threads(1)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        return train(config, progress=False)
-    except KeyboardInterrupt:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        return None
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _mean_se(runs: list[dict], column: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -556,69 +533,54 @@ def plot_curves(summary: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def _map_runs(runs: list[TrainConfig], workers: int, progress: bool, desc: str) -> list[dict]:
-    """The logs of `runs`, trained in `workers` spawned processes, in order.
-
-    Ctrl-C stops every run at its next step (each keeps its last checkpoint), skips the runs not
-    started, lets the workers exit on their own (nothing is killed mid-write) and then raises
-    KeyboardInterrupt here."""
-    import multiprocessing as mp
-    import os
-    import signal
-    import threading
-    ctx = mp.get_context("spawn")
-    stop, done = ctx.Event(), threading.Event()
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(stop,))
-
-    def forward() -> None:
-        # Until the pool has drained, tell the workers every second (a Ctrl-C in a terminal has
-        # reached them already; a signal to this process alone has not): an interrupt that lands
-        # inside a finalizer is swallowed by Python, and the run would go on.
-        while not done.wait(1.0):
-            for child in mp.active_children():
-                try:
-                    os.kill(child.pid, signal.SIGINT)
-                except ProcessLookupError:
-                    pass
-
-    def interrupt(signum: int, frame: Any) -> None:
-        if not stop.is_set():
-            stop.set()
-            threading.Thread(target=forward, daemon=True).start()
-
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, interrupt) if main_thread else None
-    try:
-        logs = list(tqdm(pool.imap(_run_quiet, runs), total=len(runs), disable=not progress, desc=desc,
-                         unit="run"))
-    except BaseException:
-        pool.terminate()
-        pool.join()
-        raise
-    finally:
-        done.set()
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
-    pool.close()  # let the workers exit on their own: the context's terminate() leaks their semaphores
-    pool.join()
-    if stop.is_set():
-        raise KeyboardInterrupt
-    return logs
+def _run_resources(config: TrainConfig) -> dict[str, float]:
+    """What one training run asks of a worker: one CPU (torch runs on one thread, `train`), and a
+    GPU where its PPO config names a CUDA device (PPO runs on the CPU today)."""
+    device = str(getattr(config.ppo, "device", "cpu"))
+    return {"num_cpus": 1.0, "num_gpus": 1.0 if device.startswith("cuda") else 0.0}
 
 
-def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "") -> dict:
-    """Run every (method, seed) in `config.workers` processes (resuming finished or interrupted
-    runs from their checkpoints); write <results>/<stem>.json and .png (and, for Toy2D, the
-    learned densities <stem>-densities.png) with `command` as provenance; return the summary, whose
-    "figures" lists the figures written.
+def _train_quiet(config: TrainConfig) -> dict:
+    """One run of a grid, in a worker: `train` without its progress bar."""
+    return train(config, progress=False)
 
-    The environment, the options and the output folders are checked before any run starts; on
-    Ctrl-C the runs keep their last checkpoints and KeyboardInterrupt is raised."""
-    runs = config.runs()  # validates every run's options
+
+def experiment_jobs(config: ExperimentConfig) -> list[Job]:
+    """The experiment's runs as grid jobs (learning.execution), named <method>/seed<k>: each
+    trains (or resumes) one run folder and returns its log."""
+    return [Job(f"{run.method}/seed{run.seed}", _train_quiet, (run,), **_run_resources(run)) for run in config.runs()]
+
+
+def experiment_backend(config: ExperimentConfig) -> Backend:
+    """Where the experiment's runs go: Ray at `config.ray`, else `config.workers` local processes."""
+    return make_backend(config.ray, config.workers)
+
+
+def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "",
+                   backend: Backend | None = None) -> dict:
+    """Run every (method, seed) on `backend` (default: `experiment_backend(config)`: a pool of
+    `config.workers` processes, or Ray at `config.ray`), resuming finished or interrupted runs from
+    their checkpoints; write <results>/<stem>.json and .png (and, for Toy2D, the learned densities
+    <stem>-densities.png) with `command` as provenance; return the summary, whose "figures" lists
+    the figures written. The summary is the same on every backend but for timing shares.
+
+    The environment and the options are checked, then the backend is started (a Ray cluster that
+    cannot be reached is a ClusterError before anything is written), then the output folders are
+    checked, before any run starts. A run that fails does not stop the others; GridError names it
+    once they have ended (the runs keep their checkpoints: the same call goes on). On Ctrl-C the
+    runs keep their last checkpoints and KeyboardInterrupt is raised."""
+    config.runs()  # validates every run's options
     probe_env(config.env, config.env_kwargs)
-    check_output_dir(config.out, "run folder")
-    check_output_dir(config.results, "results folder")
-    logs = _map_runs(runs, config.workers, progress, f"experiment {config.stem()}")
+    with backend or experiment_backend(config) as grid:
+        check_output_dir(config.out, "run folder")
+        check_output_dir(config.results, "results folder")
+        logs = run_grid(experiment_jobs(config), grid, progress, f"experiment {config.stem()}")
+    return write_experiment(config, logs, command)
+
+
+def write_experiment(config: ExperimentConfig, logs: list[dict], command: str = "") -> dict:
+    """Summarize the logs of `config`'s runs (in `runs()` order) and write the results file and
+    figures into `config.results` (an existing folder); return the summary."""
     summary = summarize(logs, config.total_steps, config.env)
     summary["command"] = command
     stem = config.results / config.stem()

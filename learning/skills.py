@@ -35,12 +35,14 @@ from assembly.samplers import FullDR, Sampler
 from common.checks import check_int
 from common.errors import FileFormatError
 from common.files import check_output_file, load_tensors, save_tensors
+from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, protocol_sampler_kwargs, train
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import make_sampler
 
 __all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "Skill", "SkillEvaluation", "SkillRecipe", "describe", "evaluate_skill",
-           "export_skill", "flow_width", "load_skill", "skill_path", "skill_run_folder", "train_skill"]
+           "export_skill", "flow_width", "load_skill", "skill_path", "skill_run_folder", "train_skill",
+           "train_skills", "evaluate_skill_jobs"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
 #: Where `train_skill` and `goflow skill train/export` write by default (never the shipped files).
@@ -264,6 +266,39 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
     return export_skill(run, name, gear, out, command=command)
 
 
+def _train_skill_file(name: str, gear: str, recipe: SkillRecipe, runs: str, out: str, command: str) -> str:
+    """One gear of `train_skills`, in a worker: train_skill without progress bars; the file written."""
+    train_skill(name, gear, recipe, runs=runs, out=out, command=command, progress=False)
+    return out
+
+
+def train_skills(name: str, gears: list[str] | tuple[str, ...], recipe: SkillRecipe | None = None,
+                 runs: str | os.PathLike[str] = RUNS_SKILL_DIR, out: str | os.PathLike[str] | None = None,
+                 command: str = "", backend: Backend | None = None, progress: bool = True) -> list[Skill]:
+    """`train_skill` for each of `gears` (each writing `<runs>/<name>-<gear>.pt`, or `out` when
+    there is one gear), one job per gear
+    on `backend` (learning.execution; default: one after the other in this process, with their
+    progress bars); return the skills in the order of `gears`. The names and the output paths are
+    checked before any training (after the backend has started); each run resumes from its
+    checkpoint, and a failed gear does not stop the others (GridError at the end)."""
+    recipe = recipe or SkillRecipe()
+    if not gears or len(set(gears)) < len(gears):
+        raise ValueError(f"gears = {list(gears)}; expected one or more distinct gears")
+    for gear in gears:
+        _check_name(name, gear)
+    if out is not None and len(gears) > 1:
+        raise ValueError(f"out = {str(out)!r} names one skill file, but {len(gears)} gears are trained; leave it out "
+                         f"(each gear's file goes to {Path(runs)}/{name}-<gear>.pt)")
+    if backend is None and len(gears) == 1:
+        return [train_skill(name, gears[0], recipe, runs=runs, out=out, command=command, progress=progress)]
+    with backend or InlineBackend() as grid:
+        outs = [str(check_output_file(out or skill_path(name, gear, runs), "skill file")) for gear in gears]
+        jobs = [Job(f"{name}-{gear}", _train_skill_file, (name, gear, recipe, str(runs), out, command))
+                for gear, out in zip(gears, outs)]
+        files = run_grid(jobs, grid, progress, f"skill train {name}")
+    return [Skill.load(f) for f in files]
+
+
 @dataclass(frozen=True)
 class SkillEvaluation:
     """What `evaluate_skill` measured: the success rate (with its binomial standard error) and mean
@@ -280,6 +315,7 @@ class SkillEvaluation:
     seconds: float  # wall time
     xi_mean: list[float]  # mean and std of the episodes' xi (parameter units)
     xi_std: list[float]
+    jobs: int = 1  # the episodes were split into this many jobs (evaluate_skill_jobs), seeded per job
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON data (the `goflow evaluate --json` file)."""
@@ -300,11 +336,58 @@ def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episod
                                                        progress=progress)
     finally:
         vec.close()
+    return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes)
+
+
+def _evaluation(gear: str, variant: str, xi: str, seed: int, seconds: float, xis: NDArray[np.float64],
+                returns: NDArray[np.float64], successes: NDArray[np.bool_], jobs: int = 1) -> SkillEvaluation:
     rate = float(np.mean(successes))
-    return SkillEvaluation(gear=skill.gear, variant=variant, xi=xi, episodes=episodes, success_rate=rate,
+    return SkillEvaluation(gear=gear, variant=variant, xi=xi, episodes=len(successes), success_rate=rate,
                            success_se=float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
-                           mean_return=float(np.mean(returns)), seed=int(seed), seconds=time.perf_counter() - t0,
-                           xi_mean=xis.mean(axis=0).tolist(), xi_std=xis.std(axis=0).tolist())
+                           mean_return=float(np.mean(returns)), seed=int(seed), seconds=seconds,
+                           xi_mean=xis.mean(axis=0).tolist(), xi_std=xis.std(axis=0).tolist(), jobs=jobs)
+
+
+def _evaluate_part(path: str, variant: str, xi: str, episodes: int, seed: int,
+                   num_envs: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """One job of `evaluate_skill_jobs`, in a worker: the skill file's episodes (xi, returns, successes)."""
+    torch.set_num_threads(1)
+    skill = Skill.load(path)
+    n = max(1, min(int(num_envs), int(episodes)))
+    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
+                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    try:
+        return skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
+    finally:
+        vec.close()
+
+
+def evaluate_skill_jobs(path: str | os.PathLike[str], variant: str = "fast", xi: str = "flow", episodes: int = 100,
+                        seed: int = 0, jobs: int = 1, num_envs: int = 4, backend: Backend | None = None,
+                        progress: bool = False) -> SkillEvaluation:
+    """`evaluate_skill` of the skill file at `path` with its episodes split into `jobs` parts run on
+    `backend` (learning.execution; default: this process), each loading the file (a path every
+    worker reaches). Part j runs `episodes // jobs` episodes (one more for the first
+    `episodes % jobs`) seeded with `seed` itself when `jobs` is 1 (the same episodes as
+    `evaluate_skill`), else with a seed drawn from (seed, j): the result depends on `jobs`, never
+    on the backend or the number of workers."""
+    episodes = check_int(episodes, "episodes", 1)
+    jobs = check_int(jobs, "jobs", 1)
+    if jobs > episodes:
+        raise ValueError(f"jobs = {jobs}; expected at most episodes = {episodes}")
+    if xi not in ("flow", "uniform"):
+        raise ValueError(f"xi source {xi!r}; expected 'flow' or 'uniform'")
+    path = Path(path).resolve()
+    skill = Skill.load(path)  # a bad file fails here, before any job
+    t0 = time.perf_counter()
+    sizes = [episodes // jobs + (1 if j < episodes % jobs else 0) for j in range(jobs)]
+    seeds = [int(seed)] if jobs == 1 else [int(np.random.SeedSequence([int(seed), j]).generate_state(1)[0])
+                                           for j in range(jobs)]
+    parts = run_grid([Job(f"episodes {sum(sizes[:j])}-{sum(sizes[:j + 1]) - 1}", _evaluate_part,
+                          (str(path), variant, xi, sizes[j], seeds[j], num_envs)) for j in range(jobs)],
+                     backend or InlineBackend(), progress, f"evaluate {skill.name}-{skill.gear}")
+    xis, returns, successes = (np.concatenate([part[k] for part in parts]) for k in range(3))
+    return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, jobs)
 
 
 def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) -> dict[str, float]:

@@ -11,7 +11,8 @@ from typing import Any
 from common.checks import check_choice
 from common.errors import InputError
 from common.files import check_output_dir, write_json
-from learning.experiment import ExperimentConfig, probe_env, run_experiment
+from learning.execution import Backend, run_grid
+from learning.experiment import ExperimentConfig, experiment_backend, experiment_jobs, probe_env, write_experiment
 from learning.samplers.registry import METHODS
 
 __all__ = ["SweepConfig", "run_sweep", "format_sweep", "value_label"]
@@ -66,24 +67,33 @@ def value_label(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, separators=(",", ":"))
 
 
-def run_sweep(config: SweepConfig, progress: bool = True, command: str = "") -> dict[str, Any]:
-    """Run the experiment of every value (each resumes its runs from their checkpoints); write
-    `<results>/<stem>.json` with `command` as provenance and `<stem>.png`; return the sweep:
-    {"env", "env_kwargs", "method", "param", "steps", "rows": [{"value", "final_success_mean",
-    "final_success_se", "seeds"}, ...], "command", "figures"}.
+def run_sweep(config: SweepConfig, progress: bool = True, command: str = "",
+              backend: Backend | None = None) -> dict[str, Any]:
+    """Run the experiments of every value as one grid on `backend` (default: the experiment's
+    process pool, or Ray at its `ray`), each run resuming from its checkpoint; write each value's
+    experiment, then `<results>/<stem>.json` with `command` as provenance and `<stem>.png`; return
+    the sweep: {"env", "env_kwargs", "method", "param", "steps", "rows": [{"value",
+    "final_success_mean", "final_success_se", "seeds"}, ...], "command", "figures"}.
 
-    The environment and its options, then the output folders are checked before the first run
-    (OutputPathError if one cannot be written).
+    The environment and its options are checked, then the backend is started (ClusterError if a
+    Ray cluster cannot be reached), then the output folders (OutputPathError if one cannot be
+    written), before the first run. A failed run does not stop the others (GridError at the end).
     """
     from learning.plots import plot_sweep
 
     probe_env(config.experiment.env, config.experiment.env_kwargs)
     stem, results = config.stem(), Path(config.experiment.results)
-    check_output_dir(results / stem, "sweep results folder")
-    check_output_dir(config.experiment.out, "run folder")
-    rows = []
-    for value, experiment in zip(config.values, config.experiments()):
-        summary = run_experiment(experiment, progress=progress, command=command)
+    experiments = config.experiments()
+    with backend or experiment_backend(config.experiment) as grid:
+        check_output_dir(results / stem, "sweep results folder")
+        check_output_dir(config.experiment.out, "run folder")
+        jobs = [[dataclasses.replace(job, name=f"{config.param}={value_label(value)} {job.name}")
+                 for job in experiment_jobs(e)] for value, e in zip(config.values, experiments)]
+        logs = run_grid([job for value_jobs in jobs for job in value_jobs], grid, progress, f"sweep {stem}")
+    rows, first = [], 0
+    for value, experiment, value_jobs in zip(config.values, experiments, jobs):
+        summary = write_experiment(experiment, logs[first:first + len(value_jobs)], command)
+        first += len(value_jobs)
         res = summary["methods"][config.method]
         rows.append({"value": value, "final_success_mean": res["final_success_mean"],
                      "final_success_se": res["final_success_se"], "seeds": res["seeds"]})

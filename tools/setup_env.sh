@@ -20,7 +20,9 @@ if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
     || "$PIP" install -q torch
 fi
 
-"$PIP" install -q -e ".[test]"
+# test: pytest and the notebook runner; ray: the optional Ray backend of the run grids, so that the
+# tests cover it (goflow itself runs without it: learning/execution.py imports it only for --ray).
+"$PIP" install -q -e ".[test,ray]"
 
 # Drake's VTK renderer draws headless through EGL/OSMesa; install the runtime libraries only if
 # the import or a tiny render fails (Debian/Ubuntu package names).
