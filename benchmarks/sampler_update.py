@@ -6,7 +6,8 @@ needs for the update to stay within the 5 % share of training time (issue 4's sp
 Each update gets a validation-sized batch (`--batch` uniform draws, ADR its own draws, with
 returns that peak in the box's centre), as `goflow train` gives it. One torch thread, as in training. The GoFlow rows also
 time zuko's own NSF class beside ours (`learning.samplers.goflow.build_spline_flow`, the same
-function with a cheaper bin softmax), side by side in one process. "round for 5 %" is 19 x the
+function with a cheaper bin softmax), and each GoFlow mode (the constrained mode learns from 0/1
+successes, 1 where the return >= 0.6), side by side in one process. "round for 5 %" is 19 x the
 update: the round's training + validation time at which the update is 5 % of the total.
 """
 
@@ -31,10 +32,13 @@ def _zuko_nsf(features: int, transforms: int, hidden_features: tuple[int, ...], 
     return zuko.flows.NSF(features=features, transforms=transforms, hidden_features=hidden_features, bins=bins)
 
 
-def time_update(method: str, d: int, batch: int, repeats: int) -> float:
-    """Median seconds of `repeats` updates of a fresh `method` sampler on a d-dimensional unit box."""
+def time_update(method: str, d: int, batch: int, repeats: int, config: dict | None = None) -> float:
+    """Median seconds of `repeats` updates of a fresh `method` sampler (options `config`) on a
+    d-dimensional unit box."""
     space = ParamSpace(tuple(Param(f"p{i}", 0.0, 1.0, "1") for i in range(d)))
-    sampler = make_sampler(method, space, 0.5, protocol_sampler_kwargs(method, {}))
+    config = dict(config or {})
+    sampler = make_sampler(method, space, 0.5, protocol_sampler_kwargs(method, config))
+    successes = config.get("mode") == "constrained"  # learns from 0/1 successes
     rng = np.random.default_rng(0)
     times = []
     for _ in range(repeats + 1):  # the first update warms up torch and scipy
@@ -42,6 +46,8 @@ def time_update(method: str, d: int, batch: int, repeats: int) -> float:
         # uniform validation batch
         xi = sampler.sample(batch, rng) if method == "adr" else rng.uniform(0.0, 1.0, (batch, d))
         returns = 1.0 - np.linalg.norm(xi - 0.5, axis=1)
+        if successes:
+            returns = (returns >= 0.6).astype(float)
         t0 = time.perf_counter()
         sampler.update(xi, returns)
         times.append(time.perf_counter() - t0)
@@ -60,11 +66,13 @@ def main() -> None:
     ours = goflow_module.build_spline_flow
     for d in args.dims:
         for method in METHODS:
-            variants = [("", ours)] if method != "goflow" else [("", ours), (" (zuko NSF class)", _zuko_nsf)]
-            for suffix, builder in variants:
+            variants = [("", ours, {})] if method != "goflow" else [
+                (" (entropy)", ours, {"mode": "entropy"}), (" (constrained)", ours, {"mode": "constrained"}),
+                (" (paper)", ours, {"mode": "paper"}), (" (paper, zuko NSF class)", _zuko_nsf, {"mode": "paper"})]
+            for suffix, builder, config in variants:
                 goflow_module.build_spline_flow = builder
                 try:
-                    seconds = time_update(method, d, args.batch, args.repeats)
+                    seconds = time_update(method, d, args.batch, args.repeats, config)
                 finally:
                     goflow_module.build_spline_flow = ours
                 rows.append({"method": method + suffix, "dim": d, "batch": args.batch, "update_s": seconds,

@@ -2,16 +2,30 @@
 
 The sampler is a neural spline flow (zuko NSF: 3 autoregressive transforms, hidden (64, 64), 8
 bins) over the parameter box, mapped affinely to zuko's spline domain [-5, 5]^d ("box coordinates"
-below). Each `update(xi, returns)` takes K Adam steps (lr 1e-3, K = 100) on
+below). `update(xi, signal)` takes K guarded Adam steps (lr 1e-3, K = 100) towards the optimum of
+the objective that `config.mode` names:
 
-    loss = -(1/B) sum_i log q(y_i) R_i  -  alpha * H_hat(q)  +  beta * KL_hat(q_old || q)
+- "entropy": max E_p[r] + alpha H(p) over the box, r the signal scaled onto [0, 1]
+  (`signal_range`, default the range seen so far). Optimum p*(xi) ~ exp(r(xi) / alpha).
+- "constrained": max H(p) subject to E_p[success] >= 1 - delta, for 0/1 success signals. Optimum
+  (1 - delta) x uniform on the feasible set + delta x uniform on the rest of the box.
+- "paper": the authors' update, loss -(1/B) sum_i log q(y_i) R_i - alpha H_hat + beta KL_hat on the
+  batch alone, R_i the batch-standardized returns (`standardize_returns`), H_hat the entropy from
+  fresh uniform samples. It weights log q by returns whatever distribution drew the batch, pushes
+  failures' density down without bound, and forgets earlier batches: it does not reach the optimum
+  of its own objective (docs/learning.md#goflow-modes).
 
-where y_i are the batch's parameters in box coordinates, R_i the per-batch standardized returns
-(`standardize_returns`), H_hat = -vol * E_{u ~ U(box)}[q(u) log q(u)] the entropy over the box
-estimated with fresh uniform samples at every step, and KL_hat the KL from the flow as it was at
-the start of the update, estimated with samples of that frozen flow. Steps with a non-finite loss
-or gradient are skipped, gradients are clipped at norm 1, and the flow reverts to its pre-update
-parameters if any parameter ends non-finite (all reported in the returned diagnostics).
+The entropy and constrained modes keep the newest `memory` evaluated rows (`Evidence`) and estimate
+the signal anywhere as a k-nearest-neighbour mean, which does not depend on which protocol drew the
+rows. Each update then draws a proposal (uniform on the box, the current flow, and Gaussians around
+the rows that succeeded) with its exact mixture density, weights the draws by target / proposal
+(self-normalized), and fits the flow by maximum likelihood on draws resampled by those weights:
+a forward KL(p* || q) fit, which covers every component of the target instead of collapsing onto
+one. `beta` > 0 adds KL(q_old || q) on the old flow's draws as a trust region (default 0).
+
+Steps with a non-finite loss or gradient are skipped, gradients are clipped at norm 1, and the flow
+reverts to its pre-update parameters if any parameter ends non-finite (all reported in the
+returned diagnostics).
 
 Conventions: `sample` draws exactly from the flow truncated to the box; `log_prob` is that
 truncated density in parameter units, normalized exactly over the box (-inf outside); `entropy()`
@@ -34,7 +48,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -52,11 +66,15 @@ from assembly.params import ParamSpace
 from assembly.samplers import (
     _diagnostics, check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
-from common.checks import check_int, check_number
+from common.checks import check_choice, check_int, check_number
 from common.errors import InputError
 from common.config import config_to_dict, config_with_overrides
+from learning.samplers.evidence import Evidence
 
-__all__ = ["GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
+__all__ = ["MODES", "GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
+
+#: What an update optimizes (GoFlowConfig.mode).
+MODES: tuple[str, ...] = ("entropy", "constrained", "paper")
 
 BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (the GoFlow authors' code maps the box onto it)
 _BOX_TOL = 1e-4  # float32 rounding slack (box coordinates) before a draw counts as outside
@@ -130,8 +148,9 @@ class GoFlowConfig:
 
     alpha: float = 1.0  # entropy weight (the seed swept {0.1, 0.5, 1.0, 1.5, 2.0})
     # weight of KL(q_old || q), a trust region to the flow before the update (the authors' released
-    # configs use 0.0 for Cartpole/Anymal and 1.0 for Ant)
-    beta: float = 1.0
+    # configs use 0.0 for Cartpole/Anymal and 1.0 for Ant; the entropy and constrained modes fit a
+    # target that changes only as evidence accumulates, and need none)
+    beta: float = 0.0
     transforms: int = 3
     hidden_features: tuple[int, ...] = (64, 64)
     bins: int = 8
@@ -151,6 +170,20 @@ class GoFlowConfig:
     grad_clip: float = 1.0
     max_redraws: int = 20  # redraw rounds for draws that left the box before giving up
     seed: int = 0  # flow initialization and the update's internal Monte Carlo draws
+    # What an update optimizes (docs/learning.md#goflow-modes):
+    #   "entropy": E_p[r] + alpha H(p) over the box, r the signal scaled to [0, 1]; optimum p* ~ exp(r / alpha);
+    #   "constrained": max H(p) subject to E_p[success] >= 1 - delta (0/1 signals); optimum (1 - delta) x
+    #       uniform on the feasible set + delta x uniform on the rest of the box;
+    #   "paper": the GoFlow paper's update (batch-standardized returns as weights of log p on the batch).
+    mode: str = "entropy"
+    delta: float = 0.002  # constrained mode: the mass allowed outside the feasible set, in (0, 1)
+    signal_range: tuple[float, float] | None = None  # (lo, hi) scaled onto [0, 1]; None: the range seen so far
+    memory: int = 16384  # evaluated rows kept as evidence (entropy and constrained modes)
+    neighbours: int = 5  # k of the nearest-neighbour signal estimate
+    outside_weight: float = 1.0  # constrained mode: weight of the flow's excess density outside the feasible set
+    feasible_level: float = 0.8  # constrained mode: estimated success rate from which a point counts as feasible
+    proposal_samples: int = 2048  # per proposal component (uniform, the flow, around successes) per update
+    fit_batch: int = 512  # points resampled from the weighted proposal at each of the K steps
 
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_features)
@@ -168,6 +201,21 @@ class GoFlowConfig:
         for name in ("base_scale", "lr", "grad_clip"):
             check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0, low_open=True)
         check_int(self.seed, "GoFlowConfig.seed", 0)
+        check_choice(self.mode, MODES, "GoFlowConfig.mode")
+        check_number(self.delta, "GoFlowConfig.delta", 0.0, 1.0, low_open=True, high_open=True)
+        check_number(self.outside_weight, "GoFlowConfig.outside_weight", 0.0)
+        check_number(self.feasible_level, "GoFlowConfig.feasible_level", 0.0, 1.0, low_open=True)
+        for name in ("memory", "neighbours", "proposal_samples", "fit_batch"):
+            check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
+        if self.signal_range is not None:
+            pair = tuple(self.signal_range)
+            if len(pair) != 2:
+                raise InputError(f"GoFlowConfig.signal_range = {self.signal_range!r}; expected (lo, hi) or None")
+            lo = check_number(pair[0], "GoFlowConfig.signal_range[0]")
+            hi = check_number(pair[1], "GoFlowConfig.signal_range[1]")
+            if not hi > lo:
+                raise InputError(f"GoFlowConfig.signal_range = {self.signal_range!r}; expected lo < hi")
+            object.__setattr__(self, "signal_range", (lo, hi))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serializable fields."""
@@ -198,6 +246,8 @@ def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
     for key in ("alpha", "beta"):
         if key in state and key not in config:
             config[key] = state[key]
+    if state.get("type") == "GoFlowSampler" and "mode" not in config:
+        config["mode"] = "paper"  # saved before the modes existed: the paper's update made it
     return config
 
 
@@ -232,6 +282,8 @@ class GoFlowSampler:
         self._log_jac = -float(np.sum(np.log(self._half_scale)))  # log|dy/dxi|
         self._flow = self._build_flow()
         self._entropy_cache: float | None = None
+        self._outside: torch.Tensor | None = None  # an update's proposal draws outside the feasible set
+        self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range)
 
     @property
     def alpha(self) -> float:
@@ -356,38 +408,119 @@ class GoFlowSampler:
         return self._entropy_cache
 
     def update(self, xi: ArrayLike, returns: ArrayLike) -> dict[str, Any]:
-        """K Adam steps on the GoFlow loss for this batch; returns diagnostics (see module docstring)."""
-        xi_arr, ret = check_update_inputs(self.space, xi, returns)
-        t0 = time.perf_counter()
-        cfg = self.config
-        d = self.space.dim
-        weights_np, has_signal = standardize_returns(ret)
-        weights = torch.as_tensor(weights_np, dtype=torch.float32)
-        y_batch = torch.as_tensor(self._to_box(xi_arr), dtype=torch.float32).clamp(-BOX_BOUND, BOX_BOUND)
-        seed = int(np.random.SeedSequence([int(cfg.seed), self.n_updates]).generate_state(1, np.uint64)[0]) >> 1
-        gen = torch.Generator().manual_seed(seed)
+        """K Adam steps towards the mode's optimum given this batch (xi, signal); returns diagnostics.
 
+        Raises ValueError for a batch outside the box or a non-finite signal, and InputError for a
+        signal outside {0, 1} in constrained mode.
+        """
+        xi_arr, ret = check_update_inputs(self.space, xi, returns)
+        if self.config.mode == "constrained":
+            bad = ~np.isin(ret, (0.0, 1.0))
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise InputError(f"update: signal[{i}] = {float(ret[i])!r}; the constrained mode learns from 0/1 successes "
+                                 "(give sampler_signal='success')")
+        if self.config.mode == "paper":
+            return self._paper_update(xi_arr, ret)
+        return self._fit_update(xi_arr, ret)
+
+    def _update_generator(self) -> torch.Generator:
+        """The update's Monte Carlo generator: a function of (config.seed, update count) only."""
+        seed = int(np.random.SeedSequence([int(self.config.seed), self.n_updates]).generate_state(1, np.uint64)[0]) >> 1
+        return torch.Generator().manual_seed(seed)
+
+    def _proposal(self, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+        """Draws of the update's proposal in box coordinates with their log densities.
+
+        A fixed-count mixture of three components, `proposal_samples` each: uniform on the box, the
+        flow before the update, and Gaussians around the rows whose scaled signal is >= 1/2 (when
+        there are any). The log density is the mixture's (the "balance heuristic"), so weights
+        target / mixture stay below 3 x target / uniform whatever the flow does. Returns (y, log m,
+        the flow's pre-update log q at y, the number of rows that are flow draws, first after the
+        uniform ones).
+        """
+        cfg, d = self.config, self.space.dim
+        n = cfg.proposal_samples
+        log_vol = d * math.log(2.0 * BOX_BOUND)
+        y_u = (torch.rand((n, d), generator=gen) * 2.0 - 1.0) * BOX_BOUND
+        y_q = self._draw_box(n, gen)
+        parts, n_total = [y_u, y_q], 2 * n
+        centres = self._success_centres(gen)
+        if len(centres):
+            h = self._kernel_width(centres)
+            pick = torch.randint(len(centres), (n,), generator=gen)
+            y_k = centres[pick] + h * torch.randn((n, d), generator=gen)
+            y_k = y_k[(y_k.abs() <= BOX_BOUND).all(dim=1)]  # outside the box the target is 0 anyway
+            parts.append(y_k)
+            n_total += n
+        y = torch.cat(parts)
+        lq = self._log_q(y) - self._log_z  # the pre-update flow's density in box coordinates
+        terms = [torch.full((len(y),), math.log(n / n_total) - log_vol), math.log(n / n_total) + lq]
+        if len(centres):
+            sq = torch.cdist(y.double(), centres.double()).pow(2)
+            log_k = torch.logsumexp(-0.5 * sq / h**2, dim=1) - math.log(len(centres)) - d * math.log(h * math.sqrt(2 * math.pi))
+            terms.append(math.log(n / n_total) + log_k.float())
+        log_m = torch.logsumexp(torch.stack(terms), dim=0)
+        return y, log_m, lq, n
+
+    def _success_centres(self, gen: torch.Generator, limit: int = 256) -> torch.Tensor:
+        """Up to `limit` rows of the evidence with scaled signal >= 1/2, in box coordinates."""
+        ev = self._evidence
+        good = np.flatnonzero(ev.scaled_signal() >= 0.5)
+        if len(good) > limit:
+            good = np.sort(good[torch.randperm(len(good), generator=gen)[:limit].numpy()])
+        return torch.as_tensor((ev.xi[good] * 2.0 - 1.0) * BOX_BOUND, dtype=torch.float32)
+
+    def _kernel_width(self, centres: torch.Tensor) -> float:
+        """Gaussian width (box coordinates) around the success rows: twice their median distance to
+        the nearest other row of the evidence, at least 1 % of the box."""
+        unit = (centres.double().numpy() / BOX_BOUND + 1.0) / 2.0
+        gap = self._evidence.nearest_distance(unit)
+        gap = gap[np.isfinite(gap)]
+        width = 2.0 * float(np.median(gap)) * 2.0 * BOX_BOUND if len(gap) else 2.0 * BOX_BOUND
+        return max(width, 0.01 * 2.0 * BOX_BOUND)
+
+    def _target_weights(self, y: torch.Tensor, log_m: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        """Self-normalized importance weights of the proposal draws `y` for the mode's optimum given
+        the evidence, and what they say (the estimated feasible share, the effective sample size)."""
+        cfg = self.config
+        r_hat = torch.as_tensor(self._evidence.estimate((y.double().numpy() / BOX_BOUND + 1.0) / 2.0))
+        log_w = -log_m.double()
+        info: dict[str, float] = {}
+        if cfg.mode == "entropy":
+            log_w = log_w + r_hat / cfg.alpha if cfg.alpha > 0 else torch.where(
+                r_hat >= r_hat.max(), log_w, torch.full_like(log_w, -math.inf))
+            w = torch.softmax(log_w, dim=0)
+        else:
+            inside = r_hat >= cfg.feasible_level
+            base = torch.softmax(log_w, dim=0)
+            share = float(base[inside].sum())  # the box share of the estimated feasible set
+            info["feasible_share"] = share
+            if 0.0 < share < 1.0 - cfg.delta:
+                w = torch.where(inside, base * (1.0 - cfg.delta) / share, base * cfg.delta / (1.0 - share))
+                # the optimum's density outside F-hat (box coordinates), a ceiling for the flow there
+                info["log_ceiling"] = math.log(cfg.delta / ((1.0 - share) * (2.0 * BOX_BOUND) ** self.space.dim))
+                self._outside = y[~inside]
+            else:  # no feasible set seen yet, or the uniform box already meets the constraint
+                w = base
+        info["ess"] = float(1.0 / (w**2).sum())
+        return w.float(), info
+
+    def _descend(self, step_loss: Callable[[], tuple[torch.Tensor, dict[str, torch.Tensor]]],
+                 y_old: torch.Tensor, lq_old: torch.Tensor) -> dict[str, Any]:
+        """K guarded Adam steps (fresh Adam, gradients clipped) on `step_loss()` -> (loss, terms):
+        non-finite steps are skipped, and the flow reverts if a parameter ends non-finite. Counts
+        the update and returns the step record with KL(q_old || q_new) on the pre-update flow's
+        draws `y_old` (their unnormalized log densities `lq_old`), after any revert."""
+        cfg = self.config
         backup = copy.deepcopy(self._flow.state_dict())
-        y_old = self._draw_box(max(cfg.kl_pool, cfg.kl_samples), gen)  # draws of the frozen pre-update flow
-        lq_old = self._log_q(y_old)
-        n_b, n_u = len(y_batch), cfg.entropy_samples
-        vol = (2.0 * BOX_BOUND) ** d
         params = list(self._flow.parameters())
         optimizer = torch.optim.Adam(params, lr=cfg.lr, foreach=True)  # fresh each update (no state across rounds)
-
         skipped = 0
         first: dict[str, float] | None = None
         last: dict[str, float] = {}
         for _ in range(cfg.steps):
-            u = (torch.rand((n_u, d), generator=gen) * 2.0 - 1.0) * BOX_BOUND
-            pick = torch.randperm(len(y_old), generator=gen)[: cfg.kl_samples]
-            lq = self._flow().log_prob(torch.cat([y_batch, u, y_old[pick]]))
-            lq_b, lq_u, lq_o = lq[:n_b], lq[n_b : n_b + n_u], lq[n_b + n_u :]
-            reward_term = -(lq_b * weights).mean()
-            lq_u = lq_u.clamp(min=_LOG_Q_FLOOR)
-            h_hat = -vol * (lq_u.exp() * lq_u).mean()
-            kl_hat = (lq_old[pick] - lq_o).mean()
-            loss = reward_term - self.alpha * h_hat + self.beta * kl_hat
+            loss, terms = step_loss()
             if not bool(torch.isfinite(loss)):
                 skipped += 1
                 continue
@@ -398,28 +531,91 @@ class GoFlowSampler:
                 skipped += 1
                 continue
             optimizer.step()
-            last = {
-                "loss": float(loss.detach()),
-                "reward_term": float(reward_term.detach()),
-                "entropy_objective": float(h_hat.detach()),
-                "kl_objective": float(kl_hat.detach()),
-            }
+            last = {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
             if first is None:
                 first = dict(last)
-
         reverted = not self._params_finite()
         if reverted:
             self._flow.load_state_dict(backup)
         self.n_updates += 1
         self._entropy_cache = None
         kl = float((lq_old - self._log_q(y_old)).mean()) if len(y_old) else 0.0
+        return {"first": first, "last": last, "skipped": skipped, "reverted": reverted, "kl": kl}
 
+    def _fit_update(self, xi_arr: NDArray[np.float64], ret: NDArray[np.float64]) -> dict[str, Any]:
+        """Entropy and constrained modes: remember the batch, then K Adam steps of maximum likelihood
+        on draws resampled from the mode's optimum given the evidence (docs/learning.md#goflow-modes)."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        self._evidence.add((xi_arr - self._low) / self._width, ret)
+        gen = self._update_generator()
+        y, log_m, lq_prop, n = self._proposal(gen)
+        w, info = self._target_weights(y, log_m)
+        y_old, lq_old = y[n : 2 * n], lq_prop[n : 2 * n] + self._log_z  # the pre-update flow's own draws
+
+        outside = self._outside if "log_ceiling" in info and cfg.outside_weight > 0 else y[:0]
+        self._outside = None
+        ceiling = info.get("log_ceiling", 0.0) + self._log_z  # in the flow's unnormalized log density
+        n_fit, n_out = cfg.fit_batch, min(len(outside), cfg.fit_batch // 2)
+
+        def step_loss() -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+            parts = [y[torch.multinomial(w, n_fit, replacement=True, generator=gen)]]
+            if n_out:
+                parts.append(outside[torch.randperm(len(outside), generator=gen)[:n_out]])
+            if self.beta > 0:
+                old = torch.randperm(len(y_old), generator=gen)[: cfg.kl_samples]
+                parts.append(y_old[old])
+            lq = self._flow().log_prob(torch.cat(parts))
+            fit = -lq[:n_fit].mean()
+            terms = {"fit": fit}
+            loss = fit
+            if n_out:  # constrained: the flow's density above the optimum's outside F-hat, in nats
+                excess = torch.relu(lq[n_fit : n_fit + n_out] - ceiling).mean()
+                loss, terms["excess_outside"] = loss + cfg.outside_weight * excess, excess
+            if self.beta > 0:
+                kl_hat = (lq_old[old] - lq[n_fit + n_out :]).mean()
+                loss, terms["kl_objective"] = loss + self.beta * kl_hat, kl_hat
+            return loss, terms
+
+        run = self._descend(step_loss, y_old, lq_old)
         return update_diagnostics(
-            ret, self.entropy(), first=first, last=last, steps=cfg.steps, skipped=skipped, reverted=reverted,
-            has_signal=has_signal, update_index=self.n_updates, t0=t0,
-            reward_term=last.get("reward_term", math.nan),
-            entropy_objective=last.get("entropy_objective", math.nan),
-            kl=kl)  # KL(q_old || q_new) on the old flow's samples, after any revert
+            ret, self.entropy(), first=run["first"], last=run["last"], steps=cfg.steps, skipped=run["skipped"],
+            reverted=run["reverted"], has_signal=bool(np.ptp(self._evidence.signal) > 0), update_index=self.n_updates,
+            t0=t0, fit=run["last"].get("fit", math.nan), evidence_rows=len(self._evidence), kl=run["kl"], **info)
+
+    def _paper_update(self, xi_arr: NDArray[np.float64], ret: NDArray[np.float64]) -> dict[str, Any]:
+        """The GoFlow paper's update: K Adam steps on the loss of the module docstring."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        d = self.space.dim
+        weights_np, has_signal = standardize_returns(ret)
+        weights = torch.as_tensor(weights_np, dtype=torch.float32)
+        y_batch = torch.as_tensor(self._to_box(xi_arr), dtype=torch.float32).clamp(-BOX_BOUND, BOX_BOUND)
+        gen = self._update_generator()
+        y_old = self._draw_box(max(cfg.kl_pool, cfg.kl_samples), gen)  # draws of the frozen pre-update flow
+        lq_old = self._log_q(y_old)
+        n_b, n_u = len(y_batch), cfg.entropy_samples
+        vol = (2.0 * BOX_BOUND) ** d
+
+        def step_loss() -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+            u = (torch.rand((n_u, d), generator=gen) * 2.0 - 1.0) * BOX_BOUND
+            pick = torch.randperm(len(y_old), generator=gen)[: cfg.kl_samples]
+            lq = self._flow().log_prob(torch.cat([y_batch, u, y_old[pick]]))
+            lq_b, lq_u, lq_o = lq[:n_b], lq[n_b : n_b + n_u], lq[n_b + n_u :]
+            reward_term = -(lq_b * weights).mean()
+            lq_u = lq_u.clamp(min=_LOG_Q_FLOOR)
+            h_hat = -vol * (lq_u.exp() * lq_u).mean()
+            kl_hat = (lq_old[pick] - lq_o).mean()
+            loss = reward_term - self.alpha * h_hat + self.beta * kl_hat
+            return loss, {"reward_term": reward_term, "entropy_objective": h_hat, "kl_objective": kl_hat}
+
+        run = self._descend(step_loss, y_old, lq_old)
+        return update_diagnostics(
+            ret, self.entropy(), first=run["first"], last=run["last"], steps=cfg.steps, skipped=run["skipped"],
+            reverted=run["reverted"], has_signal=has_signal, update_index=self.n_updates, t0=t0,
+            reward_term=run["last"].get("reward_term", math.nan),
+            entropy_objective=run["last"].get("entropy_objective", math.nan),
+            kl=run["kl"])  # KL(q_old || q_new) on the old flow's samples, after any revert
 
     # -- checkpoints -----------------------------------------------------------------------------
 
@@ -432,6 +628,7 @@ class GoFlowSampler:
             "config": self.config.to_dict(),
             "n_updates": self.n_updates,
             "flow": {k: _tensor_to_json(v) for k, v in self._flow.state_dict().items()},
+            "evidence": self._evidence.state_dict(),
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -460,7 +657,9 @@ class GoFlowSampler:
             self._flow.load_state_dict(tensors)
         except RuntimeError as exc:
             raise ValueError(f"load_state_dict: flow tensors do not fit this architecture: {exc}") from exc
-        self.config, self.n_updates = config, n_updates
+        evidence = Evidence(self.space.dim, config.memory, config.neighbours, config.signal_range)
+        evidence.load_state_dict(state.get("evidence", {}))
+        self.config, self.n_updates, self._evidence = config, n_updates, evidence
         self._entropy_cache = None
 
     @classmethod

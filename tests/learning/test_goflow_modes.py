@@ -1,0 +1,131 @@
+"""GoFlow's entropy and constrained modes reach their objectives' known optima; bad signals and
+settings are refused; a reloaded sampler continues exactly."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from assembly.params import Param, ParamSpace
+from common.errors import InputError
+from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
+
+
+def _unit_box(d: int) -> ParamSpace:
+    return ParamSpace(tuple(Param(f"p{i}", 0.0, 1.0, "1") for i in range(d)))
+
+
+def _interval(xi: np.ndarray) -> np.ndarray:
+    """1-D feasible set [0.2, 0.5]: 30 % of the box."""
+    return ((xi[:, 0] >= 0.2) & (xi[:, 0] <= 0.5)).astype(float)
+
+
+def _train(sampler: GoFlowSampler, oracle, rounds: int, batch: int, seed: int, protocol: str = "uniform") -> None:
+    rng = np.random.default_rng(seed)
+    for _ in range(rounds):
+        xi = rng.uniform(size=(batch, sampler.space.dim)) if protocol == "uniform" else sampler.sample(batch, rng)
+        sampler.update(xi, oracle(xi))
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    torch.set_num_threads(1)
+
+
+@pytest.mark.parametrize("alpha", [0.3, 1.0])
+def test_entropy_mode_reaches_the_closed_form_optimum_in_1d(alpha):
+    """0/1 reward r on [0, 1]: the optimum of E_p[r] + alpha H(p) is p* ~ exp(r / alpha)."""
+    s = GoFlowSampler(_unit_box(1), None, mode="entropy", alpha=alpha, beta=0.0, signal_range=(0.0, 1.0), seed=0)
+    _train(s, _interval, rounds=25, batch=256, seed=0)
+    share = 0.3
+    z = share * math.exp(1 / alpha) + (1 - share)
+    xi = s.sample(20000, np.random.default_rng(1))
+    log_p_star = _interval(xi) / alpha - math.log(z)
+    kl = float(np.mean(s.log_prob(xi) - log_p_star))
+    mass_star = share * math.exp(1 / alpha) / z
+    assert kl < 0.05, kl
+    assert abs(_interval(xi).mean() - mass_star) < 0.03
+
+
+def _disks(xi: np.ndarray) -> np.ndarray:
+    """Two disjoint disks of different sizes: 9.1 % of the unit square."""
+    a = np.linalg.norm(xi - [0.3, 0.35], axis=1) <= 0.15
+    b = np.linalg.norm(xi - [0.75, 0.7], axis=1) <= 0.08
+    return (a | b).astype(float)
+
+
+def _small_disk(xi: np.ndarray) -> np.ndarray:
+    """An off-centre disk of 5 % of the unit square."""
+    return (np.linalg.norm(xi - [0.65, 0.3], axis=1) <= math.sqrt(0.05 / math.pi)).astype(float)
+
+
+@pytest.mark.parametrize("protocol", ["uniform", "own"])
+def test_constrained_mode_concentrates_on_and_covers_the_feasible_set(protocol):
+    """A small off-centre disk after 30 rounds. Measured (seed 0): mass 0.987 / 0.993 and coverage
+    0.907 / 0.974 (uniform / own batches); the paper's update gets 0.87-0.93 and 0.5-0.77 on the
+    same disk after 100 rounds (docs/learning.md#goflow-modes). Issue 21's 99 % / 95 % targets
+    need more rounds than a test affords."""
+    s = GoFlowSampler(_unit_box(2), None, mode="constrained", beta=0.0, seed=0)
+    _train(s, _small_disk, rounds=30, batch=256, seed=0, protocol=protocol)
+    draws = s.sample(20000, np.random.default_rng(1))
+    mass = _small_disk(draws).mean()
+    rng = np.random.default_rng(2)
+    u = rng.uniform(size=(200000, 2))
+    inside = u[_small_disk(u) == 1]
+    share = len(inside) / len(u)
+    coverage = np.mean(np.exp(s.log_prob(inside)) >= 0.1 / share)
+    assert mass >= 0.965, mass
+    assert coverage >= 0.9, coverage
+
+
+def test_constrained_mode_refuses_graded_signals():
+    s = GoFlowSampler(_unit_box(2), None, mode="constrained")
+    xi = np.full((3, 2), 0.5)
+    with pytest.raises(InputError, match=r"signal\[1\] = 0\.5.*0/1"):
+        s.update(xi, [1.0, 0.5, 0.0])
+    with pytest.raises(ValueError, match="finite"):
+        s.update(xi, [1.0, np.nan, 0.0])
+    assert s.n_updates == 0
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("delta", 0.0, r"delta = 0\.0"), ("delta", 1.0, r"delta = 1\.0"), ("delta", math.nan, "delta"),
+    ("mode", "greedy", r"mode = 'greedy'; expected one of"), ("signal_range", (1.0, 0.0), "lo < hi"),
+    ("feasible_level", 0.0, "feasible_level"), ("memory", 0, "memory"), ("outside_weight", -1.0, "outside_weight"),
+])
+def test_bad_settings_name_the_value(field, value, match):
+    with pytest.raises(InputError, match=match):
+        GoFlowConfig(**{field: value})
+
+
+@pytest.mark.parametrize("mode", ["entropy", "constrained"])
+def test_reloaded_sampler_samples_and_updates_the_same(mode):
+    small = dict(mode=mode, steps=10, proposal_samples=256, fit_batch=128, beta=0.0)
+    a = GoFlowSampler(_unit_box(2), None, **small)
+    _train(a, _disks, rounds=3, batch=64, seed=3)
+    b = GoFlowSampler.from_state_dict(json.loads(json.dumps(a.state_dict())))
+    np.testing.assert_array_equal(a.sample(50, np.random.default_rng(4)), b.sample(50, np.random.default_rng(4)))
+    xi = np.random.default_rng(5).uniform(size=(64, 2))
+    a.update(xi, _disks(xi))
+    b.update(xi, _disks(xi))
+    np.testing.assert_array_equal(a.log_prob(xi), b.log_prob(xi))
+
+
+def test_same_seed_same_flow():
+    runs = []
+    for _ in range(2):
+        s = GoFlowSampler(_unit_box(2), None, mode="constrained", steps=10, proposal_samples=256, seed=7)
+        _train(s, _disks, rounds=3, batch=64, seed=8, protocol="own")
+        runs.append(s.sample(20, np.random.default_rng(0)))
+    np.testing.assert_array_equal(*runs)
+
+
+def test_states_saved_before_the_modes_load_as_the_papers_update():
+    a = GoFlowSampler(_unit_box(2), None, mode="paper", steps=2)
+    state = a.state_dict()
+    del state["config"]["mode"], state["evidence"]
+    assert GoFlowSampler.from_state_dict(state).config.mode == "paper"
