@@ -282,7 +282,6 @@ class GoFlowSampler:
         self._log_jac = -float(np.sum(np.log(self._half_scale)))  # log|dy/dxi|
         self._flow = self._build_flow()
         self._entropy_cache: float | None = None
-        self._outside: torch.Tensor | None = None  # an update's proposal draws outside the feasible set
         self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range)
 
     @property
@@ -480,13 +479,17 @@ class GoFlowSampler:
         width = 2.0 * float(np.median(gap)) * 2.0 * BOX_BOUND if len(gap) else 2.0 * BOX_BOUND
         return max(width, 0.01 * 2.0 * BOX_BOUND)
 
-    def _target_weights(self, y: torch.Tensor, log_m: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+    def _target_weights(self, y: torch.Tensor, log_m: torch.Tensor
+                        ) -> tuple[torch.Tensor, dict[str, float], torch.Tensor]:
         """Self-normalized importance weights of the proposal draws `y` for the mode's optimum given
-        the evidence, and what they say (the estimated feasible share, the effective sample size)."""
+        the evidence; what they say (the estimated feasible share, the effective sample size, and in
+        constrained mode the optimum's log density outside the feasible set, "log_ceiling"); and the
+        draws outside the estimated feasible set where that ceiling applies (none otherwise)."""
         cfg = self.config
         r_hat = torch.as_tensor(self._evidence.estimate((y.double().numpy() / BOX_BOUND + 1.0) / 2.0))
         log_w = -log_m.double()
         info: dict[str, float] = {}
+        outside = y[:0]
         if cfg.mode == "entropy":
             log_w = log_w + r_hat / cfg.alpha if cfg.alpha > 0 else torch.where(
                 r_hat >= r_hat.max(), log_w, torch.full_like(log_w, -math.inf))
@@ -500,11 +503,11 @@ class GoFlowSampler:
                 w = torch.where(inside, base * (1.0 - cfg.delta) / share, base * cfg.delta / (1.0 - share))
                 # the optimum's density outside F-hat (box coordinates), a ceiling for the flow there
                 info["log_ceiling"] = math.log(cfg.delta / ((1.0 - share) * (2.0 * BOX_BOUND) ** self.space.dim))
-                self._outside = y[~inside]
+                outside = y[~inside]
             else:  # no feasible set seen yet, or the uniform box already meets the constraint
                 w = base
         info["ess"] = float(1.0 / (w**2).sum())
-        return w.float(), info
+        return w.float(), info, outside
 
     def _descend(self, step_loss: Callable[[], tuple[torch.Tensor, dict[str, torch.Tensor]]],
                  y_old: torch.Tensor, lq_old: torch.Tensor) -> dict[str, Any]:
@@ -550,11 +553,11 @@ class GoFlowSampler:
         self._evidence.add((xi_arr - self._low) / self._width, ret)
         gen = self._update_generator()
         y, log_m, lq_prop, n = self._proposal(gen)
-        w, info = self._target_weights(y, log_m)
+        w, info, outside = self._target_weights(y, log_m)
         y_old, lq_old = y[n : 2 * n], lq_prop[n : 2 * n] + self._log_z  # the pre-update flow's own draws
 
-        outside = self._outside if "log_ceiling" in info and cfg.outside_weight > 0 else y[:0]
-        self._outside = None
+        if cfg.outside_weight == 0:
+            outside = outside[:0]
         ceiling = info.get("log_ceiling", 0.0) + self._log_z  # in the flow's unnormalized log density
         n_fit, n_out = cfg.fit_batch, min(len(outside), cfg.fit_batch // 2)
 
