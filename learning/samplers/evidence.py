@@ -69,25 +69,27 @@ class Evidence:
             return np.zeros(len(self))
         return np.clip((self.signal - lo) / (hi - lo), 0.0, 1.0)
 
+    def _kd_tree(self) -> cKDTree:
+        """The rows' k-d tree, built on first use after the rows change."""
+        if self._tree is None:
+            self._tree = cKDTree(self.xi)
+        return self._tree
+
     def estimate(self, points_unit: NDArray[np.float64]) -> NDArray[np.float64]:
         """The scaled signal at `points_unit` (m, dim): the mean over the k nearest rows (zeros with
         no rows)."""
         points_unit = np.asarray(points_unit, dtype=np.float64)
         if not len(self):
             return np.zeros(len(points_unit))
-        if self._tree is None:
-            self._tree = cKDTree(self.xi)
         k = min(self.neighbours, len(self))
-        _, idx = self._tree.query(points_unit, k=k)
+        _, idx = self._kd_tree().query(points_unit, k=k)
         return self.scaled_signal()[np.asarray(idx).reshape(len(points_unit), k)].mean(axis=1)
 
     def nearest_distance(self, points_unit: NDArray[np.float64]) -> NDArray[np.float64]:
         """Distance from each point to its nearest other row (rows given as points exclude themselves)."""
         if len(self) < 2:
             return np.full(len(points_unit), np.inf)
-        if self._tree is None:
-            self._tree = cKDTree(self.xi)
-        dist, _ = self._tree.query(np.asarray(points_unit, dtype=np.float64), k=2)
+        dist, _ = self._kd_tree().query(np.asarray(points_unit, dtype=np.float64), k=2)
         return dist[:, 1]
 
     def state_dict(self) -> dict[str, Any]:

@@ -230,6 +230,21 @@ class GoFlowConfig:
     ARCHITECTURE = ("transforms", "hidden_features", "bins", "base_scale")
 
 
+def _uniform_box(n: int, d: int, gen: torch.Generator) -> torch.Tensor:
+    """n uniform draws on the box [-5, 5]^d (float32)."""
+    return (torch.rand((n, d), generator=gen) * 2.0 - 1.0) * BOX_BOUND
+
+
+def _box_to_unit(y: torch.Tensor) -> NDArray[np.float64]:
+    """Box coordinates [-5, 5]^d -> the unit box [0, 1]^d of the evidence (float64)."""
+    return (y.double().numpy() / BOX_BOUND + 1.0) / 2.0
+
+
+def _unit_to_box(u: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The unit box of the evidence -> box coordinates."""
+    return (u * 2.0 - 1.0) * BOX_BOUND
+
+
 def _tensor_to_json(t: torch.Tensor) -> dict[str, Any]:
     return {"dtype": str(t.dtype).removeprefix("torch."), "shape": list(t.shape), "data": t.flatten().tolist()}
 
@@ -441,7 +456,7 @@ class GoFlowSampler:
         cfg, d = self.config, self.space.dim
         n = cfg.proposal_samples
         log_vol = d * math.log(2.0 * BOX_BOUND)
-        y_u = (torch.rand((n, d), generator=gen) * 2.0 - 1.0) * BOX_BOUND
+        y_u = _uniform_box(n, d, gen)
         y_q = self._draw_box(n, gen)
         parts, n_total = [y_u, y_q], 2 * n
         centres = self._success_centres(gen)
@@ -468,13 +483,12 @@ class GoFlowSampler:
         good = np.flatnonzero(ev.scaled_signal() >= 0.5)
         if len(good) > limit:
             good = np.sort(good[torch.randperm(len(good), generator=gen)[:limit].numpy()])
-        return torch.as_tensor((ev.xi[good] * 2.0 - 1.0) * BOX_BOUND, dtype=torch.float32)
+        return torch.as_tensor(_unit_to_box(ev.xi[good]), dtype=torch.float32)
 
     def _kernel_width(self, centres: torch.Tensor) -> float:
         """Gaussian width (box coordinates) around the success rows: twice their median distance to
         the nearest other row of the evidence, at least 1 % of the box."""
-        unit = (centres.double().numpy() / BOX_BOUND + 1.0) / 2.0
-        gap = self._evidence.nearest_distance(unit)
+        gap = self._evidence.nearest_distance(_box_to_unit(centres))
         gap = gap[np.isfinite(gap)]
         width = 2.0 * float(np.median(gap)) * 2.0 * BOX_BOUND if len(gap) else 2.0 * BOX_BOUND
         return max(width, 0.01 * 2.0 * BOX_BOUND)
@@ -486,7 +500,7 @@ class GoFlowSampler:
         constrained mode the optimum's log density outside the feasible set, "log_ceiling"); and the
         draws outside the estimated feasible set where that ceiling applies (none otherwise)."""
         cfg = self.config
-        r_hat = torch.as_tensor(self._evidence.estimate((y.double().numpy() / BOX_BOUND + 1.0) / 2.0))
+        r_hat = torch.as_tensor(self._evidence.estimate(_box_to_unit(y)))
         log_w = -log_m.double()
         info: dict[str, float] = {}
         outside = y[:0]
@@ -601,7 +615,7 @@ class GoFlowSampler:
         vol = (2.0 * BOX_BOUND) ** d
 
         def step_loss() -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-            u = (torch.rand((n_u, d), generator=gen) * 2.0 - 1.0) * BOX_BOUND
+            u = _uniform_box(n_u, d, gen)
             pick = torch.randperm(len(y_old), generator=gen)[: cfg.kl_samples]
             lq = self._flow().log_prob(torch.cat([y_batch, u, y_old[pick]]))
             lq_b, lq_u, lq_o = lq[:n_b], lq[n_b : n_b + n_u], lq[n_b + n_u :]
