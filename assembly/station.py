@@ -8,6 +8,7 @@ Exported ports of `Station.diagram`:
   outputs "arm_state" (14), "hand_state" (4), "X_WT" (abstract RigidTransform), "wrench" (6),
           "torque" (7), "body_poses", "contact_results", and per camera "<name>_rgb",
           "<name>_depth" (32-bit float metres), "<name>_label".
+With WorldConfig.grasp_hold, a GraspAnchor moves the hold's spring rest points as the gear slips.
 """
 
 from __future__ import annotations
@@ -31,7 +32,9 @@ from assembly.gearset import gear_spec
 from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
 from assembly.impedance import CartesianImpedanceController, ImpedanceGains
 from assembly.panda_model import Q_HOME, TAU_MAX
-from assembly.world import WorldConfig, WorldModels, add_panda, add_world, gear_body, insertion_error, is_seated, tool_frame
+from assembly.world import (
+    GraspHold, WorldConfig, WorldModels, add_panda, add_world, gear_body, insertion_error, is_seated, tool_frame,
+)
 
 
 
@@ -84,6 +87,7 @@ class Station:
     cameras: dict[str, RgbdSensor]
     config: StationConfig
     meshcat_visualizer: MeshcatVisualizer | None = None
+    grasp_anchor: GraspAnchor | None = None  # with WorldConfig.grasp_hold
 
     def plant_context(self, root: Context) -> Context:
         return self.plant.GetMyContextFromRoot(root)
@@ -109,11 +113,19 @@ class Station:
         return self.diagram.GetOutputPort("X_WT").Eval(self.diagram.GetMyContextFromRoot(root))
 
     def set_grasp(self, root: Context, X_TG: RigidTransform) -> None:
-        """Set the held gear's pose in the tool frame (WorldConfig.held_gear)."""
-        if self.models.held is None:
+        """Set the held gear's pose in the tool frame (WorldConfig.held_gear); with a GraspHold,
+        the hold's joints, velocities and spring rest points are zeroed too (no slip yet)."""
+        held = self.models.held
+        if held is None:
             raise ValueError("this station holds no gear; build it with WorldConfig(held_gear=...)")
-        self.models.held.grasp_frame.SetPoseInParentFrame(
-            self.plant.GetMyMutableContextFromRoot(root), X_TG)
+        pc = self.plant.GetMyMutableContextFromRoot(root)
+        if held.hold_instance is None:
+            held.grasp_frame.SetPoseInParentFrame(pc, X_TG)
+            return
+        held.grasp_frame.SetPoseInParentFrame(pc, X_TG.inverse())
+        self.plant.SetPositions(pc, held.hold_instance, np.zeros(3))
+        self.plant.SetVelocities(pc, held.hold_instance, np.zeros(3))
+        self.grasp_anchor.GetMyMutableContextFromRoot(root).SetDiscreteState(np.zeros(3))
 
     def _gear(self, gear: str):
         gear_spec(gear)
@@ -122,6 +134,33 @@ class Station:
         if gear not in self.models.gears:
             raise ValueError(f"gear {gear!r} is not in this station; it has {sorted(self.models.gears)}")
         return self.models.gears[gear]
+
+
+class GraspAnchor(LeafSystem):
+    """The rest points of a GraspHold's springs, moved as the gear slips (elastic-plastic friction).
+
+    Ports: input "hold_state" (6) the hold joints' [q, v]; output "desired_state" (6) [anchor, 0]
+    for the plant's PD actuators. Every `period` the anchor a is pulled to within the elastic
+    range of q: a <- q - clip(q - a, -limit / stiffness, +limit / stiffness), so that a spring at
+    its effort limit moves with the gear and the slip stays when the load goes.
+    """
+
+    def __init__(self, hold: GraspHold, period: float) -> None:
+        super().__init__()
+        self._slack = hold.limits() / hold.stiffnesses()
+        self._state = self.DeclareVectorInputPort("hold_state", 6)
+        self.DeclareDiscreteState(3)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareVectorOutputPort("desired_state", 6, self._calc,
+                                     prerequisites_of_calc={self.xd_ticket()})
+
+    def _update(self, context: Context, xd) -> None:
+        q = self._state.Eval(context)[:3]
+        a = context.get_discrete_state_vector().CopyToVector()
+        xd.set_value(q - np.clip(q - a, -self._slack, self._slack))
+
+    def _calc(self, context: Context, output) -> None:
+        output.SetFromVector(np.r_[context.get_discrete_state_vector().CopyToVector(), np.zeros(3)])
 
 
 def make_controller_plant() -> tuple[MultibodyPlant, object, object]:
@@ -155,6 +194,12 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
     gripper = builder.AddSystem(GripperCommand())
     gripper.set_name("gripper_command")
     builder.Connect(gripper.get_output_port(0), plant.get_desired_state_input_port(models.hand))
+    anchor = None
+    if config.world.grasp_hold is not None:
+        anchor = builder.AddSystem(GraspAnchor(config.world.grasp_hold, config.time_step))
+        anchor.set_name("grasp_anchor")
+        builder.Connect(plant.get_state_output_port(models.held.hold_instance), anchor.get_input_port(0))
+        builder.Connect(anchor.get_output_port(0), plant.get_desired_state_input_port(models.held.hold_instance))
 
     builder.ExportInput(controller.GetInputPort("X_WT_desired"), "X_WT_desired")
     builder.ExportInput(controller.GetInputPort("V_WT_desired"), "V_WT_desired")
@@ -186,7 +231,7 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
             builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
     diagram = builder.Build()
     diagram.set_name("station")
-    return Station(diagram, plant, scene_graph, models, controller, cameras, config, visualizer)
+    return Station(diagram, plant, scene_graph, models, controller, cameras, config, visualizer, anchor)
 
 
 COMMAND_PORTS = ("X_WT_desired", "V_WT_desired", "A_WT_desired", "gripper_width")

@@ -9,11 +9,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, SceneGraph
+from pydrake.geometry import (
+    CollisionFilterDeclaration, GeometrySet, ProximityProperties, RoleAssign, SceneGraph,
+)
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
-from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import FixedOffsetFrame, Frame, ModelInstanceIndex, RigidBody
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+from pydrake.multibody.tree import (
+    FixedOffsetFrame, Frame, ModelInstanceIndex, PdControllerGains, PrismaticJoint, RevoluteJoint,
+    RigidBody, SpatialInertia,
+)
 
 from assembly.gear_meshes import gearset_model_paths
 from assembly.gearset import (
@@ -57,6 +62,68 @@ def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> RigidTransfor
     return RigidTransform(RotationMatrix.MakeZRotation(yaw), [x, y, z])
 
 
+@dataclass(frozen=True)
+class ContactOverrides:
+    """Contact properties of the gears, the plate and its shafts other than the model files'
+    (assembly.gear_meshes): for simulating a contact the model gets wrong (sim2real).
+
+    mu: Coulomb friction (static = dynamic) written on every gear, the plate and the shafts, so
+        that a gear slides on its shaft or the plate at exactly mu (Drake combines two
+        coefficients as 2 mu1 mu2 / (mu1 + mu2)); None keeps the files' (gear/shaft ~0.32).
+    modulus_scale: the plate's and shafts' hydroelastic modulus (1e7 Pa) times this (the gears are
+        rigid hydroelastic: the compliant side sets the contact stiffness).
+    dissipation: Hunt-Crossley dissipation [s/m] written on the gears, the plate and the shafts;
+        None keeps the files' 20 s/m.
+    """
+
+    mu: float | None = None
+    modulus_scale: float = 1.0
+    dissipation: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("mu", "modulus_scale", "dissipation"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and (v > 0 if name != "dissipation" else v >= 0)):
+                raise ValueError(f"ContactOverrides.{name} = {v!r}; expected a finite number "
+                                 f"{'>= 0' if name == 'dissipation' else '> 0'}")
+
+
+@dataclass(frozen=True)
+class GraspHold:
+    """The held gear hangs from the tool on friction-limited springs instead of a weld.
+
+    Three joints stand for how a two-finger grasp gives: a tilt about the finger-closing axis
+    (tool y, through the tool origin between the pads), then slides along tool x (across the
+    fingers) and tool z (along the gear's axis). Each is an implicit PD actuator whose force is
+    capped at the limit (Drake's effort limit): below it the joint is a stiff spring, at it the
+    gear slides at the limit (Coulomb friction). The spring's rest point follows a slipped gear
+    (assembly.station.GraspAnchor), so a slip stays. Across-finger slide and roll about tool x
+    are held by the pads' normal force and stay welded.
+    """
+
+    force_limit: float = 40.0  # [N] grip friction along tool x and z: 2 pads x mu 0.5 x 40 N grip
+    torque_limit: float = 0.13  # [N m] about the finger axis: (2/3) x 5 mm patch radius x force_limit
+    stiffness: float = 1.0e5  # [N/m] elastic grip before slip
+    damping: float = 100.0  # [N s/m]
+    rotational_stiffness: float = 20.0  # [N m/rad]
+    rotational_damping: float = 0.05  # [N m s/rad]
+
+    def __post_init__(self) -> None:
+        for name in ("force_limit", "torque_limit", "stiffness", "damping", "rotational_stiffness",
+                     "rotational_damping"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"GraspHold.{name} = {v!r}; expected a finite number > 0")
+
+    def limits(self) -> np.ndarray:
+        """Effort limits of the (tilt [N m], slide x [N], slide z [N]) joints."""
+        return np.array([self.torque_limit, self.force_limit, self.force_limit])
+
+    def stiffnesses(self) -> np.ndarray:
+        """Stiffnesses of the (tilt [N m/rad], slide x [N/m], slide z [N/m]) joints."""
+        return np.array([self.rotational_stiffness, self.stiffness, self.stiffness])
+
+
 @dataclass
 class WorldConfig:
     """Where things stand on the table. Poses are (x [m], y [m], yaw [rad]) in W."""
@@ -71,6 +138,10 @@ class WorldConfig:
     # A gear already in the hand (welded to a grasp frame on the tool frame whose pose is a
     # Context parameter: Station.set_grasp). It must not also be in `gears`.
     held_gear: str | None = None
+    # None: the held gear is welded (an ideal grasp); a GraspHold: held by friction-limited springs.
+    grasp_hold: GraspHold | None = None
+    # None: the contact properties of the model files; else the gears' and plate's overrides.
+    contact: ContactOverrides | None = None
     q_arm_start: np.ndarray = field(default_factory=lambda: Q_HOME.copy())
     finger_width_start: float = FINGER_MAX_WIDTH
 
@@ -80,6 +151,8 @@ class WorldConfig:
             if self.held_gear in self.gears:
                 raise ValueError(f"held_gear {self.held_gear!r} is also in gears {self.gears}; a gear "
                                  "is either on the table or in the hand")
+        if self.grasp_hold is not None and self.held_gear is None:
+            raise ValueError("grasp_hold is set but held_gear is None; a hold needs a gear in the hand")
         for name in self.gears:
             gear_spec(name)
             if name not in self.gear_start_poses:
@@ -215,11 +288,16 @@ def random_gear_poses(rng: np.random.Generator,
 @dataclass
 class HeldGear:
     """A gear welded to the hand through `grasp_frame`, whose pose in the tool frame (X_TG) is a
-    Context parameter: the grasp, with its error, can change per episode without a rebuild."""
+    Context parameter: the grasp, with its error, can change per episode without a rebuild.
+
+    With a GraspHold, `grasp_frame` is a frame on the gear whose pose in the gear frame is the
+    inverse X_GT of the grasp (the hold's joints at zero put the tool there), and `hold_instance`
+    holds the hold's joints (tilt, slide x, slide z) and their PD actuators."""
 
     name: str
     instance: ModelInstanceIndex
     grasp_frame: FixedOffsetFrame
+    hold_instance: ModelInstanceIndex | None = None
 
 
 def nominal_grasp(gear: str, grasp_depth: float = 0.006) -> RigidTransform:
@@ -237,13 +315,31 @@ def grasp_with_error(gear: str, x: float, y: float, yaw: float) -> RigidTransfor
                           X.translation() + np.array([x, y, 0.0]))
 
 
-def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame) -> HeldGear:
-    """Add gear `gear` welded to a new grasp frame on `tool` (initially the nominal grasp)."""
+def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame, hold: GraspHold | None = None) -> HeldGear:
+    """Add gear `gear` welded to a new grasp frame on `tool` (initially the nominal grasp), or
+    hanging from `tool` on the joints of `hold` (GraspHold)."""
     instance = model_parser(plant).AddModels(str(gearset_model_paths()[gear]))[0]
-    grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", tool, nominal_grasp(gear)))
     (index,) = plant.GetBodyIndices(instance)
-    plant.WeldFrames(grasp, plant.get_body(index).body_frame(), RigidTransform())
-    return HeldGear(gear, instance, grasp)
+    if hold is None:
+        grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", tool, nominal_grasp(gear)))
+        plant.WeldFrames(grasp, plant.get_body(index).body_frame(), RigidTransform())
+        return HeldGear(gear, instance, grasp)
+    held = plant.AddModelInstance(f"grasp_hold_{gear}")
+    tiny = SpatialInertia.SolidSphereWithMass(1e-4, 1e-3)  # massless links would leave M singular
+    links = [plant.AddRigidBody(f"grasp_hold_link{i}", held, tiny) for i in (1, 2)]
+    grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", plant.get_body(index).body_frame(),
+                                            nominal_grasp(gear).inverse(), held))
+    joints = [
+        plant.AddJoint(RevoluteJoint("grasp_tilt", tool, links[0].body_frame(), [0.0, 1.0, 0.0])),
+        plant.AddJoint(PrismaticJoint("grasp_slide_x", links[0].body_frame(), links[1].body_frame(),
+                                      [1.0, 0.0, 0.0])),
+        plant.AddJoint(PrismaticJoint("grasp_slide_z", links[1].body_frame(), grasp, [0.0, 0.0, 1.0])),
+    ]
+    damping = (hold.rotational_damping, hold.damping, hold.damping)
+    for joint, limit, kp, kd in zip(joints, hold.limits(), hold.stiffnesses(), damping):
+        actuator = plant.AddJointActuator(joint.name(), joint, float(limit))
+        actuator.set_controller_gains(PdControllerGains(p=float(kp), d=float(kd)))
+    return HeldGear(gear, instance, grasp, held)
 
 
 @dataclass
@@ -299,13 +395,15 @@ def add_world(plant: MultibodyPlant, scene_graph: SceneGraph | None, config: Wor
     arm, hand = add_panda(plant)
     held = None
     if config.held_gear is not None:
-        held = add_held_gear(plant, config.held_gear, tool_frame(plant, hand))
+        held = add_held_gear(plant, config.held_gear, tool_frame(plant, hand), config.grasp_hold)
     w = float(np.clip(config.finger_width_start, 0.0, FINGER_MAX_WIDTH))
     _set_default_joint_positions(plant, arm, np.asarray(config.q_arm_start, dtype=float))
     _set_default_joint_positions(plant, hand, np.array([w / 2, w / 2]))
     if scene_graph is not None:
         extra = [held.instance] if held is not None else []
         _filter_collisions(plant, scene_graph, [arm, hand] + extra, list(gears.values()) + extra)
+        if config.contact is not None:
+            _override_contact(plant, scene_graph, [plate] + list(gears.values()) + extra, config.contact)
     return WorldModels(arm=arm, hand=hand, table=table, plate=plate, gears=gears, X_WP=X_WP, held=held)
 
 
@@ -327,6 +425,26 @@ def gear_body(plant: MultibodyPlant, instance: ModelInstanceIndex) -> RigidBody:
     return plant.get_body(index)
 
 
+def _override_contact(plant: MultibodyPlant, scene_graph: SceneGraph, instances,
+                      overrides: ContactOverrides) -> None:
+    """Rewrite the proximity properties of the instances' collision geometries (ContactOverrides)."""
+    inspector = scene_graph.model_inspector()
+    for inst in instances:
+        for b in plant.GetBodyIndices(inst):
+            for gid in plant.GetCollisionGeometriesForBody(plant.get_body(b)):
+                props = ProximityProperties(inspector.GetProximityProperties(gid))
+                if overrides.mu is not None:
+                    props.UpdateProperty("material", "coulomb_friction",
+                                         CoulombFriction(float(overrides.mu), float(overrides.mu)))
+                if overrides.dissipation is not None:
+                    props.UpdateProperty("material", "hunt_crossley_dissipation", float(overrides.dissipation))
+                if overrides.modulus_scale != 1.0 and props.HasProperty("hydroelastic", "hydroelastic_modulus"):
+                    modulus = props.GetProperty("hydroelastic", "hydroelastic_modulus")
+                    props.UpdateProperty("hydroelastic", "hydroelastic_modulus",
+                                         float(modulus * overrides.modulus_scale))
+                scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+
 def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, gears) -> None:
     """No robot self-collision (a held gear counts as part of the robot: its grasp is ideal);
     gears never touch each other (two rigid meshes: Drake's hydroelastic contact does not support
@@ -344,7 +462,8 @@ def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, ge
 
 
 __all__ = [
-    "HAND_TCP_OFFSET", "HeldGear", "WorldConfig", "WorldModels", "add_held_gear", "add_world",
+    "ContactOverrides", "GraspHold", "HAND_TCP_OFFSET", "HeldGear", "WorldConfig", "WorldModels",
+    "add_held_gear", "add_world",
     "add_panda", "gear_body", "insertion_error", "is_seated", "model_parser", "grasp_with_error", "nominal_grasp",
     "planar_pose", "tool_frame", "validate_gear_pose", "validate_plate_pose", "validate_tool_target",
     "PLACEMENT_X", "PLACEMENT_Y", "random_gear_poses",

@@ -21,7 +21,9 @@ Variants:
 - "fast": assembly.insertion_model (tool on x-y-z-yaw joints under the same impedance law with
   the Panda's apparent inertia, shafts hydroelastic, plate point contact), 40 ms physics steps;
 - "panda": the full station (assembly.station) with the gear held in the Panda's hand, 8 ms
-  steps, the arm starting at an inverse-kinematics solution of the pre-insertion pose.
+  steps, the arm starting at an inverse-kinematics solution of the pre-insertion pose. For
+  sim2real, it can hold the gear by friction-limited springs instead of welding it (`grasp_hold`,
+  assembly.world.GraspHold) and change the gear/plate contact (`contact`, ContactOverrides).
 
 Why the reward has these terms and what J_T = 50 means: docs/envs.md#reward-design; how far the
 two variants' outcomes differ for the same xi and actions: docs/envs.md#how-far-the-variants-differ.
@@ -34,6 +36,7 @@ to the measured pose); Ng et al., "Policy invariance under reward transformation
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,7 +54,9 @@ from assembly.envs.drake_sim import advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
-from assembly.world import grasp_with_error, insertion_error, is_seated, nominal_grasp
+from assembly.world import (
+    ContactOverrides, GraspHold, grasp_with_error, insertion_error, is_seated, nominal_grasp,
+)
 
 VARIANTS = ("fast", "panda")
 
@@ -82,10 +87,18 @@ class GearInsertionConfig:
     progress_weight: float = 100.0  # [1/m] reward per metre the gear gets closer to its seat
     fast_time_step: float = 0.04  # [s] physics step of the fast variant (docs/envs.md)
     panda_time_step: float = 0.008  # [s] physics step of the panda variant (the station's)
+    # Panda variant only (sim2real): the gear held by friction-limited springs instead of welded,
+    # and gear/plate contact properties other than the model files' (assembly.world). None: nominal.
+    grasp_hold: GraspHold | None = None
+    contact: ContactOverrides | None = None
 
     def __post_init__(self) -> None:
         gear_spec(self.gear)
         check_choice(self.variant, VARIANTS, "GearInsertionConfig.variant")
+        for name in ("grasp_hold", "contact"):
+            if getattr(self, name) is not None and self.variant != "panda":
+                raise InputError(f"GearInsertionConfig.{name} = {getattr(self, name)!r}; expected None "
+                                 f"for variant {self.variant!r} (only the panda variant models it)")
         for name in ("grasp_xy", "grasp_yaw", "control_dt", "t_max", "start_height", "shaping_near",
                      "shaping_far", "fast_time_step", "panda_time_step"):
             check_number(getattr(self, name), f"GearInsertionConfig.{name}", 0.0, low_open=True)
@@ -143,6 +156,13 @@ class GearInsertionEnv(ParamEnv):
         self._start = self._seated + [0.0, 0.0, SHAFT_HEIGHT + c.start_height, 0.0]
         self._sim.prepare(_down(self._start[:3], self._start[3]))
         self._poses = np.zeros((c.history, 4))
+
+    @property
+    def sim(self) -> _FastSim | _PandaSim:
+        """The simulation behind the env (variant "panda": `station`, `context`, `simulator`,
+        `advance(target, duration)` and the per-physics-step hook `on_step`), for tools that log
+        or replay episodes (sim2real.station_logs). Driving it bypasses the env's bookkeeping."""
+        return self._sim
 
     # -- task quantities -------------------------------------------------------------------
 
@@ -258,7 +278,8 @@ class _PandaSim:
         from assembly.station import StationConfig, build_station
         from assembly.world import WorldConfig
         self.station = build_station(StationConfig(
-            world=WorldConfig(gears=(), held_gear=c.gear), time_step=c.panda_time_step,
+            world=WorldConfig(gears=(), held_gear=c.gear, grasp_hold=c.grasp_hold, contact=c.contact),
+            time_step=c.panda_time_step,
             cameras=CamerasConfig(scene=None, wrist=None)))
         self.X_WS = self.station.models.X_WS(c.gear)
         self._gear = c.gear
@@ -269,6 +290,9 @@ class _PandaSim:
         self.station.diagram.GetInputPort("gripper_width").FixValue(self.context, [width])
         self._hand_q = np.array([width / 2, width / 2])
         self.simulator = Simulator(self.station.diagram, self.context)
+        self.time_step = c.panda_time_step
+        # Called before every physics step when set (the target for the step is already held).
+        self.on_step: Callable[[], None] | None = None
 
     def prepare(self, X_WT_start: RigidTransform) -> None:
         from assembly.panda_ik import solve_tool_ik
@@ -288,7 +312,13 @@ class _PandaSim:
 
     def advance(self, target: np.ndarray, duration: float) -> None:
         self._target.FixValue(self.context, _down(target[:3], target[3]))
-        advance(self.simulator, self.context.get_time() + duration, "GearInsertion")
+        t0 = self.context.get_time()
+        if self.on_step is None:
+            advance(self.simulator, t0 + duration, "GearInsertion")
+            return
+        for k in range(1, round(duration / self.time_step) + 1):
+            self.on_step()
+            advance(self.simulator, t0 + k * self.time_step, "GearInsertion")
 
     def tool_pose(self) -> np.ndarray:
         X = self.station.tool_pose(self.context)
