@@ -600,6 +600,56 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _diagnose_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--log", required=True, type=Path,
+                   help="robot log: .npz (project format), .csv (libfranka/franka_ros columns) or a folder in "
+                        "the Gaz et al. layout (rbt_log/exciting_traj_*.txt)")
+    p.add_argument("--model", default="arm", choices=["arm", "station"],
+                   help="arm: torque and state channels of the arm; station: an insertion log (contact effects)")
+    p.add_argument("--out", required=True, type=Path, help="report folder (report.md, report.json, figures)")
+    p.add_argument("--effects", nargs="+", metavar="NAME", help="catalogue effects to consider (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap intervals")
+
+
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from sim2real.diagnosis import DiagnosisConfig
+    from sim2real.files import diagnose_file
+    config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed)
+    d, paths = diagnose_file(args.log, args.out, args.model, config, progress=True)
+    v = d.verdict
+    print(f"{v['label']}: {v['text']}")
+    print(f"report -> {args.out / 'report.md'}")
+    return 0
+
+
+def _sim2real_flags(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="action", required=True)
+    m = sub.add_parser("make-log", help="a log of the simulated arm with injected effects",
+                       formatter_class=_HelpFormatter)
+    m.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
+                   help="an effect and its value: NAME=VALUE sets its first parameter, NAME.PARAM=VALUE any; "
+                        "per-joint values are one number or 7 comma-separated (e.g. coulomb=0.8, "
+                        "payload.dm=0.5, torque_offset=0,0,0,0,0.5,0,0)")
+    m.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="a field of sim2real.reality.RealityConfig, e.g. duration=10 or seed=3")
+    m.add_argument("--out", required=True, type=Path, help="log file (.npz or .csv)")
+    sub.add_parser("effects", help="list the effect catalogue", formatter_class=_HelpFormatter)
+
+
+def _cmd_sim2real(args: argparse.Namespace) -> int:
+    if args.action == "effects":
+        from sim2real.catalogue import CATALOGUE
+        for e in CATALOGUE.values():
+            params = ", ".join(f"{p.name} [{p.unit}] in [{p.low:g}, {p.high:g}]{' per joint' if p.per_joint else ''}"
+                               for p in e.params)
+            print(f"{e.name} ({e.place}): {e.meaning}\n    {params}")
+        return 0
+    from sim2real.files import make_log_file
+    path = make_log_file(args.effect, args.out, key_values(args.set, "--set"))
+    print(f"log -> {path}")
+    return 0
+
+
 # ---------------------------------------------------------------------------------------------
 # The parser and main
 # ---------------------------------------------------------------------------------------------
@@ -617,6 +667,10 @@ COMMANDS: dict[str, _Command] = {
               "coverage)", _bench_flags, _cmd_bench),
     "collect": ("log (s, a, s') trajectories with known true parameters", _collect_flags, _cmd_collect),
     "estimate": ("estimate a parameter distribution from a dataset", _estimate_flags, _cmd_estimate),
+    "diagnose": ("sim-to-real gap diagnosis of a robot log: where, which effect, how far", _diagnose_flags,
+                 _cmd_diagnose),
+    "sim2real": ("the simulated reality: make-log (a log with injected effects), effects (the catalogue)",
+                 _sim2real_flags, _cmd_sim2real),
 }
 
 
@@ -655,8 +709,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = make_parser([argv[0]] if argv else []).parse_args(argv)
         args.provenance = "goflow " + shlex.join(argv)
-        if args.command == "skill":
-            name = f"goflow skill {args.action}"
+        if args.command in ("skill", "sim2real"):
+            name = f"goflow {args.command} {args.action}"
         return args.func(args)
     except _Interrupted as exc:
         print(f"{name}: {exc}", file=sys.stderr)

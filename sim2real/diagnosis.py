@@ -1,0 +1,556 @@
+"""The three answers for an arm log: where the gap lies, which effect causes it, how far it shrinks.
+
+1. Where: the nominal model's residual per channel and joint, per phase and per state region
+   (velocity sign, reversals, speed, load), each as its RMS over the noise floor estimated from
+   the data (the spread of sample-to-sample differences, robustly).
+2. Which: each catalogue effect is fitted on training blocks and scored on held-out blocks
+   (blocked cross-validation in time; block bootstrap intervals); forward selection adds effects
+   while the held-out gain is significant. Fitted parameters come with bootstrap intervals and
+   bound hits; two effects that explain the same residual get an identifiability warning; a gap
+   the selection does not close is "unexplained", not given to the nearest effect.
+3. How far: the held-out gap before and after the selected effects, per channel, joint and
+   phase, as the fraction closed toward the noise floor.
+The model audit asks the same of the nominal model's own terms (rotor inertia, damping, end
+effector): a term whose removal improves the held-out fit is reported as making it worse.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common.checks import check_int, check_number
+from common.errors import InputError
+from sim2real.arm import END_EFFECTORS, ArmModel
+from sim2real.catalogue import CATALOGUE
+from sim2real.effects import Candidate, candidates
+from sim2real.fitting import Design, Model
+from sim2real.log import PHASES, RobotLog
+from sim2real.replay import Replay, ReplayConfig, replay
+
+__all__ = ["DiagnosisConfig", "Diagnosis", "Evidence", "diagnose", "analyse", "arm_evidence", "noise_floor"]
+
+Array = NDArray[np.float64]
+Progress = Callable[[str, int, int], None]
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnosisConfig:
+    """blocks: contiguous time blocks (folds are groups of them); folds: cross-validation folds;
+    bootstrap: resamples for intervals; effects: the catalogue effects to consider (None: all
+    that the log's channels can show); max_effects: most effects forward selection may add;
+    min_gain: least held-out gain, as a fraction of the nominal excess over the noise floor, for
+    an effect to be added, and min_gain_abs the least in noise variances (5 % of the noise
+    variance: below it an effect is too weak to tell from the noise); explained: fraction of the excess the selection must close for the
+    verdict "explained"; seed: of the bootstrap."""
+
+    blocks: int = 20
+    folds: int = 5
+    bootstrap: int = 300
+    effects: tuple[str, ...] | None = None
+    max_effects: int = 4
+    min_gain: float = 0.005
+    min_gain_abs: float = 0.05
+    explained: float = 0.6
+    seed: int = 0
+    replay: ReplayConfig = dataclasses.field(default_factory=ReplayConfig)
+
+    def __post_init__(self) -> None:
+        check_int(self.blocks, "DiagnosisConfig.blocks", 4)
+        check_int(self.folds, "DiagnosisConfig.folds", 2)
+        if self.blocks % self.folds:
+            raise InputError(f"DiagnosisConfig.blocks = {self.blocks}; expected a multiple of folds = {self.folds}")
+        check_int(self.bootstrap, "DiagnosisConfig.bootstrap", 20)
+        check_int(self.max_effects, "DiagnosisConfig.max_effects", 1)
+        check_number(self.min_gain, "DiagnosisConfig.min_gain", 0.0, 1.0)
+        check_number(self.explained, "DiagnosisConfig.explained", 0.0, 1.0)
+        for name in self.effects or ():
+            if name not in CATALOGUE:
+                raise InputError(f"DiagnosisConfig.effects has {name!r}; expected names from {sorted(CATALOGUE)}")
+
+
+def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101) -> Array:
+    """Per column of a (T, k) residual: the standard deviation of what varies faster than any
+    effect of the state can (vibration, sensor noise, derivative noise): the residual minus its
+    cubic Savitzky-Golay smoothing over `window` samples, robustly (1.4826 MAD), corrected for the
+    part of white noise the smoothing keeps (divided by sqrt(1 - h0), h0 the filter's centre
+    weight). White noise gives its own standard deviation; slow model error gives ~0."""
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    r = residual[valid]
+    window = min(window, (len(r) // 2) * 2 - 1)
+    fast = r - savgol_filter(r, window, 3, axis=0)
+    h0 = savgol_coeffs(window, 3)[window // 2]
+    mad = np.median(np.abs(fast - np.median(fast, axis=0)), axis=0)
+    floor = 1.4826 * mad / np.sqrt(1.0 - h0)
+    scale = np.sqrt(np.mean(r ** 2, axis=0))
+    return np.maximum(floor, 1e-6 * np.maximum(scale, 1e-12) + 1e-9)
+
+
+@dataclasses.dataclass
+class Diagnosis:
+    """Everything the report shows; `summary()` is plain JSON-compatible data."""
+
+    log_meta: dict[str, Any]
+    channels: tuple[str, ...]
+    where: dict[str, Any]
+    audit: list[dict[str, Any]]
+    ranking: list[dict[str, Any]]
+    selected: list[dict[str, Any]]
+    warnings: list[str]
+    how_far: dict[str, Any]
+    verdict: dict[str, Any]
+    arrays: dict[str, Array]
+    labels: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    x_label: str = "dq [rad/s]"
+    extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        return {"log": self.log_meta, "channels": list(self.channels),
+                "columns": {c: self.labels.get(c, [f"joint {j + 1}" for j in range(7)]) for c in self.channels},
+                "where": self.where, "audit": self.audit, "ranking": self.ranking, "selected": self.selected,
+                "warnings": self.warnings, "how_far": self.how_far, "verdict": self.verdict, **self.extra}
+
+
+@dataclasses.dataclass
+class Evidence:
+    """What the analysis needs from a replayed log, whatever the model.
+
+    residual: channel -> (T, 7) measured minus nominal; labels: channel -> the 7 columns' names;
+    valid: (T,) samples the fits use; phase: (T,) labels indexing PHASES; regions: name -> (T, 7)
+    state-region masks; pool: effect -> its candidates; audit: the model audit (or None);
+    x: (T, 7) what the residual figure plots it against, x_label its name; time: (T,)."""
+
+    residual: dict[str, Array]
+    labels: dict[str, list[str]]
+    valid: NDArray[np.bool_]
+    phase: NDArray[np.int64]
+    regions: dict[str, NDArray[np.bool_]]
+    pool: dict[str, list[Candidate]]
+    audit: Callable[..., list[dict[str, Any]]] | None
+    x: Array
+    x_label: str
+    time: Array
+    meta: dict[str, Any]
+    floor_min: dict[str, float | Array] = dataclasses.field(default_factory=dict)
+
+
+#: The least noise floor per arm channel: a torque resolution of 1e-3 N m (a channel the model
+#: reproduces to rounding, as the control law does, is not infinitely precise evidence).
+ARM_FLOOR_MIN: dict[str, float] = {"tau": 1e-3, "cmd": 1e-3, "ctrl": 1e-3, "dq": 1e-5}
+
+
+# --------------------------------------------------------------------------------------------
+# Where
+# --------------------------------------------------------------------------------------------
+
+def arm_regions(rep: Replay) -> dict[str, NDArray[np.bool_]]:
+    """State regions per joint (T, 7) masks: velocity sign, reversals, speed, load."""
+    dq = rep.dq
+    load = np.abs(rep.terms.total)
+    lo, hi = np.quantile(load[rep.valid], [1 / 3, 2 / 3], axis=0)
+    speed = np.abs(dq)
+    return {"dq>0": dq > 0, "dq<0": dq < 0, "reversal (|dq|<0.05)": speed < 0.05,
+            "slow (0.05-0.3)": (speed >= 0.05) & (speed < 0.3), "medium (0.3-1)": (speed >= 0.3) & (speed < 1.0),
+            "fast (>1 rad/s)": speed >= 1.0,
+            "load low": load < lo, "load mid": (load >= lo) & (load < hi), "load high": load >= hi}
+
+
+def _rms_table(y: Array, floor: Array, mask: Array) -> dict[str, Any]:
+    """RMS (C, 7) of y (T, C, 7) over mask (T, 7) or (T,), and its ratio to the floor."""
+    m = mask if mask.ndim == 2 else np.repeat(mask[:, None], 7, axis=1)
+    n = m.sum(axis=0)  # (7,)
+    ms = np.einsum("tj,tcj->cj", m, y ** 2) / np.maximum(n, 1)
+    rms = np.sqrt(ms)
+    return {"rms": rms, "ratio": rms / floor, "samples": n}
+
+
+def _where(ev: Evidence, design: Design, floor: Array) -> dict[str, Any]:
+    y = design.y
+    valid = ev.valid
+    base = _rms_table(y, floor, valid.astype(float))
+    excess = np.maximum(base["rms"] ** 2 - floor ** 2, 0.0) / floor ** 2  # in noise variances
+    share = excess / max(excess.sum(), 1e-12)
+    channels = []
+    for ci, c in enumerate(design.channels):
+        for j in range(7):
+            channels.append({"channel": c, "joint": j + 1, "column": ev.labels[c][j], "rms": float(base["rms"][ci, j]),
+                             "floor": float(floor[ci, j]), "ratio": float(base["ratio"][ci, j]),
+                             "excess_share": float(share[ci, j])})
+    channels.sort(key=lambda r: -r["excess_share"])
+    phases = {}
+    for k, name in enumerate(PHASES):
+        m = (ev.phase == k) & valid
+        if m.sum() < 10:
+            continue
+        t = _rms_table(y, floor, m.astype(float))
+        phases[name] = {"samples": int(m.sum()), "ratio": t["ratio"].tolist(),
+                        "excess": float(np.sum(np.maximum(t["ratio"] ** 2 - 1, 0)))}
+    regions = {}
+    for name, m in ev.regions.items():
+        t = _rms_table(y, floor, (m & valid[:, None]).astype(float))
+        regions[name] = {"ratio": t["ratio"].tolist(), "samples": t["samples"].tolist()}
+    # which channel-joints carry the excess: the fewest that hold 80 % of it, ratio >= 1.5
+    carry = []
+    total = 0.0
+    for r in channels:
+        if total >= 0.8 or r["ratio"] < 1.5:
+            break
+        carry.append(f"{r['channel']} {r['column']}")
+        total += r["excess_share"]
+    dominant_phase = max(phases, key=lambda p: phases[p]["excess"] / phases[p]["samples"]) if phases else "free"
+    region_lift = {}
+    for name, r in regions.items():  # mean ratio^2 in the region over the overall one, per channel
+        ratio = np.asarray(r["ratio"])
+        region_lift[name] = float(np.nanmean(ratio ** 2 / np.maximum(base["ratio"] ** 2, 1e-12)))
+    return {"channels": channels, "phases": phases, "regions": regions, "carry": carry,
+            "dominant_phase": dominant_phase, "region_lift": region_lift,
+            "excess_total": float(excess.sum() / excess.size)}
+
+
+# --------------------------------------------------------------------------------------------
+# Which
+# --------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class _Scored:
+    cands: list[Candidate]
+    sse: Array  # held-out per block
+    thetas: list[Array]
+
+
+def _folds(design: Design, n_folds: int) -> list[NDArray[np.int64]]:
+    per = design.n_blocks // n_folds
+    return [np.arange(k * per, (k + 1) * per) for k in range(n_folds)]
+
+
+def _best_setting(design: Design, options: list[Candidate], base: list[Candidate]) -> Candidate:
+    """The candidate (nonlinear setting) whose joint fit with `base` has the least training SSE
+    over all blocks."""
+    if len(options) == 1:
+        return options[0]
+    ones = np.ones(design.n_blocks)
+    best, best_sse = options[0], np.inf
+    for cand in options:
+        m = Model(design, base + [cand])
+        sse = m.block_sse(m.fit(ones)).sum()
+        if sse < best_sse:
+            best, best_sse = cand, sse
+    return best
+
+
+def _score(design: Design, cands: list[Candidate], folds) -> _Scored:
+    sse, thetas = Model(design, cands).cross_validate(folds)
+    return _Scored(cands, sse, thetas)
+
+
+def _bootstrap_mean(diff: Array, n: int, rng: np.random.Generator) -> tuple[float, float]:
+    idx = rng.integers(0, len(diff), size=(n, len(diff)))
+    means = diff[idx].mean(axis=1)
+    return float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
+
+
+def _params_with_intervals(design: Design, cands: list[Candidate], n: int, rng: np.random.Generator
+                           ) -> list[dict[str, Any]]:
+    """Each candidate's fitted catalogue parameters (all blocks) with block-bootstrap 95 %
+    intervals and bound hits."""
+    model = Model(design, cands)
+    nb = design.n_blocks
+    theta = model.fit(np.ones(nb))
+    boots = []
+    for _ in range(n):
+        w = np.bincount(rng.integers(0, nb, nb), minlength=nb).astype(float)
+        boots.append(model.fit(w))
+    out = []
+    bounds = model.bounds
+    free_all = model.free_params(theta)
+    k = 0
+    for i, (cand, coef) in enumerate(free_all):
+        values = cand.to_params(coef)
+        samples = [cand.to_params(model.free_params(b)[i][1]) for b in boots]
+        b = bounds[k:k + len(coef)]
+        hits = [cand.names[m] for m in range(len(coef)) if np.isclose(coef[m], b[m, 0]) or np.isclose(coef[m], b[m, 1])]
+        k += len(coef)
+        params = {}
+        for pname, value in values.items():
+            spec = CATALOGUE[cand.name].param(pname)
+            arr = np.array([s[pname] for s in samples], dtype=float)
+            lo, hi = np.quantile(arr, [0.025, 0.975], axis=0)
+            params[pname] = {"value": value, "low": lo.tolist(), "high": hi.tolist(), "unit": spec.unit}
+            outside = np.atleast_1d((np.asarray(value) < spec.low - 1e-9) | (np.asarray(value) > spec.high + 1e-9))
+            if outside.any():  # a derived parameter (a payload's com = h / dm) beyond its range
+                hits.append(f"{pname} outside [{spec.low:g}, {spec.high:g}] {spec.unit} (implausible)")
+        out.append({"effect": cand.name, "params": params, "bound_hits": hits})
+    return out
+
+
+def _overlap(design: Design, a: Candidate, b: Candidate) -> float:
+    """How much of b's best fit to the residual a's columns can reproduce (0..1)."""
+    ones = np.ones(design.n_blocks)
+    mb = Model(design, [b])
+    pb = design.predict([b], mb.fit(ones))
+    target = {c: pb[:, i] for i, c in enumerate(design.channels)}
+    sub = Design(target, design.channels, 1.0 / np.sqrt(design.w), design.mask > 0, design.n_blocks)
+    ma = Model(sub, [_rebind(a)])
+    sse = ma.block_sse(ma.fit(ones)).sum()
+    return float(1.0 - sse / max(sub.yy.sum(), 1e-12))
+
+
+def _rebind(c: Candidate) -> Candidate:
+    """A copy of a candidate (the Design caches columns by object identity)."""
+    return dataclasses.replace(c)
+
+
+# --------------------------------------------------------------------------------------------
+# The audit of the nominal model's own terms
+# --------------------------------------------------------------------------------------------
+
+def _term_candidate(rep: Replay, name: str, torque: Array, channels: tuple[str, ...] = ("tau", "cmd")
+                    ) -> Candidate:
+    """A fixed change of the model's torque prediction by `torque` (T, 7) in `channels` and dq."""
+    off: dict[str, Array] = {}
+    for c in channels:
+        if c in rep.residual:
+            off[c] = torque
+    if "dq" in rep.residual:
+        off["dq"] = -rep.forward(torque)
+    return Candidate(name, {}, {}, off, [], np.zeros((0, 2)), lambda coef: {})
+
+
+def _audit_verdict(change: str, after: float, before: float) -> str:
+    better = after < before * 0.98
+    if change.startswith("with "):  # a term the model leaves out, put in
+        return "the log asks for it: the model is missing it" if better else "the model is right to leave it out"
+    if change.startswith("without "):
+        return "the model makes the fit worse here" if better else "the model term is supported"
+    return "the log fits the alternative better" if better else "the model's choice is supported"
+
+
+def _arm_audit(rep: Replay, design: Design, folds, base_sse: Array, excess0: float, n_rows: Array
+               ) -> list[dict[str, Any]]:
+    terms = rep.terms
+    items = [("without the joint damping", -terms.damping, ("tau", "cmd"))]
+    if rep.rotor_in_tau:
+        items.append(("without the reflected rotor inertia", -terms.rotor, ("tau", "cmd")))
+    else:
+        items.append(("without the reflected rotor inertia (motor side)", -terms.rotor, ("cmd",)))
+        items.append(("with the reflected rotor inertia in the measured torque", terms.rotor, ("tau",)))
+    ee = rep.model.end_effector
+    for other in END_EFFECTORS:
+        if other == ee or (other.startswith("hand+gear") and not ee.startswith("hand")):
+            continue
+        if other.startswith("hand+gear") and other != "hand+gear_medium" and ee != "hand":
+            continue
+        alt = ArmModel(other).terms(rep.q, rep.dq, rep.ddq)
+        items.append((f"end effector {other!r} instead of {ee!r}", alt.rigid - terms.rigid, ("tau", "cmd")))
+    out = []
+    base = base_sse.sum() / n_rows.sum()
+    for label, torque, chans in items:
+        if not np.any(torque) or not any(ch in rep.residual for ch in chans):
+            continue
+        s = _score(design, [_term_candidate(rep, label, torque, chans)], folds)
+        e = s.sse.sum() / n_rows.sum()
+        out.append({"change": label, "heldout_before": base, "heldout_after": float(e),
+                    "closed": float((base - e) / max(excess0, 1e-12)),
+                    "verdict": _audit_verdict(label, e, base)})
+    out.sort(key=lambda r: r["heldout_after"])
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# How far
+# --------------------------------------------------------------------------------------------
+
+def _heldout_prediction(design: Design, scored: _Scored, folds) -> Array:
+    pred = np.zeros_like(design.y)
+    for fold, theta in zip(folds, scored.thetas):
+        rows = np.zeros(design.y.shape[0], dtype=bool)
+        for b in fold:
+            start = design.starts[b]
+            stop = design.starts[b + 1] if b + 1 < design.n_blocks else design.y.shape[0]
+            rows[start:stop] = True
+        if scored.cands:
+            pred[rows] = design.predict(scored.cands, theta)[rows]
+    return pred
+
+
+def _how_far(ev: Evidence, design: Design, floor: Array, pred: Array) -> dict[str, Any]:
+    y = design.y
+    after = y - pred
+    valid = ev.valid
+    phase = ev.phase
+
+    def table(mask: NDArray[np.bool_]) -> dict[str, Any]:
+        b = _rms_table(y, floor, mask.astype(float))["rms"]
+        a = _rms_table(after, floor, mask.astype(float))["rms"]
+        gap = b - floor
+        closed = np.where(gap > 0.05 * floor, (b - a) / np.maximum(gap, 1e-12), np.nan)
+        return {"before": b.tolist(), "after": a.tolist(), "floor": floor.tolist(), "closed": closed.tolist()}
+
+    per_phase = {}
+    for k, name in enumerate(PHASES):
+        m = (phase == k) & valid
+        if m.sum() >= 10:
+            per_phase[name] = table(m)
+    overall = table(valid)
+    wb = np.einsum("tcj,cj->", y[valid] ** 2, design.w) / (valid.sum() * y.shape[1] * 7)
+    wa = np.einsum("tcj,cj->", after[valid] ** 2, design.w) / (valid.sum() * y.shape[1] * 7)
+    # the RMS gap toward the floor (1 in these units), the after-RMS taken no lower than the floor;
+    # None where there is no gap to close (the RMS within 2 % of the floor)
+    b, a = np.sqrt(wb), max(np.sqrt(wa), 1.0)
+    closed = None if b < 1.02 else float(min((b - a) / (b - 1.0), 1.0))
+    return {"overall": overall, "phases": per_phase, "weighted_before": float(wb), "weighted_after": float(wa),
+            "closed_total": closed}
+
+
+# --------------------------------------------------------------------------------------------
+# The diagnosis
+# --------------------------------------------------------------------------------------------
+
+def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Evidence:
+    """The arm's evidence: the replay's channels, its state regions, the catalogue's arm effects."""
+    c = config or DiagnosisConfig()
+    rep = replay(log, c.replay)
+    phase = rep.log.phase if rep.log.phase is not None else np.zeros(rep.log.n_samples, dtype=np.int64)
+    labels = {ch: [f"joint {j + 1}" for j in range(7)] for ch in rep.channels}
+    return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
+                    pool=candidates(rep, c.effects), audit=functools.partial(_arm_audit, rep), x=rep.log.dq,
+                    x_label="dq [rad/s]", time=rep.log.time, meta=dict(log.meta), floor_min=dict(ARM_FLOOR_MIN))
+
+
+def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None
+             ) -> Diagnosis:
+    """Answer where, which and how far for an arm log (see the module docstring)."""
+    say = progress or (lambda what, i, n: None)
+    say("replay", 0, 1)
+    return analyse(arm_evidence(log, config), config, progress)
+
+
+def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progress | None = None) -> Diagnosis:
+    """The three answers from a replayed log's evidence (any model: arm or station)."""
+    c = config or DiagnosisConfig()
+    say = progress or (lambda what, i, n: None)
+    rng = np.random.default_rng(c.seed)
+    chans = tuple(ch for ch in ("tau", "cmd", "ctrl", "dq", "tool") if ch in ev.residual)
+    y = np.stack([ev.residual[ch] for ch in chans], axis=1)
+    floor = noise_floor(y.reshape(len(y), -1), ev.valid).reshape(len(chans), 7)
+    for i, ch in enumerate(chans):
+        floor[i] = np.maximum(floor[i], ev.floor_min.get(ch, 0.0))
+    design = Design(ev.residual, chans, floor, ev.valid, c.blocks)
+    folds = _folds(design, c.folds)
+    n_rows = design.count
+    where = _where(ev, design, floor)
+
+    base = _score(design, [], folds)
+    e0 = base.sse.sum() / n_rows.sum()
+    excess0 = max(e0 - 1.0, 0.0)
+
+    say("effects", 0, 1)
+    pool = ev.pool
+    ranking = []
+    best_single: dict[str, Candidate] = {}
+    for i, (name, options) in enumerate(pool.items()):
+        say("effects", i, len(pool))
+        cand = _best_setting(design, options, [])
+        best_single[name] = cand
+        s = _score(design, [cand], folds)
+        e = s.sse.sum() / n_rows.sum()
+        diff = (base.sse - s.sse) / np.maximum(n_rows, 1)
+        lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
+        ranking.append({"effect": name, "setting": cand.setting, "heldout": float(e),
+                        "gain": float(e0 - e), "gain_low": lo, "gain_high": hi,
+                        "closed": float((e0 - e) / max(excess0, 1e-12)),
+                        "significant": bool(lo > 0)})
+    say("effects", len(pool), len(pool))
+    ranking.sort(key=lambda r: -r["gain"])
+
+    # forward selection
+    say("selection", 0, 1)
+    chosen: list[Candidate] = []
+    current = base
+    steps = []
+    while len(chosen) < c.max_effects:
+        best = None
+        for name in pool:
+            if any(x.name == name for x in chosen):
+                continue
+            cand = _best_setting(design, pool[name], chosen) if len(pool[name]) > 1 else best_single[name]
+            s = _score(design, chosen + [cand], folds)
+            if best is None or s.sse.sum() < best[1].sse.sum():
+                best = (cand, s)
+        if best is None:
+            break
+        cand, s = best
+        diff = (current.sse - s.sse) / np.maximum(n_rows, 1)
+        lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
+        gain = float((current.sse.sum() - s.sse.sum()) / n_rows.sum())
+        if lo <= 0 or gain < max(c.min_gain * excess0, c.min_gain_abs):
+            break
+        chosen.append(cand)
+        steps.append({"effect": cand.name, "setting": cand.setting, "gain": gain, "gain_low": lo, "gain_high": hi,
+                      "heldout_after": float(s.sse.sum() / n_rows.sum())})
+        current = s
+    say("selection", 1, 1)
+
+    selected = []
+    if chosen:
+        fitted = _params_with_intervals(design, chosen, min(c.bootstrap, 200), rng)
+        for step, fit in zip(steps, fitted):
+            selected.append({**step, **fit, "meaning": CATALOGUE[step["effect"]].meaning,
+                             "place": CATALOGUE[step["effect"]].place})
+
+    # identifiability: significant single effects that the selection's first effects reproduce
+    warnings = []
+    sig = [r for r in ranking if r["significant"] and r["closed"] > 0.1]
+    for r in sig:
+        if any(x.name == r["effect"] for x in chosen):
+            continue
+        for x in chosen:
+            ov = _overlap(design, x, best_single[r["effect"]])
+            if ov > 0.5:
+                warnings.append(f"{r['effect']} alone closes {100 * r['closed']:.0f} % of the excess, but "
+                                f"{x.name} reproduces {100 * ov:.0f} % of its fit: the log cannot tell them "
+                                "apart well (the selection kept " + x.name + ")")
+                break
+
+    say("audit", 0, 1)
+    audit = ev.audit(design, folds, base.sse, excess0, n_rows) if ev.audit is not None else []
+    say("audit", 1, 1)
+    pred = _heldout_prediction(design, current, folds)
+    how_far = _how_far(ev, design, floor, pred)
+
+    e_final = current.sse.sum() / n_rows.sum()
+    closed = (e0 - e_final) / max(excess0, 1e-12)
+    noise_only = excess0 < 0.05 or ranking == [] or (not any(r["significant"] for r in ranking) and excess0 < 0.2)
+    if noise_only and not chosen:
+        verdict = {"label": "no gap", "text": "the residual is at the noise floor: no excess to explain",
+                   "closed": 0.0}
+    elif not chosen:
+        verdict = {"label": "unexplained", "closed": 0.0,
+                   "text": f"the residual exceeds the noise floor ({e0:.2f} noise variances) and no catalogue "
+                           "effect closes a significant part of it on held-out data"}
+    elif closed < c.explained:
+        verdict = {"label": "unexplained", "closed": float(closed),
+                   "text": f"{', '.join(x.name for x in chosen)} close{'s' if len(chosen) == 1 else ''} "
+                           f"{100 * closed:.0f} % of the held-out excess; the rest ({e_final:.2f} noise "
+                           "variances) has structure no catalogue effect explains",
+                   "partial": [x.name for x in chosen]}
+    else:
+        verdict = {"label": "explained", "closed": float(closed), "effects": [x.name for x in chosen],
+                   "text": f"{', '.join(x.name for x in chosen)} close{'s' if len(chosen) == 1 else ''} "
+                           f"{100 * closed:.0f} % of the held-out "
+                           "excess over the noise floor"}
+    verdict["heldout_before"] = float(e0)
+    verdict["heldout_after"] = float(e_final)
+
+    meta = {k: v for k, v in ev.meta.items() if k != "truth"}
+    arrays = {"residual": design.y, "after": design.y - pred, "floor": floor, "x": ev.x,
+              "time": ev.time, "valid": ev.valid}
+    return Diagnosis(log_meta=meta, channels=chans, where=where, audit=audit, ranking=ranking,
+                     selected=selected, warnings=warnings, how_far=how_far, verdict=verdict, arrays=arrays,
+                     labels=ev.labels, x_label=ev.x_label)

@@ -1,0 +1,311 @@
+"""What each catalogue effect predicts for a replayed log's residual channels.
+
+An effect at one setting of its nonlinear parameters (a friction's smoothing velocity, a delay, a
+saturation level, a backlash width) is a `Candidate`: a fixed prediction `offset` plus linear
+`features` whose coefficients the fit chooses. The prediction is what the effect adds to the
+residual "measured minus nominal" of each channel (sim2real/replay.py):
+- a dynamics effect's torque G (the extra torque the joint needs) adds G to "tau" and "cmd" and
+  -forward(G) to "dq";
+- a sensing effect adds its reading error to "tau" only;
+- an actuation effect that delivers A(c) for the command c adds c - A(c) to "cmd" and
+  forward(A(c) - c) to "dq";
+- a controller effect adds its extra command to "ctrl".
+`to_params` turns the fitted coefficients back into the catalogue's parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from assembly.panda_model import TAU_MAX
+from sim2real.catalogue import CATALOGUE, effect
+from sim2real.replay import Replay
+
+__all__ = ["Candidate", "candidates", "backlash_delivered", "FITTABLE", "STRIBECK_SIGN_VELOCITY",
+           "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
+
+STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
+# The backlash transmission (sim2real/reality.py simulates the same one): the motor side holds
+# this fraction of the reflected inertia; the engaged gear mesh is a spring-damper.
+BACKLASH_MOTOR_FRACTION = 0.5
+BACKLASH_STIFFNESS = 2.0e4  # [N m/rad]
+BACKLASH_DAMPING = 100.0  # [N m s/rad]
+BACKLASH_MOTOR_INERTIA_MIN = 1.0e-3  # [kg m^2]
+N = 7
+
+Array = NDArray[np.float64]
+
+
+@dataclasses.dataclass
+class Candidate:
+    """One effect at one setting: prediction = offset[channel] + features[channel] @ coef.
+
+    features[channel]: (T, 7, P); offset[channel]: (T, 7) or absent (zero); names: the P
+    coefficients' names; bounds: (P, 2); to_params(coef) -> the catalogue parameters."""
+
+    name: str
+    setting: dict[str, float]
+    features: dict[str, Array]
+    offset: dict[str, Array]
+    names: list[str]
+    bounds: Array
+    to_params: Callable[[Array], dict[str, float | list[float]]]
+
+    @property
+    def n_coef(self) -> int:
+        return len(self.names)
+
+
+def _diag(x: Array) -> Array:
+    """(T, 7) per-joint feature -> (T, 7, 7) with joint j's feature in column j."""
+    out = np.zeros(x.shape + (N,))
+    idx = np.arange(N)
+    out[:, idx, idx] = x
+    return out
+
+
+def _route(rep: Replay, place: str, torque: Array) -> dict[str, Array]:
+    """A per-unit torque (T, 7, P) of `place` routed into the replay's channels ("motor": a
+    dynamics term on the motor side of a link-side torque sensor)."""
+    out: dict[str, Array] = {}
+    chans = rep.channels
+    if place == "motor" and rep.rotor_in_tau:
+        place = "dynamics"
+    if place in ("dynamics", "motor"):
+        for c in (("tau", "cmd") if place == "dynamics" else ("cmd",)):
+            if c in chans:
+                out[c] = torque
+        if "dq" in chans:
+            out["dq"] = -np.stack([rep.forward(torque[..., p]) for p in range(torque.shape[-1])], axis=-1)
+    elif place == "sensing":
+        if "tau" in chans:
+            out["tau"] = torque
+    elif place == "actuation":  # torque = c - A(c)
+        if "cmd" in chans:
+            out["cmd"] = torque
+        if "dq" in chans:
+            out["dq"] = np.stack([rep.forward(torque[..., p]) for p in range(torque.shape[-1])], axis=-1)
+    elif place == "controller":
+        if "ctrl" in chans:
+            out["ctrl"] = torque
+    return out
+
+
+def _per_joint(name: str, param: str, value: Callable[[Array], Array] = lambda c: c
+               ) -> tuple[list[str], Callable[[Array], dict[str, float | list[float]]]]:
+    names = [f"{param}[{j + 1}]" for j in range(N)]
+    return names, lambda coef: {param: [float(v) for v in value(np.asarray(coef))]}
+
+
+def _bounds(name: str, param: str, shift: float = 0.0, count: int = N) -> Array:
+    p = effect(name).param(param)
+    return np.tile([p.low - shift, p.high - shift], (count, 1)).astype(float)
+
+
+def _friction(rep: Replay, name: str, shape: Array, pname: str, setting: dict[str, float],
+              extra: dict[str, float]) -> Candidate:
+    names, to_params = _per_joint(name, pname)
+    feats = _route(rep, "dynamics", _diag(shape))
+    return Candidate(name, setting, feats, {}, names, _bounds(name, pname),
+                     lambda coef: {**to_params(coef), **extra})
+
+
+def _coulomb(rep: Replay) -> list[Candidate]:
+    dq = rep.dq
+    return [_friction(rep, "coulomb", np.tanh(dq / vs), "fc", {"v_smooth": vs}, {"v_smooth": vs})
+            for vs in (0.005, 0.01, 0.02, 0.04, 0.08, 0.15, 0.3, 0.5)]
+
+
+def _stribeck(rep: Replay) -> list[Candidate]:
+    dq = rep.dq
+    sign = np.tanh(dq / STRIBECK_SIGN_VELOCITY)
+    return [_friction(rep, "stribeck", np.exp(-(dq / vs) ** 2) * sign, "fs", {"vs": vs}, {"vs": vs})
+            for vs in (0.01, 0.02, 0.05, 0.1, 0.2, 0.4)]
+
+
+def _viscous(rep: Replay) -> list[Candidate]:
+    names, to_params = _per_joint("viscous", "fv")
+    return [Candidate("viscous", {}, _route(rep, "dynamics", _diag(rep.dq)), {}, names,
+                      _bounds("viscous", "fv"), to_params)]
+
+
+def _rotor(rep: Replay) -> list[Candidate]:
+    names, to_params = _per_joint("rotor_inertia", "dI")
+    b = _bounds("rotor_inertia", "dI")
+    b[:, 0] = np.maximum(b[:, 0], -rep.model.reflected_inertia)  # total inertia stays >= 0
+    return [Candidate("rotor_inertia", {}, _route(rep, "motor", _diag(rep.ddq)), {}, names, b, to_params)]
+
+
+def _payload(rep: Replay) -> list[Candidate]:
+    """A point mass dm with first moment h = dm com at the flange (its own rotational inertia
+    about its centre neglected): the flange wrench m a + alpha x h + w x (w x h), h x a, mapped
+    through the flange Jacobian; linear in (dm, h)."""
+    log = rep.log
+    J, w, alpha, a = rep.model.flange_kinematics(rep.q, rep.dq, rep.ddq)
+    cols = []
+    wrench = np.zeros((log.n_samples, 6))
+    wrench[:, 3:] = a
+    cols.append(np.einsum("tki,tk->ti", J, wrench))
+    for axis in range(3):
+        e = np.zeros(3)
+        e[axis] = 1.0
+        wrench = np.zeros((log.n_samples, 6))
+        wrench[:, :3] = np.cross(np.broadcast_to(e, a.shape), a)
+        wrench[:, 3:] = np.cross(alpha, e) + np.cross(w, np.cross(w, np.broadcast_to(e, w.shape)))
+        cols.append(np.einsum("tki,tk->ti", J, wrench))
+    torque = np.stack(cols, axis=-1)
+    spec = effect("payload")
+    dm_b = (spec.param("dm").low, spec.param("dm").high)
+    hmax = max(abs(dm_b[0]), abs(dm_b[1])) * 0.25
+    bounds = np.array([dm_b, (-hmax, hmax), (-hmax, hmax), (-hmax, hmax)], dtype=float)
+
+    def to_params(coef: Array) -> dict[str, float | list[float]]:
+        dm = float(coef[0])
+        com = coef[1:] / dm if abs(dm) > 1e-6 else np.zeros(3)
+        return {"dm": dm, "com_x": float(com[0]), "com_y": float(com[1]), "com_z": float(com[2])}
+
+    return [Candidate("payload", {}, _route(rep, "dynamics", torque), {}, ["dm", "hx", "hy", "hz"],
+                      bounds, to_params)]
+
+
+def _offset(rep: Replay) -> list[Candidate]:
+    names, to_params = _per_joint("torque_offset", "offset")
+    ones = np.ones((rep.log.n_samples, N))
+    return [Candidate("torque_offset", {}, _route(rep, "sensing", _diag(ones)), {}, names,
+                      _bounds("torque_offset", "offset"), to_params)]
+
+
+def _command(rep: Replay) -> Array | None:
+    return rep.tau_cmd
+
+
+def _shift(x: Array, steps: float) -> Array:
+    """x(t - steps samples) with linear interpolation, the first value held before the start."""
+    T = x.shape[0]
+    src = np.arange(T) - steps
+    return np.stack([np.interp(src, np.arange(T), x[:, j]) for j in range(x.shape[1])], axis=1)
+
+
+def _delay(rep: Replay) -> list[Candidate]:
+    c = _command(rep)
+    if c is None:
+        return []
+    out = []
+    for d in (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03):
+        diff = c - _shift(c, d / rep.dt)  # c - A(c)
+        off = _route(rep, "actuation", diff[..., None])
+        out.append(Candidate("actuation_delay", {"delay": d}, {}, {k: v[..., 0] for k, v in off.items()},
+                             [], np.zeros((0, 2)), lambda coef, d=d: {"delay": d}))
+    return out
+
+
+def _gain(rep: Replay) -> list[Candidate]:
+    c = _command(rep)
+    if c is None:
+        return []
+    # c - k c = -(k - 1) c: coefficient (k - 1)
+    names, to_params = _per_joint("torque_gain", "k", lambda coef: 1.0 + coef)
+    return [Candidate("torque_gain", {}, _route(rep, "actuation", _diag(-c)), {}, names,
+                      _bounds("torque_gain", "k", shift=1.0), to_params)]
+
+
+def _saturation(rep: Replay) -> list[Candidate]:
+    c = _command(rep)
+    if c is None:
+        return []
+    peak = np.max(np.abs(c) / TAU_MAX)
+    out = []
+    for s in (0.05, 0.08, 0.12, 0.17, 0.25, 0.35, 0.5, 0.7):
+        if s >= peak:
+            break
+        diff = c - np.clip(c, -s * TAU_MAX, s * TAU_MAX)
+        off = _route(rep, "actuation", diff[..., None])
+        out.append(Candidate("torque_saturation", {"s": s}, {}, {k: v[..., 0] for k, v in off.items()},
+                             [], np.zeros((0, 2)), lambda coef, s=s: {"s": s}))
+    return out
+
+
+def backlash_delivered(command: Array, q: Array, dq: Array, dt: float, b: float,
+                       motor_inertia: Array, stiffness: float, damping: float) -> Array:
+    """Torque a two-mass transmission with a dead band of width b delivers to the joint.
+
+    The motor (inertia `motor_inertia`, (7,)) is driven by `command` (T, 7); the link follows the
+    logged q, dq; the transmission torque is stiffness * dz(theta_m - q) + damping * (dtheta_m -
+    dq) while engaged (dz: the dead zone of half width b / 2), zero inside the band. Integrated
+    semi-implicitly with substeps so that the stiff contact is stable."""
+    T = command.shape[0]
+    half = b / 2.0
+    theta = q[0] + np.sign(command[0]) * (half + np.abs(command[0]) / stiffness)  # engaged, holding
+    omega = dq[0].copy()
+    out = np.empty_like(command)
+    sub = max(1, int(np.ceil(dt / (0.2 * np.sqrt(np.min(motor_inertia) / stiffness)))))
+    h = dt / sub
+    for t in range(T):
+        for i in range(sub):
+            gap = theta - (q[t] + dq[t] * (i * h))  # the link moves on within the tick
+            dz = np.where(gap > half, gap - half, np.where(gap < -half, gap + half, 0.0))
+            engaged = dz != 0.0
+            torque = stiffness * dz + engaged * damping * (omega - dq[t])
+            omega = omega + h * (command[t] - torque) / motor_inertia
+            theta = theta + h * omega
+        out[t] = torque
+    return out
+
+
+def _backlash(rep: Replay) -> list[Candidate]:
+    c = _command(rep)
+    if c is None:
+        return []
+    motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
+    out = []
+    for b in (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02):
+        delivered = backlash_delivered(c, rep.q, rep.dq, rep.dt, b, motor,
+                                       BACKLASH_STIFFNESS, BACKLASH_DAMPING)
+        # the command's excess over the model: what the motor's own inertia takes (c - mesh) beyond
+        # the nominal rotor term's motor share (motor * ddq)
+        off = _route(rep, "actuation", (c - delivered - motor * rep.ddq)[..., None])
+        out.append(Candidate("backlash", {"b": b}, {}, {k: v[..., 0] for k, v in off.items()},
+                             [], np.zeros((0, 2)), lambda coef, b=b: {"b": b}))
+    return out
+
+
+def _controller(rep: Replay) -> list[Candidate]:
+    ctrl = rep.log.meta.get("controller")
+    if "ctrl" not in rep.residual or not isinstance(ctrl, dict):
+        return []
+    log = rep.log
+    kp = np.asarray(ctrl["kp"], dtype=float)
+    kd = np.asarray(ctrl["kd"], dtype=float)
+    feats = np.concatenate([_diag(kp * (log.q_cmd - log.q)), _diag(kd * (log.dq_cmd - log.dq))], axis=-1)
+    names = [f"kp_scale[{j + 1}]" for j in range(N)] + [f"kd_scale[{j + 1}]" for j in range(N)]
+    bounds = np.concatenate([_bounds("controller_gain", "kp_scale", 1.0), _bounds("controller_gain", "kd_scale", 1.0)])
+
+    def to_params(coef: Array) -> dict[str, float | list[float]]:
+        return {"kp_scale": [float(1 + v) for v in coef[:N]], "kd_scale": [float(1 + v) for v in coef[N:]]}
+
+    return [Candidate("controller_gain", {}, _route(rep, "controller", feats), {}, names, bounds, to_params)]
+
+
+#: The effects a replayed arm log can be fitted with, and how to make their candidates.
+FITTABLE: dict[str, Callable[[Replay], list[Candidate]]] = {
+    "coulomb": _coulomb, "stribeck": _stribeck, "viscous": _viscous, "rotor_inertia": _rotor,
+    "payload": _payload, "torque_offset": _offset, "actuation_delay": _delay, "torque_gain": _gain,
+    "torque_saturation": _saturation, "backlash": _backlash, "controller_gain": _controller,
+}
+assert set(FITTABLE) <= set(CATALOGUE)
+
+
+def candidates(rep: Replay, names: list[str] | tuple[str, ...] | None = None) -> dict[str, list[Candidate]]:
+    """The candidates of each effect in `names` (default: every fittable effect) that the log's
+    channels can show; an effect no channel can show is left out."""
+    out: dict[str, list[Candidate]] = {}
+    for name in names or FITTABLE:
+        cands = [c for c in FITTABLE[name](rep) if c.features or c.offset]
+        cands = [c for c in cands if any(ch in rep.residual for ch in (*c.features, *c.offset))]
+        if cands:
+            out[name] = cands
+    return out

@@ -1,0 +1,192 @@
+"""Replay a log against the nominal arm model: the residual channels the diagnosis works on.
+
+A channel is one signal compared with what the model predicts for it, per joint:
+- "tau": the measured joint torque against inverse dynamics at the logged motion (torque logs);
+  a link-side torque (Franka's tau_J, the default) holds no reflected rotor inertia;
+- "cmd": the commanded torque against the same inverse dynamics (actuation effects show here);
+- "ctrl": the commanded torque against the control law in meta["controller"] evaluated at the
+  logged reference and state (controller effects show here);
+- "dq": k-step forward replay for state logs: from each logged state the model integrates the
+  commanded torque for k samples (re-synchronised to the log every k samples) and the predicted
+  velocity is compared with the logged one.
+Accelerations come from a Savitzky-Golay derivative of the logged velocity on a uniform grid.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import savgol_filter
+
+from common.checks import check_choice
+from common.errors import InputError
+from sim2real.arm import ArmModel, ArmTerms
+from sim2real.log import RobotLog
+
+__all__ = ["ReplayConfig", "Replay", "replay", "uniform", "CHANNELS"]
+
+CHANNELS: tuple[str, ...] = ("tau", "cmd", "ctrl", "dq")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayConfig:
+    """derivative_window: Savitzky-Golay window [s] for ddq (cubic); forward_steps: k of the
+    k-step forward replay; end_effector: override of the log's meta["end_effector"];
+    rotor_in_tau: whether the measured torque includes the reflected rotor inertia's torque
+    (None: as meta["torque_side"] says, "link" (default, Franka's tau_J) excludes it: the
+    sensor sits between the gearbox and the link, the rotor before it); torque_hold: "zoh" (a
+    torque sample holds over the period after it, as in a 1 kHz torque loop: the model is
+    evaluated at the period's midpoint) or "sample" (at the sample instant)."""
+
+    derivative_window: float = 0.041
+    forward_steps: int = 20
+    end_effector: str | None = None
+    rotor_in_tau: bool | None = None
+    torque_hold: str = "zoh"
+
+
+@dataclasses.dataclass
+class Replay:
+    """A log on a uniform time grid with the nominal model evaluated on it.
+
+    residual[channel]: (T, 7) measured minus predicted; base[channel]: the nominal prediction's
+    pieces the effects build on (see sim2real/effects.py). valid: (T,) samples away from the
+    ends (the derivative filter's half window and the forward horizon) that the fits use."""
+
+    log: RobotLog
+    dt: float
+    q: NDArray[np.float64]  # the motion where the torques apply (midpoints under "zoh")
+    dq: NDArray[np.float64]
+    ddq: NDArray[np.float64]
+    terms: ArmTerms
+    model: ArmModel
+    residual: dict[str, NDArray[np.float64]]
+    valid: NDArray[np.bool_]
+    forward_steps: int
+    tau_cmd: NDArray[np.float64] | None
+    law: NDArray[np.float64] | None
+    rotor_in_tau: bool = False
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return tuple(c for c in CHANNELS if c in self.residual)
+
+    def forward(self, torque: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The k-step integral of M_total^-1 torque dt (T, 7): how a torque perturbation of the
+        joint balance moves the "dq" channel's prediction (sample t holds the sum since the last
+        re-synchronisation)."""
+        Minv = self._inverse_mass()
+        acc = np.einsum("tij,tj->ti", Minv, torque) * self.dt
+        out = np.zeros_like(acc)
+        k = self.forward_steps
+        T = acc.shape[0]
+        for start in range(0, T, k):  # re-synchronised to the log at each window's start
+            seg = np.cumsum(acc[start:start + k], axis=0)
+            out[start + 1:start + len(seg)] = seg[:-1]
+        return out
+
+    def _inverse_mass(self) -> NDArray[np.float64]:
+        if not hasattr(self, "_minv"):
+            M = self.terms.mass + np.eye(7)[None] * self.model.reflected_inertia[None, :, None]
+            self._minv = np.linalg.inv(M)
+        return self._minv
+
+
+def uniform(log: RobotLog) -> RobotLog:
+    """The log resampled (linear interpolation) onto a uniform grid at its median sample period,
+    so that filters and delays mean the same time everywhere; a uniform log is returned as is."""
+    t = log.time
+    dt = float(np.median(np.diff(t)))
+    if np.allclose(np.diff(t), dt, rtol=1e-6, atol=1e-9):
+        return log
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
+    fields = {}
+    for f in dataclasses.fields(RobotLog):
+        v = getattr(log, f.name)
+        if f.name in ("time", "meta") or v is None:
+            continue
+        if f.name == "phase":
+            idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+            fields[f.name] = v[idx]
+            continue
+        flat = v.reshape(len(t), -1)
+        fields[f.name] = np.stack([np.interp(grid, t, flat[:, j]) for j in range(flat.shape[1])],
+                                  axis=1).reshape((len(grid),) + v.shape[1:])
+    meta = dict(log.meta)
+    meta["resampled"] = {"from_samples": len(t), "period": dt}
+    return RobotLog(time=grid, meta=meta, **fields)
+
+
+def _controller_law(log: RobotLog, terms_ref: ArmTerms | None) -> NDArray[np.float64] | None:
+    ctrl = log.meta.get("controller")
+    if not isinstance(ctrl, dict) or log.q_cmd is None or log.dq_cmd is None or terms_ref is None:
+        return None
+    kp = np.asarray(ctrl.get("kp", []), dtype=float)
+    kd = np.asarray(ctrl.get("kd", []), dtype=float)
+    if kp.shape != (7,) or kd.shape != (7,):
+        raise InputError(f"meta controller gains kp {kp.shape}, kd {kd.shape}; expected 7 each")
+    return terms_ref.total + kp * (log.q_cmd - log.q) + kd * (log.dq_cmd - log.dq)
+
+
+def _gravity(model: ArmModel, q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The model's gravity torque g(q) (T, 7) (the torque that holds the arm still)."""
+    zeros = np.zeros_like(q)
+    return model.terms(q, zeros, zeros).rigid
+
+
+def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
+    """Replay `log` (any sample spacing; resampled to uniform) against the nominal arm model with
+    the log's end effector; returns the residual channels the log's signals allow."""
+    c = config or ReplayConfig()
+    log = uniform(log)
+    dt = float(log.time[1] - log.time[0])
+    window = max(5, int(round(c.derivative_window / dt)) | 1)
+    if log.n_samples < 4 * window:
+        raise InputError(f"log has {log.n_samples} samples; expected at least {4 * window} "
+                         f"(4 derivative windows of {c.derivative_window} s)")
+    ee = c.end_effector or log.meta.get("end_effector", "hand")
+    model = ArmModel(ee)
+    check_choice(c.torque_hold, ("zoh", "sample"), "ReplayConfig.torque_hold")
+    q_t = log.q
+    dq_s = savgol_filter(log.dq, window, 3, axis=0)
+    ddq = savgol_filter(log.dq, window, 3, deriv=1, delta=dt, axis=0)
+    if c.torque_hold == "zoh":  # the model at each hold period's midpoint
+        q_t, dq_s, ddq = (np.concatenate([0.5 * (x[:-1] + x[1:]), x[-1:]]) for x in (q_t, dq_s, ddq))
+    terms = model.terms(q_t, dq_s, ddq)
+    residual: dict[str, NDArray[np.float64]] = {}
+    rotor_in_tau = (log.meta.get("torque_side", "link") == "motor") if c.rotor_in_tau is None else c.rotor_in_tau
+    if log.tau is not None:
+        residual["tau"] = log.tau - terms.total + (0.0 if rotor_in_tau else terms.rotor)
+    law = None
+    terms_ref = None
+    if log.q_cmd is not None and log.dq_cmd is not None and isinstance(log.meta.get("controller"), dict):
+        ddq_cmd = savgol_filter(log.dq_cmd, window, 3, deriv=1, delta=dt, axis=0)
+        terms_ref = model.terms(log.q_cmd, log.dq_cmd, ddq_cmd)
+        law = _controller_law(log, terms_ref)
+    commanded = log.tau_cmd
+    if commanded is not None and log.meta.get("tau_cmd_gravity", "included") == "excluded":
+        # libfranka's tau_d: the robot adds its own gravity compensation; ours is the model's
+        commanded = commanded + _gravity(model, log.q)
+    tau_cmd = commanded if commanded is not None else law
+    if commanded is not None:
+        residual["cmd"] = commanded - terms.total
+        if law is not None:
+            residual["ctrl"] = commanded - law
+    rep = Replay(log=log, dt=dt, q=q_t, dq=dq_s, ddq=ddq, terms=terms, model=model, residual=residual,
+                 valid=np.ones(log.n_samples, dtype=bool), forward_steps=c.forward_steps,
+                 tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau)
+    if log.tau is None and tau_cmd is not None:
+        # state log: from each re-synchronisation the model integrates its own acceleration
+        # M_total^-1 (tau_cmd - h); the logged velocity integrates the logged one. Their
+        # difference after i samples is the sum of M_total^-1 (tau_cmd - total) dt, linearised
+        # about the logged states (M and h taken there); residual = logged - predicted.
+        residual["dq"] = -rep.forward(tau_cmd - terms.total)
+    if not residual:
+        raise InputError("log has none of tau, tau_cmd, or q_cmd/dq_cmd with meta controller gains; "
+                         "expected measured or commanded torques to replay")
+    half = window // 2 + max(1, c.forward_steps)
+    rep.valid[:half] = False
+    rep.valid[-half:] = False
+    return rep

@@ -1,0 +1,38 @@
+"""The station diagnosis on an insertion log with a withheld contact effect: it localises the gap
+to the contact/insertion phases, names the effect and closes the gap."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim2real.contact import diagnose_insertion
+from sim2real.station_logs import CONTACT_CASE, make_insertion_log
+
+
+def _with_sensor_noise(log, seed=0):
+    rng = np.random.default_rng(seed)
+    pose = log.tool_pose.copy()
+    pose[:, :3, 3] += 2e-5 * rng.standard_normal((log.n_samples, 3))
+    return dataclasses.replace(log, tau=log.tau + 0.05 * rng.standard_normal(log.tau.shape), tool_pose=pose,
+                               wrench=log.wrench + 0.2 * rng.standard_normal(log.wrench.shape))
+
+
+def test_shaft_friction_is_found_in_the_insertion_phase():
+    log, _ = make_insertion_log(CONTACT_CASE, gear="medium", seed=0)
+    d = diagnose_insertion(_with_sensor_noise(log), episodes=0)
+    s = d.summary()
+    assert s["where"]["dominant_phase"] in ("contact", "insertion")
+    assert s["where"]["phases"]["approach"]["excess"] < 0.05 * s["where"]["phases"]["insertion"]["excess"]
+    assert [r["effect"] for r in s["selected"]][:1] == ["shaft_friction"]
+    assert s["selected"][0]["params"]["mu"]["value"] == pytest.approx(1.0, abs=0.2)
+    assert s["verdict"]["label"] == "explained"
+    assert s["how_far"]["closed_total"] > 0.8
+
+
+def test_a_log_without_the_station_fields_is_refused():
+    log, _ = make_insertion_log({}, gear="medium", seed=0)
+    with pytest.raises(ValueError, match="tool_pose"):
+        diagnose_insertion(dataclasses.replace(log, tool_pose=None), episodes=0)

@@ -1,0 +1,127 @@
+"""The diagnosis on logs of the simulated reality whose truth is known: replay, the noise floor,
+each effect's fit, selection, the unexplained verdict, localisation and the report/CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from goflow_cli import main
+from sim2real.diagnosis import DiagnosisConfig, diagnose, noise_floor
+from sim2real.log import save_log
+from sim2real.reality import RealityConfig, make_arm_log
+from sim2real.replay import replay, uniform
+from sim2real.validation import MAGNITUDES, Case, ripple_torque, run_case
+
+DURATION = 6.0
+
+
+@pytest.fixture(scope="module")
+def nominal_log():
+    return make_arm_log({}, RealityConfig(duration=DURATION, seed=3))
+
+
+def test_nominal_log_is_at_the_noise_floor(nominal_log):
+    d = diagnose(nominal_log)
+    assert d.verdict["label"] == "no gap", d.verdict
+    assert d.verdict["heldout_before"] < 1.5
+    assert d.selected == []
+
+
+def test_noise_floor_recovers_white_noise_under_a_slow_signal():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 10, 10_000)
+    r = np.stack([np.sin(2 * np.pi * 0.3 * t) + 0.05 * rng.standard_normal(len(t)),
+                  0.2 * rng.standard_normal(len(t))], axis=1)
+    floor = noise_floor(r, np.ones(len(t), dtype=bool))
+    assert floor == pytest.approx([0.05, 0.2], rel=0.1)
+
+
+def test_uniform_resamples_jittered_time(nominal_log):
+    t = nominal_log.time.copy()
+    t[1::2] += 0.0002  # jitter
+    jittered = dataclasses.replace(nominal_log, time=t)
+    out = uniform(jittered)
+    assert np.allclose(np.diff(out.time), np.diff(out.time)[0])
+    assert out.q.shape[1] == 7
+
+
+def test_the_replay_has_the_channels_the_log_allows(nominal_log):
+    rep = replay(nominal_log)
+    assert set(rep.channels) == {"tau", "cmd", "ctrl"}
+    state_only = dataclasses.replace(nominal_log, tau=None)
+    assert "dq" in replay(state_only).channels
+
+
+# backlash is not named yet (docs/sim2real.md, "Validation"): its open-loop transmission model
+# does not reproduce the closed-loop dead-band crossings of the simulated reality
+@pytest.mark.parametrize("effect", sorted(set(MAGNITUDES) - {"backlash"}))
+def test_leave_one_effect_out_names_the_effect(effect):
+    """The small-size leave-one-effect-out: each catalogue effect at its larger magnitude, the
+    diagnosis not told which, names it first and closes most of the gap."""
+    result = run_case(Case(f"{effect}-large", (effect,), "large", seed=1), duration=DURATION)
+    assert result["selected"][:1] == [effect], result
+    assert result["located"], result
+    assert result["closed"] > 0.5, result
+
+
+def test_fitted_values_match_the_truth():
+    log = make_arm_log({"coulomb": {"fc": [0.8] * 7}, "torque_offset": {"offset": [0.0, 0.5, 0, 0, 0, 0, -0.3]}},
+                       RealityConfig(duration=DURATION, seed=2))
+    d = diagnose(log)
+    fitted = {s["effect"]: s["params"] for s in d.selected}
+    assert set(fitted) >= {"coulomb", "torque_offset"}
+    fc = np.asarray(fitted["coulomb"]["fc"]["value"])
+    assert np.allclose(fc, 0.8, atol=0.15), fc
+    off = np.asarray(fitted["torque_offset"]["offset"]["value"])
+    assert off[1] == pytest.approx(0.5, abs=0.1) and off[6] == pytest.approx(-0.3, abs=0.1)
+    assert d.verdict["label"] == "explained"
+
+
+def test_an_effect_outside_the_catalogue_is_unexplained():
+    log = make_arm_log({}, RealityConfig(duration=DURATION, seed=4), extra_torque=ripple_torque)
+    d = diagnose(log)
+    assert d.verdict["label"] == "unexplained", d.verdict
+
+
+def test_diagnosis_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="effects"):
+        DiagnosisConfig(effects=("friction",))
+    with pytest.raises(ValueError, match="blocks"):
+        DiagnosisConfig(blocks=21, folds=5)
+
+
+def test_cli_diagnose_writes_the_report(tmp_path, nominal_log, capsys):
+    log = make_arm_log({"viscous": {"fv": [0.6] * 7}}, RealityConfig(duration=DURATION, seed=5))
+    path = save_log(log, tmp_path / "log.npz")
+    out = tmp_path / "report"
+    assert main(["diagnose", "--log", str(path), "--out", str(out)]) == 0
+    assert {"report.md", "report.json", "where.png", "ranking.png", "before_after.png",
+            "residual_vs_velocity.png"} <= {p.name for p in out.iterdir()}
+    report = json.loads((out / "report.json").read_text())
+    assert report["selected"][0]["effect"] == "viscous"
+    assert "viscous" in (out / "report.md").read_text()
+
+
+def test_cli_make_log_then_diagnose_csv(tmp_path, capsys):
+    csv = tmp_path / "log.csv"
+    assert main(["sim2real", "make-log", "--effect", "torque_offset=0.6", "--set", "duration=5",
+                 "--out", str(csv)]) == 0
+    assert main(["diagnose", "--log", str(csv), "--out", str(tmp_path / "r")]) == 0
+    report = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert report["selected"][0]["effect"] == "torque_offset"
+
+
+def test_cli_bad_input_is_one_line(tmp_path, capsys):
+    assert main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "missing.npz" in err and len(err.splitlines()) == 1
+    assert main(["sim2real", "make-log", "--effect", "coulomb=9", "--out", str(tmp_path / "x.npz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "coulomb=9" in err and "[0, 5]" in err
+    assert not (tmp_path / "x.npz").exists()
+    assert main(["sim2real", "make-log", "--effect", "friction=1", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "friction" in capsys.readouterr().err
