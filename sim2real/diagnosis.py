@@ -138,6 +138,7 @@ class Evidence:
     time: Array
     meta: dict[str, Any]
     floor_min: dict[str, float | Array] = dataclasses.field(default_factory=dict)
+    notes: list[str] = dataclasses.field(default_factory=list)
 
 
 #: The least noise floor per arm channel: a torque resolution of 1e-3 N m (a channel the model
@@ -412,15 +413,40 @@ def _how_far(ev: Evidence, design: Design, floor: Array, pred: Array) -> dict[st
 # The diagnosis
 # --------------------------------------------------------------------------------------------
 
+def _nominal_fit(rep: Replay) -> float:
+    """The torque channels' residual mean square relative to the measured torque's, summed over
+    joints (scale-free: every joint counts alike)."""
+    total = 0.0
+    signals = {"tau": rep.log.tau, "cmd": rep.tau_cmd}
+    for ch in ("tau", "cmd"):
+        if ch in rep.residual:
+            r = rep.residual[ch][rep.valid]
+            x = signals[ch][rep.valid]
+            total += float(np.sum(np.mean(r ** 2, axis=0) / np.maximum(np.mean(x ** 2, axis=0), 1e-12)))
+    return total
+
+
 def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Evidence:
     """The arm's evidence: the replay's channels, its state regions, the catalogue's arm effects."""
     c = config or DiagnosisConfig()
-    rep = replay(log, c.replay)
+    notes = []
+    if c.replay.end_effector is None and (log.meta.get("end_effector") is None or log.meta.get("end_effector_assumed")):
+        # the log does not say what the arm carries: the bare arm or the hand, whichever the
+        # nominal residual supports (a held gear or tool shows as a payload effect)
+        reps = {ee: replay(log, dataclasses.replace(c.replay, end_effector=ee)) for ee in ("none", "hand")}
+        score = {ee: _nominal_fit(r) for ee, r in reps.items()}
+        best = min(score, key=score.get)
+        rep = reps[best]
+        notes.append(f"the log does not state its end effector; the data support {best!r} "
+                     f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
+    else:
+        rep = replay(log, c.replay)
     phase = rep.log.phase if rep.log.phase is not None else np.zeros(rep.log.n_samples, dtype=np.int64)
     labels = {ch: [f"joint {j + 1}" for j in range(7)] for ch in rep.channels}
     return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
                     pool=candidates(rep, c.effects), audit=functools.partial(_arm_audit, rep), x=rep.log.dq,
-                    x_label="dq [rad/s]", time=rep.log.time, meta=dict(log.meta), floor_min=dict(ARM_FLOOR_MIN))
+                    x_label="dq [rad/s]", time=rep.log.time, meta={**log.meta, "end_effector": rep.model.end_effector},
+                    floor_min=dict(ARM_FLOOR_MIN), notes=notes)
 
 
 def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None
@@ -553,4 +579,4 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
               "time": ev.time, "valid": ev.valid}
     return Diagnosis(log_meta=meta, channels=chans, where=where, audit=audit, ranking=ranking,
                      selected=selected, warnings=warnings, how_far=how_far, verdict=verdict, arrays=arrays,
-                     labels=ev.labels, x_label=ev.x_label)
+                     labels=ev.labels, x_label=ev.x_label, extra={"notes": list(ev.notes)})

@@ -25,7 +25,7 @@ from assembly.panda_model import TAU_MAX
 from sim2real.catalogue import CATALOGUE, effect
 from sim2real.replay import Replay
 
-__all__ = ["Candidate", "candidates", "backlash_delivered", "FITTABLE", "STRIBECK_SIGN_VELOCITY",
+__all__ = ["Candidate", "candidates", "backlash_excess", "FITTABLE", "STRIBECK_SIGN_VELOCITY",
            "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
 
 STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
@@ -229,30 +229,29 @@ def _saturation(rep: Replay) -> list[Candidate]:
     return out
 
 
-def backlash_delivered(command: Array, q: Array, dq: Array, dt: float, b: float,
-                       motor_inertia: Array, stiffness: float, damping: float) -> Array:
-    """Torque a two-mass transmission with a dead band of width b delivers to the joint.
+def backlash_excess(command: Array, ddq: Array, dt: float, b: float, motor_inertia: Array) -> Array:
+    """What a dead band of width b in a stiff two-mass transmission adds to the command channel.
 
-    The motor (inertia `motor_inertia`, (7,)) is driven by `command` (T, 7); the link follows the
-    logged q, dq; the transmission torque is stiffness * dz(theta_m - q) + damping * (dtheta_m -
-    dq) while engaged (dz: the dead zone of half width b / 2), zero inside the band. Integrated
-    semi-implicitly with substeps so that the stiff contact is stable."""
+    The rigid-mesh limit of the transmission: while engaged the motor (inertia `motor_inertia`)
+    moves with the link and passes m = command - J ddq to it; when m changes sign the motor leaves
+    the flank and crosses the band, the relative position x obeying J x'' = m with the link's
+    logged acceleration, and the link gets nothing until x has crossed b. The command then holds
+    m more than the nominal model needs (T, 7); engaged, nothing. (A stiff spring driven by the
+    logged positions would turn their noise into torque: 1e-5 rad is 0.2 N m at 2e4 N m/rad.)"""
     T = command.shape[0]
-    half = b / 2.0
-    theta = q[0] + np.sign(command[0]) * (half + np.abs(command[0]) / stiffness)  # engaged, holding
-    omega = dq[0].copy()
-    out = np.empty_like(command)
-    sub = max(1, int(np.ceil(dt / (0.2 * np.sqrt(np.min(motor_inertia) / stiffness)))))
-    h = dt / sub
+    m_all = command - motor_inertia * ddq
+    side = np.sign(m_all[0])  # the flank the motor rests on (+1: pushing forward)
+    side[side == 0] = 1.0
+    x = side * b / 2.0  # the motor's position in the band, relative to its centre
+    v = np.zeros_like(x)
+    out = np.zeros_like(command)
     for t in range(T):
-        for i in range(sub):
-            gap = theta - (q[t] + dq[t] * (i * h))  # the link moves on within the tick
-            dz = np.where(gap > half, gap - half, np.where(gap < -half, gap + half, 0.0))
-            engaged = dz != 0.0
-            torque = stiffness * dz + engaged * damping * (omega - dq[t])
-            omega = omega + h * (command[t] - torque) / motor_inertia
-            theta = theta + h * omega
-        out[t] = torque
+        m = m_all[t]
+        engaged = (np.abs(x) >= b / 2.0 - 1e-12) & (np.sign(m) == np.sign(x))
+        free = ~engaged
+        v = np.where(free, v + dt * m / motor_inertia, 0.0)
+        x = np.where(free, np.clip(x + dt * v, -b / 2.0, b / 2.0), x)
+        out[t] = np.where(free, m, 0.0)
     return out
 
 
@@ -263,11 +262,7 @@ def _backlash(rep: Replay) -> list[Candidate]:
     motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
     out = []
     for b in (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02):
-        delivered = backlash_delivered(c, rep.q, rep.dq, rep.dt, b, motor,
-                                       BACKLASH_STIFFNESS, BACKLASH_DAMPING)
-        # the command's excess over the model: what the motor's own inertia takes (c - mesh) beyond
-        # the nominal rotor term's motor share (motor * ddq)
-        off = _route(rep, "actuation", (c - delivered - motor * rep.ddq)[..., None])
+        off = _route(rep, "actuation", backlash_excess(c, rep.ddq, rep.dt, b, motor)[..., None])
         out.append(Candidate("backlash", {"b": b}, {}, {k: v[..., 0] for k, v in off.items()},
                              [], np.zeros((0, 2)), lambda coef, b=b: {"b": b}))
     return out

@@ -68,6 +68,12 @@ def _gaz_folder(folder: Path) -> Path:
                           f"folder in the Gaz et al. 2019 layout ({', '.join(GAZ_FILES.values())})")
 
 
+def has_gaz_layout(folder: str | os.PathLike[str]) -> bool:
+    """Whether `folder` holds the Gaz et al. time file (in rbt_log/ or directly)."""
+    folder = Path(folder)
+    return any((d / "exciting_traj_time.txt").is_file() for d in (folder / "rbt_log", folder))
+
+
 def read_gaz_trajectory(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
     """The commanded trajectory of a Gaz et al. log folder as plain JSON data (description,
     q0 [rad], Fourier coefficients a and b (7 x 5 lists), omega_f [rad/s], harmonics), read from
@@ -90,8 +96,10 @@ def read_gaz_trajectory(folder: str | os.PathLike[str]) -> dict[str, Any] | None
 
 
 def _gaz_meta(folder: Path, where: Path, notes: list[str]) -> dict[str, Any]:
-    meta: dict[str, Any] = {"robot": "franka_panda", "end_effector": "none", "torque_side": "link",
-                            "source": str(folder)}
+    # the layout carries no end effector: "none" (the Gaz et al. arm) is a guess the diagnosis may
+    # revise from the data (end_effector_assumed); a meta.json stating it replaces both
+    meta: dict[str, Any] = {"robot": "franka_panda", "end_effector": "none", "end_effector_assumed": True,
+                            "torque_side": "link", "source": str(folder)}
     trajectory = read_gaz_trajectory(folder)
     if trajectory is not None:
         meta["commanded_trajectory"] = trajectory
@@ -101,6 +109,8 @@ def _gaz_meta(folder: Path, where: Path, notes: list[str]) -> dict[str, Any]:
             if not isinstance(extra, dict):
                 raise FileFormatError(f"{path}: a JSON {type(extra).__name__}; expected a JSON object of metadata")
             meta.update(extra)
+            if "end_effector" in extra:
+                meta.pop("end_effector_assumed", None)
     if notes:  # after the notes of meta.json (a non-list there fails validation)
         meta["notes"] = [*meta.get("notes", []), *notes] if isinstance(meta.get("notes", []), list) else notes
     return meta
@@ -190,6 +200,8 @@ def _csv_preamble(path: Path, lines: list[str]) -> tuple[int, dict[str, Any]]:
                 raise FileFormatError(f"{path}: line {i + 1}: the meta comment is a JSON {type(extra).__name__}; "
                                       "expected a JSON object")
             meta.update(extra)
+            if "end_effector" in extra:
+                meta.pop("end_effector_assumed", None)
         i += 1
     if i == len(lines):
         raise FileFormatError(f"{path}: no header row; expected a CSV with a header of columns time, q0.., dq0.., "

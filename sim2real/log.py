@@ -376,7 +376,7 @@ def load_log(path: str | os.PathLike[str], n_joints: int | None = 7) -> RobotLog
     """Read and validate a robot log (see `validate_log`; `n_joints` None accepts any count).
 
     `path` is one of: a folder in the layout of the Gaz et al. 2019 log (sim2real.importers.
-    read_gaz_layout), a .csv file as Franka users export it (read_franka_csv), or a .npz written by
+    read_gaz_layout) or a folder holding a log.npz, a .csv file as Franka users export it (read_franka_csv), or a .npz written by
     `save_log` (loaded with allow_pickle=False). Raises FileNotFoundError if nothing is at `path`,
     and FileFormatError (one line, starting with the path) when the file is empty, truncated,
     foreign, holds unknown arrays or bad metadata, or the log fails validation."""
@@ -385,6 +385,8 @@ def load_log(path: str | os.PathLike[str], n_joints: int | None = 7) -> RobotLog
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no robot log at {path}")
+    if path.is_dir() and (path / "log.npz").is_file() and not importers.has_gaz_layout(path):
+        path = path / "log.npz"  # a data folder of the project (data/panda-gaz2019)
     if path.is_dir():
         log = importers.read_gaz_layout(path)
     elif path.suffix.lower() == ".csv":

@@ -10,6 +10,7 @@ authors' `LICENSE` unchanged and a `README.md` with the attribution and how the 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -91,7 +92,9 @@ def convert(source: Path, out: Path) -> Path:
     if not license_path.is_file():
         raise FileNotFoundError(f"no LICENSE in {source}; expected the authors' GPL-3.0 license beside the log")
     log = read_gaz_layout(source)
-    log = with_meta(log, source=f"https://github.com/{REPOSITORY}/tree/{COMMIT}/{FOLDER}", license="GPL-3.0",
+    # the authors' README: the arm carried no hand (a stated end effector, not the layout's guess)
+    log = dataclasses.replace(log, meta={k: v for k, v in log.meta.items() if k != "end_effector_assumed"})
+    log = with_meta(log, end_effector="none", source=f"https://github.com/{REPOSITORY}/tree/{COMMIT}/{FOLDER}", license="GPL-3.0",
                     citation=CITATION, converted_by=COMMAND)
     check_output_dir(out, "output folder")
     npz = save_log(log, out / "log.npz")

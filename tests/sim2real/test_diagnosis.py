@@ -56,16 +56,15 @@ def test_the_replay_has_the_channels_the_log_allows(nominal_log):
     assert "dq" in replay(state_only).channels
 
 
-# backlash is not named yet (docs/sim2real.md, "Validation"): its open-loop transmission model
-# does not reproduce the closed-loop dead-band crossings of the simulated reality
-@pytest.mark.parametrize("effect", sorted(set(MAGNITUDES) - {"backlash"}))
+@pytest.mark.parametrize("effect", sorted(MAGNITUDES))
 def test_leave_one_effect_out_names_the_effect(effect):
     """The small-size leave-one-effect-out: each catalogue effect at its larger magnitude, the
-    diagnosis not told which, names it first and closes most of the gap."""
+    diagnosis not told which, names it first and closes most of the gap (backlash: named, but its
+    rigid-mesh model closes only about a third; docs/sim2real.md, "Validation")."""
     result = run_case(Case(f"{effect}-large", (effect,), "large", seed=1), duration=DURATION)
     assert result["selected"][:1] == [effect], result
     assert result["located"], result
-    assert result["closed"] > 0.5, result
+    assert result["closed"] > (0.25 if effect == "backlash" else 0.5), result
 
 
 def test_fitted_values_match_the_truth():
