@@ -609,13 +609,17 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="report folder (report.md, report.json, figures)")
     p.add_argument("--effects", nargs="+", metavar="NAME", help="catalogue effects to consider (default: all)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap intervals")
+    p.add_argument("--episodes", type=int, default=10,
+                   help="station: episodes per success rate of the shipped skill (0: skip the downstream figure)")
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from sim2real.diagnosis import DiagnosisConfig
     from sim2real.files import diagnose_file
     config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed)
-    d, paths = diagnose_file(args.log, args.out, args.model, config, progress=True)
+    if args.episodes < 0:
+        raise InputError(f"--episodes = {args.episodes}; expected an integer >= 0")
+    d, paths = diagnose_file(args.log, args.out, args.model, config, progress=True, episodes=args.episodes)
     v = d.verdict
     print(f"{v['label']}: {v['text']}")
     print(f"report -> {args.out / 'report.md'}")
@@ -624,14 +628,17 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _sim2real_flags(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", required=True)
-    m = sub.add_parser("make-log", help="a log of the simulated arm with injected effects",
-                       formatter_class=_HelpFormatter)
+    m = sub.add_parser("make-log", help="a log of a simulated reality (the arm, or an insertion in the station) "
+                       "with injected effects", formatter_class=_HelpFormatter)
+    m.add_argument("--model", default="arm", choices=["arm", "station"],
+                   help="arm: an exciting trajectory; station: one insertion episode of the shipped skill")
     m.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="an effect and its value: NAME=VALUE sets its first parameter, NAME.PARAM=VALUE any; "
                         "per-joint values are one number or 7 comma-separated (e.g. coulomb=0.8, "
                         "payload.dm=0.5, torque_offset=0,0,0,0,0.5,0,0)")
     m.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="a field of sim2real.reality.RealityConfig, e.g. duration=10 or seed=3")
+                   help="arm: a field of sim2real.reality.RealityConfig, e.g. duration=10 or seed=3; "
+                        "station: gear, seed or xi")
     m.add_argument("--out", required=True, type=Path, help="log file (.npz or .csv)")
     sub.add_parser("effects", help="list the effect catalogue", formatter_class=_HelpFormatter)
 
@@ -645,7 +652,7 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
             print(f"{e.name} ({e.place}): {e.meaning}\n    {params}")
         return 0
     from sim2real.files import make_log_file
-    path = make_log_file(args.effect, args.out, key_values(args.set, "--set"))
+    path = make_log_file(args.effect, args.out, key_values(args.set, "--set"), args.model)
     print(f"log -> {path}")
     return 0
 

@@ -41,10 +41,13 @@ def _bar(progress: bool):
 
 
 def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
-                  config: DiagnosisConfig | None = None, progress: bool = False) -> tuple[Diagnosis, list[Path]]:
+                  config: DiagnosisConfig | None = None, progress: bool = False, episodes: int = 10
+                  ) -> tuple[Diagnosis, list[Path]]:
     """Load the log at `log_path` (npz, Franka CSV or the Gaz et al. folder layout), diagnose it
     against `model` ("arm": the arm's torque and state channels; "station": an insertion log,
-    contact effects included) and write the report into `out` (checked before any work)."""
+    contact effects included, with the skill's success rate over `episodes` episodes before and
+    after the selected effects; 0 skips it) and write the report into `out` (checked before any
+    work)."""
     from sim2real.log import load_log
     from sim2real.report import write_report
 
@@ -54,7 +57,7 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
     start = time.perf_counter()
     if model == "station":
         from sim2real.contact import diagnose_insertion
-        d = diagnose_insertion(log, config, progress=_bar(progress))
+        d = diagnose_insertion(log, config, progress=_bar(progress), episodes=episodes)
     else:
         d = diagnose(log, config, progress=_bar(progress))
     seconds = time.perf_counter() - start
@@ -64,22 +67,34 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
     return d, paths
 
 
-def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any] | None = None) -> Path:
-    """Make a log of the simulated arm reality with the effects given as NAME=VALUE or
-    NAME.PARAM=VALUE strings (sim2real.catalogue.parse_effect_values) and RealityConfig field
-    overrides, and save it at `out` (.npz, or .csv in the Franka layout); returns the path."""
+def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any] | None = None,
+                  model: str = "arm") -> Path:
+    """Make a log of a simulated reality with the effects given as NAME=VALUE or NAME.PARAM=VALUE
+    strings (sim2real.catalogue.parse_effect_values) and save it at `out` (.npz, or .csv in the
+    Franka layout for the arm); returns the path. model "arm": the arm on an exciting trajectory,
+    `overrides` are RealityConfig fields; "station": one insertion episode of the shipped skill,
+    `overrides` may set gear, seed and xi (sim2real.station_logs.make_insertion_log)."""
     from common.config import config_with_overrides
+    from common.errors import InputError
     from sim2real.catalogue import parse_effect_values
-    from sim2real.log import save_log
     from sim2real.importers import write_franka_csv
-    from sim2real.reality import RealityConfig, make_arm_log
+    from sim2real.log import save_log
 
+    check_choice(model, MODELS, "--model")
     values = parse_effect_values(effects)
-    config = config_with_overrides(RealityConfig, None, overrides or {}, "sim2real make-log")
     path = check_output_file(out, "--out")
-    if path.suffix not in (".npz", ".csv"):
-        from common.errors import InputError
-        raise InputError(f"--out {out}: expected a .npz or .csv file name")
+    if path.suffix not in (".npz", ".csv") or (model == "station" and path.suffix != ".npz"):
+        raise InputError(f"--out {out}: expected a .npz{' or .csv' if model == 'arm' else ''} file name")
+    if model == "station":
+        from sim2real.station_logs import make_insertion_log
+        options = dict(overrides or {})
+        unknown = set(options) - {"gear", "seed", "xi"}
+        if unknown:
+            raise InputError(f"--set {sorted(unknown)}: expected gear, seed or xi for a station log")
+        log, _ = make_insertion_log(values, **options)
+        return save_log(log, path)
+    from sim2real.reality import RealityConfig, make_arm_log
+    config = config_with_overrides(RealityConfig, None, overrides or {}, "sim2real make-log")
     log = make_arm_log(values, config)
     (write_franka_csv if path.suffix == ".csv" else save_log)(log, path)
     return path
