@@ -5,7 +5,8 @@
    the data (the spread of sample-to-sample differences, robustly).
 2. Which: each catalogue effect is fitted on training blocks and scored on held-out blocks
    (blocked cross-validation in time; block bootstrap intervals); forward selection adds effects
-   while the held-out gain is significant. Fitted parameters come with bootstrap intervals and
+   while the held-out gain is significant, backward elimination drops those the others make
+   redundant, and the selected effects are ordered by what each adds to the final set. Fitted parameters come with bootstrap intervals and
    bound hits; two effects that explain the same residual get an identifiability warning; a gap
    the selection does not close is "unexplained", not given to the nearest effect.
 3. How far: the held-out gap before and after the selected effects, per channel, joint and
@@ -124,7 +125,9 @@ class Evidence:
     residual: channel -> (T, 7) measured minus nominal; labels: channel -> the 7 columns' names;
     valid: (T,) samples the fits use; phase: (T,) labels indexing PHASES; regions: name -> (T, 7)
     state-region masks; pool: effect -> its candidates; audit: the model audit (or None);
-    x: (T, 7) what the residual figure plots it against, x_label its name; time: (T,)."""
+    x: (T, 7) what the residual figure plots it against, x_label its name; time: (T,); floor_min:
+    the least noise floor per channel; floor: a channel's noise floor when the evidence knows it
+    (else it is estimated from the residual's fast part)."""
 
     residual: dict[str, Array]
     labels: dict[str, list[str]]
@@ -139,6 +142,7 @@ class Evidence:
     meta: dict[str, Any]
     floor_min: dict[str, float | Array] = dataclasses.field(default_factory=dict)
     notes: list[str] = dataclasses.field(default_factory=list)
+    floor: dict[str, Array] = dataclasses.field(default_factory=dict)
 
 
 #: The least noise floor per arm channel: a torque resolution of 1e-3 N m (a channel the model
@@ -462,11 +466,13 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     c = config or DiagnosisConfig()
     say = progress or (lambda what, i, n: None)
     rng = np.random.default_rng(c.seed)
-    chans = tuple(ch for ch in ("tau", "cmd", "ctrl", "dq", "tool") if ch in ev.residual)
+    chans = tuple(ch for ch in ("tau", "cmd", "ctrl", "dq", "tool", "pose") if ch in ev.residual)
     y = np.stack([ev.residual[ch] for ch in chans], axis=1)
     floor = noise_floor(y.reshape(len(y), -1), ev.valid).reshape(len(chans), 7)
     for i, ch in enumerate(chans):
         floor[i] = np.maximum(floor[i], ev.floor_min.get(ch, 0.0))
+        if ch in ev.floor:  # the evidence knows its noise (one row per scene: no time to smooth over)
+            floor[i] = ev.floor[ch]
     design = Design(ev.residual, chans, floor, ev.valid, c.blocks)
     folds = _folds(design, c.folds)
     n_rows = design.count
@@ -490,7 +496,7 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
         lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
         ranking.append({"effect": name, "setting": cand.setting, "heldout": float(e),
                         "gain": float(e0 - e), "gain_low": lo, "gain_high": hi,
-                        "closed": float((e0 - e) / max(excess0, 1e-12)),
+                        "closed": float((e0 - e) / excess0) if excess0 >= 0.05 else None,
                         "significant": bool(lo > 0)})
     say("effects", len(pool), len(pool))
     ranking.sort(key=lambda r: -r["gain"])
@@ -521,6 +527,32 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
         steps.append({"effect": cand.name, "setting": cand.setting, "gain": gain, "gain_low": lo, "gain_high": hi,
                       "heldout_after": float(s.sse.sum() / n_rows.sum())})
         current = s
+    # backward elimination: drop a selected effect the others make redundant (greedy forward steps
+    # can take a flexible effect first that the right ones later explain away); then order the
+    # effects by what each adds to the final set (its held-out loss when removed)
+    def _marginal(k: int) -> tuple[float, float, float, _Scored]:
+        rest = _score(design, chosen[:k] + chosen[k + 1:], folds)
+        diff = (rest.sse - current.sse) / np.maximum(n_rows, 1)
+        lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
+        return float((rest.sse.sum() - current.sse.sum()) / n_rows.sum()), lo, hi, rest
+
+    while len(chosen) > 1:
+        margins = [_marginal(k) for k in range(len(chosen))]
+        k = int(np.argmin([m[0] for m in margins]))
+        loss, lo, _, rest = margins[k]
+        if lo > 0 and loss >= max(c.min_gain * excess0, c.min_gain_abs):
+            break
+        del chosen[k]
+        current = rest
+    if len(chosen) > 1:
+        margins = [_marginal(k) for k in range(len(chosen))]
+        order = np.argsort([-m[0] for m in margins])
+        chosen = [chosen[k] for k in order]
+        steps = [{"effect": chosen[i].name, "setting": chosen[i].setting, "gain": margins[k][0],
+                  "gain_low": margins[k][1], "gain_high": margins[k][2],
+                  "heldout_after": float(current.sse.sum() / n_rows.sum())} for i, k in enumerate(order)]
+    else:
+        steps = [st for st in steps if chosen and st["effect"] == chosen[0].name]
     say("selection", 1, 1)
 
     selected = []
@@ -532,14 +564,14 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
 
     # identifiability: significant single effects that the selection's first effects reproduce
     warnings = []
-    sig = [r for r in ranking if r["significant"] and r["closed"] > 0.1]
+    sig = [r for r in ranking if r["significant"] and (r["closed"] or 0.0) > 0.1]
     for r in sig:
         if any(x.name == r["effect"] for x in chosen):
             continue
         for x in chosen:
             ov = _overlap(design, x, best_single[r["effect"]])
             if ov > 0.5:
-                warnings.append(f"{r['effect']} alone closes {100 * r['closed']:.0f} % of the excess, but "
+                warnings.append(f"{r['effect']} alone closes {100 * (r['closed'] or 0.0):.0f} % of the excess, but "
                                 f"{x.name} reproduces {100 * ov:.0f} % of its fit: the log cannot tell them "
                                 "apart well (the selection kept " + x.name + ")")
                 break
@@ -553,7 +585,7 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     e_final = current.sse.sum() / n_rows.sum()
     closed = (e0 - e_final) / max(excess0, 1e-12)
     noise_only = excess0 < 0.05 or ranking == [] or (not any(r["significant"] for r in ranking) and excess0 < 0.2)
-    if noise_only and not chosen:
+    if excess0 < 0.05 or (noise_only and not chosen):
         verdict = {"label": "no gap", "text": "the residual is at the noise floor: no excess to explain",
                    "closed": 0.0}
     elif not chosen:

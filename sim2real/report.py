@@ -60,10 +60,11 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
           "blocks (gain in noise variances, 95 % block-bootstrap interval):", "",
           "| effect | setting | held-out | gain | interval | closes | significant |", "|---|---|---|---|---|---|---|"]
     for r in s["ranking"]:
+        closes = "-" if r["closed"] is None else f"{100 * r['closed']:.0f} %"
         L.append(f"| {r['effect']} | {_fmt(r['setting']) if r['setting'] else ''} | {r['heldout']:.3g} | "
-                 f"{r['gain']:.3g} | [{r['gain_low']:.3g}, {r['gain_high']:.3g}] | {100 * r['closed']:.0f} % | "
+                 f"{r['gain']:.3g} | [{r['gain_low']:.3g}, {r['gain_high']:.3g}] | {closes} | "
                  f"{'yes' if r['significant'] else 'no'} |")
-    L += ["", "Forward selection:", ""]
+    L += ["", "Selection (forward, then backward elimination; ordered by what each adds to the final set):", ""]
     if not s["selected"]:
         L.append("No effect improves the held-out fit significantly.")
     for r in s["selected"]:
