@@ -124,3 +124,13 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "x.npz").exists()
     assert main(["sim2real", "make-log", "--effect", "friction=1", "--out", str(tmp_path / "x.npz")]) == 2
     assert "friction" in capsys.readouterr().err
+
+
+def test_a_state_log_is_diagnosed_by_forward_replay():
+    """Without measured or commanded torques, the reference and the control law's gains drive the
+    k-step forward replay ("dq" channel) and still name the effect."""
+    log = make_arm_log({"coulomb": {"fc": [1.0] * 7}}, RealityConfig(duration=DURATION, seed=6))
+    state = dataclasses.replace(log, tau=None, tau_cmd=None)
+    d = diagnose(state)
+    assert d.channels == ("dq",)
+    assert [s["effect"] for s in d.selected][:1] == ["coulomb"]
