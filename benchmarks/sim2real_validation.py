@@ -37,19 +37,11 @@ def _contact_job(path: str, episodes: int) -> dict:
     """The station case: shaft friction withheld from the sim; localisation, naming, success gap."""
     if Path(path).is_file():
         return read_json(path, "contact case")
-    import dataclasses
-
-    import numpy as np
-
     from sim2real.contact import diagnose_insertion, downstream
-    from sim2real.station_logs import CONTACT_CASE, make_insertion_log
+    from sim2real.station_logs import CONTACT_CASE, make_insertion_log, with_sensor_noise
 
     log, _ = make_insertion_log(CONTACT_CASE, gear="medium", seed=0)
-    rng = np.random.default_rng(0)  # sensor noise of the "real" log
-    pose = log.tool_pose.copy()
-    pose[:, :3, 3] += 2e-5 * rng.standard_normal((log.n_samples, 3))
-    log = dataclasses.replace(log, tau=log.tau + 0.05 * rng.standard_normal(log.tau.shape), tool_pose=pose,
-                              wrench=log.wrench + 0.2 * rng.standard_normal(log.wrench.shape))
+    log = with_sensor_noise(log)  # the "real" log's sensors
     d = diagnose_insertion(log, episodes=episodes, truth_success=lambda: downstream(CONTACT_CASE, "medium", episodes))
     s = d.summary()
     out = {"case": "contact shaft_friction mu=1.0", "selected": [r["effect"] for r in s["selected"]],

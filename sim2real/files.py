@@ -73,7 +73,8 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
     strings (sim2real.catalogue.parse_effect_values) and save it at `out` (.npz, or .csv in the
     Franka layout for the arm); returns the path. model "arm": the arm on an exciting trajectory,
     `overrides` are RealityConfig fields; "station": one insertion episode of the shipped skill,
-    `overrides` may set gear, seed and xi (sim2real.station_logs.make_insertion_log)."""
+    `overrides` may set gear, seed, xi (sim2real.station_logs.make_insertion_log) and noise (default
+    true: sensor noise on torques, tool position and contact force, station_logs.with_sensor_noise)."""
     from common.config import config_with_overrides
     from common.errors import InputError
     from sim2real.catalogue import parse_effect_values
@@ -86,13 +87,16 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
     if path.suffix not in (".npz", ".csv") or (model == "station" and path.suffix != ".npz"):
         raise InputError(f"--out {out}: expected a .npz{' or .csv' if model == 'arm' else ''} file name")
     if model == "station":
-        from sim2real.station_logs import make_insertion_log
+        from sim2real.station_logs import make_insertion_log, with_sensor_noise
         options = dict(overrides or {})
-        unknown = set(options) - {"gear", "seed", "xi"}
+        unknown = set(options) - {"gear", "seed", "xi", "noise"}
         if unknown:
-            raise InputError(f"--set {sorted(unknown)}: expected gear, seed or xi for a station log")
+            raise InputError(f"--set {sorted(unknown)}: expected gear, seed, xi or noise for a station log")
+        noise = options.pop("noise", True)
+        if not isinstance(noise, bool):
+            raise InputError(f"--set noise={noise!r}; expected true or false")
         log, _ = make_insertion_log(values, **options)
-        return save_log(log, path)
+        return save_log(with_sensor_noise(log, options.get("seed", 0)) if noise else log, path)
     from sim2real.reality import RealityConfig, make_arm_log
     config = config_with_overrides(RealityConfig, None, overrides or {}, "sim2real make-log")
     log = make_arm_log(values, config)

@@ -47,7 +47,7 @@ __all__ = [
     "STATION_EFFECTS", "NOMINAL_HOLD", "CONTACT_FORCE_MIN", "APPROACH_HEIGHT", "APPROACH_RADIUS",
     "INSERTION_DEPTH", "CONTACT_CASE", "GRASP_CASE",
     "check_station_effects", "station_physics", "make_insertion_env", "make_insertion_log",
-    "replay_insertion", "skill_success", "segment_phases", "phase_residuals",
+    "replay_insertion", "skill_success", "segment_phases", "phase_residuals", "with_sensor_noise",
 ]
 
 #: The catalogue effects the station implements.
@@ -330,6 +330,20 @@ def make_insertion_log(effects: Mapping[str, Any] | None, gear: str = "medium",
                  "simulated reality: the panda station with withheld effects", **extra)
     env.close()
     return rec.log(meta), success
+
+
+def with_sensor_noise(log: RobotLog, seed: int = 0, tau: float = 0.05, position: float = 2e-5,
+                      force: float = 0.2) -> RobotLog:
+    """`log` as sensors would record it: white Gaussian noise on the joint torques [N m], the tool
+    position [m] and the contact force [N] (the arm reality's torque noise; our choice for the
+    others). The simulation itself is noise-free, so a "real" insertion log gets this."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 2]))
+    pose = log.tool_pose.copy()
+    pose[:, :3, 3] += position * rng.standard_normal((log.n_samples, 3))
+    wrench = log.wrench.copy()
+    wrench[:, :3] += force * rng.standard_normal((log.n_samples, 3))
+    return dataclasses.replace(log, tau=log.tau + tau * rng.standard_normal(log.tau.shape), tool_pose=pose,
+                               wrench=wrench)
 
 
 def replay_insertion(log: RobotLog, effects: Mapping[str, Any] | None) -> RobotLog:

@@ -5,24 +5,15 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import pytest
 
 from sim2real.contact import diagnose_insertion
-from sim2real.station_logs import CONTACT_CASE, make_insertion_log
-
-
-def _with_sensor_noise(log, seed=0):
-    rng = np.random.default_rng(seed)
-    pose = log.tool_pose.copy()
-    pose[:, :3, 3] += 2e-5 * rng.standard_normal((log.n_samples, 3))
-    return dataclasses.replace(log, tau=log.tau + 0.05 * rng.standard_normal(log.tau.shape), tool_pose=pose,
-                               wrench=log.wrench + 0.2 * rng.standard_normal(log.wrench.shape))
+from sim2real.station_logs import CONTACT_CASE, make_insertion_log, with_sensor_noise
 
 
 def test_shaft_friction_is_found_in_the_insertion_phase():
     log, _ = make_insertion_log(CONTACT_CASE, gear="medium", seed=0)
-    d = diagnose_insertion(_with_sensor_noise(log), episodes=0)
+    d = diagnose_insertion(with_sensor_noise(log), episodes=0)
     s = d.summary()
     assert s["where"]["dominant_phase"] in ("contact", "insertion")
     assert s["where"]["phases"]["approach"]["excess"] < 0.05 * s["where"]["phases"]["insertion"]["excess"]
