@@ -604,8 +604,9 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log", required=True, type=Path,
                    help="robot log: .npz (project format), .csv (libfranka/franka_ros columns) or a folder in "
                         "the Gaz et al. layout (rbt_log/exciting_traj_*.txt)")
-    p.add_argument("--model", default="arm", choices=["arm", "station"],
-                   help="arm: torque and state channels of the arm; station: an insertion log (contact effects)")
+    p.add_argument("--model", default="arm", choices=["arm", "station", "perception"],
+                   help="arm: torque and state channels of the arm; station: an insertion log (contact effects); "
+                        "perception: a perception log (camera effects)")
     p.add_argument("--out", required=True, type=Path, help="report folder (report.md, report.json, figures)")
     p.add_argument("--effects", nargs="+", metavar="NAME", help="catalogue effects to consider (default: all)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap intervals")
@@ -630,15 +631,16 @@ def _sim2real_flags(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", required=True)
     m = sub.add_parser("make-log", help="a log of a simulated reality (the arm, or an insertion in the station) "
                        "with injected effects", formatter_class=_HelpFormatter)
-    m.add_argument("--model", default="arm", choices=["arm", "station"],
-                   help="arm: an exciting trajectory; station: one insertion episode of the shipped skill")
+    m.add_argument("--model", default="arm", choices=["arm", "station", "perception"],
+                   help="arm: an exciting trajectory; station: one insertion episode of the shipped skill; "
+                        "perception: the scene camera's first look on random scenes")
     m.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="an effect and its value: NAME=VALUE sets its first parameter, NAME.PARAM=VALUE any; "
                         "per-joint values are one number or 7 comma-separated (e.g. coulomb=0.8, "
                         "payload.dm=0.5, torque_offset=0,0,0,0,0.5,0,0)")
     m.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="arm: a field of sim2real.reality.RealityConfig, e.g. duration=10 or seed=3; "
-                        "station: gear, seed or xi")
+                        "station: gear, seed, xi or noise; perception: scenes or seed")
     m.add_argument("--out", required=True, type=Path, help="log file (.npz or .csv)")
     sub.add_parser("effects", help="list the effect catalogue", formatter_class=_HelpFormatter)
 

@@ -85,6 +85,8 @@ def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101) ->
 
     r = residual[valid]
     window = min(window, (len(r) // 2) * 2 - 1)
+    if window < 7:  # too few samples to tell fast from slow: the whole spread, conservatively
+        return np.maximum(np.std(r, axis=0), 1e-9)
     fast = r - savgol_filter(r, window, 3, axis=0)
     h0 = savgol_coeffs(window, 3)[window // 2]
     mad = np.median(np.abs(fast - np.median(fast, axis=0)), axis=0)

@@ -14,7 +14,7 @@ from sim2real.diagnosis import Diagnosis, DiagnosisConfig, diagnose
 
 __all__ = ["diagnose_file", "make_log_file", "MODELS"]
 
-MODELS = ("arm", "station")
+MODELS = ("arm", "station", "perception")
 
 
 def _bar(progress: bool):
@@ -44,7 +44,8 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
                   config: DiagnosisConfig | None = None, progress: bool = False, episodes: int = 10
                   ) -> tuple[Diagnosis, list[Path]]:
     """Load the log at `log_path` (npz, Franka CSV or the Gaz et al. folder layout), diagnose it
-    against `model` ("arm": the arm's torque and state channels; "station": an insertion log,
+    against `model` ("arm": the arm's torque and state channels; "perception": a perception log
+    of sim2real.perception_channel, its pose channel; "station": an insertion log,
     contact effects included, with the skill's success rate over `episodes` episodes before and
     after the selected effects; 0 skips it) and write the report into `out` (checked before any
     work)."""
@@ -53,8 +54,13 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
 
     check_choice(model, MODELS, "--model")
     check_output_dir(out, "--out")
-    log = load_log(log_path)
     start = time.perf_counter()
+    if model == "perception":
+        from sim2real.perception_channel import diagnose_perception, load_perception_log
+        d = diagnose_perception(load_perception_log(log_path), progress=_bar(progress))
+        d.log_meta.setdefault("source", str(log_path))
+        return d, write_report(d, out, extra={"seconds": time.perf_counter() - start})
+    log = load_log(log_path)
     if model == "station":
         from sim2real.contact import diagnose_insertion
         d = diagnose_insertion(log, config, progress=_bar(progress), episodes=episodes)
@@ -72,7 +78,9 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
     """Make a log of a simulated reality with the effects given as NAME=VALUE or NAME.PARAM=VALUE
     strings (sim2real.catalogue.parse_effect_values) and save it at `out` (.npz, or .csv in the
     Franka layout for the arm); returns the path. model "arm": the arm on an exciting trajectory,
-    `overrides` are RealityConfig fields; "station": one insertion episode of the shipped skill,
+    `overrides` are RealityConfig fields; "perception": the scene camera's first look on random
+    scenes (`overrides`: scenes, seed; sim2real.perception_channel); "station": one insertion
+    episode of the shipped skill,
     `overrides` may set gear, seed, xi (sim2real.station_logs.make_insertion_log) and noise (default
     true: sensor noise on torques, tool position and contact force, station_logs.with_sensor_noise)."""
     from common.config import config_with_overrides
@@ -84,8 +92,15 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
     check_choice(model, MODELS, "--model")
     values = parse_effect_values(effects)
     path = check_output_file(out, "--out")
-    if path.suffix not in (".npz", ".csv") or (model == "station" and path.suffix != ".npz"):
+    if path.suffix not in (".npz", ".csv") or (model != "arm" and path.suffix != ".npz"):
         raise InputError(f"--out {out}: expected a .npz{' or .csv' if model == 'arm' else ''} file name")
+    if model == "perception":
+        from sim2real.perception_channel import make_perception_log, save_perception_log
+        options = dict(overrides or {})
+        unknown = set(options) - {"scenes", "seed"}
+        if unknown:
+            raise InputError(f"--set {sorted(unknown)}: expected scenes or seed for a perception log")
+        return save_perception_log(make_perception_log(values, **options), path)
     if model == "station":
         from sim2real.station_logs import make_insertion_log, with_sensor_noise
         options = dict(overrides or {})

@@ -48,8 +48,12 @@ depth test rejects), and not as a camera translation would: the diagnosis calls 
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
+import os
 import time
+import zipfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -204,6 +208,38 @@ def offset_jacobians(X_WC: Array, P: Array) -> tuple[Array, Array]:
         e[k] = _FD_STEP
         J_ray[:, k] = (_ray_shift(X_WC, P, e) - _ray_shift(X_WC, P, -e)) / (2 * _FD_STEP)
     return J_rigid, J_ray
+
+
+def save_perception_log(log: dict[str, Any], path: str | os.PathLike[str]) -> Path:
+    """Write a perception log (make_perception_log) as an .npz of plain arrays, atomically (the
+    path checked first); text entries become 0-d unicode arrays."""
+    from common.files import check_output_file, write_atomic
+
+    _check_log(log)
+    target = check_output_file(path, "perception log")
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in log.items()})
+    return write_atomic(target, buf.getvalue())
+
+
+def load_perception_log(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read a perception log written by save_perception_log (np.load with allow_pickle=False);
+    FileNotFoundError when absent, FileFormatError naming the file when it is not one."""
+    from common.errors import FileFormatError
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no perception log at {path}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            log = {k: (data[k].item() if data[k].ndim == 0 else data[k]) for k in data.files}
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise FileFormatError(f"{path}: not a perception log (.npz of plain arrays): {str(exc)[:120]}") from None
+    try:
+        _check_log(log)
+    except InputError as exc:
+        raise FileFormatError(f"{path}: {exc}") from None
+    return log
 
 
 def _check_log(log: dict) -> None:
