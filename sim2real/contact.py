@@ -23,6 +23,7 @@ from common.errors import InputError
 from sim2real.diagnosis import Diagnosis, DiagnosisConfig, Evidence, Progress, analyse
 from sim2real.effects import Candidate
 from sim2real.log import RobotLog
+from sim2real.phases import segment_phases
 
 __all__ = ["GRIDS", "TOOL_COLUMNS", "station_evidence", "diagnose_insertion", "downstream"]
 
@@ -63,8 +64,6 @@ def station_evidence(log: RobotLog, effects: tuple[str, ...] | None = None, prog
     names = [n for n in (effects or tuple(GRIDS)) if n in GRIDS]
     if effects and not names:
         raise InputError(f"effects {list(effects)}: none is a station effect; expected some of {list(GRIDS)}")
-    if log.phase is None:
-        raise InputError("an insertion log needs phase labels; expected log.phase")
     total = 1 + sum(len(GRIDS[n]) for n in names)
     done = 0
     say("replays", done, total)
@@ -90,7 +89,7 @@ def station_evidence(log: RobotLog, effects: tuple[str, ...] | None = None, prog
     regions = {"touching (|f| > 0.1 N)": np.repeat((force > 0.1)[:, None], 7, axis=1),
                "tool moving (> 1 cm/s)": np.repeat((speed > 0.01)[:, None], 7, axis=1)}
     labels = {"tau": [f"joint {j + 1}" for j in range(7)], "tool": list(TOOL_COLUMNS)}
-    return Evidence(residual=residual, labels=labels, valid=valid, phase=log.phase, regions=regions, pool=pool,
+    return Evidence(residual=residual, labels=labels, valid=valid, phase=segment_phases(log), regions=regions, pool=pool,
                     audit=None, x=x, x_label="t [s]", time=log.time, meta=dict(log.meta),
                     floor_min={"tau": 1e-3, "tool": np.array([1e-6] * 3 + [1e-3] * 4)})
 

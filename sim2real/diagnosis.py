@@ -32,6 +32,7 @@ from sim2real.catalogue import CATALOGUE
 from sim2real.effects import Candidate, candidates
 from sim2real.fitting import Design, Model
 from sim2real.log import PHASES, RobotLog
+from sim2real.phases import segment_phases
 from sim2real.replay import Replay, ReplayConfig, replay
 
 __all__ = ["DiagnosisConfig", "Diagnosis", "Evidence", "diagnose", "analyse", "arm_evidence", "noise_floor"]
@@ -447,7 +448,9 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
                      f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
     else:
         rep = replay(log, c.replay)
-    phase = rep.log.phase if rep.log.phase is not None else np.zeros(rep.log.n_samples, dtype=np.int64)
+    phase = segment_phases(rep.log)
+    if rep.log.phase is None and np.any(phase != 0):
+        notes.append("the log has no phase labels: phases segmented from its external force (sim2real/phases.py)")
     labels = {ch: [f"joint {j + 1}" for j in range(7)] for ch in rep.channels}
     return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
                     pool=candidates(rep, c.effects), audit=functools.partial(_arm_audit, rep), x=rep.log.dq,
