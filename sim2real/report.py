@@ -136,7 +136,6 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     out["residual_vs_velocity.png"] = _png(fig)
 
     w = s["where"]
-    rows = [("all", np.array([[r["ratio"] for r in w["channels"] if r["channel"] == c] for c in d.channels]))]
     labels = ["all"] + list(w["phases"]) + list(w["regions"])
     mats = [np.array([[next(r["ratio"] for r in w["channels"] if r["channel"] == c and r["joint"] == j + 1)
                        for j in range(7)] for c in d.channels])]
@@ -152,15 +151,13 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     fig.colorbar(im, ax=ax, label="log10(RMS / noise floor)")
     ax.set_title("where: residual over the noise floor")
     out["where.png"] = _png(fig)
-    del rows
 
     fig, ax = plt.subplots(figsize=(7, 0.4 * max(len(s["ranking"]), 1) + 1.5))
     names = [r["effect"] for r in s["ranking"]][::-1]
     gains = np.array([r["gain"] for r in s["ranking"]][::-1])
     lo = np.array([r["gain_low"] for r in s["ranking"]][::-1])
     hi = np.array([r["gain_high"] for r in s["ranking"]][::-1])
-    n_rows = np.ones_like(gains)
-    ax.barh(names, gains, xerr=[np.maximum(gains - lo * n_rows, 0), np.maximum(hi * n_rows - gains, 0)],
+    ax.barh(names, gains, xerr=[np.maximum(gains - lo, 0), np.maximum(hi - gains, 0)],
             color=["C2" if r else "C7" for r in [x["significant"] for x in s["ranking"]][::-1]])
     ax.set_xlabel("held-out gain [noise variances] (95 % interval)")
     ax.set_title("which effect: each alone")
