@@ -30,7 +30,9 @@ __all__ = ["Candidate", "candidates", "backlash_excess", "FITTABLE", "STRIBECK_S
 
 STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
 # The backlash transmission (sim2real/reality.py simulates the same one): the motor side holds
-# this fraction of the reflected inertia; the engaged gear mesh is a spring-damper.
+# this fraction of the reflected inertia (at least BACKLASH_MOTOR_INERTIA_MIN: a massless motor
+# has no dynamics to cross the dead band with); the engaged gear mesh is a spring-damper (our
+# choice: the order of a harmonic drive's torsional stiffness).
 BACKLASH_MOTOR_FRACTION = 0.5
 BACKLASH_STIFFNESS = 2.0e4  # [N m/rad]
 BACKLASH_DAMPING = 100.0  # [N m s/rad]
@@ -179,10 +181,6 @@ def _offset(rep: Replay) -> list[Candidate]:
                       _bounds("torque_offset", "offset"), to_params)]
 
 
-def _command(rep: Replay) -> Array | None:
-    return rep.tau_cmd
-
-
 def _shift(x: Array, steps: float) -> Array:
     """x(t - steps samples) with linear interpolation, the first value held before the start."""
     T = x.shape[0]
@@ -191,7 +189,7 @@ def _shift(x: Array, steps: float) -> Array:
 
 
 def _delay(rep: Replay) -> list[Candidate]:
-    c = _command(rep)
+    c = rep.tau_cmd
     if c is None:
         return []
     out = []
@@ -204,7 +202,7 @@ def _delay(rep: Replay) -> list[Candidate]:
 
 
 def _gain(rep: Replay) -> list[Candidate]:
-    c = _command(rep)
+    c = rep.tau_cmd
     if c is None:
         return []
     # c - k c = -(k - 1) c: coefficient (k - 1)
@@ -214,7 +212,7 @@ def _gain(rep: Replay) -> list[Candidate]:
 
 
 def _saturation(rep: Replay) -> list[Candidate]:
-    c = _command(rep)
+    c = rep.tau_cmd
     if c is None:
         return []
     peak = np.max(np.abs(c) / TAU_MAX)
@@ -256,7 +254,7 @@ def backlash_excess(command: Array, ddq: Array, dt: float, b: float, motor_inert
 
 
 def _backlash(rep: Replay) -> list[Candidate]:
-    c = _command(rep)
+    c = rep.tau_cmd
     if c is None:
         return []
     motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)

@@ -44,6 +44,8 @@ from common.config import config_to_dict
 from common.errors import InputError, SimulationError
 from sim2real.arm import END_EFFECTORS, N_ARM, ArmModel, arm_plant
 from sim2real.catalogue import ARM_EFFECTS, effect
+from sim2real.effects import (BACKLASH_DAMPING, BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN,
+                              BACKLASH_STIFFNESS, STRIBECK_SIGN_VELOCITY)
 from sim2real.log import UNITS, RobotLog
 from sim2real.trajectory import default_base_frequency, exciting_trajectory
 
@@ -61,18 +63,9 @@ ExtraTorque = Callable[[Array, Array], Array]
 #: here, and the example's wrist damping drives a backlash rattle into the wrist's torque limits.
 KP: tuple[float, ...] = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)
 KD: tuple[float, ...] = (50.0, 50.0, 50.0, 20.0, 20.0, 20.0, 10.0)
-#: [rad/s] the sign smoothing of the Stribeck term (the catalogue's formula).
-STRIBECK_SIGN_VELOCITY = 0.002
-#: Backlash transmission (the same as sim2real/effects.py fits): the motor side holds this fraction
-#: of the joint's reflected inertia, the link side the rest; the engaged gear mesh is a spring
-#: [N m/rad] and a damper [N m s/rad] (our choice: the order of a harmonic drive's torsional
-#: stiffness; a 70 Hz motor-side mode with damping ratio ~0.2 on joints 5-7).
-BACKLASH_MOTOR_FRACTION = 0.5
-BACKLASH_STIFFNESS = 2.0e4
-BACKLASH_DAMPING = 100.0
-#: [kg m^2] the least motor-side inertia of the backlash transmission (a massless motor has no
-#: dynamics to cross the dead band with).
-MOTOR_INERTIA_MIN = 1.0e-3
+# The Stribeck sign smoothing and the backlash transmission (motor-side inertia fraction and its
+# floor, the mesh's spring and damper) are the ones sim2real/effects.py fits: defined there, once.
+MOTOR_INERTIA_MIN = BACKLASH_MOTOR_INERTIA_MIN
 #: Hard stops at the joint limits (only an effect that makes the arm fall reaches them): a
 #: spring [N m/rad] and damper [N m s/rad] beyond Q_MIN / Q_MAX.
 STOP_STIFFNESS = 1.0e4
