@@ -28,6 +28,8 @@ class RenderedPairs:
     pix: np.ndarray
     depth: np.ndarray
     rgb: np.ndarray
+    normal: np.ndarray | None = None  # (n, 3) world-frame surface normals, when asked for
+    albedo: np.ndarray | None = None  # (n, 3) unshaded colours, when asked for
 
 
 @dataclass
@@ -67,9 +69,11 @@ class RayCaster:
         self._levels = np.unique(self.map.height[flat])[::-1][:4]
 
     def render(self, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray,
-               poses: np.ndarray) -> RenderedPairs:
+               poses: np.ndarray, surface: bool = False) -> RenderedPairs:
         """Hits of rays origin + t * dirs (t = depth) for each pose (N, 3) in `poses`; `light` is
-        the unit direction towards the light (minus the camera's optical axis), in the world."""
+        the direction towards the light in the world (minus the camera's optical axis for Drake's
+        headlight), its length the intensity. `surface`: also return each hit's world normal and
+        albedo."""
         poses = np.atleast_2d(np.asarray(poses, float))
         if poses.ndim != 2 or poses.shape[1] != 3:
             raise ValueError(f"poses have shape {poses.shape}; expected (N, 3) rows (x, y, yaw)")
@@ -95,8 +99,11 @@ class RayCaster:
             out.append(self._march(origin, a[p], b[p], t_top[p], t_bot[p], poses[h], light, h, p))
         if not out:
             empty = np.zeros(0, np.int64)
-            return RenderedPairs(empty, empty, np.zeros(0, np.float32), np.zeros((0, 3), np.float32))
-        return RenderedPairs(*(np.concatenate([o[k] for o in out]) for k in range(4)))
+            none3 = np.zeros((0, 3), np.float32)
+            return RenderedPairs(empty, empty, np.zeros(0, np.float32), none3,
+                                 none3 if surface else None, none3 if surface else None)
+        parts = [np.concatenate([o[k] for o in out]) for k in range(6)]
+        return RenderedPairs(*parts[:4], *(parts[4:] if surface else (None, None)))
 
     def _candidates(self, a: np.ndarray, b: np.ndarray, down: np.ndarray,
                     centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -223,9 +230,12 @@ class RayCaster:
         cr, sr = c[rows], s[rows]
         lx, ly = cr * light[0] + sr * light[1], -sr * light[0] + cr * light[1]
         shade = np.maximum(0.0, normal[:, 0] * lx + normal[:, 1] * ly + normal[:, 2] * light[2])
-        rgb = (self._albedo[k_in] * shade[:, None]).astype(np.float32)
+        albedo = self._albedo[k_in]
+        rgb = (albedo * shade[:, None]).astype(np.float32)
         depth = (t_top[rows] + s_final * (t_bot[rows] - t_top[rows])).astype(np.float32)
-        return hyp[rows], pix[rows], depth, rgb
+        world = np.column_stack([cr * normal[:, 0] - sr * normal[:, 1],
+                                 sr * normal[:, 0] + cr * normal[:, 1], normal[:, 2]])
+        return hyp[rows], pix[rows], depth, rgb, world.astype(np.float32), albedo
 
 
 def render_image(caster: RayCaster, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray,

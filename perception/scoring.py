@@ -88,19 +88,74 @@ class ImageScorer:
         self.roi_pixels = int(np.count_nonzero(self.roi))
         self.valid_fraction = float(valid[self.roi].mean()) if self.roi_pixels else 0.0
         self._dirs = dirs
-        self.conditions = _read_conditions(obs, self._u[self.roi & valid], self._v[self.roi & valid],
-                                           dirs[self.roi & valid], origin, self.light)
-        # The pixel model under these conditions: colour differences scale with the light's
-        # brightness (a dimmer image has smaller ones), depth residuals widen with the noise.
-        brightness = float(np.mean(self.conditions.gain))
-        self.pixels_model = replace(
-            self.likelihood, b_rgb=self.likelihood.b_rgb * float(np.clip(brightness, 0.25, 4.0)),
-            b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
+        self._table = (self._u[self.roi & valid], self._v[self.roi & valid], dirs[self.roi & valid])
+        self._set_light(self.light)
         # Ground sampling distance at the search centre: metres of table per pixel.
         p_C = obs.X_WC.inverse().multiply(np.array([centre[0], centre[1], top]))
         self.gsd = float(max(p_C[2], 1e-3) / obs.intrinsics.fx)
         self.tempering = self.likelihood.tempering_for(model.name, self.gsd)
-        self._sets: dict[int, _PixelSet] = {}
+
+    def _set_light(self, light: np.ndarray) -> None:
+        """Assume the light arrives from direction `light` (world, unit): read the image's
+        conditions off the bare table under it and set the pixel model (colour differences scale
+        with the light's brightness, a dimmer image has smaller ones; depth residuals widen with
+        the noise)."""
+        self.light = np.asarray(light, float)
+        self.conditions = _read_conditions(self.obs, *self._table, self.origin, self.light)
+        brightness = float(np.mean(self.conditions.gain))
+        self.pixels_model = replace(
+            self.likelihood, b_rgb=self.likelihood.b_rgb * float(np.clip(brightness, 0.25, 4.0)),
+            b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
+        self._sets = {}
+
+    def fit_light(self, pose: np.ndarray, stride: int, min_walls: int = 30,
+                  min_gain: float = 0.3) -> bool:
+        """Estimate the light's direction from the gear's shading at `pose` (x, y, yaw) and use it
+        if it explains the gear's colours clearly better than the current one; returns whether the
+        light changed.
+
+        Under a directional white light L, a pixel of albedo a and normal n shows a * max(0, n . L);
+        the bare table (n = z) fixes L_z times the light's colour, so with k = table colour / table
+        albedo, y = rgb / (a k) = n . (L / L_z): linear in the two unknowns L_x / L_z and L_y / L_z,
+        fitted (Huber-weighted) on the lit pixels whose depth the pose explains. Only the gear's
+        walls and chamfers (normals off vertical) carry the horizontal part; with fewer than
+        `min_walls` of them, or a fit that lowers the robust colour residual by less than
+        `min_gain` of the current light's, the light is kept."""
+        if self.conditions.table_pixels == 0 or self.light[2] <= 0:
+            return False
+        ps = self.pixels(stride)
+        hits = self.caster.render(ps.origin, ps.dirs, self.light, np.asarray(pose, float)[None],
+                                  surface=True)
+        k = self.conditions.gain * self.light[2]  # table colour / table albedo, per channel
+        depth = ps.depth[hits.pix]
+        near = np.isfinite(depth) & (np.abs(depth - hits.depth) < 3 * self.pixels_model.b_d)
+        denom = (hits.albedo * k).sum(1)
+        y = ps.rgb[hits.pix].sum(1) / np.maximum(denom, 1e-6)
+        lit = near & (denom > 0.05) & (y > 0.05) & (ps.rgb[hits.pix].max(1) < 0.99)
+        n, y = hits.normal[lit].astype(float), y[lit]
+        walls = np.hypot(n[:, 0], n[:, 1]) > 0.5
+        if np.count_nonzero(walls) < min_walls:
+            return False
+        m0 = self.light[:2] / self.light[2]
+        m = m0.copy()
+        for _ in range(8):  # Huber IRLS on the pixels the current estimate lights
+            use = n[:, :2] @ m + n[:, 2] > 0
+            r = y[use] - n[use, 2] - n[use, :2] @ m
+            scale = max(1.4826 * np.median(np.abs(r)), 1e-3)
+            w = np.minimum(1.0, 1.345 * scale / np.maximum(np.abs(r), 1e-12))
+            A = n[use, :2] * w[:, None]
+            m = np.linalg.lstsq(A.T @ n[use, :2] + 1e-6 * np.eye(2), A.T @ (y[use] - n[use, 2]),
+                                rcond=None)[0]
+
+        def loss(mm):  # on the walls: the top faces fit any light alike
+            pred = np.maximum(0.0, n[walls, :2] @ mm + n[walls, 2])
+            return float(np.median(np.abs(y[walls] - pred)))
+
+        if loss(m) > (1.0 - min_gain) * loss(m0):
+            return False
+        light = np.append(m, 1.0)
+        self._set_light(light / np.linalg.norm(light))
+        return True
 
     def stride_for(self, target: int) -> int:
         """The subsampling factor m at which a gear at the centre covers about `target` of the

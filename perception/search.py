@@ -79,8 +79,12 @@ class SearchConfig:
     max_cell_mass: float = 0.5      # shrink an axis whose marginal puts more than this in one cell
     min_pixels: int = 25            # fewer gear pixels (at the fine stride) -> uninformative
     min_inlier_fraction: float = 0.5
+    fit_light: bool = True          # estimate the light's direction from the gear's shading
+    light_rounds: int = 2           # ... and search again under it at most this many times
 
     def __post_init__(self) -> None:
+        if self.light_rounds < 0:
+            raise ValueError(f"light_rounds = {self.light_rounds}; expected >= 0")
         if self.grid < 3 or self.grid % 2 == 0:
             raise ValueError(f"grid = {self.grid}; expected an odd number >= 3")
         if self.beam < 1 or self.coarse_pixels < 10 or self.fine_pixels < self.coarse_pixels:
@@ -161,40 +165,15 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
 
     coarse = scorer.stride_for(config.coarse_pixels)
     fine = scorer.stride_for(config.fine_pixels)
-    # 1. Coarse grid over the box and one appearance period.
-    step = min(config.coarse_step * model.tip_radius, prior.half_width)
-    nxy = int(np.ceil(prior.half_width / step)) * 2 + 1
-    axis = np.linspace(-prior.half_width, prior.half_width, nxy)
-    n_yaw = config.coarse_yaw_cells if model.symmetry > 1 else config.coarse_yaw_cells_turn
-    yaw_step = model.period / n_yaw
-    yaws = np.arange(n_yaw) * yaw_step - (np.pi if model.symmetry == 1 else 0.0)
-    g = np.meshgrid(prior.x + axis, prior.y + axis, yaws, indexing="ij")
-    poses = np.stack([a.ravel() for a in g], axis=1)
-    s = score(poses, coarse)
-    dxy = axis[1] - axis[0] if nxy > 1 else step
-    steps = np.array([dxy, dxy, yaw_step])
-    centres = _distinct_best(poses, s.loglik, config.beam, steps, model.period)
-    # 2. Refine each of the beam's hypotheses on its own with shrinking grids (5^3 for the first
-    #    two stages, then 3^3), so that a yaw alias (e.g. half a tooth pitch off) cannot crowd out
-    #    the true basin; the best refined one is the MAP.
-    centres, last = _refine(centres, steps, score, fine, config, prior, wide_stages=1)
-    best, best_ll = centres[int(np.argmax(last))], float(last.max())
-    # 3. Yaw sweep at the refined position: the silhouette fixes x-y long before the teeth fix
-    #    yaw, and a tooth pattern half a pitch off is a strong local optimum. Sweep the whole
-    #    appearance period finely around the MAP's x-y and refine the best sweep hypothesis too.
-    sweep_step = model.period / config.sweep_yaw_cells
-    if model.period > 8 * config.min_yaw_step:
-        r = config.sweep_xy * np.linspace(-1.0, 1.0, 3)
-        g = np.meshgrid(best[0] + r, best[1] + r,
-                        best[2] + sweep_step * np.arange(1, config.sweep_yaw_cells), indexing="ij")
-        sweep = prior.clip(np.stack([a.ravel() for a in g], axis=1))
-        sweep_ll = score(sweep, fine).loglik
-        starts = _distinct_best(sweep, sweep_ll, 2, np.array([r[1] - r[0]] * 2 + [sweep_step]),
-                                model.period)
-        alt, alt_ll = _refine(starts, np.array([r[1] - r[0], r[1] - r[0], sweep_step]),
-                              score, fine, config, prior)
-        if alt_ll.max() > best_ll:
-            best, best_ll = alt[int(np.argmax(alt_ll))], float(alt_ll.max())
+    best = _search_map(model, prior, score, coarse, fine, config)
+    # The light: if the gear's shading at the MAP says the light comes from elsewhere than the
+    # assumed headlight (walls lit differently), search again under the fitted light; the fit at a
+    # wrong pose is itself off, so refit at the new MAP (at most `light_rounds` times).
+    for _ in range(config.light_rounds if config.fit_light else 0):
+        if not scorer.fit_light(best, fine):
+            break
+        info["light"] = scorer.light.tolist()
+        best = _search_map(model, prior, score, coarse, fine, config)
     # Sanity: does the best pose show enough of the gear, and explain what it shows?
     check = score(best[None], fine)
     pixels, inliers = int(check.pixels[0]), float(check.inliers[0])
@@ -219,6 +198,52 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
     info["seconds"] = time.perf_counter() - t0
     post.info.update(info)
     return post
+
+
+def _search_map(model: GearModel, prior: Prior, score, coarse: int, fine: int,
+                config: SearchConfig) -> np.ndarray:
+    """The MAP pose within `prior`: a coarse grid, the beam refined, then the yaw sweep."""
+    # 1. Coarse grid over the box and one appearance period.
+    step = min(config.coarse_step * model.tip_radius, prior.half_width)
+    nxy = int(np.ceil(prior.half_width / step)) * 2 + 1
+    axis = np.linspace(-prior.half_width, prior.half_width, nxy)
+    n_yaw = config.coarse_yaw_cells if model.symmetry > 1 else config.coarse_yaw_cells_turn
+    yaw_step = model.period / n_yaw
+    yaws = np.arange(n_yaw) * yaw_step - (np.pi if model.symmetry == 1 else 0.0)
+    g = np.meshgrid(prior.x + axis, prior.y + axis, yaws, indexing="ij")
+    poses = np.stack([a.ravel() for a in g], axis=1)
+    s = score(poses, coarse)
+    dxy = axis[1] - axis[0] if nxy > 1 else step
+    steps = np.array([dxy, dxy, yaw_step])
+    centres = _distinct_best(poses, s.loglik, config.beam, steps, model.period)
+    # 2. Refine each of the beam's hypotheses on its own with shrinking grids (5^3 for the first
+    #    stage, then 3^3), so that a yaw alias (e.g. half a tooth pitch off) cannot crowd out the
+    #    true basin; the best refined one is the MAP so far.
+    centres, last = _refine(centres, steps, score, fine, config, prior, wide_stages=1)
+    best, best_ll = centres[int(np.argmax(last))], float(last.max())
+    # 3. Yaw sweep at the refined position: the silhouette fixes x-y long before the teeth fix
+    #    yaw, and a tooth pattern half a pitch off is a strong local optimum.
+    return _yaw_sweep(best, best_ll, model, score, fine, config, prior)[0]
+
+
+def _yaw_sweep(best: np.ndarray, best_ll: float, model: GearModel, score, stride: int,
+               config: SearchConfig, prior: Prior) -> tuple[np.ndarray, float]:
+    """Sweep the whole appearance period finely in yaw at 3 x 3 positions around `best`'s x-y,
+    refine the best two sweep hypotheses, and return the better of them and `best`."""
+    sweep_step = model.period / config.sweep_yaw_cells
+    if model.period <= 8 * config.min_yaw_step:
+        return best, best_ll
+    r = config.sweep_xy * np.linspace(-1.0, 1.0, 3)
+    g = np.meshgrid(best[0] + r, best[1] + r,
+                    best[2] + sweep_step * np.arange(1, config.sweep_yaw_cells), indexing="ij")
+    sweep = prior.clip(np.stack([a.ravel() for a in g], axis=1))
+    sweep_ll = score(sweep, stride).loglik
+    steps = np.array([r[1] - r[0], r[1] - r[0], sweep_step])
+    starts = _distinct_best(sweep, sweep_ll, 2, steps, model.period)
+    alt, alt_ll = _refine(starts, steps, score, stride, config, prior)
+    if alt_ll.max() > best_ll:
+        return alt[int(np.argmax(alt_ll))], float(alt_ll.max())
+    return best, best_ll
 
 
 def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
