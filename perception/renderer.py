@@ -96,14 +96,15 @@ class RayCaster:
         out = []
         for s in range(0, len(pairs_h), self.config.chunk):
             h, p = pairs_h[s:s + self.config.chunk], pairs_p[s:s + self.config.chunk]
-            out.append(self._march(origin, a[p], b[p], t_top[p], t_bot[p], poses[h], light, h, p))
+            out.append(self._march(origin, a[p], b[p], t_top[p], t_bot[p], poses[h], light, h, p,
+                                   surface))
         if not out:
             empty = np.zeros(0, np.int64)
             none3 = np.zeros((0, 3), np.float32)
             return RenderedPairs(empty, empty, np.zeros(0, np.float32), none3,
                                  none3 if surface else None, none3 if surface else None)
-        parts = [np.concatenate([o[k] for o in out]) for k in range(6)]
-        return RenderedPairs(*parts[:4], *(parts[4:] if surface else (None, None)))
+        parts = [np.concatenate([o[k] for o in out]) for k in range(6 if surface else 4)]
+        return RenderedPairs(*parts)
 
     def _candidates(self, a: np.ndarray, b: np.ndarray, down: np.ndarray,
                     centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -159,7 +160,7 @@ class RayCaster:
     def _lookup(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
         return self.map.index(gx, gy)
 
-    def _march(self, origin, a, b, t_top, t_bot, pose, light, hyp, pix):
+    def _march(self, origin, a, b, t_top, t_bot, pose, light, hyp, pix, surface=False):
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
         # Slab entry point and chord in the gear frame: rotate by -yaw about the gear's axis.
         rx, ry = a[:, 0] - pose[:, 0], a[:, 1] - pose[:, 1]
@@ -233,6 +234,8 @@ class RayCaster:
         albedo = self._albedo[k_in]
         rgb = (albedo * shade[:, None]).astype(np.float32)
         depth = (t_top[rows] + s_final * (t_bot[rows] - t_top[rows])).astype(np.float32)
+        if not surface:
+            return hyp[rows], pix[rows], depth, rgb, None, None
         world = np.column_stack([cr * normal[:, 0] - sr * normal[:, 1],
                                  sr * normal[:, 0] + cr * normal[:, 1], normal[:, 2]])
         return hyp[rows], pix[rows], depth, rgb, world.astype(np.float32), albedo
