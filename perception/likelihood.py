@@ -28,7 +28,8 @@ from assembly.gearset import gear_spec
 class LikelihoodConfig:
     """p_out: outlier probability; b_rgb: colour scale (L1 over r, g, b in [0, 1]); b_d: depth
     scale [m]; depth_range: support of the outlier depth density [m]; tempering: exponent on the
-    full-resolution product of pixel likelihoods (accounts for correlated pixels)."""
+    full-resolution product of pixel likelihoods (accounts for correlated pixels); its default
+    comes from the view: correlation_length, gsd_exponent and reference_gsd (tempering_for)."""
 
     p_out: float = 0.1
     b_rgb: float = 0.15
@@ -36,11 +37,14 @@ class LikelihoodConfig:
     depth_range: float = 2.0
     tempering: float | None = None  # None: from the view and the gear (see tempering_for)
     correlation_length: float = 1.0e-3  # [m] along the gear's outline (calibrated, docs)
+    gsd_exponent: float = 1.77          # how the tempering grows with the pixel size (calibrated)
+    reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
             raise ValueError(f"p_out = {self.p_out}; expected a probability in (0, 1)")
-        for name in ("b_rgb", "b_d", "depth_range", "tempering", "correlation_length"):
+        for name in ("b_rgb", "b_d", "depth_range", "tempering", "correlation_length",
+                     "gsd_exponent", "reference_gsd"):
             value = getattr(self, name)
             if name == "tempering" and value is None:
                 continue
@@ -49,16 +53,23 @@ class LikelihoodConfig:
 
     def tempering_for(self, gear: str, gsd: float) -> float:
         """The tempering exponent for `gear` seen at ground sampling distance `gsd` [m of table per
-        pixel]: the fixed `tempering` if set, else gsd^2 / (correlation_length * tip radius), at
-        most 1. The evidence about a gear's pose lies along its outline (silhouette and teeth),
-        where neighbouring pixels err together over about `correlation_length`: a pixel of area
-        gsd^2 is worth that fraction of one independent look at a piece of outline, and the
-        outline grows with the radius."""
+        pixel]: the fixed `tempering` if set, else
+
+            min(1, g0^2 (gsd / g0)^k / (correlation_length * tip radius)),  g0 = reference_gsd,
+            k = gsd_exponent.
+
+        The evidence about a gear's pose lies along its outline (silhouette and teeth), where
+        neighbouring pixels err together over about `correlation_length`: a pixel of area gsd^2
+        is worth that fraction of one independent look at a piece of outline (k = 2), and the
+        outline grows with the radius. Measured, the exponent is a little below 2: the coarser,
+        oblique scene view needs relatively less weight than the close view (docs)."""
         if self.tempering is not None:
             return float(self.tempering)
         if not (np.isfinite(gsd) and gsd > 0):
             raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
-        return float(min(1.0, gsd ** 2 / (self.correlation_length * gear_spec(gear).tip_radius)))
+        g0 = self.reference_gsd
+        pixel = g0 ** 2 * (gsd / g0) ** self.gsd_exponent
+        return float(min(1.0, pixel / (self.correlation_length * gear_spec(gear).tip_radius)))
 
     def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
                      depth_hat: np.ndarray) -> np.ndarray:

@@ -1,0 +1,60 @@
+"""The grasp geometry the planner needs: from a gear's pose on the table and the tool pose a pick
+aims at, the grasp error xi the insertion skill then sees, and back.
+
+A gear lies flat at (x, y, yaw) in the world; the tool points down with its x axis at heading
+`tool_yaw`, centred over (tool_x, tool_y). The grasp error (assembly.world.grasp_with_error) is the
+gear's offset in the hand from the centred grasp: along the tool's x and y axes [m] and about the
+gear's axis [rad]. With the tool frame R_WT = Rz(psi) Rx(pi):
+
+    xi_x = c dx + s dy,  xi_y = s dx - c dy,  xi_yaw = yaw - psi,   d = gear - tool, (c, s) of psi
+
+(the 2 x 2 map [[c, s], [s, -c]] is its own inverse). A gear's yaw is a class modulo its tooth
+pitch (`period`), so xi_yaw is wrapped to within period / 2 of a chosen centre (the grasp error
+the pick aimed for).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def _wrap(angle: NDArray[np.float64], period: float) -> NDArray[np.float64]:
+    return (angle + period / 2) % period - period / 2
+
+
+def _check_period(period: float) -> None:
+    if not (np.isfinite(period) and 0 < period <= 2 * np.pi + 1e-12):
+        raise ValueError(f"period = {period}; expected (0, 2 pi] rad")
+
+
+def grasp_error(poses: ArrayLike, tool: ArrayLike, period: float = 2 * np.pi,
+                yaw_centre: float = 0.0) -> NDArray[np.float64]:
+    """The grasp errors xi (N, 3) of gears at world poses `poses` (N, 3) or (3,) = (x, y, yaw)
+    picked by a tool at `tool` = (x, y, heading) pointing down; xi_yaw is the member of its class
+    (modulo `period`) within period / 2 of `yaw_centre`."""
+    _check_period(period)
+    p = np.atleast_2d(np.asarray(poses, float))
+    t = np.asarray(tool, float)
+    if p.shape[1:] != (3,) or t.shape != (3,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(t))):
+        raise ValueError(f"poses {np.shape(poses)} and tool {np.shape(tool)}; expected finite (N, 3) "
+                         "and (3,) rows (x [m], y [m], yaw [rad])")
+    c, s = np.cos(t[2]), np.sin(t[2])
+    dx, dy = p[:, 0] - t[0], p[:, 1] - t[1]
+    yaw = yaw_centre + _wrap(p[:, 2] - t[2] - yaw_centre, period)
+    return np.column_stack([c * dx + s * dy, s * dx - c * dy, yaw])
+
+
+def aim_tool(pose: ArrayLike, xi: ArrayLike = (0.0, 0.0, 0.0)) -> NDArray[np.float64]:
+    """The tool pose (x, y, heading) at which a gear at `pose` = (x, y, yaw) is held with grasp
+    error `xi`: pick there and grasp_error(pose, tool) == xi."""
+    p, e = np.asarray(pose, float), np.asarray(xi, float)
+    if p.shape != (3,) or e.shape != (3,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(e))):
+        raise ValueError(f"pose {np.shape(pose)} and xi {np.shape(xi)}; expected finite (3,) each")
+    psi = p[2] - e[2]
+    c, s = np.cos(psi), np.sin(psi)
+    d = np.array([c * e[0] + s * e[1], s * e[0] - c * e[1]])
+    return np.array([p[0] - d[0], p[1] - d[1], psi])
+
+
+__all__ = ["aim_tool", "grasp_error"]
