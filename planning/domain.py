@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from assembly.gearset import GEAR_NAMES, gear_spec
 from planning.bfs import Step
-from planning.grasp import aim_tool, grasp_error
+from planning.grasp import aim_tool, grasp_error, picked_grasp_errors
 
 LOCATIONS = ("table", "hand", "inserted")
 
@@ -82,7 +82,9 @@ class AssemblyDomain:
     """The gearbox assembly's skills over belief states. `preconditions[g]` estimates the insert
     skill's success probability from grasp-error samples; `eta` the bar; `inspect_std(g, std)` the
     std after inspect(g); `aim_xi[g]` the grasp error a pick aims for (e.g. the flow's mode);
-    `goal` the gears to insert, in `order` if given."""
+    `goal` the gears to insert, in `order` if given; `real_fingers`: the pick centres the gear
+    along the fingers' closing axis (planning.grasp.PICK_MODEL), else the grasp is exactly the
+    aimed one."""
 
     preconditions: dict[str, PreconditionFn]
     eta: float
@@ -93,6 +95,7 @@ class AssemblyDomain:
     max_inspections: int = 2
     samples: int = 256
     seed: int = 0
+    real_fingers: bool = True
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -118,7 +121,11 @@ class AssemblyDomain:
             rng = np.random.default_rng([self.seed, zlib.crc32(repr(key).encode())])
             poses = np.asarray(belief.mean) + rng.standard_normal((self.samples, 3)) * np.asarray(belief.std)
             aim = self.aim_xi.get(gear, (0.0, 0.0, 0.0))
-            xi = grasp_error(poses, belief.tool, 2 * np.pi / gear_spec(gear).teeth, aim[2])
+            period = 2 * np.pi / gear_spec(gear).teeth
+            if self.real_fingers:
+                xi = picked_grasp_errors(gear, poses, belief.tool, period, rng, aim[2])
+            else:
+                xi = grasp_error(poses, belief.tool, period, aim[2])
             self._cache[key] = float(self.preconditions[gear](xi))
         return self._cache[key]
 
@@ -169,7 +176,10 @@ class AssemblyDomain:
 class PlannerConfig:
     """eta, eps: Eq. 7's bars (eps None: Eq. 6, the value alone); samples: belief samples per
     precondition estimate; max_inspections per gear; order: gears inserted in this order (None:
-    any); seed of the belief samples."""
+    any); seed of the belief samples; real_fingers: picks centre the gear along the fingers'
+    closing axis (measured, planning.grasp.PICK_MODEL) and aim for the best grasp error on that
+    slice (planning.precondition.best_aim), else the grasp is the aimed one and aims for the
+    flow's median."""
 
     eta: float = 0.9
     eps: float | None = 1.0
@@ -177,6 +187,7 @@ class PlannerConfig:
     max_inspections: int = 2
     order: tuple[str, ...] | None = None
     seed: int = 0
+    real_fingers: bool = True
 
 
 def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = GEAR_NAMES,
@@ -188,7 +199,9 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
     missing skill or threshold file."""
     from learning.skills import load_skill
     from perception.inspect_model import predict_inspection
-    from planning.precondition import PreconditionConfig, insert_precondition, preferred_grasp_error
+    from planning.precondition import (
+        PreconditionConfig, best_aim, insert_precondition, preferred_grasp_error,
+    )
 
     config = config or PlannerConfig()
     unknown = [g for g in goal if g not in GEAR_NAMES]
@@ -198,14 +211,16 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
     preconditions, aims = {}, {}
     for gear in goal:
         skill = (skills or {}).get(gear) or load_skill("insert", gear)
-        preconditions[gear] = insert_precondition(gear, pre_config, skill=skill).probability
-        aims[gear] = tuple(float(v) for v in preferred_grasp_error(skill))
+        pre = insert_precondition(gear, pre_config, skill=skill)
+        preconditions[gear] = pre.probability
+        aim = best_aim(pre) if config.real_fingers else preferred_grasp_error(skill)
+        aims[gear] = tuple(float(v) for v in aim)
 
     def inspect_std(gear: str, std: tuple[float, float, float]) -> tuple[float, float, float]:
         return tuple(float(v) for v in predict_inspection(gear, np.maximum(std, 1e-9)).std_after_cautious)
 
     return AssemblyDomain(preconditions, config.eta, inspect_std, tuple(goal), config.order, aims,
-                          config.max_inspections, config.samples, config.seed)
+                          config.max_inspections, config.samples, config.seed, config.real_fingers)
 
 
 def table_belief(mean: tuple[float, float, float] | NDArray[np.float64],

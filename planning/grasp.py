@@ -57,4 +57,32 @@ def aim_tool(pose: ArrayLike, xi: ArrayLike = (0.0, 0.0, 0.0)) -> NDArray[np.flo
     return np.array([p[0] - d[0], p[1] - d[1], psi])
 
 
-__all__ = ["aim_tool", "grasp_error"]
+# The pick with the real fingers, measured (`benchmarks/grasp_map.py --picks 15 --offset-std 0.002
+# --json docs/results/grasp_map.json`; 45 simulated picks, every gear lifted): the fingers close
+# along the tool's y axis and centre the gear there whatever the aim (residual mean, std); along
+# the tool's x axis the gear keeps the aimed error plus a small push (mean, std); its yaw keeps
+# the aimed one plus (mean, std). Per gear, SI units.
+PICK_MODEL: dict[str, dict[str, tuple[float, float]]] = {
+    "small": {"closing": (-1e-6, 3e-6), "along": (7.9e-5, 1.95e-4), "yaw": (-6.3e-4, 1.96e-3)},
+    "medium": {"closing": (2e-6, 1.1e-5), "along": (9.8e-5, 1.95e-4), "yaw": (-7.6e-4, 1.32e-3)},
+    "large": {"closing": (2e-6, 9e-6), "along": (1.86e-4, 2.81e-4), "yaw": (-4.44e-3, 1.396e-2)},
+}
+
+
+def picked_grasp_errors(gear: str, poses: ArrayLike, tool: ArrayLike, period: float,
+                        rng: np.random.Generator, yaw_centre: float = 0.0) -> NDArray[np.float64]:
+    """Grasp errors (N, 3) after the real fingers' pick of `gear` at world poses `poses` by a tool
+    aimed at `tool`: the geometric errors (grasp_error) with the measured pick (PICK_MODEL): the
+    closing axis (tool y) centred, a push along tool x, a small yaw change."""
+    if gear not in PICK_MODEL:
+        raise ValueError(f"unknown gear {gear!r}; expected one of {sorted(PICK_MODEL)}")
+    xi = grasp_error(poses, tool, period, yaw_centre)
+    model = PICK_MODEL[gear]
+    n = len(xi)
+    xi[:, 0] += rng.normal(*model["along"], n)
+    xi[:, 1] = rng.normal(*model["closing"], n)
+    xi[:, 2] += rng.normal(*model["yaw"], n)
+    return xi
+
+
+__all__ = ["PICK_MODEL", "aim_tool", "grasp_error", "picked_grasp_errors"]

@@ -118,6 +118,29 @@ def preferred_grasp_error(skill: Skill, samples: int = 4096, seed: int = 0) -> N
     return np.median(xi, axis=0)
 
 
+def best_aim(pre: InsertPrecondition, closing: float = 0.0, blur: tuple[float, float] = (5e-4, 0.01),
+             samples: int = 64, seed: int = 0) -> NDArray[np.float64]:
+    """The grasp error a real-finger pick should aim for: the fingers pin xi_y (their closing
+    axis) at `closing`, so search x (every 0.25 mm over +-5 mm) and yaw (the flow's median +- 2
+    std, 9 values) for the point whose neighbourhood (x, yaw blurred by N(0, `blur`)) passes
+    `pre` most often; ties go to the point nearest the flow's median."""
+    skill = pre.skill
+    rng = np.random.default_rng(seed)
+    draws = skill.sampler.sample(4096, rng)
+    centre, spread = np.median(draws, axis=0), np.std(draws, axis=0)
+    xs = np.arange(-5e-3, 5e-3 + 1e-9, 2.5e-4)
+    yaws = centre[2] + np.linspace(-2, 2, 9) * spread[2]
+    noise = rng.standard_normal((samples, 2)) * np.asarray(blur)
+    best, best_score = None, (-1.0, 0.0)
+    for yaw in yaws:
+        for x in xs:
+            xi = np.column_stack([x + noise[:, 0], np.full(samples, closing), yaw + noise[:, 1]])
+            score = (pre.probability(xi), -np.hypot((x - centre[0]) / spread[0], (yaw - centre[2]) / spread[2]))
+            if score > best_score:
+                best, best_score = np.array([x, closing, yaw]), score
+    return best
+
+
 def start_observation(skill: Skill) -> NDArray[np.float32]:
     """s0: the skill's first observation (its env reset; the same for every grasp error)."""
     env = skill.make_env()
@@ -192,5 +215,5 @@ def calibrate_value_threshold(skill: Skill, episodes: int = 200, spread: float =
 
 __all__ = ["InsertPrecondition", "PreconditionConfig", "THRESHOLDS", "ValueCalibration",
            "calibrate_value_threshold", "insert_precondition", "load_value_thresholds",
-           "preferred_grasp_error",
+           "preferred_grasp_error", "best_aim",
            "rollout_return", "start_observation"]

@@ -52,6 +52,7 @@ from common.config import config_with_overrides
 from common.errors import InputError
 from assembly.envs.drake_sim import advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
+from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from assembly.world import (
@@ -140,8 +141,6 @@ class GearInsertionEnv(ParamEnv):
                             Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))
         super().__init__(space, sampler)
         self._set_timing(c.control_dt, c.t_max, c.success_threshold)
-        self._scale = np.asarray(c.action_scale, dtype=float)
-        self._workspace = np.asarray(c.workspace, dtype=float)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         # Bounds: poses within 1 m / pi of the seated pose, velocities within 10 m/s / 100 rad/s
         # (far beyond what the impedance allows; a simulation that leaves them has failed).
@@ -155,7 +154,8 @@ class GearInsertionEnv(ParamEnv):
         self._seated = np.array([*self._X_WT_seated.translation(), _yaw(self._X_WT_seated.rotation())])
         self._start = self._seated + [0.0, 0.0, SHAFT_HEIGHT + c.start_height, 0.0]
         self._sim.prepare(_down(self._start[:3], self._start[3]))
-        self._poses = np.zeros((c.history, 4))
+        self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt)
+        self._history = PoseHistory(self.law)
 
     @property
     def sim(self) -> _FastSim | _PandaSim:
@@ -174,19 +174,12 @@ class GearInsertionEnv(ParamEnv):
         """Measured tool pose (x, y, z, yaw) in the world."""
         return self._sim.tool_pose()
 
-    def _relative(self, pose: np.ndarray) -> np.ndarray:
-        rel = pose - self._seated
-        rel[3] = (rel[3] + np.pi) % (2 * np.pi) - np.pi
-        return rel
-
     def _observation(self) -> NDArray[np.float32]:
-        """Rows newest first: (pose, (pose - previous pose) / control_dt); the oldest row's
-        velocity is zero."""
-        velocities = np.zeros_like(self._poses)
-        velocities[:-1] = (self._poses[:-1] - self._poses[1:]) / self.control_dt
-        obs = np.concatenate([self._poses, velocities], axis=1).reshape(-1).astype(np.float32)
+        """The policy's observation (assembly.insertion_law.PoseHistory), checked against its
+        bounds."""
+        obs = self._history.observation()
         if not np.all(np.abs(obs) <= self.observation_space.high):
-            raise SimulationError(f"observation left its bounds: tool pose {self._poses[0]}")
+            raise SimulationError(f"observation left its bounds: tool pose {self._history.poses[0]}")
         return obs
 
     def bare_rollout(self, xi: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -200,15 +193,13 @@ class GearInsertionEnv(ParamEnv):
 
     def _target(self, action: np.ndarray) -> np.ndarray:
         """Impedance target: the measured tool pose plus the scaled action, kept in the workspace."""
-        offset = self._relative(self._sim.tool_pose()) + np.clip(action, -1.0, 1.0) * self._scale
-        return np.clip(offset, -self._workspace, self._workspace) + self._seated
+        return self.law.target(action, self._sim.tool_pose())
 
     # -- ParamEnv hooks --------------------------------------------------------------------
 
     def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
         self._sim.reset(grasp_with_error(self.config.gear, *xi))
-        self._poses[:] = 0.0
-        self._poses[0] = self._relative(self._sim.tool_pose())
+        self._history.reset(self._sim.tool_pose())
         self._d = math.hypot(*self.insertion_error())
         return self._observation()
 
@@ -218,8 +209,7 @@ class GearInsertionEnv(ParamEnv):
         pose = self._sim.tool_pose()
         if not np.all(np.isfinite(pose)):
             raise SimulationError(f"non-finite tool pose {pose} after the step")
-        self._poses[1:] = self._poses[:-1]
-        self._poses[0] = self._relative(pose)
+        self._history.push(pose)
         lateral, height = self.insertion_error()
         seated = is_seated(lateral, height)
         d = math.hypot(lateral, height)
