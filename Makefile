@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml tools/setup_env.sh
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/goflow demo --scripted
+	$(BIN)/goflow demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -205,19 +205,20 @@ def _backend(args: argparse.Namespace, workers: int, inline: bool = False) -> An
 # ---------------------------------------------------------------------------------------------
 
 def _demo_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scripted", action="store_true", help="scripted pick-and-insert of all three gears")
+    p.add_argument("--scripted", action="store_true",
+                   help="the scripted pick-and-insert from the gears' true poses (no perception, no planner)")
+    p.add_argument("--seed", type=int, default=0, help="the gears' random placement (planned assembly)")
     p.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
     p.add_argument("--record", metavar="FILE.html", type=Path, help="save a Meshcat recording")
-    p.add_argument("--json", metavar="PATH", type=Path, help="write the per-gear summary as JSON")
+    p.add_argument("--json", metavar="PATH", type=Path, help="write the summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if not args.scripted:
-        raise InputError("only the scripted assembly exists so far; run `goflow demo --scripted`")
     record = check_output_file(args.record, "--record") if args.record else None
     json_path = check_output_file(args.json, "--json") if args.json else None
-    from assembly.demo import AssemblyConfig, format_summary, run_assembly
+    if args.seed < 0:
+        raise InputError(f"--seed {args.seed}; expected a seed >= 0")
     from assembly.station import make_meshcat
 
     meshcat = None
@@ -228,9 +229,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         # The recording goes to a scratch file first: the summary and its JSON are out before it
         # is moved into place, so a recording that cannot be saved loses nothing else.
         scratch = Path(tmp) / "recording.html" if record else None
-        summary = run_assembly(AssemblyConfig(), meshcat=meshcat, record=scratch,
-                               realtime=args.meshcat and not record, progress=not args.quiet)
-        print(format_summary(summary))
+        if args.scripted:
+            from assembly.demo import AssemblyConfig, format_summary, run_assembly
+
+            summary = run_assembly(AssemblyConfig(), meshcat=meshcat, record=scratch,
+                                   realtime=args.meshcat and not record, progress=not args.quiet)
+            print(format_summary(summary))
+        else:
+            from planning.assembly import PlannedAssemblyConfig, format_planned, run_planned_assembly
+
+            summary = run_planned_assembly(PlannedAssemblyConfig(seed=args.seed), meshcat=meshcat,
+                                           record=scratch, progress=not args.quiet)
+            print(format_planned(summary))
         if json_path:
             write_json(json_path, summary)
         if record:
@@ -243,7 +253,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             print(f"recording: {record}")
     if args.meshcat and not record and sys.stdin.isatty():
         input("Press Enter to close Meshcat...")
-    return 1 if "sim_error" in summary else 0
+    failed = "sim_error" in summary or (not args.scripted and summary.get("status") != "done")
+    return 1 if failed else 0
 
 
 # ---------------------------------------------------------------------------------------------

@@ -26,9 +26,9 @@ from assembly.gearset import GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
 from assembly.panda_model import FINGER_MAX_WIDTH
 from assembly.world import nominal_grasp, validate_tool_target
 
-__all__ = ["Keyframe", "KeyframePlan", "KeyframePlayer", "ScriptedInsertionConfig",
-           "append_pick_and_insert", "append_return", "down_pose", "min_jerk",
-           "start_keyframe_plan"]
+__all__ = ["Keyframe", "KeyframePlan", "KeyframePlayer", "ScriptedInsertionConfig", "append_move",
+           "append_pick", "append_pick_and_insert", "append_return", "carry_height", "down_pose",
+           "gripper_widths", "min_jerk", "sample_plan", "start_keyframe_plan"]
 
 
 @dataclass
@@ -88,6 +88,13 @@ class KeyframePlan:
         self.keyframes.append(Keyframe(self.end_time + duration, X_WT, width, label))
 
 
+def append_move(plan: KeyframePlan, target: RigidTransform, width: float, label: str, speed: float,
+                min_segment: float) -> None:
+    """A free-space move to `target` at mean tool speed `speed` [m/s], at least `min_segment` [s]."""
+    d = np.linalg.norm(target.translation() - plan.keyframes[-1].X_WT.translation())
+    plan.append(max(d / speed, min_segment), target, width, label)
+
+
 def down_pose(p: np.ndarray, yaw: float) -> RigidTransform:
     """Tool pose at p with the approach axis (tool z) pointing down, rotated by yaw about world z."""
     return RigidTransform(RotationMatrix.MakeZRotation(yaw) @ RotationMatrix.MakeXRotation(np.pi), p)
@@ -102,6 +109,43 @@ def _grasp_yaw(current: RigidTransform) -> float:
     return float(candidates[np.argmin(diffs)])
 
 
+def gripper_widths(gear: str, config: ScriptedInsertionConfig) -> tuple[float, float]:
+    """(open, closed) finger widths commanded for `gear`: open clears its tip circle by
+    open_margin, closed squeezes it by `squeeze` (which sets the grasp force)."""
+    spec = gear_spec(gear)
+    return (min(2 * spec.tip_radius + config.open_margin, FINGER_MAX_WIDTH),
+            2 * spec.tip_radius - config.squeeze)
+
+
+def append_pick(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, yaw: float,
+                carry_z: float, config: ScriptedInsertionConfig) -> None:
+    """Append a pick of `gear` believed at X_WG_believed with the tool heading `yaw`: approach
+    from above, descend, close the fingers, lift to tool height `carry_z`."""
+    if not plan.keyframes:
+        raise ValueError("plan has no start keyframe; "
+                         "begin it with start_keyframe_plan(X_WT_now, width)")
+    c = config
+    open_w, closed_w = gripper_widths(gear, c)
+    grasp_z = nominal_grasp(gear, c.grasp_depth).translation()[2]  # tool height above the gear bottom
+    p_G = X_WG_believed.translation()
+    above_gear = down_pose(p_G + [0, 0, GEAR_THICKNESS + c.approach_height], yaw)
+    at_gear = down_pose(p_G + [0, 0, grasp_z], yaw)
+    lifted = down_pose(np.array([p_G[0], p_G[1], carry_z]), yaw)
+    append_move(plan, above_gear, open_w, f"{gear}: approach", c.speed, c.min_segment)
+    plan.append(c.pause, above_gear, open_w, f"{gear}: steady above gear")
+    append_move(plan, at_gear, open_w, f"{gear}: descend", c.speed, c.min_segment)
+    plan.append(c.pause, at_gear, open_w, f"{gear}: steady at gear")
+    plan.append(c.gripper_time, at_gear, closed_w, f"{gear}: grasp")
+    plan.append(0.2, at_gear, closed_w, f"{gear}: hold")
+    append_move(plan, lifted, closed_w, f"{gear}: lift", c.speed, c.min_segment)
+
+
+def carry_height(gear: str, X_WS: RigidTransform, config: ScriptedInsertionConfig) -> float:
+    """Tool height while carrying `gear`: its bottom `transport_clearance` above the shaft tops."""
+    grasp_z = nominal_grasp(gear, config.grasp_depth).translation()[2]
+    return float(X_WS.translation()[2] + SHAFT_HEIGHT + config.transport_clearance + grasp_z)
+
+
 def append_pick_and_insert(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform,
                            X_WS: RigidTransform, config: ScriptedInsertionConfig) -> None:
     """Append one pick-and-insert of `gear` to `plan`, starting from its last keyframe.
@@ -112,36 +156,22 @@ def append_pick_and_insert(plan: KeyframePlan, gear: str, X_WG_believed: RigidTr
     if not plan.keyframes:
         raise ValueError("plan has no start keyframe; "
                          "begin it with start_keyframe_plan(X_WT_now, width)")
-    spec = gear_spec(gear)
     c = config
     start = plan.end_time
     yaw = _grasp_yaw(plan.keyframes[-1].X_WT)
-    open_w = min(2 * spec.tip_radius + c.open_margin, FINGER_MAX_WIDTH)
-    closed_w = 2 * spec.tip_radius - c.squeeze
+    open_w, closed_w = gripper_widths(gear, c)
     grasp_z = nominal_grasp(gear, c.grasp_depth).translation()[2]  # tool height above the gear bottom
-
-    p_G = X_WG_believed.translation()
     p_S = X_WS.translation()
-    above_gear = down_pose(p_G + [0, 0, GEAR_THICKNESS + c.approach_height], yaw)
-    at_gear = down_pose(p_G + [0, 0, grasp_z], yaw)
-    carry_z = p_S[2] + SHAFT_HEIGHT + c.transport_clearance + grasp_z
-    lifted = down_pose(np.array([p_G[0], p_G[1], carry_z]), yaw)
+    carry_z = carry_height(gear, X_WS, c)
+    append_pick(plan, gear, X_WG_believed, yaw, carry_z, c)
     above_shaft = down_pose(np.array([p_S[0], p_S[1], carry_z]), yaw)
     aligned = down_pose(p_S + [0, 0, SHAFT_HEIGHT + c.align_height + grasp_z], yaw)
     pushed = down_pose(p_S + [0, 0, grasp_z - c.insert_overshoot], yaw)
     retreat = down_pose(p_S + [0, 0, grasp_z + c.retreat_height], yaw)
 
     def move(target: RigidTransform, width: float, label: str, speed: float = c.speed) -> None:
-        d = np.linalg.norm(target.translation() - plan.keyframes[-1].X_WT.translation())
-        plan.append(max(d / speed, c.min_segment), target, width, label)
+        append_move(plan, target, width, label, speed, c.min_segment)
 
-    move(above_gear, open_w, f"{gear}: approach")
-    plan.append(c.pause, above_gear, open_w, f"{gear}: steady above gear")
-    move(at_gear, open_w, f"{gear}: descend")
-    plan.append(c.pause, at_gear, open_w, f"{gear}: steady at gear")
-    plan.append(c.gripper_time, at_gear, closed_w, f"{gear}: grasp")
-    plan.append(0.2, at_gear, closed_w, f"{gear}: hold")
-    move(lifted, closed_w, f"{gear}: lift")
     move(above_shaft, closed_w, f"{gear}: transport")
     move(aligned, closed_w, f"{gear}: align")
     plan.append(c.pause, aligned, closed_w, f"{gear}: steady above shaft")
@@ -171,6 +201,28 @@ def min_jerk(tau: float) -> tuple[float, float, float]:
             60 * tau * (1 - tau) * (1 - 2 * tau))
 
 
+def sample_plan(plan: KeyframePlan, t: float, times: np.ndarray | None = None
+                ) -> tuple[RigidTransform, np.ndarray, np.ndarray, float]:
+    """Desired tool pose, spatial velocity and acceleration ([w; v], [alpha; a] in W) and gripper
+    width of `plan` at time t: a minimum-jerk move (straight line, slerp for rotation) between
+    keyframes, at rest at each; the last keyframe is held. `times`: the keyframes' times, if
+    known (plan needs at least two keyframes)."""
+    times = np.array([k.t for k in plan.keyframes]) if times is None else times
+    k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2))
+    a, b = plan.keyframes[k], plan.keyframes[k + 1]
+    duration = b.t - a.t
+    s, ds, dds = min_jerk((t - a.t) / duration)
+    R_ab = a.X_WT.rotation().inverse() @ b.X_WT.rotation()
+    aa = R_ab.ToAngleAxis()
+    R = a.X_WT.rotation() @ RotationMatrix(AngleAxis(s * aa.angle(), aa.axis()))
+    dp = b.X_WT.translation() - a.X_WT.translation()
+    p = a.X_WT.translation() + s * dp
+    w = a.X_WT.rotation() @ (aa.axis() * aa.angle())
+    twist = np.concatenate([w, dp])
+    width = a.width + min(max((t - a.t) / duration, 0.0), 1.0) * (b.width - a.width)
+    return RigidTransform(R, p), twist * ds / duration, twist * dds / duration ** 2, width
+
+
 class KeyframePlayer(LeafSystem):
     """Plays a KeyframePlan: outputs "X_WT_desired" (abstract RigidTransform), its velocity
     "V_WT_desired" and acceleration "A_WT_desired" (6 each, [w; v] in W) and "gripper_width" (1).
@@ -196,20 +248,8 @@ class KeyframePlayer(LeafSystem):
 
     def sample(self, t: float) -> tuple[RigidTransform, np.ndarray, np.ndarray, float]:
         """Desired tool pose, spatial velocity and acceleration ([w; v], [alpha; a] in W) and
-        gripper width at time t."""
-        k = int(np.clip(np.searchsorted(self._times, t, side="right") - 1, 0, len(self._times) - 2))
-        a, b = self.plan.keyframes[k], self.plan.keyframes[k + 1]
-        duration = b.t - a.t
-        s, ds, dds = min_jerk((t - a.t) / duration)
-        R_ab = a.X_WT.rotation().inverse() @ b.X_WT.rotation()
-        aa = R_ab.ToAngleAxis()
-        R = a.X_WT.rotation() @ RotationMatrix(AngleAxis(s * aa.angle(), aa.axis()))
-        dp = b.X_WT.translation() - a.X_WT.translation()
-        p = a.X_WT.translation() + s * dp
-        w = a.X_WT.rotation() @ (aa.axis() * aa.angle())
-        twist = np.concatenate([w, dp])
-        width = a.width + min(max((t - a.t) / duration, 0.0), 1.0) * (b.width - a.width)
-        return RigidTransform(R, p), twist * ds / duration, twist * dds / duration ** 2, width
+        gripper width at time t (sample_plan)."""
+        return sample_plan(self.plan, t, self._times)
 
     def _calc_pose(self, context: Context, output: AbstractValue) -> None:
         output.set_value(self.sample(context.get_time())[0])

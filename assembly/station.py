@@ -101,7 +101,7 @@ class Station:
         body = gear_body(self.plant, self._gear(gear))
         pc = self.plant.GetMyMutableContextFromRoot(root)
         self.plant.SetFreeBodyPose(pc, body, X_WG)
-        self.plant.SetFreeBodySpatialVelocity(body, SpatialVelocity(), pc)
+        self.plant.SetFreeBodySpatialVelocity(pc, body, SpatialVelocity(np.zeros(6)))  # () is NaN
 
     def insertion_error(self, root: Context, gear: str) -> InsertionError:
         """Lateral and height error of a gear's frame from its seated pose on its shaft."""

@@ -70,6 +70,11 @@ def test_gripper_centres_error_along_closing_direction(tmp_path):
     assert record.stat().st_size > 100_000 and "meshcat" in record.read_text()[:100_000].lower()
 
 
-def test_demo_without_scripted_flag_explains():
-    proc = subprocess.run([str(GOFLOW), "demo"], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "--scripted" in proc.stderr
+def test_planned_demo_refuses_bad_input_before_running(tmp_path):
+    """`goflow demo` (the planned assembly) names a bad seed or output path at once."""
+    proc = subprocess.run([str(GOFLOW), "demo", "--seed", "-1"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--seed -1" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    (tmp_path / "file").write_text("")
+    proc = subprocess.run([str(GOFLOW), "demo", "--json", str(tmp_path / "file" / "s.json")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--json" in proc.stderr

@@ -41,7 +41,9 @@ def test_the_offset_camera_is_found_named_and_closed(offset_log):
     truth = np.array([OFFSET[k] for k in ("dx", "dy", "dz")])
     assert np.linalg.norm(fitted - truth) <= 0.3 * np.linalg.norm(truth)
     assert p["dx"]["value"] == pytest.approx(OFFSET["dx"], rel=0.3)
-    assert p["dz"]["value"] == pytest.approx(OFFSET["dz"], rel=0.3)
+    # along the scene camera's optical axis an offset barely moves the poses (docs/sim2real.md):
+    # its sign and size within a half
+    assert p["dz"]["value"] == pytest.approx(OFFSET["dz"], rel=0.5)
 
 
 def test_the_offset_is_in_the_rendering_not_in_the_results(offset_log):
