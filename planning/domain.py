@@ -84,7 +84,8 @@ class AssemblyDomain:
     std after inspect(g); `aim_xi[g]` the grasp error a pick aims for (e.g. the flow's mode);
     `goal` the gears to insert, in `order` if given; `real_fingers`: the pick centres the gear
     along the fingers' closing axis (planning.grasp.PICK_MODEL), else the grasp is exactly the
-    aimed one."""
+    aimed one; `min_inspections`: inspections a gear needs before it may be picked (1: the
+    "always inspect" baseline)."""
 
     preconditions: dict[str, PreconditionFn]
     eta: float
@@ -96,6 +97,7 @@ class AssemblyDomain:
     samples: int = 256
     seed: int = 0
     real_fingers: bool = True
+    min_inspections: int = 0
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -143,6 +145,8 @@ class AssemblyDomain:
                     std = tuple(float(s) for s in self.inspect_std(name, g.std))
                     out.append((Step("inspect", name),
                                 state.with_gear(name, replace(g, std=std, inspections=g.inspections + 1))))
+                if g.inspections < self.min_inspections:
+                    continue
                 tool = tuple(float(t) for t in aim_tool(g.mean, self.aim_xi.get(name, (0.0, 0.0, 0.0))))
                 out.append((Step("pick", name),
                             state.with_gear(name, replace(g, location="hand", tool=tool), holding=name)))
@@ -176,7 +180,9 @@ class AssemblyDomain:
 class PlannerConfig:
     """eta, eps: Eq. 7's bars (eps None: Eq. 6, the value alone); samples: belief samples per
     precondition estimate; max_inspections per gear; order: gears inserted in this order (None:
-    any); seed of the belief samples; real_fingers: picks centre the gear along the fingers'
+    any); seed of the belief samples; min_inspections before a pick (1: always inspect); blind:
+    insert whatever the belief (no precondition: the "insert at the MAP" baseline);
+    real_fingers: picks centre the gear along the fingers'
     closing axis (measured, planning.grasp.PICK_MODEL) and aim for the best grasp error on that
     slice (planning.precondition.best_aim), else the grasp is the aimed one and aims for the
     flow's median."""
@@ -188,6 +194,13 @@ class PlannerConfig:
     order: tuple[str, ...] | None = None
     seed: int = 0
     real_fingers: bool = True
+    min_inspections: int = 0
+    blind: bool = False
+
+    def __post_init__(self) -> None:
+        if self.max_inspections < 0 or self.min_inspections < 0 or self.min_inspections > self.max_inspections:
+            raise ValueError(f"min_inspections = {self.min_inspections}, max_inspections = "
+                             f"{self.max_inspections}; expected 0 <= min <= max")
 
 
 def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = GEAR_NAMES,
@@ -212,7 +225,7 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
     for gear in goal:
         skill = (skills or {}).get(gear) or load_skill("insert", gear)
         pre = insert_precondition(gear, pre_config, skill=skill)
-        preconditions[gear] = pre.probability
+        preconditions[gear] = (lambda xi: 1.0) if config.blind else pre.probability
         aim = best_aim(pre) if config.real_fingers else preferred_grasp_error(skill)
         aims[gear] = tuple(float(v) for v in aim)
 
@@ -220,7 +233,8 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
         return tuple(float(v) for v in predict_inspection(gear, np.maximum(std, 1e-9)).std_after_cautious)
 
     return AssemblyDomain(preconditions, config.eta, inspect_std, tuple(goal), config.order, aims,
-                          config.max_inspections, config.samples, config.seed, config.real_fingers)
+                          config.max_inspections, config.samples, config.seed, config.real_fingers,
+                          config.min_inspections)
 
 
 def table_belief(mean: tuple[float, float, float] | NDArray[np.float64],

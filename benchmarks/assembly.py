@@ -1,0 +1,137 @@
+"""The full assembly over random placements, side by side (issue 17's benchmark):
+
+    scripted   the scripted pick-and-insert from the gears' true poses (the upper bound)
+    map        the planner, inserting at the scene view's belief with no precondition, no inspection
+    inspect    the planner, inspecting every gear before picking it (Eq. 7 still checked)
+    eq6        the planner with Eq. 6 (value only)
+    eq7        the planner with Eq. 7 (value and flow; the default)
+
+    .venv/bin/python benchmarks/assembly.py --seeds 0 50 --variants scripted eq7 --workers 2 \
+        --out runs/assembly/rows.jsonl --json docs/results/assembly.json
+
+Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
+there (resumable). Prints, per variant: seeds with all three gears inserted (with the binomial
+standard error), gears inserted, inspections and replans per assembly, wall seconds per assembly.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
+from multiprocessing import get_context  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from common.files import check_output_file, write_json  # noqa: E402
+
+VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7")
+
+
+def run_one(variant: str, seed: int) -> dict:
+    import torch
+
+    from assembly.world import random_gear_poses
+
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    if variant == "scripted":
+        from assembly.demo import AssemblyConfig, run_assembly
+        from assembly.station import StationConfig
+        from assembly.world import WorldConfig
+
+        poses = random_gear_poses(np.random.default_rng(seed))
+        s = run_assembly(AssemblyConfig(station=StationConfig(world=WorldConfig(gear_start_poses=poses))),
+                         progress=False)
+        executed, replans, status = [], 0, "done" if "sim_error" not in s else "sim_error"
+    else:
+        from planning.assembly import PlannedAssemblyConfig, run_planned_assembly
+        from planning.domain import PlannerConfig
+
+        planner = {"map": PlannerConfig(blind=True, max_inspections=0),
+                   "inspect": PlannerConfig(min_inspections=1),
+                   "eq6": PlannerConfig(eps=None), "eq7": PlannerConfig()}[variant]
+        s = run_planned_assembly(PlannedAssemblyConfig(seed=seed, planner=planner))
+        executed, replans, status = s["executed"], s["replans"], s["status"]
+    gears = s["gears"]
+    return {"variant": variant, "seed": seed, "status": status,
+            "inserted": sum(g["inserted"] for g in gears.values()),
+            "all_inserted": all(g["inserted"] for g in gears.values()),
+            "inspections": sum(e["skill"] == "inspect" for e in executed), "replans": replans,
+            "reason": s.get("reason", ""), "sim_error": s.get("sim_error", ""),
+            "sim_time_s": s["sim_time_s"], "wall_time_s": time.perf_counter() - t0, "gears": gears}
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    out = []
+    for variant in VARIANTS:
+        rs = [r for r in rows if r["variant"] == variant]
+        if not rs:
+            continue
+        ok = np.array([r["all_inserted"] for r in rs], float)
+        out.append({"variant": variant, "seeds": len(rs), "all_inserted": float(ok.mean()),
+                    "all_inserted_se": float(np.sqrt(max(ok.mean() * (1 - ok.mean()), 1e-12) / len(rs))),
+                    "gears_inserted": float(np.mean([r["inserted"] for r in rs])),
+                    "inspections": float(np.mean([r["inspections"] for r in rs])),
+                    "replans": float(np.mean([r["replans"] for r in rs])),
+                    "wall_s_median": float(np.median([r["wall_time_s"] for r in rs])),
+                    "wall_s_max": float(np.max([r["wall_time_s"] for r in rs]))})
+    return out
+
+
+def table(summary: list[dict]) -> str:
+    lines = ["| variant | seeds | all 3 inserted | gears inserted / 3 | inspections | replans | wall s median / max |",
+             "|---|---|---|---|---|---|---|"]
+    for s in summary:
+        lines.append(f"| {s['variant']} | {s['seeds']} | {s['all_inserted']:.2f} +- {s['all_inserted_se']:.2f} | "
+                     f"{s['gears_inserted']:.2f} | {s['inspections']:.2f} | {s['replans']:.2f} | "
+                     f"{s['wall_s_median']:.0f} / {s['wall_s_max']:.0f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, nargs=2, default=(0, 50), metavar=("FIRST", "END"))
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--out", type=Path, default=Path("runs/assembly/rows.jsonl"), help="rows (resumable)")
+    p.add_argument("--json", type=Path, help="write the summary and every row")
+    args = p.parse_args(argv)
+    first, end = args.seeds
+    if first < 0 or end <= first or args.workers < 1:
+        p.error(f"--seeds {first} {end}, --workers {args.workers}: expected 0 <= FIRST < END and >= 1")
+    check_output_file(args.out, "--out")
+    if args.json:
+        check_output_file(args.json, "--json")
+    rows = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
+    done = {(r["variant"], r["seed"]) for r in rows}
+    todo = [(v, s) for s in range(first, end) for v in args.variants if (v, s) not in done]
+    print(f"{len(todo)} runs to do ({len(done)} already in {args.out})", flush=True)
+    with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
+        futures = {pool.submit(run_one, v, s): (v, s) for v, s in todo}
+        for future in as_completed(futures):
+            row = future.result()
+            rows.append(row)
+            with args.out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(f"{row['variant']:<8} seed {row['seed']:>3}: {row['inserted']}/3 {row['status']} "
+                  f"inspections {row['inspections']} replans {row['replans']} {row['wall_time_s']:.0f} s", flush=True)
+    summary = summarize([r for r in rows if first <= r["seed"] < end and r["variant"] in args.variants])
+    print(table(summary))
+    if args.json:
+        write_json(args.json, {"command": " ".join(sys.argv), "seeds": [first, end], "summary": summary,
+                               "rows": [r for r in rows if first <= r["seed"] < end]})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
