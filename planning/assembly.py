@@ -75,7 +75,8 @@ def build_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: 
     # The planner is given what the robot knows: the skills, the shafts (from the plate's known
     # pose), the cameras and its own start; never the gear poses.
     planner = BeliefSpacePlanner(skills, domain, {g: station.models.X_WS(g) for g in domain.goal},
-                                 station.config.cameras, X_WT0, world.finger_width_start, config.system)
+                                 station.config.cameras, X_WT0, world.finger_width_start, config.system,
+                                 meshcat)
     simulator = Simulator(connect_planner(station, planner))
     simulator.Initialize()
     return PlannedAssembly(station, planner, simulator, poses)

@@ -95,15 +95,17 @@ class BeliefSpacePlanner(LeafSystem):
     """See the module docstring. `skills`: the insert Skill per gear; `domain`: the planning
     domain (planning.domain.gearbox_domain); `X_WS`: each shaft's pose (from the plate's known
     pose); `cameras`: the station's CamerasConfig; `X_WT_start`, `width_start`: the robot's
-    start."""
+    start; `meshcat`: if given, each gear's belief is drawn there (its mean as a thin disc of the
+    gear's tip radius, its 3-sigma x-y region as a translucent one) whenever it changes."""
 
     def __init__(self, skills: dict, domain: AssemblyDomain, X_WS: dict[str, RigidTransform],
                  cameras, X_WT_start: RigidTransform, width_start: float,
-                 config: PlannerSystemConfig | None = None) -> None:
+                 config: PlannerSystemConfig | None = None, meshcat=None) -> None:
         super().__init__()
         self.set_name("belief_space_planner")
         self.config = config or PlannerSystemConfig()
         self.skills, self.domain, self.X_WS, self.cameras = skills, domain, X_WS, cameras
+        self.meshcat = meshcat
         missing = [g for g in domain.goal if g not in skills or g not in X_WS]
         if missing:
             raise ValueError(f"no insert skill or shaft pose for gear(s) {missing}")
@@ -216,7 +218,27 @@ class BeliefSpacePlanner(LeafSystem):
         run.log.append(f"t = {t:.2f} s: perceived {sorted(beliefs)} in {time.perf_counter() - t0:.1f} s")
         self._replan(run, t, X_WT)
 
+    def _draw_beliefs(self, beliefs: dict) -> None:
+        """Each table gear's belief in Meshcat: the mean pose, and the 3-sigma x-y disc."""
+        if self.meshcat is None:
+            return
+        from pydrake.geometry import Cylinder, Rgba
+
+        for gear, b in beliefs.items():
+            path = f"beliefs/{gear}"
+            if b.location != "table":
+                self.meshcat.Delete(path)
+                continue
+            r = gear_spec(gear).tip_radius
+            X = RigidTransform(RotationMatrix.MakeZRotation(b.mean[2]), [b.mean[0], b.mean[1], 0.0222])
+            self.meshcat.SetObject(f"{path}/mean", Cylinder(r, 0.0004), Rgba(0.1, 0.4, 1.0, 0.8))
+            self.meshcat.SetTransform(f"{path}/mean", X)
+            self.meshcat.SetObject(f"{path}/region", Cylinder(r + 3 * max(b.std[:2]), 0.0002),
+                                   Rgba(0.1, 0.4, 1.0, 0.25))
+            self.meshcat.SetTransform(f"{path}/region", X)
+
     def _replan(self, run: _Run, t: float, X_WT: RigidTransform) -> None:
+        self._draw_beliefs(run.beliefs)
         start = BeliefState.of(run.beliefs, None)
         plan = plan_bfs(start, self.domain)
         if not plan.found:

@@ -73,3 +73,18 @@ def test_a_gear_moved_after_it_was_perceived_is_found_again(skills):
     assert any(e["outcome"].startswith("missed") for e in summary["executed"])
     assert summary["status"] == "done", summary["reason"]
     assert all(g["inserted"] for g in summary["gears"].values()), summary["gears"]
+
+
+def test_beliefs_are_drawn_in_meshcat():
+    from assembly.station import make_meshcat
+    from planning.domain import GearBelief
+
+    meshcat = make_meshcat()
+    domain = AssemblyDomain({g: (lambda xi: 1.0) for g in GEARS}, 0.9, lambda g, s: s)
+    planner = BeliefSpacePlanner({g: None for g in GEARS}, domain, {g: RigidTransform() for g in GEARS},
+                                 CamerasConfig(), RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.3, 0.0, 0.4]),
+                                 0.08, meshcat=meshcat)
+    planner._draw_beliefs({"small": GearBelief("table", (0.4, 0.1, 0.2), (1e-3, 1e-3, 0.01)),
+                           "large": GearBelief("inserted", (0.5, 0.0, 0.0), (1e-4, 1e-4, 0.01))})
+    assert meshcat.HasPath("beliefs/small/mean") and meshcat.HasPath("beliefs/small/region")
+    assert not meshcat.HasPath("beliefs/large/mean")
