@@ -11,7 +11,7 @@ from pydrake.systems.framework import Context
 from assembly.station import Station
 from perception.observation import Intrinsics, Observation
 
-__all__ = ["camera_pose", "observe"]
+__all__ = ["camera_pose", "observation_from_images", "observe"]
 
 
 def camera_pose(station: Station, root: Context, camera: str):
@@ -31,7 +31,15 @@ def observe(station: Station, root: Context, camera: str) -> Observation:
     station's root context)."""
     X_WC = camera_pose(station, root, camera)
     context = station.diagram.GetMyContextFromRoot(root)
-    rgb = station.diagram.GetOutputPort(f"{camera}_rgb").Eval(context).data[:, :, :3].copy()
-    depth = station.diagram.GetOutputPort(f"{camera}_depth").Eval(context).data[:, :, 0].copy()
     config = station.config.cameras.scene if camera == "scene" else station.config.cameras.wrist
+    return observation_from_images(station.diagram.GetOutputPort(f"{camera}_rgb").Eval(context),
+                                   station.diagram.GetOutputPort(f"{camera}_depth").Eval(context),
+                                   config, X_WC)
+
+
+def observation_from_images(rgb_image, depth_image, config, X_WC) -> Observation:
+    """An Observation from a Drake RGBA image and 32-bit depth image of the camera `config`
+    (assembly.cameras.CameraConfig) at world pose X_WC."""
+    rgb = rgb_image.data[:, :, :3].copy()
+    depth = depth_image.data[:, :, 0].copy()
     return Observation(rgb, depth, Intrinsics.from_camera_info(config.info()), X_WC)

@@ -37,8 +37,9 @@ from assembly.scripted_motion import (
 from assembly.station import COMMAND_PORTS, Station
 from assembly.world import nominal_grasp, planar_pose
 from perception.detection import detect_gears
-from perception.observation import Intrinsics, Observation
+from perception.observation import Observation
 from perception.search import Prior, estimate_pose
+from perception.station_views import observation_from_images
 from planning.bfs import plan_bfs
 from planning.domain import AssemblyDomain, BeliefState, GearBelief, table_belief
 from planning.grasp import aim_tool
@@ -160,9 +161,8 @@ class BeliefSpacePlanner(LeafSystem):
             X_WC = config.X_PC
         else:  # the wrist camera rides on the hand: X_WC = X_WT X_TH X_HC
             X_WC = self.GetInputPort("X_WT").Eval(context) @ X_HT.inverse() @ config.X_PC
-        rgb = self.GetInputPort(f"{camera}_rgb").Eval(context).data[:, :, :3].copy()
-        depth = self.GetInputPort(f"{camera}_depth").Eval(context).data[:, :, 0].copy()
-        return Observation(rgb, depth, Intrinsics.from_camera_info(config.info()), X_WC)
+        return observation_from_images(self.GetInputPort(f"{camera}_rgb").Eval(context),
+                                       self.GetInputPort(f"{camera}_depth").Eval(context), config, X_WC)
 
     # -- the state machine -------------------------------------------------------------------
 
@@ -313,9 +313,8 @@ class BeliefSpacePlanner(LeafSystem):
             self._record(run, t, "informative" if post.informative else f"uninformative: {post.reason}")
             self._replan(run, t, X_WT)
         elif run.after == "picked":
-            q = self.GetInputPort("hand_state").Eval(context)
-            width = float(q[0] + q[1])
-            if width < 2 * gear_spec(gear).tip_radius - 0.005:  # the fingers closed on nothing
+            holding, width = self._holding(context, gear)
+            if not holding:  # the fingers closed on nothing
                 self._record(run, t, f"missed (fingers {1e3 * width:.1f} mm apart)")
                 self._retry(run, t, X_WT)
                 return
@@ -360,20 +359,32 @@ class BeliefSpacePlanner(LeafSystem):
         # done: seated if the tool came down to its seated height (the gear is on its shaft)
         # ... and the fingers still hold it (a dropped gear lets the tool come down too)
         dz = float(X_WT.translation()[2] - self.laws[gear].seated[2])
-        q = self.GetInputPort("hand_state").Eval(context)
-        holding = float(q[0] + q[1]) > 2 * gear_spec(gear).tip_radius - 0.005
+        holding, _ = self._holding(context, gear)
         seated = dz < self.config.seated_tolerance and holding
         run.current["seated"] = seated
         run.current["outcome"] = ("seated" if seated else "dropped" if not holding
                                   else f"unseated (tool {1e3 * dz:.1f} mm above seated)")
+        plan = self._open_and_lift(run, t, X_WT, gear, f"{gear}: release", f"{gear}: retreat")
+        run.keyframes, run.after, run.phase, run.target = plan, "released", "motion", None
+
+    def _holding(self, context: Context, gear: str) -> tuple[bool, float]:
+        """Whether the fingers hold `gear` (they stopped on it rather than closing past its
+        diameter), and their width [m]."""
+        q = self.GetInputPort("hand_state").Eval(context)
+        width = float(q[0] + q[1])
+        return width > 2 * gear_spec(gear).tip_radius - 0.005, width
+
+    def _open_and_lift(self, run: _Run, t: float, X_WT: RigidTransform, gear: str, open_label: str,
+                       lift_label: str) -> KeyframePlan:
+        """From the current command: open the fingers for `gear`, then lift by retreat_height."""
         c = self.config.motion
         open_w, _ = gripper_widths(gear, c)
         plan = self._hold(run, t, X_WT)
-        plan.append(c.gripper_time, plan.keyframes[-1].X_WT, open_w, f"{gear}: release")
+        plan.append(c.gripper_time, plan.keyframes[-1].X_WT, open_w, open_label)
         up = RigidTransform(plan.keyframes[-1].X_WT.rotation(),
                             plan.keyframes[-1].X_WT.translation() + [0, 0, c.retreat_height])
-        append_move(plan, up, open_w, f"{gear}: retreat", c.speed, c.min_segment)
-        run.keyframes, run.after, run.phase, run.target = plan, "released", "motion", None
+        append_move(plan, up, open_w, lift_label, c.speed, c.min_segment)
+        return plan
 
     def _record(self, run: _Run, t: float, outcome: str) -> None:
         cur = dict(run.current)
@@ -392,13 +403,7 @@ class BeliefSpacePlanner(LeafSystem):
         gear = run.current["gear"]
         b = run.beliefs[gear]
         run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, 0)}
-        c = self.config.motion
-        plan = self._hold(run, t, X_WT)
-        open_w, _ = gripper_widths(gear, c)
-        plan.append(c.gripper_time, plan.keyframes[-1].X_WT, open_w, "retry: open")
-        up = RigidTransform(plan.keyframes[-1].X_WT.rotation(),
-                            plan.keyframes[-1].X_WT.translation() + [0, 0, c.retreat_height])
-        append_move(plan, up, open_w, "retry: clear the view", c.speed, c.min_segment)
+        plan = self._open_and_lift(run, t, X_WT, gear, "retry: open", "retry: clear the view")
         run.keyframes, run.after, run.phase = plan, "reperceive", "motion"
 
 
