@@ -119,7 +119,13 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
         futures = {pool.submit(run_one, v, s): (v, s) for v, s in todo}
         for future in as_completed(futures):
-            row = future.result()
+            variant, seed = futures[future]
+            try:
+                row = future.result()
+            except Exception as e:  # a crashed run is a failed row, reported, and the grid goes on
+                row = {"variant": variant, "seed": seed, "status": "error", "inserted": 0, "all_inserted": False,
+                       "inspections": 0, "replans": 0, "reason": f"{type(e).__name__}: {e}", "sim_error": "",
+                       "sim_time_s": 0.0, "wall_time_s": 0.0, "gears": {}}
             rows.append(row)
             with args.out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
