@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pydrake.geometry import (
     ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, FrameId,
     MakeRenderEngineVtk, RenderCameraCore, RenderEngineVtkParams, SceneGraph,
 )
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.sensors import CameraInfo, RgbdSensor
 
@@ -77,6 +77,48 @@ class CamerasConfig:
 
     scene: CameraConfig | None = field(default_factory=default_scene_camera)
     wrist: CameraConfig | None = field(default_factory=default_wrist_camera)
+
+
+def extrinsic_error(translation_std: float, rotation_std: float, rng: np.random.Generator) -> RigidTransform:
+    """A random error X_CE of a camera's extrinsics, in the camera frame: a rotation of N(0,
+    `rotation_std`) [rad] about each axis and a translation of N(0, `translation_std`) [m] along
+    each. The camera's true pose is then X_PC @ X_CE where the robot believes X_PC."""
+    if not (np.isfinite(translation_std) and translation_std >= 0 and np.isfinite(rotation_std)
+            and rotation_std >= 0):
+        raise ValueError(f"extrinsic error std ({translation_std}, {rotation_std}); expected "
+                         "(translation [m], rotation [rad]) >= 0")
+    return RigidTransform(RollPitchYaw(rng.normal(0.0, rotation_std, 3)), rng.normal(0.0, translation_std, 3))
+
+
+def with_extrinsic_error(config: CameraConfig, X_CE: RigidTransform) -> CameraConfig:
+    """`config` mounted at X_PC @ X_CE: the camera as it really is when the robot believes
+    `config`."""
+    return replace(config, X_PC=config.X_PC @ X_CE)
+
+
+def extrinsic_error_on_table(X_WC: RigidTransform, point: np.ndarray, translation_std: float,
+                             rotation_std: float, samples: int = 256) -> np.ndarray:
+    """How far an extrinsic error of the given std moves where the camera believed at X_WC places a
+    world `point` on the horizontal plane through it: the point seen by the true camera X_WC @ X_CE
+    along the same pixel ray, re-intersected with that plane from the believed camera. Returns the
+    2 x 2 covariance [m^2] of the x-y shift (Monte Carlo over `samples` fixed-seed errors)."""
+    p = np.asarray(point, float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"point {point}; expected a finite world point (x, y, z) [m]")
+    if translation_std == 0 and rotation_std == 0:
+        return np.zeros((2, 2))
+    rng = np.random.default_rng(0)
+    c = X_WC.translation()
+    shifts = []
+    for _ in range(samples):
+        X_CE = extrinsic_error(translation_std, rotation_std, rng)
+        ray_C = (X_WC @ X_CE).inverse().multiply(p)        # the pixel's ray in the camera frame
+        ray_W = X_WC.rotation().multiply(ray_C)             # as the robot interprets it
+        if abs(ray_W[2]) < 1e-9:
+            continue
+        s = (p[2] - c[2]) / ray_W[2]
+        shifts.append((c + s * ray_W)[:2] - p[:2])
+    return np.cov(np.asarray(shifts).T)
 
 
 def add_renderer(scene_graph: SceneGraph) -> None:

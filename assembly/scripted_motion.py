@@ -27,8 +27,8 @@ from assembly.panda_model import FINGER_MAX_WIDTH
 from assembly.world import nominal_grasp, validate_tool_target
 
 __all__ = ["Keyframe", "KeyframePlan", "KeyframePlayer", "ScriptedInsertionConfig", "append_move",
-           "append_pick", "append_pick_and_insert", "append_return", "carry_height", "down_pose",
-           "gripper_widths", "min_jerk", "sample_plan", "start_keyframe_plan"]
+           "append_pick", "append_pick_and_insert", "append_place", "append_return", "carry_height",
+           "down_pose", "grasp_tool_pose", "gripper_widths", "min_jerk", "sample_plan", "start_keyframe_plan"]
 
 
 @dataclass
@@ -117,6 +117,12 @@ def gripper_widths(gear: str, config: ScriptedInsertionConfig) -> tuple[float, f
             2 * spec.tip_radius - config.squeeze)
 
 
+def grasp_tool_pose(gear: str, X_WG: RigidTransform, yaw: float, config: ScriptedInsertionConfig) -> RigidTransform:
+    """The tool pose at which the fingers close on `gear` lying at X_WG, tool heading `yaw`."""
+    grasp_z = nominal_grasp(gear, config.grasp_depth).translation()[2]  # tool height above the gear bottom
+    return down_pose(X_WG.translation() + [0, 0, grasp_z], yaw)
+
+
 def append_pick(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, yaw: float,
                 carry_z: float, config: ScriptedInsertionConfig) -> None:
     """Append a pick of `gear` believed at X_WG_believed with the tool heading `yaw`: approach
@@ -126,10 +132,9 @@ def append_pick(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, ya
                          "begin it with start_keyframe_plan(X_WT_now, width)")
     c = config
     open_w, closed_w = gripper_widths(gear, c)
-    grasp_z = nominal_grasp(gear, c.grasp_depth).translation()[2]  # tool height above the gear bottom
     p_G = X_WG_believed.translation()
     above_gear = down_pose(p_G + [0, 0, GEAR_THICKNESS + c.approach_height], yaw)
-    at_gear = down_pose(p_G + [0, 0, grasp_z], yaw)
+    at_gear = grasp_tool_pose(gear, X_WG_believed, yaw, c)
     lifted = down_pose(np.array([p_G[0], p_G[1], carry_z]), yaw)
     append_move(plan, above_gear, open_w, f"{gear}: approach", c.speed, c.min_segment)
     plan.append(c.pause, above_gear, open_w, f"{gear}: steady above gear")
@@ -138,6 +143,27 @@ def append_pick(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, ya
     plan.append(c.gripper_time, at_gear, closed_w, f"{gear}: grasp")
     plan.append(0.2, at_gear, closed_w, f"{gear}: hold")
     append_move(plan, lifted, closed_w, f"{gear}: lift", c.speed, c.min_segment)
+
+
+def append_place(plan: KeyframePlan, gear: str, X_WT_place: RigidTransform, carry_z: float,
+                 config: ScriptedInsertionConfig) -> None:
+    """Append putting a held `gear` down with the tool at X_WT_place (e.g. where append_pick held
+    it, so the gear lands where it lay): straight up to tool height `carry_z`, across, down,
+    open the fingers, up clear of the gear."""
+    if not plan.keyframes:
+        raise ValueError("plan has no start keyframe; "
+                         "begin it with start_keyframe_plan(X_WT_now, width)")
+    c = config
+    open_w, closed_w = gripper_widths(gear, c)
+    here, p = plan.keyframes[-1].X_WT, X_WT_place.translation()
+    append_move(plan, RigidTransform(here.rotation(), [*here.translation()[:2], carry_z]), closed_w,
+                f"{gear}: lift", c.speed, c.min_segment)
+    append_move(plan, RigidTransform(X_WT_place.rotation(), [p[0], p[1], carry_z]), closed_w,
+                f"{gear}: carry back", c.speed, c.min_segment)
+    append_move(plan, X_WT_place, closed_w, f"{gear}: put down", c.speed, c.min_segment)
+    plan.append(c.gripper_time, X_WT_place, open_w, f"{gear}: release")
+    append_move(plan, RigidTransform(X_WT_place.rotation(), p + [0, 0, GEAR_THICKNESS + c.approach_height]),
+                open_w, f"{gear}: clear", c.speed, c.min_segment)
 
 
 def carry_height(gear: str, X_WS: RigidTransform, config: ScriptedInsertionConfig) -> float:

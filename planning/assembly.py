@@ -8,7 +8,7 @@ gear poses are read).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +16,7 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
+from assembly.cameras import CamerasConfig, extrinsic_error, with_extrinsic_error
 from assembly.gearset import GEAR_NAMES
 from assembly.station import StationConfig, build_station
 from assembly.world import WorldConfig, random_gear_poses
@@ -28,15 +29,22 @@ from planning.system import BeliefSpacePlanner, PlannerSystemConfig, connect_pla
 class PlannedAssemblyConfig:
     """seed: of the gears' random placement (assembly.world.random_gear_poses); planner: the
     decision's settings; system: the skills' motions and the state machine's; max_time: simulated
-    seconds before giving up."""
+    seconds before giving up; camera_error: (translation [m], rotation [rad]) std of the scene
+    camera's true extrinsics around the calibrated ones the robot is given, drawn per seed
+    (assembly.cameras.extrinsic_error; (0, 0): perfectly calibrated). Whether the planner knows
+    that uncertainty is `system.scene_extrinsic_std`."""
 
     seed: int = 0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     system: PlannerSystemConfig = field(default_factory=PlannerSystemConfig)
     max_time: float = 150.0
+    camera_error: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         check_int(self.seed, "seed", minimum=0)
+        if len(self.camera_error) != 2 or not all(np.isfinite(v) and v >= 0 for v in self.camera_error):
+            raise ValueError(f"camera_error = {self.camera_error}; expected (translation [m], rotation [rad]) "
+                             "std >= 0")
         if not (np.isfinite(self.max_time) and self.max_time > 0):
             raise ValueError(f"max_time = {self.max_time}; expected > 0 s")
 
@@ -68,14 +76,19 @@ def build_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: 
     config = config or PlannedAssemblyConfig()
     poses = random_gear_poses(np.random.default_rng(config.seed))
     world = WorldConfig(gear_start_poses=poses)
-    station = build_station(StationConfig(world=world), meshcat)
+    calibrated = CamerasConfig()
+    cameras = calibrated
+    if any(config.camera_error):  # the scene camera as it really is; the robot is given `calibrated`
+        X_CE = extrinsic_error(*config.camera_error, np.random.default_rng([config.seed, 17]))
+        cameras = replace(calibrated, scene=with_extrinsic_error(calibrated.scene, X_CE))
+    station = build_station(StationConfig(world=world, cameras=cameras), meshcat)
     skills = skills or {g: load_skill("insert", g) for g in GEAR_NAMES}
     domain = gearbox_domain(config.planner, skills=skills)
     X_WT0 = station.controller.tool_pose(np.asarray(world.q_arm_start, dtype=float))
     # The planner is given what the robot knows: the skills, the shafts (from the plate's known
     # pose), the cameras and its own start; never the gear poses.
     planner = BeliefSpacePlanner(skills, domain, {g: station.models.X_WS(g) for g in domain.goal},
-                                 station.config.cameras, X_WT0, world.finger_width_start, config.system,
+                                 calibrated, X_WT0, world.finger_width_start, config.system,
                                  meshcat)
     simulator = Simulator(connect_planner(station, planner))
     simulator.Initialize()

@@ -125,6 +125,9 @@ def best_aim(pre: InsertPrecondition, closing: float = 0.0, blur: tuple[float, f
     std, 9 values) for the point whose neighbourhood (x, yaw blurred by N(0, `blur`)) passes
     `pre` most often; ties go to the point nearest the flow's median."""
     skill = pre.skill
+    key = (_fingerprint(pre), closing, tuple(blur), samples, seed)
+    if key in _AIMS:  # the search costs seconds; the same skill and precondition give the same aim
+        return _AIMS[key].copy()
     rng = np.random.default_rng(seed)
     draws = skill.sampler.sample(4096, rng)
     centre, spread = np.median(draws, axis=0), np.std(draws, axis=0)
@@ -138,7 +141,20 @@ def best_aim(pre: InsertPrecondition, closing: float = 0.0, blur: tuple[float, f
             score = (pre.probability(xi), -np.hypot((x - centre[0]) / spread[0], (yaw - centre[2]) / spread[2]))
             if score > best_score:
                 best, best_score = np.array([x, closing, yaw]), score
+    _AIMS[key] = best.copy()
     return best
+
+
+_AIMS: dict[tuple, NDArray[np.float64]] = {}
+
+
+def _fingerprint(pre: InsertPrecondition) -> bytes:
+    """Identifies what best_aim depends on: the flow's and the critic's outputs at fixed draws,
+    V_T and eps."""
+    xi = pre.skill.sampler.sample(8, np.random.default_rng(12345))
+    v = pre.skill.value(np.repeat(pre.s0[None], len(xi), 0), xi)
+    return (np.concatenate([xi.ravel(), np.ravel(v), pre.skill.density(xi)]).tobytes()
+            + repr((pre.value_threshold, pre.config.eps)).encode())
 
 
 def start_observation(skill: Skill) -> NDArray[np.float32]:

@@ -27,12 +27,13 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem, State
 
 from assembly.envs.gear_insertion import GearInsertionConfig
-from assembly.gearset import GEAR_NAMES, SHAFT_HEIGHT, gear_spec
+from assembly.cameras import extrinsic_error_on_table
+from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
 from assembly.inspection import X_HT, InspectConfig, append_inspect
 from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.scripted_motion import (
-    Keyframe, KeyframePlan, ScriptedInsertionConfig, append_move, append_pick, carry_height, down_pose,
-    gripper_widths, sample_plan, start_keyframe_plan,
+    Keyframe, KeyframePlan, ScriptedInsertionConfig, append_move, append_pick, append_place, carry_height,
+    down_pose, grasp_tool_pose, gripper_widths, sample_plan, start_keyframe_plan,
 )
 from assembly.station import COMMAND_PORTS, Station
 from assembly.world import nominal_grasp, planar_pose
@@ -54,7 +55,10 @@ class PlannerSystemConfig:
     the close view's prior box (multiple of the belief's std, min, max half-width [m]);
     seated_tolerance: the tool within this of its seated height means the gear is on its shaft;
     settle_tolerance, max_wait: a motion ends when the tool is this close to its last keyframe, or
-    this long after it."""
+    this long after it; scene_extrinsic_std: how well the scene camera's extrinsics are known,
+    (translation [m], rotation [rad]) std: the x-y shift it causes on the table (assembly.cameras.
+    extrinsic_error_on_table) and the rotation in yaw are added to each far belief's std (the
+    wrist camera rides on the hand: its close views do not inherit it)."""
 
     period: float = 0.04
     motion: ScriptedInsertionConfig = field(default_factory=ScriptedInsertionConfig)
@@ -64,6 +68,7 @@ class PlannerSystemConfig:
     seated_tolerance: float = 0.002
     settle_tolerance: float = 0.002
     max_wait: float = 3.0
+    scene_extrinsic_std: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass
@@ -213,10 +218,18 @@ class BeliefSpacePlanner(LeafSystem):
                 beliefs[gear] = table_belief((det.prior.x, det.prior.y, 0.0),
                                              (det.prior.half_width,) * 2 + (np.pi,))
             else:
-                beliefs[gear] = table_belief(post.mean(), post.std())
+                beliefs[gear] = table_belief(post.mean(), self._far_std(obs, post.mean(), post.std()))
         run.beliefs = beliefs
         run.log.append(f"t = {t:.2f} s: perceived {sorted(beliefs)} in {time.perf_counter() - t0:.1f} s")
         self._replan(run, t, X_WT)
+
+    def _far_std(self, obs: Observation, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+        """A far posterior's std with the scene camera's extrinsic uncertainty added."""
+        t_std, r_std = self.config.scene_extrinsic_std
+        if t_std == 0 and r_std == 0:
+            return std
+        cov = extrinsic_error_on_table(obs.X_WC, np.array([mean[0], mean[1], GEAR_THICKNESS]), t_std, r_std)
+        return np.sqrt(np.asarray(std) ** 2 + np.array([cov[0, 0], cov[1, 1], r_std ** 2]))
 
     def _draw_beliefs(self, beliefs: dict) -> None:
         """Each table gear's belief in Meshcat: the mean pose, and the 3-sigma x-y disc."""
@@ -363,8 +376,15 @@ class BeliefSpacePlanner(LeafSystem):
         seated = dz < self.config.seated_tolerance and holding
         run.current["seated"] = seated
         run.current["outcome"] = ("seated" if seated else "dropped" if not holding
-                                  else f"unseated (tool {1e3 * dz:.1f} mm above seated)")
-        plan = self._open_and_lift(run, t, X_WT, gear, f"{gear}: release", f"{gear}: retreat")
+                                  else f"unseated (tool {1e3 * dz:.1f} mm above seated; put back)")
+        if seated or not holding:
+            plan = self._open_and_lift(run, t, X_WT, gear, f"{gear}: release", f"{gear}: retreat")
+        else:  # still in hand: put it back where it was picked, on the table the scene camera sees
+            tool = run.beliefs[gear].tool
+            plan = self._hold(run, t, X_WT)
+            X_WT_place = grasp_tool_pose(gear, planar_pose(tool[0], tool[1], 0.0), tool[2], self.config.motion)
+            append_place(plan, gear, X_WT_place, carry_height(gear, self.X_WS[gear], self.config.motion),
+                         self.config.motion)
         run.keyframes, run.after, run.phase, run.target = plan, "released", "motion", None
 
     def _holding(self, context: Context, gear: str) -> tuple[bool, float]:
