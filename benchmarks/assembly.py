@@ -78,6 +78,7 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
             "inserted": sum(g["inserted"] for g in gears.values()),
             "all_inserted": all(g["inserted"] for g in gears.values()),
             "inspections": sum(e["skill"] == "inspect" for e in executed), "replans": replans,
+            "outcomes": [[e["skill"], e["gear"], e["outcome"]] for e in executed],
             "reason": s.get("reason", ""), "sim_error": s.get("sim_error", ""),
             "sim_time_s": s["sim_time_s"], "wall_time_s": time.perf_counter() - t0, "gears": gears}
 
