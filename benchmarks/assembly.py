@@ -19,7 +19,8 @@ precondition), the scripted one never looks (it is left out of this condition):
 
 Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
 there (resumable; rows of another --camera-error are kept and skipped). Prints, per variant: seeds with all three gears inserted (with the binomial
-standard error), gears inserted, inspections and replans per assembly, wall seconds per assembly.
+standard error), gears inserted, inspections, failed inserts (over the rows that list outcomes)
+and replans per assembly, wall seconds per assembly.
 """
 
 from __future__ import annotations
@@ -95,17 +96,23 @@ def summarize(rows: list[dict]) -> list[dict]:
                     "gears_inserted": float(np.mean([r["inserted"] for r in rs])),
                     "inspections": float(np.mean([r["inspections"] for r in rs])),
                     "replans": float(np.mean([r["replans"] for r in rs])),
+                    "failed_inserts": (float(np.mean([sum(o[0] == "insert" and o[2] != "seated" for o in r["outcomes"])
+                                                      for r in rs if "outcomes" in r]))
+                                       if any("outcomes" in r for r in rs) else None),
                     "wall_s_median": float(np.median([r["wall_time_s"] for r in rs])),
                     "wall_s_max": float(np.max([r["wall_time_s"] for r in rs]))})
     return out
 
 
 def table(summary: list[dict]) -> str:
-    lines = ["| variant | seeds | all 3 inserted | gears inserted / 3 | inspections | replans | wall s median / max |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| variant | seeds | all 3 inserted | gears inserted / 3 | inspections | failed inserts | replans "
+             "| wall s median / max |",
+             "|---|---|---|---|---|---|---|---|"]
     for s in summary:
         lines.append(f"| {s['variant']} | {s['seeds']} | {s['all_inserted']:.2f} +- {s['all_inserted_se']:.2f} | "
-                     f"{s['gears_inserted']:.2f} | {s['inspections']:.2f} | {s['replans']:.2f} | "
+                     f"{s['gears_inserted']:.2f} | {s['inspections']:.2f} | "
+                     f"{'n/a' if s['failed_inserts'] is None else format(s['failed_inserts'], '.2f')} | "
+                     f"{s['replans']:.2f} | "
                      f"{s['wall_s_median']:.0f} / {s['wall_s_max']:.0f} |")
     return "\n".join(lines)
 
