@@ -16,7 +16,7 @@ from pydrake.systems.analysis import Simulator
 from assembly.cameras import CameraConfig, default_wrist_camera
 from assembly.gearset import GEAR_THICKNESS, gear_spec
 from assembly.panda_model import HAND_TCP_OFFSET
-from assembly.scripted_motion import KeyframePlan, KeyframePlayer, start_keyframe_plan
+from assembly.scripted_motion import KeyframePlan, KeyframePlayer, segment_time, start_keyframe_plan
 from assembly.station import Station, StationConfig, build_station, drive_station
 
 __all__ = ["InspectConfig", "InspectRun", "X_HT", "append_inspect", "inspect_tool_pose",
@@ -84,8 +84,8 @@ def append_inspect(plan: KeyframePlan, gear: str, gear_xy: tuple[float, float],
         raise ValueError(f"camera_height = {config.camera_height} m puts the fingertips at "
                          f"z = {target.translation()[2]:.3f} m, below {low:.3f} m (the gears' tops "
                          f"+ finger_clearance); raise camera_height")
-    d = np.linalg.norm(target.translation() - last.X_WT.translation())
-    plan.append(max(d / config.speed, config.min_segment), target, last.width, f"{gear}: inspect")
+    plan.append(segment_time(last.X_WT, target, config.speed, config.min_segment), target, last.width,
+                f"{gear}: inspect")
     plan.append(config.settle, target, last.width, f"{gear}: hold for the picture")
     return plan.end_time
 

@@ -88,11 +88,26 @@ class KeyframePlan:
         self.keyframes.append(Keyframe(self.end_time + duration, X_WT, width, label))
 
 
+# Mean tool turn rate of a free-space move [rad/s]: a min-jerk segment peaks at 1.875x, below
+# the Panda's 2.61 rad/s wrist joint limit (docs/planning.md: faster turns left the tool 14 mm
+# behind its command and the fingers landed on the gear).
+TURN_RATE = 1.0
+
+
+def segment_time(X_from: RigidTransform, X_to: RigidTransform, speed: float, min_segment: float,
+                 turn_rate: float = TURN_RATE) -> float:
+    """The duration of a free-space move [s]: the longer of distance / `speed` [m/s] and turn
+    angle / `turn_rate` [rad/s], at least `min_segment`."""
+    d = float(np.linalg.norm(X_to.translation() - X_from.translation()))
+    angle = float((X_from.rotation().inverse() @ X_to.rotation()).ToAngleAxis().angle())
+    return max(d / speed, angle / turn_rate, min_segment)
+
+
 def append_move(plan: KeyframePlan, target: RigidTransform, width: float, label: str, speed: float,
                 min_segment: float) -> None:
-    """A free-space move to `target` at mean tool speed `speed` [m/s], at least `min_segment` [s]."""
-    d = np.linalg.norm(target.translation() - plan.keyframes[-1].X_WT.translation())
-    plan.append(max(d / speed, min_segment), target, width, label)
+    """A free-space move to `target` at mean tool speed `speed` [m/s] and turn rate TURN_RATE,
+    at least `min_segment` [s] (segment_time)."""
+    plan.append(segment_time(plan.keyframes[-1].X_WT, target, speed, min_segment), target, width, label)
 
 
 def down_pose(p: np.ndarray, yaw: float) -> RigidTransform:
@@ -211,8 +226,7 @@ def append_pick_and_insert(plan: KeyframePlan, gear: str, X_WG_believed: RigidTr
 def append_return(plan: KeyframePlan, X_WT: RigidTransform, config: ScriptedInsertionConfig) -> None:
     """Append a free-space move back to X_WT (e.g. the start pose), keeping the gripper as is."""
     last = plan.keyframes[-1]
-    d = np.linalg.norm(X_WT.translation() - last.X_WT.translation())
-    plan.append(max(d / config.speed, config.min_segment), X_WT, last.width, "return")
+    plan.append(segment_time(last.X_WT, X_WT, config.speed, config.min_segment), X_WT, last.width, "return")
 
 
 def start_keyframe_plan(X_WT_now: RigidTransform, width_now: float) -> KeyframePlan:

@@ -18,7 +18,8 @@ precondition), the scripted one never looks (it is left out of this condition):
         --workers 2 --out runs/assembly/camera_error.jsonl --json docs/results/assembly_camera_error.json
 
 Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
-there (resumable; rows of another --camera-error are kept and skipped). Prints, per variant: seeds with all three gears inserted (with the binomial
+there (resumable; rows of another --camera-error or --eta are kept and skipped). --eta sets the
+precondition's bar of the planner variants (0.9 by default; docs/planning.md's sweep). Prints, per variant: seeds with all three gears inserted (with the binomial
 standard error), gears inserted, inspections, failed inserts (over the rows that list outcomes)
 and replans per assembly, wall seconds per assembly.
 """
@@ -46,7 +47,7 @@ from common.files import check_output_file, write_json  # noqa: E402
 VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7")
 
 
-def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0.0)) -> dict:
+def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0.0), eta: float = 0.9) -> dict:
     import torch
 
     from assembly.world import random_gear_poses
@@ -68,14 +69,14 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
         from planning.system import PlannerSystemConfig
 
         planner = {"map": PlannerConfig(blind=True, max_inspections=0),
-                   "inspect": PlannerConfig(min_inspections=1),
-                   "eq6": PlannerConfig(eps=None), "eq7": PlannerConfig()}[variant]
+                   "inspect": PlannerConfig(min_inspections=1, eta=eta),
+                   "eq6": PlannerConfig(eps=None, eta=eta), "eq7": PlannerConfig(eta=eta)}[variant]
         s = run_planned_assembly(PlannedAssemblyConfig(
             seed=seed, planner=planner, camera_error=camera_error,
             system=PlannerSystemConfig(scene_extrinsic_std=camera_error)))
         executed, replans, status = s["executed"], s["replans"], s["status"]
     gears = s["gears"]
-    return {"variant": variant, "seed": seed, "camera_error": list(camera_error), "status": status,
+    return {"variant": variant, "seed": seed, "camera_error": list(camera_error), "eta": eta, "status": status,
             "inserted": sum(g["inserted"] for g in gears.values()),
             "all_inserted": all(g["inserted"] for g in gears.values()),
             "inspections": sum(e["skill"] == "inspect" for e in executed), "replans": replans,
@@ -126,12 +127,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, help="write the summary and every row")
     p.add_argument("--camera-error", type=float, nargs=2, default=(0.0, 0.0), metavar=("MM", "DEG"),
                    help="std of the scene camera's extrinsic error: translation [mm], rotation [deg]")
+    p.add_argument("--eta", type=float, default=0.9,
+                   help="the precondition's bar (PlannerConfig.eta) for inspect, eq6, eq7; map has none")
     args = p.parse_args(argv)
     first, end = args.seeds
     if first < 0 or end <= first or args.workers < 1:
         p.error(f"--seeds {first} {end}, --workers {args.workers}: expected 0 <= FIRST < END and >= 1")
     if not all(np.isfinite(v) and v >= 0 for v in args.camera_error):
         p.error(f"--camera-error {args.camera_error[0]} {args.camera_error[1]}: expected MM >= 0 and DEG >= 0")
+    if not 0.0 <= args.eta < 1.0:
+        p.error(f"--eta {args.eta}: expected 0 <= eta < 1")
     if any(args.camera_error) and "scripted" in args.variants:
         p.error("--camera-error with the scripted variant: it never looks; leave it out")
     camera_error = (1e-3 * args.camera_error[0], float(np.radians(args.camera_error[1])))
@@ -139,18 +144,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         check_output_file(args.json, "--json")
     rows = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
-    rows = [r for r in rows if np.allclose(r.get("camera_error", (0.0, 0.0)), camera_error)]
+    rows = [r for r in rows if np.allclose(r.get("camera_error", (0.0, 0.0)), camera_error)
+            and (r["variant"] in ("scripted", "map") or np.isclose(r.get("eta", 0.9), args.eta))]
     done = {(r["variant"], r["seed"]) for r in rows}
     todo = [(v, s) for s in range(first, end) for v in args.variants if (v, s) not in done]
     print(f"{len(todo)} runs to do ({len(done)} already in {args.out})", flush=True)
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-        futures = {pool.submit(run_one, v, s, camera_error): (v, s) for v, s in todo}
+        futures = {pool.submit(run_one, v, s, camera_error, args.eta): (v, s) for v, s in todo}
         for future in as_completed(futures):
             variant, seed = futures[future]
             try:
                 row = future.result()
             except Exception as e:  # a crashed run is a failed row, reported, and the grid goes on
-                row = {"variant": variant, "seed": seed, "camera_error": list(camera_error), "status": "error", "inserted": 0, "all_inserted": False,
+                row = {"variant": variant, "seed": seed, "camera_error": list(camera_error), "eta": args.eta,
+                       "status": "error", "inserted": 0, "all_inserted": False,
                        "inspections": 0, "replans": 0, "reason": f"{type(e).__name__}: {e}", "sim_error": "",
                        "sim_time_s": 0.0, "wall_time_s": 0.0, "gears": {}}
             rows.append(row)
@@ -163,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         write_json(args.json, {"command": " ".join(sys.argv), "seeds": [first, end],
                                "camera_error": {"translation_m": camera_error[0], "rotation_rad": camera_error[1]},
+                               "eta": args.eta,
                                "summary": summary,
                                "rows": [r for r in rows if first <= r["seed"] < end]})
     return 0

@@ -5,8 +5,9 @@ summary of the pose belief (mean, std; x, y [m], yaw [rad]). Its skills:
 
 * inspect(g): g on the table, hand empty, fewer than `max_inspections` so far. Effect: the std the
   inspect model predicts (perception.inspect_model; cautious: the 90th-percentile close view).
-* pick(g): g on the table, hand empty. Effect: g in the hand, grasped by a tool aimed so that the
-  believed pose's grasp error is the skill's preferred one (`aim_xi`).
+* pick(g): g on the table, hand empty, and not doubted (a gear whose pick or insert failed is
+  inspected first, while inspections remain). Effect: g in the hand, grasped by a tool aimed so
+  that the believed pose's grasp error is the skill's preferred one (`aim_xi`).
 * insert(g): g in the hand, every gear before it in `order` inserted, and the skill's precondition
   (Eq. 6 or 7) above eta on grasp errors sampled from the belief pushed through the grasp
   geometry. Effect: g inserted, hand empty.
@@ -32,13 +33,16 @@ LOCATIONS = ("table", "hand", "inserted")
 class GearBelief:
     """One gear in a belief state: `location` (table | hand | inserted), the pose belief's mean and
     std (x, y [m], yaw [rad]; yaw a class modulo the gear's tooth pitch), how often it was
-    inspected, and (in the hand) the tool pose the pick aimed at."""
+    inspected, (in the hand) the tool pose the pick aimed at, and whether it is `doubted`: a pick
+    or insert of it failed since its last close view, so it is inspected before it is picked
+    again (while inspections remain)."""
 
     location: str
     mean: tuple[float, float, float]
     std: tuple[float, float, float]
     inspections: int = 0
     tool: tuple[float, float, float] | None = None
+    doubted: bool = False
 
     def __post_init__(self) -> None:
         if self.location not in LOCATIONS:
@@ -144,8 +148,9 @@ class AssemblyDomain:
                 if g.inspections < self.max_inspections:
                     std = tuple(float(s) for s in self.inspect_std(name, g.std))
                     out.append((Step("inspect", name),
-                                state.with_gear(name, replace(g, std=std, inspections=g.inspections + 1))))
-                if g.inspections < self.min_inspections:
+                                state.with_gear(name, replace(g, std=std, inspections=g.inspections + 1,
+                                                              doubted=False))))
+                if g.inspections < self.min_inspections or (g.doubted and g.inspections < self.max_inspections):
                     continue
                 tool = tuple(float(t) for t in aim_tool(g.mean, self.aim_xi.get(name, (0.0, 0.0, 0.0))))
                 out.append((Step("pick", name),
@@ -238,10 +243,10 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
 
 
 def table_belief(mean: tuple[float, float, float] | NDArray[np.float64],
-                 std: tuple[float, float, float] | NDArray[np.float64]) -> GearBelief:
+                 std: tuple[float, float, float] | NDArray[np.float64], doubted: bool = False) -> GearBelief:
     """A gear on the table believed at `mean` with `std` (x, y [m], yaw [rad]), e.g. a pose
-    posterior's mean() and std()."""
-    return GearBelief("table", tuple(float(v) for v in mean), tuple(float(v) for v in std))
+    posterior's mean() and std(); `doubted`: see GearBelief."""
+    return GearBelief("table", tuple(float(v) for v in mean), tuple(float(v) for v in std), doubted=doubted)
 
 
 __all__ = ["AssemblyDomain", "BeliefState", "GearBelief", "LOCATIONS", "PlannerConfig", "PreconditionFn",

@@ -11,7 +11,10 @@ abstract state (the pattern of the manipulation course's clutter-clearing Planne
     perceive (scene camera: detection, a far posterior per gear) -> plan (Algorithm 2)
     -> per step: inspect (motion, close view, belief update, replan) | pick (motion; a miss,
        read off the fingers' width, re-perceives) | insert (transport to the policy's start, the
-       learned policy closed loop at its control rate, release; unseated re-perceives)
+       learned policy closed loop at its control rate, release; unseated puts the gear back and
+       re-perceives). A gear whose pick or insert failed is doubted (planning.domain.GearBelief)
+       until a close view of it: the plan inspects it before picking it again rather than retry
+       from the same, possibly biased, far view.
     -> done, or failed with the reason.
 """
 
@@ -19,7 +22,7 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -88,6 +91,7 @@ class _Run:
     history: PoseHistory | None = None
     policy_end: float = 0.0
     replans: int = 0
+    doubted: tuple = ()                                    # gears whose last pick or insert failed
     reason: str = ""
     log: list = field(default_factory=list)
 
@@ -111,6 +115,7 @@ class BeliefSpacePlanner(LeafSystem):
         self.set_name("belief_space_planner")
         self.config = config or PlannerSystemConfig()
         self.skills, self.domain, self.X_WS, self.cameras = skills, domain, X_WS, cameras
+        self.X_WT_start = X_WT_start
         self.meshcat = meshcat
         missing = [g for g in domain.goal if g not in skills or g not in X_WS]
         if missing:
@@ -219,6 +224,8 @@ class BeliefSpacePlanner(LeafSystem):
                                              (det.prior.half_width,) * 2 + (np.pi,))
             else:
                 beliefs[gear] = table_belief(post.mean(), self._far_std(obs, post.mean(), post.std()))
+            if gear in run.doubted:
+                beliefs[gear] = replace(beliefs[gear], doubted=True)
         run.beliefs = beliefs
         run.log.append(f"t = {t:.2f} s: perceived {sorted(beliefs)} in {time.perf_counter() - t0:.1f} s")
         self._replan(run, t, X_WT)
@@ -323,6 +330,7 @@ class BeliefSpacePlanner(LeafSystem):
                                                                b.inspections + 1)}
             else:
                 run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, b.inspections + 1)}
+            run.doubted = tuple(g for g in run.doubted if g != gear)
             self._record(run, t, "informative" if post.informative else f"uninformative: {post.reason}")
             self._replan(run, t, X_WT)
         elif run.after == "picked":
@@ -419,11 +427,16 @@ class BeliefSpacePlanner(LeafSystem):
                             f"{run.replans} replans are spent")
             return
         run.replans += 1
-        # re-perceive from a clear view: open, lift out of the way, then look again
+        # re-perceive from a clear view: open, lift, back to the start pose (the arm out of the
+        # scene camera's view), then look again; the failed gear's belief is doubted
         gear = run.current["gear"]
         b = run.beliefs[gear]
         run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, 0)}
-        plan = self._open_and_lift(run, t, X_WT, gear, "retry: open", "retry: clear the view")
+        run.doubted = tuple(sorted({*run.doubted, gear}))
+        c = self.config.motion
+        plan = self._open_and_lift(run, t, X_WT, gear, "retry: open", "retry: lift")
+        append_move(plan, self.X_WT_start, plan.keyframes[-1].width, "retry: clear the view", c.speed,
+                    c.min_segment)
         run.keyframes, run.after, run.phase = plan, "reperceive", "motion"
 
 

@@ -61,6 +61,19 @@ def test_inspection_that_does_not_help_gives_no_plan():
     assert not plan.found and "medium" in plan.reason
 
 
+def test_a_doubted_gear_is_inspected_before_it_is_picked_again():
+    """A gear whose pick or insert failed is inspected first even where its belief passes the
+    precondition; the blind baseline (no inspections allowed) still picks it."""
+    gears = start({"small": SHARP, "medium": SHARP, "large": SHARP})
+    doubted = gears.with_gear("large", GearBelief("table", (0.4, 0.2, 0.0), SHARP, doubted=True))
+    steps = plan_bfs(doubted, domain()).pairs()
+    assert [g for s, g in steps if s == "inspect"] == ["large"]
+    assert steps.index(["inspect", "large"]) < steps.index(["pick", "large"])
+    assert plan_bfs(gears, domain()).pairs().count(["inspect", "large"]) == 0
+    blind = plan_bfs(doubted, domain(max_inspections=0))
+    assert blind.found and ["pick", "large"] in blind.pairs()
+
+
 def test_bad_goal_and_missing_skill_are_named():
     with pytest.raises(ValueError, match="unknown gear"):
         domain(goal=("small", "huge"))

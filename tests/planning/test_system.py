@@ -95,7 +95,8 @@ def test_an_unseated_insert_puts_the_gear_back_and_completes(skills):
     """The large gear is moved 7 mm along the pick's tool x axis (world y: the fingers close
     along world x and do not centre it) after the scene view: the pick holds it 7 mm off the
     aimed grasp error, outside the skill's success region; the insert ends unseated, the planner
-    puts the gear back on the table, looks again and completes."""
+    puts the gear back on the table, looks again, inspects the doubted gear before picking it
+    again, and completes."""
     gear, shift = "large", -0.007
     built = build_planned_assembly(PlannedAssemblyConfig(seed=SEED), skills=skills)
     built.simulator.AdvanceTo(0.1)
@@ -109,6 +110,9 @@ def test_an_unseated_insert_puts_the_gear_back_and_completes(skills):
     summary = run_planned_assembly(PlannedAssemblyConfig(seed=SEED), built=built)
     outcomes = [(e["skill"], e["gear"], e["outcome"]) for e in summary["executed"]]
     assert any(s == "insert" and g == gear and o.startswith("unseated") for s, g, o in outcomes), outcomes
+    failed = next(i for i, (s, g, o) in enumerate(outcomes) if s == "insert" and o.startswith("unseated"))
+    after = [s for s, g, _ in outcomes[failed + 1:] if g == gear]
+    assert after[:2] == ["inspect", "pick"], outcomes
     assert summary["replans"] >= 1
     assert summary["status"] == "done", (summary["reason"], outcomes)
     assert all(g["inserted"] for g in summary["gears"].values()), summary["gears"]
