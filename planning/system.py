@@ -11,8 +11,9 @@ abstract state (the pattern of the manipulation course's clutter-clearing Planne
     perceive (scene camera: detection, a far posterior per gear) -> plan (Algorithm 2)
     -> per step: inspect (motion, close view, belief update, replan) | pick (motion; a miss,
        read off the fingers' width, re-perceives) | insert (transport to the policy's start, the
-       learned policy closed loop at its control rate, release; unseated puts the gear back and
-       re-perceives). A gear whose pick or insert failed is doubted (planning.domain.GearBelief)
+       learned policy closed loop at its control rate, release, and a look at the seated face with
+       the wrist camera; unseated with the gear in hand puts it back and re-perceives, unseated
+       on the shaft fails with the reason). A gear whose pick or insert failed is doubted (planning.domain.GearBelief)
        until a close view of it: the plan inspects it before picking it again rather than retry
        from the same, possibly biased, far view.
     -> done, or failed with the reason.
@@ -43,6 +44,7 @@ from assembly.world import nominal_grasp, planar_pose
 from perception.detection import detect_gears
 from perception.observation import Observation
 from perception.search import Prior, estimate_pose
+from perception.seat_check import SeatCheckConfig, check_seat
 from perception.station_views import observation_from_images
 from planning.bfs import plan_bfs
 from planning.domain import AssemblyDomain, BeliefState, GearBelief, table_belief
@@ -61,7 +63,9 @@ class PlannerSystemConfig:
     this long after it; scene_extrinsic_std: how well the scene camera's extrinsics are known,
     (translation [m], rotation [rad]) std: the x-y shift it causes on the table (assembly.cameras.
     extrinsic_error_on_table) and the rotation in yaw are added to each far belief's std (the
-    wrist camera rides on the hand: its close views do not inherit it)."""
+    wrist camera rides on the hand: its close views do not inherit it); seat_check: after an insert
+    the tool says seated, the wrist camera's view from the retreat checks the gear's face
+    (perception.seat_check; None: trust the tool's height alone)."""
 
     period: float = 0.04
     motion: ScriptedInsertionConfig = field(default_factory=ScriptedInsertionConfig)
@@ -72,6 +76,7 @@ class PlannerSystemConfig:
     settle_tolerance: float = 0.002
     max_wait: float = 3.0
     scene_extrinsic_std: tuple[float, float] = (0.0, 0.0)
+    seat_check: SeatCheckConfig | None = field(default_factory=SeatCheckConfig)
 
 
 @dataclass
@@ -353,6 +358,14 @@ class BeliefSpacePlanner(LeafSystem):
             run.phase = "policy"
             self._policy_action(run, gear, X_WT)
         elif run.after == "released":
+            if run.current.get("seated") and self.config.seat_check is not None:
+                check = check_seat(self._observe(context, "wrist"), gear, self.X_WS[gear], self.config.seat_check)
+                run.log.append(f"t = {t:.2f} s: seat check: {check.reason}")
+                if check.verdict == "unseated":
+                    self._record(run, t, f"unseated (wrist camera: {check.reason})")
+                    self._fail(run, f"insert({gear}) left the gear on its shaft unseated ({check.reason}); "
+                                    "no skill takes a gear back off its shaft")
+                    return
             self._record(run, t, run.current.get("outcome", ""))
             if run.current.get("seated"):
                 b = run.beliefs[gear]

@@ -41,8 +41,12 @@ def test_ports_are_sensors_in_and_commands_out():
 
 @pytest.mark.slow
 def test_a_random_placement_is_assembled(skills):
-    summary = run_planned_assembly(PlannedAssemblyConfig(seed=SEED), skills=skills)
+    built = build_planned_assembly(PlannedAssemblyConfig(seed=SEED), skills=skills)
+    summary = run_planned_assembly(PlannedAssemblyConfig(seed=SEED), built=built)
     assert summary["status"] == "done", summary["reason"]
+    # each insert the tool called seated was looked at by the wrist camera and passed
+    checks = [line for line in built.run().log if "seat check" in line]
+    assert len(checks) == 3 and all(line.endswith(": seated") for line in checks), checks
     assert all(g["inserted"] for g in summary["gears"].values()), summary["gears"]
     assert [s for s, _ in summary["plan"]].count("insert") == 3
     for e in summary["executed"]:
@@ -116,3 +120,16 @@ def test_an_unseated_insert_puts_the_gear_back_and_completes(skills):
     assert summary["replans"] >= 1
     assert summary["status"] == "done", (summary["reason"], outcomes)
     assert all(g["inserted"] for g in summary["gears"].values()), summary["gears"]
+
+
+@pytest.mark.slow
+def test_a_gear_left_cocked_on_its_shaft_is_reported_not_counted(skills):
+    """Seed 40: the small gear's insert brings the tool down to its seated height, but the gear
+    slid in the fingers and sits cocked 5 mm beside its seat. The wrist camera's seat check sees
+    it; the run fails with that reason instead of claiming the gearbox done."""
+    summary = run_planned_assembly(PlannedAssemblyConfig(seed=40), skills=skills)
+    assert not summary["gears"]["small"]["inserted"], summary["gears"]
+    assert summary["status"] == "failed" and "small" in summary["reason"], summary["reason"]
+    assert "unseated" in summary["reason"] and "shaft" in summary["reason"], summary["reason"]
+    last = summary["executed"][-1]
+    assert (last["skill"], last["gear"]) == ("insert", "small") and last["outcome"].startswith("unseated")

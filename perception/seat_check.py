@@ -1,0 +1,83 @@
+"""Is a released gear seated on its shaft? A check from one depth image.
+
+A seated gear's top face lies flush with its shaft's top, GEAR_THICKNESS above the plate, flat.
+The check back-projects the depth pixels that fall inside the face's ring around the shaft axis
+(between the bore, plus a margin, and the tooth root, minus one) and compares their heights with
+that face: a gear left cocked on the shaft or beside it shows up as a face above it, or as points
+scattered off it. Points far above the face (the open fingers, the hand) are occluders and are
+ignored; too few points left means the view cannot tell ("unseen"), never a guess.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.math import RigidTransform
+
+from assembly.gearset import GEAR_BORE_CHAMFER, GEAR_BORE_RADIUS, GEAR_THICKNESS, gear_spec
+from perception.observation import Observation
+
+VERDICTS = ("seated", "unseated", "unseen")
+
+
+@dataclass(frozen=True)
+class SeatCheckConfig:
+    """Seated: the ring's median height is within `tolerance` [m] of a seated face and at least
+    `inliers` of its points within twice that (a flat face: a gear tilted by a degree or two on
+    its shaft still passes, one cocked beside it does not). margin: the ring keeps this far from
+    the bore's chamfer and the tooth root [m]; occluder_height: points this far above the face
+    are something in front of it [m]; min_points: fewer ring points than this gives "unseen"."""
+
+    tolerance: float = 0.0005
+    inliers: float = 0.8
+    margin: float = 0.001
+    occluder_height: float = 0.010
+    min_points: int = 60
+
+    def __post_init__(self) -> None:
+        if not (self.tolerance > 0 and 0 < self.inliers <= 1 and self.margin >= 0
+                and self.occluder_height > 2 * self.tolerance and self.min_points >= 10):
+            raise ValueError(f"{self}: expected tolerance > 0, 0 < inliers <= 1, margin >= 0, "
+                             "occluder_height > 2 tolerance and min_points >= 10")
+
+
+@dataclass(frozen=True)
+class SeatCheck:
+    """verdict: seated | unseated | unseen; height_m: median height of the ring's points above a
+    seated face [m] (nan if unseen); inliers: the fraction of them within twice the tolerance of
+    it; points: how many were used; reason: one line for the log."""
+
+    verdict: str
+    height_m: float
+    inliers: float
+    points: int
+    reason: str
+
+
+def check_seat(obs: Observation, gear: str, X_WS: RigidTransform,
+               config: SeatCheckConfig | None = None) -> SeatCheck:
+    """Whether `gear` sits seated on its shaft (frame X_WS: on the shaft axis at the plate top,
+    z up) as seen in `obs` (any calibrated RGB-D view of the shaft: the wrist camera after the
+    release). ValueError for an unknown gear."""
+    c = config or SeatCheckConfig()
+    spec = gear_spec(gear)
+    v, u = np.nonzero(obs.valid)
+    origin, dirs = obs.rays_W(u, v)
+    p_S = X_WS.inverse().multiply((origin + dirs * obs.depth[v, u][:, None]).T).T
+    r = np.hypot(p_S[:, 0], p_S[:, 1])
+    ring = (r > GEAR_BORE_RADIUS + GEAR_BORE_CHAMFER + c.margin) & (r < spec.root_radius - c.margin)
+    dz = p_S[ring, 2] - GEAR_THICKNESS
+    dz = dz[dz < c.occluder_height]  # the fingers and the hand are in front of the face
+    if dz.size < c.min_points:
+        return SeatCheck("unseen", float("nan"), float("nan"), int(dz.size),
+                         f"{gear}: {dz.size} points on its seated face's ring, fewer than {c.min_points}")
+    height = float(np.median(dz))
+    inliers = float(np.mean(np.abs(dz) <= 2 * c.tolerance))
+    what = "seated" if abs(height) <= c.tolerance and inliers >= c.inliers else "unseated"
+    return SeatCheck(what, height, inliers, int(dz.size),
+                     f"{gear}: face {1e3 * height:+.2f} mm from seated, {100 * inliers:.0f} % of {dz.size} "
+                     f"points within {2e3 * c.tolerance:.1f} mm: {what}")
+
+
+__all__ = ["SeatCheck", "SeatCheckConfig", "VERDICTS", "check_seat"]
