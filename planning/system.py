@@ -13,9 +13,9 @@ abstract state (the pattern of the manipulation course's clutter-clearing Planne
        read off the fingers' width, re-perceives) | insert (transport to the policy's start, the
        learned policy closed loop at its control rate, release, and a look at the seated face with
        the wrist camera; unseated with the gear in hand puts it back and re-perceives, unseated
-       on the shaft fails with the reason). A gear whose pick or insert failed is doubted (planning.domain.GearBelief)
-       until a close view of it: the plan inspects it before picking it again rather than retry
-       from the same, possibly biased, far view.
+       on the shaft fails with the reason). A gear whose pick or insert failed is doubted
+       (planning.domain.GearBelief) until a close view of it: the plan inspects it before picking
+       it again rather than retry from the same, possibly biased, far view.
     -> done, or failed with the reason.
 """
 
@@ -359,7 +359,8 @@ class BeliefSpacePlanner(LeafSystem):
             self._policy_action(run, gear, X_WT)
         elif run.after == "released":
             if run.current.get("seated") and self.config.seat_check is not None:
-                check = check_seat(self._observe(context, "wrist"), gear, self.X_WS[gear], self.config.seat_check)
+                check = check_seat(self._observe(context, "wrist"), gear, self.X_WS[gear],
+                                   self.config.seat_check)
                 run.log.append(f"t = {t:.2f} s: seat check: {check.reason}")
                 if check.verdict == "unseated":
                     self._record(run, t, f"unseated (wrist camera: {check.reason})")
