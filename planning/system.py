@@ -96,7 +96,6 @@ class _Run:
     history: PoseHistory | None = None
     policy_end: float = 0.0
     replans: int = 0
-    doubted: tuple = ()                                    # gears whose last pick or insert failed
     reason: str = ""
     log: list = field(default_factory=list)
 
@@ -229,7 +228,7 @@ class BeliefSpacePlanner(LeafSystem):
                                              (det.prior.half_width,) * 2 + (np.pi,))
             else:
                 beliefs[gear] = table_belief(post.mean(), self._far_std(obs, post.mean(), post.std()))
-            if gear in run.doubted:
+            if gear in run.beliefs and run.beliefs[gear].doubted:  # still owed a close view
                 beliefs[gear] = replace(beliefs[gear], doubted=True)
         run.beliefs = beliefs
         run.log.append(f"t = {t:.2f} s: perceived {sorted(beliefs)} in {time.perf_counter() - t0:.1f} s")
@@ -335,7 +334,6 @@ class BeliefSpacePlanner(LeafSystem):
                                                                b.inspections + 1)}
             else:
                 run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, b.inspections + 1)}
-            run.doubted = tuple(g for g in run.doubted if g != gear)
             self._record(run, t, "informative" if post.informative else f"uninformative: {post.reason}")
             self._replan(run, t, X_WT)
         elif run.after == "picked":
@@ -445,8 +443,7 @@ class BeliefSpacePlanner(LeafSystem):
         # scene camera's view), then look again; the failed gear's belief is doubted
         gear = run.current["gear"]
         b = run.beliefs[gear]
-        run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, 0)}
-        run.doubted = tuple(sorted({*run.doubted, gear}))
+        run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, 0, doubted=True)}
         c = self.config.motion
         plan = self._open_and_lift(run, t, X_WT, gear, "retry: open", "retry: lift")
         append_move(plan, self.X_WT_start, plan.keyframes[-1].width, "retry: clear the view", c.speed,
