@@ -19,9 +19,10 @@ precondition), the scripted one never looks (it is left out of this condition):
 
 Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
 there (resumable; rows of another --camera-error or --eta are kept and skipped). --eta sets the
-precondition's bar of the planner variants (0.9 by default; docs/planning.md's sweep). Prints, per variant: seeds with all three gears inserted (with the binomial
-standard error), gears inserted, inspections, failed inserts (over the rows that list outcomes)
-and replans per assembly, wall seconds per assembly.
+precondition's bar of the planner variants (0.9 by default; docs/planning.md's sweep). Prints,
+per variant: seeds with all three gears inserted (with the binomial standard error), gears
+inserted, inspections, failed inserts (over the rows that list outcomes) and replans per
+assembly, wall seconds per assembly.
 """
 
 from __future__ import annotations
