@@ -387,9 +387,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 def _skill_flags(p: argparse.ArgumentParser) -> None:
     from assembly.gearset import GEARS
+    from learning.feasible_grid import FlowRefitConfig
     from learning.skills import RUNS_SKILL_DIR, SKILLS, SkillRecipe
-    p.add_argument("action", choices=["train", "export", "show"],
-                   help="train: the recipe, then export; export: a run folder as a skill file; show: a file's provenance")
+    p.add_argument("action", choices=["train", "export", "refit", "show"],
+                   help="train: the recipe, then export; export: a run folder as a skill file; refit: a skill "
+                        "file's flow refitted to where its policy succeeds (stage 4 of train); show: a file's "
+                        "provenance and its flow against its measured feasible set")
     p.add_argument("--skill", default=SKILLS[0], choices=SKILLS, help="the skill")
     p.add_argument("--gear", required=True, nargs="+", choices=sorted(GEARS),
                    help="the gear it handles (train: one or more, one job each)")
@@ -397,24 +400,29 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     _add_field(p, SkillRecipe, "total_steps", "--steps", doc="stage 1 (GoFlow) training environment steps")
     _add_field(p, SkillRecipe, "refine_steps")
     _add_field(p, SkillRecipe, "fit_rounds")
+    _add_field(p, FlowRefitConfig, "rounds", "--refit-rounds",
+               doc="train (stage 4), refit: flow updates from its own draws after the one from the measured grid")
+    _add_field(p, FlowRefitConfig, "episodes", "--refit-episodes", doc="train (stage 4), refit: episodes per update")
+    _add_field(p, FlowRefitConfig, "delta", doc="train (stage 4), refit: the flow's mass allowed outside the "
+                                                "feasible set")
     p.add_argument("--runs", type=Path, default=RUNS_SKILL_DIR,
                    help="train: the folder of the training run <runs>/<skill>-<gear>/ (resumable)")
     p.add_argument("--run", type=Path, help="export: the `goflow train` run folder to package")
     p.add_argument("--out", type=Path, help="train, export: the skill file to write (default: "
                                             "<runs>/<skill>-<gear>.pt; the shipped files only when named)")
-    p.add_argument("--path", type=Path, help="show: a skill file other than the shipped one")
-    p.add_argument("--workers", type=int, default=1, help="train: gears trained at once, one process each")
+    p.add_argument("--path", type=Path, help="show, refit: a skill file other than the shipped one")
+    p.add_argument("--workers", type=int, default=1, help="train: gears trained at once, one process each; refit: "
+                                                          "processes running its episodes")
     _ray_flag(p)
 
 
 def _cmd_skill(args: argparse.Namespace) -> int:
-    from learning.skills import (
-        SkillRecipe, describe, export_skill, load_skill, skill_path, skill_run_folder, train_skill,
-    )
+    from learning.skills import describe, export_skill, load_skill, refit_skill, skill_path, skill_run_folder, train_skill
     gears = list(dict.fromkeys(args.gear))
-    if args.action != "train" and (len(gears) > 1 or args.ray):
+    if len(gears) > 1 and args.action != "train" or args.ray and args.action not in ("train", "refit"):
         raise InputError(f"{args.action} handles one gear in this process; --gear {' '.join(args.gear)}"
-                         f"{' --ray ' + args.ray if args.ray else ''}: several gears and --ray are for train")
+                         f"{' --ray ' + args.ray if args.ray else ''}: several gears are for train, --ray for "
+                         "train and refit")
     args.gear = gears[0]
     if args.action == "train" and (len(gears) > 1 or args.ray or args.workers != 1):
         return _skill_train_grid(args, gears)
@@ -428,21 +436,36 @@ def _cmd_skill(args: argparse.Namespace) -> int:
         if not args.run:
             raise InputError("export needs --run FOLDER (a `goflow train` run folder)")
         skill = export_skill(args.run, args.skill, args.gear, out, command=args.provenance)
+    elif args.action == "refit":
+        folder = Path(f"{skill_run_folder(args.skill, args.gear, args.runs)}-refit")
+        backend = _backend(args, args.workers, inline=True)
+        with _resumable(lambda: f"{folder} keeps the measurement's finished jobs and the last update"):
+            skill = refit_skill(args.path or skill_path(args.skill, args.gear), out, refit=_refit_config(args),
+                                folder=folder, backend=backend, command=args.provenance, progress=True)
     else:
-        recipe = SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
-                             fit_rounds=args.fit_rounds)
+        recipe = _skill_recipe(args)
         with _resumable(lambda: _checkpoint_kept(skill_run_folder(args.skill, args.gear, args.runs))):
             skill = train_skill(args.skill, args.gear, recipe, runs=args.runs, out=out, command=args.provenance)
     print(f"{skill!r} -> {out}")
     return 0
 
 
+def _refit_config(args: argparse.Namespace) -> Any:
+    from learning.feasible_grid import FlowRefitConfig
+    return FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, delta=args.delta)
+
+
+def _skill_recipe(args: argparse.Namespace) -> Any:
+    from learning.skills import SkillRecipe
+    return SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
+                       fit_rounds=args.fit_rounds, refit=_refit_config(args))
+
+
 def _skill_train_grid(args: argparse.Namespace, gears: list[str]) -> int:
     """skill train of several gears, or on --ray / --workers: one job per gear."""
-    from learning.skills import SkillRecipe, skill_path, train_skills
+    from learning.skills import skill_path, train_skills
     backend = _backend(args, args.workers)
-    recipe = SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
-                         fit_rounds=args.fit_rounds)
+    recipe = _skill_recipe(args)
     with _resumable(lambda: f"the training runs under {args.runs} keep their last finished rounds"):
         skills = train_skills(args.skill, gears, recipe, runs=args.runs, out=args.out, command=args.provenance,
                               backend=backend)

@@ -1,10 +1,12 @@
 """Report on the shipped insertion skills: success on the uniform box and on samples of each
-skill's own flow, in the fast variant and on the full Panda station, plus how wide each flow is.
+skill's own flow, in the fast variant and on the full Panda station, plus how wide each flow is
+and, for a file that holds a measured feasible set, the flow's mass on it and coverage of it.
 
     .venv/bin/python benchmarks/skill_report.py [--gears small medium large] [--episodes 100]
-        [--panda-episodes 100] [--json docs/results/skills.json]
+        [--panda-episodes 100] [--xi flow uniform] [--json docs/results/skills.json]
 
-Prints one table; the JSON holds every row (the `goflow evaluate` schema plus the flow's width).
+Prints one table; the JSON holds every row (the `goflow evaluate` schema plus the flow's width and
+its report against the feasible set, learning.feasible_grid.flow_report).
 The trust threshold eps is given relative to the uniform density over the box (eps = ratio / volume).
 """
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from learning.feasible_grid import flow_report
 from learning.skills import evaluate_skill, flow_width, load_skill, skill_path
 from common.files import write_json
 
@@ -24,6 +27,8 @@ def main() -> None:
     parser.add_argument("--panda-episodes", type=int, default=100, help="episodes per row, panda variant")
     parser.add_argument("--eps-ratio", type=float, nargs="+", default=[1.0, 10.0, 100.0],
                         help="trust thresholds as multiples of the uniform density")
+    parser.add_argument("--xi", nargs="+", default=["flow", "uniform"], choices=["flow", "uniform"],
+                        help="where the episodes' grasp errors come from")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--skill-dir", type=Path, help="skill files insert-<gear>.pt to report on "
@@ -39,10 +44,13 @@ def main() -> None:
         skill = load_skill("insert", gear, path=path)
         volume = float((skill.space.high - skill.space.low).prod())
         widths = [flow_width(skill, eps=ratio / volume) for ratio in args.eps_ratio]
+        feasible = None if skill.feasible is None else {**skill.feasible.summary(),
+                                                        **flow_report(skill.sampler, skill.feasible)}
         for variant, episodes in (("fast", args.episodes), ("panda", args.panda_episodes)):
-            for xi in ("flow", "uniform"):
+            for xi in args.xi:
                 result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed).to_json()
                 result["flow"] = widths
+                result["feasible_set"] = feasible
                 result["provenance"] = {k: skill.provenance.get(k) for k in
                                         ("command", "steps", "train_seconds", "final_uniform_success")}
                 rows.append(result)
@@ -51,6 +59,9 @@ def main() -> None:
         for w in widths:
             print(f"{gear:<7} flow entropy {w['entropy']:.2f} nats (uniform {w['uniform_entropy']:.2f}); density > "
                   f"{w['eps_uniform_ratio']:g} x uniform on {100 * w['trusted_fraction']:.2f} % of the box")
+        if feasible is not None:
+            print(f"{gear:<7} measured feasible set: {100 * feasible['share']:.3f} % of the box; flow mass on it "
+                  f"{feasible['mass_on']:.3f}, coverage {feasible['coverage10']:.3f} (10 %) {feasible['coverage1']:.3f} (1 %)")
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             write_json(args.json, {"rows": rows})

@@ -15,6 +15,7 @@ reproduced by one command (docs/skills.md).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -34,15 +35,16 @@ from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from common.checks import check_int
 from common.errors import FileFormatError
-from common.files import check_output_file, load_tensors, save_tensors
+from common.files import check_output_file, load_tensors, run_folder_lock, save_tensors
 from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, protocol_sampler_kwargs, train
+from learning.feasible_grid import FeasibleGridConfig, FeasibleSet, FlowRefitConfig, flow_report, refit_flow
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import make_sampler
 
-__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "Skill", "SkillEvaluation", "SkillRecipe", "describe", "evaluate_skill",
-           "export_skill", "flow_width", "load_skill", "skill_path", "skill_run_folder", "train_skill",
-           "train_skills", "evaluate_skill_jobs"]
+__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "INSERT_GRID", "Skill", "SkillEvaluation", "SkillRecipe", "describe",
+           "evaluate_skill", "export_skill", "flow_width", "load_skill", "measure_feasible_set", "refit_skill",
+           "rollout_return", "skill_path", "skill_run_folder", "train_skill", "train_skills", "evaluate_skill_jobs"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
 #: Where `train_skill` and `goflow skill train/export` write by default (never the shipped files).
@@ -50,6 +52,11 @@ RUNS_SKILL_DIR = Path("runs") / "skills"
 SKILLS = ("insert",)
 _FORMAT = "goflow-skill-1"
 _ENV = {"insert": "goflow/GearInsertion-v0"}
+#: The insert skill's measurement grid: 0.3 mm cells over 12 mm x 12 mm around the flow's median,
+#: 3 yaw layers over the whole yaw range, and 11 x 11 x 3 coarse cells over the box (docs/skills.md).
+INSERT_GRID = FeasibleGridConfig(fine_width=(0.012, 0.012, 0.786), fine_cells=(40, 40, 3), coarse_cells=(11, 11, 3))
+#: Episodes per job of a measurement or a refit round.
+PART = 128
 
 
 def _check_name(name: str, gear: str) -> None:
@@ -97,6 +104,10 @@ class SkillRecipe:
     # succeeds on the flow's own draws (learning.experiment.fit_sampler); 0 rounds: none.
     fit_rounds: int = 30
     fit_episodes: int = 64
+    # Stage 4, the policy still frozen: the flow refitted in GoFlow's constrained mode to where the
+    # policy succeeds, measured on `grid` (`refit_skill`); None: no stage 4.
+    grid: FeasibleGridConfig = INSERT_GRID
+    refit: FlowRefitConfig | None = field(default_factory=FlowRefitConfig)
 
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
         """Stage 1 of this recipe for skill `name` on `gear`, writing to run folder `out`."""
@@ -123,7 +134,8 @@ class Skill:
     """A trained skill: policy, privileged value function, sampling distribution, ParamSpace."""
 
     def __init__(self, name: str, gear: str, env_id: str, env_kwargs: dict[str, Any], method: str,
-                 agent: PPO, sampler: Sampler, success_threshold: float, provenance: dict[str, Any]) -> None:
+                 agent: PPO, sampler: Sampler, success_threshold: float, provenance: dict[str, Any],
+                 feasible: FeasibleSet | None = None) -> None:
         _check_name(name, gear)
         self.name, self.gear, self.env_id = name, gear, env_id
         self.env_kwargs = dict(env_kwargs)
@@ -133,6 +145,8 @@ class Skill:
         self.space: ParamSpace = sampler.space
         self.success_threshold = float(success_threshold)
         self.provenance = dict(provenance)
+        #: where the policy succeeds, measured on a grid (`measure_feasible_set`), or None
+        self.feasible = feasible
 
     def __repr__(self) -> str:
         return (f"Skill({self.name!r}, gear={self.gear!r}, method={self.method!r}, "
@@ -185,6 +199,8 @@ class Skill:
                  "success_threshold": self.success_threshold, "space": self.space.to_dict(),
                  "agent": {k: v for k, v in agent_state.items() if k != "optimizer"},
                  "sampler": self.sampler.state_dict(), "provenance": self.provenance}
+        if self.feasible is not None:
+            state["feasible"] = self.feasible.state_dict()
         return save_tensors(path, state)
 
     @classmethod
@@ -203,10 +219,11 @@ class Skill:
             sampler_kwargs = protocol_sampler_kwargs(state["method"], state["provenance"].get("sampler_kwargs", {}))
             sampler = make_sampler(state["method"], space, state["success_threshold"], sampler_kwargs)
             sampler.load_state_dict(state["sampler"])
-        except (KeyError, TypeError, AttributeError) as exc:
+            feasible = FeasibleSet.from_state_dict(state["feasible"]) if "feasible" in state else None
+        except (KeyError, TypeError, AttributeError, FileFormatError) as exc:
             raise FileFormatError(f"{path}: a malformed {what} ({type(exc).__name__}: {exc})") from None
         return cls(state["name"], state["gear"], state["env"], state["env_kwargs"], state["method"], agent,
-                   sampler, state["success_threshold"], state["provenance"])
+                   sampler, state["success_threshold"], state["provenance"], feasible)
 
 
 def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLike[str] | None = None) -> Skill:
@@ -263,7 +280,12 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
         train(config, progress=progress)
     if recipe.fit_rounds > 0:
         fit_sampler(run, SamplerFitConfig(rounds=recipe.fit_rounds, episodes=recipe.fit_episodes), progress=progress)
-    return export_skill(run, name, gear, out, command=command)
+    if recipe.refit is None:
+        return export_skill(run, name, gear, out, command=command)
+    stage3 = check_output_file(run / "stage3.pt", "skill file")
+    export_skill(run, name, gear, stage3, command=command)
+    return refit_skill(stage3, out, recipe.grid, recipe.refit, folder=run / "refit", command=command,
+                       progress=progress)
 
 
 def _train_skill_file(name: str, gear: str, recipe: SkillRecipe, runs: str, out: str, command: str) -> str:
@@ -406,8 +428,152 @@ def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) 
 
 
 def describe(skill: Skill) -> str:
-    """One JSON line of a skill's provenance (for the CLI and docs)."""
+    """One JSON line of a skill's provenance (for the CLI and docs) and, when the file holds a
+    measured feasible set, the flow against it: the set's share of the box, the flow's mass on it
+    and outside it, and the share of it the flow covers at 10 % and 1 % of the uniform-on-set
+    density (learning.feasible_grid.flow_report)."""
     keep = ("steps", "rounds", "train_seconds", "final_uniform_success", "command", "exported")
-    return json.dumps({"skill": skill.name, "gear": skill.gear, "method": skill.method,
-                       **{k: skill.provenance.get(k) for k in keep}})
+    line = {"skill": skill.name, "gear": skill.gear, "method": skill.method,
+            "mode": getattr(getattr(skill.sampler, "config", None), "mode", None),
+            **{k: skill.provenance.get(k) for k in keep}}
+    if "refit" in skill.provenance:
+        line["refit_command"] = skill.provenance["refit"].get("command")
+    if skill.feasible is not None:
+        line["feasible_set"] = {**skill.feasible.summary(), **flow_report(skill.sampler, skill.feasible)}
+    return json.dumps(line)
 
+
+# -- where the policy succeeds, and the flow refitted to it ---------------------------------------
+
+
+def rollout_return(skill: Skill, xi: ArrayLike, env: gymnasium.Env | None = None) -> float:
+    """The undiscounted return of one episode of the skill's deterministic policy at parameters
+    xi (in `env`, default a new env of the skill's own variant), reset with seed 0."""
+    own = env is None
+    env = skill.make_env() if own else env
+    try:
+        obs, _ = env.reset(seed=0, options={"xi": np.asarray(xi, np.float64)})
+        total, done = 0.0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(skill.act(obs))
+            total += float(reward)
+            done = terminated or truncated
+    finally:
+        if own:
+            env.close()
+    return total
+
+
+def _returns_at(path: str, variant: str, xi: NDArray[np.float64]) -> NDArray[np.float64]:
+    """One job, in a worker: the returns of the skill file's deterministic policy at each row of xi."""
+    torch.set_num_threads(1)
+    skill = Skill.load(path)
+    env = skill.make_env(variant)
+    try:
+        return np.array([rollout_return(skill, x, env) for x in xi])
+    finally:
+        env.close()
+
+
+def _returns(path: str, variant: str, xi: NDArray[np.float64], backend: Backend, progress: bool, desc: str,
+             done: dict[int, NDArray[np.float64]] | None = None, save: Any = None) -> NDArray[np.float64]:
+    """Returns at each row of xi, in jobs of `PART` rows on `backend`. Jobs already in `done`
+    (job index -> returns) are not run again; `save(done)` is called as each job finishes."""
+    parts = [np.arange(k, min(k + PART, len(xi))) for k in range(0, len(xi), PART)]
+    done = {} if done is None else done
+    todo = [k for k in range(len(parts)) if k not in done]
+
+    def keep(i: int, value: Any) -> None:
+        done[todo[i]] = np.asarray(value, np.float64)
+        if save is not None:
+            save(done)
+
+    if todo:
+        run_grid([Job(f"{desc} {k}", _returns_at, (path, variant, xi[parts[k]])) for k in todo], backend, progress,
+                 desc, on_result=keep)
+    return np.concatenate([done[k] for k in range(len(parts))]) if parts else np.zeros(0)
+
+
+def _flow_median(skill: Skill) -> NDArray[np.float64]:
+    return np.median(skill.sampler.sample(4096, np.random.default_rng(0)), axis=0)
+
+
+def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
+                         backend: Backend | None = None, progress: bool = False,
+                         checkpoint: str | os.PathLike[str] | None = None) -> FeasibleSet:
+    """Where the deterministic policy of the skill file at `path` succeeds: one episode at the
+    centre of each cell of `grid` (learning.feasible_grid), in the grid's variant (default the
+    skill's own), in jobs of `PART` cells on `backend` (default: this process). With
+    `checkpoint`, each finished job is saved there, and a later call for the same file and grid
+    resumes from them."""
+    path = Path(path).resolve()
+    skill = Skill.load(path)
+    variant = grid.variant or skill.env_kwargs.get("variant", "fast")
+    plan = grid.plan(skill.space, _flow_median(skill))
+    key = {"skill_sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "grid": [*plan.key(), variant, PART]}
+    done: dict[int, NDArray[np.float64]] = {}
+    if checkpoint is not None and Path(checkpoint).is_file():
+        saved = load_tensors(checkpoint, "feasible-set measurement checkpoint")
+        if isinstance(saved, dict) and saved.get("key") == key:
+            done = {int(k): torch.as_tensor(v).numpy() for k, v in saved["parts"].items()}
+
+    def save(parts: dict[int, NDArray[np.float64]]) -> None:
+        save_tensors(checkpoint, {"key": key, "parts": {str(k): torch.from_numpy(v) for k, v in parts.items()}})
+
+    returns = _returns(str(path), variant, plan.points(), backend or InlineBackend(), progress, "feasible set", done,
+                       save if checkpoint is not None else None)
+    return plan.feasible_set(returns, skill.success_threshold, variant)
+
+
+def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
+                refit: FlowRefitConfig | None = None, folder: str | os.PathLike[str] | None = None,
+                backend: Backend | None = None, command: str = "", progress: bool = False) -> Skill:
+    """The frozen-policy refit of a skill file's flow (stage 4 of `train_skill`): measure where
+    its policy succeeds on `grid` (unless the file already holds a measurement with the grid's
+    cells),
+    refit the flow to that set in GoFlow's constrained mode (`learning.feasible_grid.refit_flow`),
+    and write the skill with the new flow and the measurement to `out` (checked first). With
+    `folder`, the measurement and the refit checkpoint there (locked) and resume."""
+    refit = refit or FlowRefitConfig()
+    out = check_output_file(out, "skill file")
+    path = Path(path).resolve()
+    skill = Skill.load(path)
+    backend = backend or InlineBackend()
+    if folder is None:
+        return _refit_skill(skill, path, out, grid, refit, None, backend, command, progress)
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    with run_folder_lock(folder):
+        return _refit_skill(skill, path, out, grid, refit, Path(folder), backend, command, progress)
+
+
+def _refit_checkpoint(folder: Path | None, path: Path) -> Path | None:
+    """The refit's checkpoint in `folder`, named for the input file's content (another input
+    starts afresh)."""
+    return None if folder is None else folder / f"refit-{hashlib.sha256(path.read_bytes()).hexdigest()[:16]}.pt"
+
+
+def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, refit: FlowRefitConfig,
+                 folder: Path | None, backend: Backend, command: str, progress: bool) -> Skill:
+    variant = grid.variant or skill.env_kwargs.get("variant", "fast")
+    plan = grid.plan(skill.space, _flow_median(skill))
+    feasible = skill.feasible  # the file's own policy measured: kept when it was on a grid of the same cells
+    if feasible is None or feasible.variant != variant or (feasible.fine_cells, feasible.coarse_cells) != (
+            plan.fine_cells, plan.coarse_cells) or not np.allclose(feasible.fine_high - feasible.fine_low,
+                                                                   plan.high - plan.low):
+        feasible = measure_feasible_set(path, grid, backend, progress,
+                                        folder / "feasible.pt" if folder is not None else None)
+    before = flow_report(skill.sampler, feasible)
+
+    def evaluate(xi: NDArray[np.float64], update: int) -> NDArray[np.float64]:
+        return _returns(str(path), variant, xi, backend, False, f"refit update {update}")
+
+    with backend:  # one pool or cluster for every update
+        sampler, records = refit_flow(skill.sampler, feasible, evaluate, refit,
+                                      _refit_checkpoint(folder, path), progress)
+    provenance = {**skill.provenance, "refit": {"command": command, "config": refit.to_dict(),
+                                                "feasible_set": feasible.summary(), "before": before,
+                                                "updates": records, "date": time.strftime("%Y-%m-%d")}}
+    new = Skill(skill.name, skill.gear, skill.env_id, skill.env_kwargs, skill.method, skill.agent, sampler,
+                skill.success_threshold, provenance, feasible)
+    new.save(out)
+    return new

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from common.checks import check_int
 from common.errors import FileFormatError
 from common.files import read_json
-from learning.skills import Skill, load_skill
+from learning.skills import Skill, load_skill, rollout_return
 
 #: V_T per gear, measured by `benchmarks/preconditions.py --thresholds` (docs/planning.md).
 THRESHOLDS = Path(__file__).parent / "data" / "insert_thresholds.json"
@@ -180,24 +180,6 @@ class ValueCalibration:
     success: NDArray[np.bool_]
 
 
-def rollout_return(skill: Skill, xi: ArrayLike, env=None) -> float:
-    """The undiscounted return of one episode of the skill's deterministic policy at grasp error
-    xi (in `env`, default a new env of the skill's own variant)."""
-    own = env is None
-    env = skill.make_env() if own else env
-    try:
-        obs, _ = env.reset(seed=0, options={"xi": np.asarray(xi, np.float64)})
-        total, done = 0.0, False
-        while not done:
-            obs, reward, terminated, truncated, _ = env.step(skill.act(obs))
-            total += float(reward)
-            done = terminated or truncated
-    finally:
-        if own:
-            env.close()
-    return total
-
-
 def calibrate_value_threshold(skill: Skill, episodes: int = 200, spread: float = 0.003,
                               seed: int = 0) -> ValueCalibration:
     """V_T by measurement: `episodes` rollouts at grasp errors drawn from the skill's flow and
@@ -231,5 +213,4 @@ def calibrate_value_threshold(skill: Skill, episodes: int = 200, spread: float =
 
 __all__ = ["InsertPrecondition", "PreconditionConfig", "THRESHOLDS", "ValueCalibration",
            "calibrate_value_threshold", "insert_precondition", "load_value_thresholds",
-           "preferred_grasp_error", "best_aim",
-           "rollout_return", "start_observation"]
+           "preferred_grasp_error", "best_aim", "start_observation"]

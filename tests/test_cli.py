@@ -213,6 +213,30 @@ def test_defaults_write_under_runs_not_into_committed_files(tmp_path):
     assert (tmp_path / "runs" / "skills").is_dir() and shipped.stat().st_mtime_ns == before
 
 
+def test_skill_show_reports_the_flow_against_the_measured_feasible_set():
+    proc = _run("skill", "show", "--gear", "medium")
+    assert proc.returncode == 0, proc.stderr
+    shown = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert shown["mode"] == "constrained"
+    report = shown["feasible_set"]
+    assert set(report) >= {"share", "mass_on", "mass_outside", "coverage10", "coverage1", "episodes"}
+    assert 0.0 < report["share"] < 0.01 and report["mass_on"] + report["mass_outside"] == pytest.approx(1.0)
+
+
+def test_skill_refit_refuses_bad_settings_before_any_episode(tmp_path):
+    line = _one_line_error(_run("skill", "refit", "--gear", "small", "--delta", "1.5", "--runs", str(tmp_path / "r"),
+                                "--out", str(tmp_path / "s.pt")), "skill refit")
+    assert "delta" in line and "1.5" in line
+    line = _one_line_error(_run("skill", "refit", "--gear", "small", "--refit-rounds", "-1",
+                                "--runs", str(tmp_path / "r"), "--out", str(tmp_path / "s.pt")), "skill refit")
+    assert "rounds" in line and "-1" in line
+    out = _under_a_file(tmp_path) / "s.pt"
+    line = _one_line_error(_run("skill", "refit", "--gear", "small", "--runs", str(tmp_path / "r"), "--out", str(out)),
+                           "skill refit")
+    assert str(out.parent) in line
+    assert not (tmp_path / "r").exists()  # nothing measured
+
+
 # ---------------------------------------------------------------------------------------------
 # Output paths are checked before the work
 # ---------------------------------------------------------------------------------------------

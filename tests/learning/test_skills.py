@@ -8,20 +8,25 @@ import numpy as np
 import pytest
 import torch
 
+from learning.feasible_grid import FeasibleGridConfig, FlowRefitConfig
 from learning.ppo import PPOConfig
 from learning.skills import (
-    SkillRecipe, Skill, evaluate_skill, export_skill, flow_width, load_skill, skill_path, train_skill,
+    SkillRecipe, Skill, describe, evaluate_skill, export_skill, flow_width, load_skill, skill_path, train_skill,
 )
 
 
 @pytest.fixture(scope="module")
 def tiny_skill(tmp_path_factory):
-    """A tiny two-stage recipe on the small gear (one GoFlow round, one refinement round), exported
-    as a skill file by train_skill."""
+    """A tiny recipe on the small gear (one GoFlow round, one refinement round, two frozen-policy
+    rounds, a 2 x 2 x 1 + 2 x 2 x 1 grid and one refit update from the flow's draws), exported as a
+    skill file by train_skill."""
     tmp = tmp_path_factory.mktemp("skill")
     recipe = SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1,
                          refine_steps=20, refine_iterations_per_round=1, refine_eval_episodes=2,
                          fit_rounds=2, fit_episodes=4,
+                         grid=FeasibleGridConfig(fine_width=(0.01, 0.01, 0.786), fine_cells=(2, 2, 1),
+                                                 coarse_cells=(2, 2, 1)),
+                         refit=FlowRefitConfig(rounds=1, episodes=4, steps=5),
                          sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
                                          "report_samples": 256},
                          ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
@@ -40,6 +45,14 @@ def test_the_recipe_runs_both_stages(tiny_skill):
     # stage 3: two flow updates on 4 deterministic episodes each, the policy untouched
     assert [row[0] for row in log["sampler_fit"]] == [1, 2] and skill.provenance["sampler_fit"] == log["sampler_fit"]
     assert all(0.0 <= row[1] <= 1.0 for row in log["sampler_fit"])
+    # stage 4: the policy's feasible set measured on the grid (4 fine cells and the 4 coarse ones
+    # outside them), then the flow refitted in constrained mode: one update from the grid, one from
+    # 4 of its own draws
+    assert skill.feasible is not None and skill.feasible.summary()["episodes"] == 8
+    assert skill.sampler.config.mode == "constrained"
+    updates = skill.provenance["refit"]["updates"]
+    assert [u["update"] for u in updates] == [0, 1] and [u["episodes"] for u in updates] == [8, 4]
+    assert set(skill.provenance["refit"]["before"]) == {"share", "mass_on", "mass_outside", "coverage10", "coverage1"}
 
 
 def test_export_and_load_round_trip(tiny_skill):
@@ -60,6 +73,12 @@ def test_export_and_load_round_trip(tiny_skill):
     xi = skill.sampler.sample(16, np.random.default_rng(0))
     np.testing.assert_allclose(skill.density(xi), exported.density(xi), rtol=1e-6)
     assert np.all(skill.density(np.array([[0.2, 0.0, 0.0]])) == 0.0)  # outside the box
+    # the measured feasible set travels with the file
+    np.testing.assert_array_equal(skill.feasible.fine_returns, exported.feasible.fine_returns)
+    np.testing.assert_array_equal(skill.feasible.contains(xi), exported.feasible.contains(xi))
+    shown = json.loads(describe(skill))
+    assert shown["mode"] == "constrained" and 0.0 <= shown["feasible_set"]["mass_on"] <= 1.0
+    assert shown["feasible_set"]["mass_on"] + shown["feasible_set"]["mass_outside"] == pytest.approx(1.0)
 
 
 def test_flow_env_draws_from_the_flow_and_uniform_from_the_box(tiny_skill):

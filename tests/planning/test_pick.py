@@ -4,10 +4,10 @@ leave the aimed error along tool x; the planner's aim on that slice is one the s
 import numpy as np
 
 from assembly.world import grasp_with_error
-from learning.skills import load_skill
 from planning.grasp import PICK_MODEL, picked_grasp_errors
 from planning.pick import held_grasp_error, simulate_pick
-from planning.precondition import best_aim, insert_precondition, rollout_return
+from learning.skills import load_skill, rollout_return
+from planning.precondition import best_aim, insert_precondition
 from pydrake.math import RigidTransform, RotationMatrix
 
 

@@ -123,12 +123,28 @@ def test_an_unseated_insert_puts_the_gear_back_and_completes(skills):
 
 
 @pytest.mark.slow
-def test_a_gear_left_cocked_on_its_shaft_is_reported_not_counted(skills):
-    """Seed 40: the small gear's insert brings the tool down to its seated height, but the gear
-    slid in the fingers and sits cocked 5 mm beside its seat. The wrist camera's seat check sees
-    it; the run fails with that reason instead of claiming the gearbox done."""
-    summary = run_planned_assembly(PlannedAssemblyConfig(seed=40), skills=skills)
-    assert not summary["gears"]["small"]["inserted"], summary["gears"]
+def test_a_gear_left_unseated_on_its_shaft_is_reported_not_counted(skills, monkeypatch):
+    """When the wrist camera's seat check, after the release, finds the small gear unseated
+    although the tool came down to its seated height, the run fails with that reason instead of
+    claiming the gearbox done. (Seed 40 left the small gear cocked 5 mm beside its seat with the
+    stage-3 flows; with the refitted flows it inserts all three gears, so the check's verdict is
+    forced here. tests/perception/test_seat_check.py checks the verdict on rendered views of
+    cocked and raised gears.)"""
+    import planning.system
+    from perception.seat_check import SeatCheck
+
+    real, seen = planning.system.check_seat, []
+
+    def small_unseated(obs, gear, X_WS, config=None):
+        check = real(obs, gear, X_WS, config)
+        seen.append((gear, check.verdict))
+        if gear != "small":
+            return check
+        return SeatCheck("unseated", 0.005, 0.0, check.points, "median height 5.0 mm above a seated face")
+
+    monkeypatch.setattr(planning.system, "check_seat", small_unseated)
+    summary = run_planned_assembly(PlannedAssemblyConfig(seed=SEED), skills=skills)
+    assert ("small", "seated") in seen  # the real check saw the gear seated; the test overrules it
     assert summary["status"] == "failed" and "small" in summary["reason"], summary["reason"]
     assert "unseated" in summary["reason"] and "shaft" in summary["reason"], summary["reason"]
     last = summary["executed"][-1]
