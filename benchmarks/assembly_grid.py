@@ -6,7 +6,7 @@
     eq6        the planner with Eq. 6 (value only)
     eq7        the planner with Eq. 7 (value and flow; the default)
 
-    .venv/bin/python benchmarks/assembly.py --seeds 0 50 --variants scripted eq7 --workers 2 \
+    .venv/bin/python benchmarks/assembly_grid.py --seeds 0 50 --variants scripted eq7 --workers 2 \
         --out runs/assembly/rows.jsonl --json docs/results/assembly.json
 
 --camera-error MM DEG runs the same grid with the scene camera's true extrinsics off the calibrated
@@ -14,7 +14,7 @@ ones by N(0, MM) per axis and N(0, DEG) about each axis, drawn per seed; the pla
 std (PlannerSystemConfig.scene_extrinsic_std), the "map" baseline ignores it (it has no
 precondition), the scripted one never looks (it is left out of this condition):
 
-    .venv/bin/python benchmarks/assembly.py --seeds 0 20 --variants map inspect eq6 eq7 --camera-error 1 0.1 \
+    .venv/bin/python benchmarks/assembly_grid.py --seeds 0 20 --variants map inspect eq6 eq7 --camera-error 1 0.1 \
         --workers 2 --out runs/assembly/camera_error.jsonl --json docs/results/assembly_camera_error.json
 
 Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
