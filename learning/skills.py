@@ -446,13 +446,14 @@ def describe(skill: Skill) -> str:
 # -- where the policy succeeds, and the flow refitted to it ---------------------------------------
 
 
-def rollout_return(skill: Skill, xi: ArrayLike, env: gymnasium.Env | None = None) -> float:
+def rollout_return(skill: Skill, xi: ArrayLike, env: gymnasium.Env | None = None, seed: int = 0) -> float:
     """The undiscounted return of one episode of the skill's deterministic policy at parameters
-    xi (in `env`, default a new env of the skill's own variant), reset with seed 0."""
+    xi (in `env`, default a new env of the skill's own variant), reset with `seed`. Any object
+    whose `act(obs)` gives the action serves as `skill` when `env` is given."""
     own = env is None
     env = skill.make_env() if own else env
     try:
-        obs, _ = env.reset(seed=0, options={"xi": np.asarray(xi, np.float64)})
+        obs, _ = env.reset(seed=seed, options={"xi": np.asarray(xi, np.float64)})
         total, done = 0.0, False
         while not done:
             obs, reward, terminated, truncated, _ = env.step(skill.act(obs))

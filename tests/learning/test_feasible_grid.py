@@ -117,3 +117,34 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
     np.testing.assert_allclose(again.log_prob(x), new.log_prob(x))
     with pytest.raises(InputError, match="holds a refit"):
         refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60), checkpoint=tmp_path / "refit.pt")
+
+
+def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
+    """benchmarks/frozen_refit.py on a tiny GoFlow run: the policy's set measured on a grid, the
+    flow refitted, both reported against Toy2D's own feasible set."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from learning.experiment import TrainConfig, train
+    from learning.ppo import PPOConfig
+
+    run = tmp_path / "run"
+    train(TrainConfig(env="goflow/Toy2D-v0", method="goflow", seed=1, eval_episodes=16, iterations_per_round=1,
+                      total_steps=2 * 4 * 16, out=run, sampler_kwargs={"steps": 3, "report_samples": 256},
+                      ppo=PPOConfig(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=1)), progress=False)
+    script = Path(__file__).parents[2] / "benchmarks" / "frozen_refit.py"
+    out = tmp_path / "refit.json"
+    proc = subprocess.run([sys.executable, str(script), "--runs", str(run), "--cells", "10", "--repeats", "2",
+                           "--rounds", "1", "--episodes", "16", "--steps", "5", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    row = json.loads(out.read_text())["rows"][0]
+    assert [u["episodes"] for u in row["updates"]] == [100, 16]
+    for key in ("policy_set", "env_set"):
+        assert set(row[key]["after"]) >= {"share", "mass_on", "coverage10", "coverage1"}
+    assert 0.05 < row["env_set"]["after"]["share"] < 0.15  # the circle layout's 9 %
+    bad = subprocess.run([sys.executable, str(script), "--runs", str(run), "--level", "1.5"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode != 0 and "--level must lie in (0, 1], got 1.5" in bad.stderr
