@@ -531,10 +531,10 @@ def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid:
                 backend: Backend | None = None, command: str = "", progress: bool = False) -> Skill:
     """The frozen-policy refit of a skill file's flow (stage 4 of `train_skill`): measure where
     its policy succeeds on `grid` (unless the file already holds a measurement with the grid's
-    cells),
-    refit the flow to that set in GoFlow's constrained mode (`learning.feasible_grid.refit_flow`),
-    and write the skill with the new flow and the measurement to `out` (checked first). With
-    `folder`, the measurement and the refit checkpoint there (locked) and resume."""
+    cells), refit the flow to that set in GoFlow's constrained mode
+    (`learning.feasible_grid.refit_flow`), and write the skill with the new flow and the
+    measurement to `out` (checked first). With `folder`, the measurement and the refit checkpoint
+    there (locked) and resume."""
     refit = refit or FlowRefitConfig()
     out = check_output_file(out, "skill file")
     path = Path(path).resolve()
