@@ -405,6 +405,10 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     _add_field(p, FlowRefitConfig, "episodes", "--refit-episodes", doc="train (stage 4), refit: episodes per update")
     _add_field(p, FlowRefitConfig, "delta", doc="train (stage 4), refit: the flow's mass allowed outside the "
                                                 "feasible set")
+    from assembly.envs.gear_insertion import VARIANTS
+    p.add_argument("--confirm-variant", choices=VARIANTS, default=None,
+                   help="train (stage 4), refit: run every cell and draw that succeeded again in this env variant; "
+                        "it stays feasible only if it succeeds there too (default: the skill's own variant alone)")
     p.add_argument("--runs", type=Path, default=RUNS_SKILL_DIR,
                    help="train: the folder of the training run <runs>/<skill>-<gear>/ (resumable)")
     p.add_argument("--run", type=Path, help="export: the `goflow train` run folder to package")
@@ -440,8 +444,9 @@ def _cmd_skill(args: argparse.Namespace) -> int:
         folder = Path(f"{skill_run_folder(args.skill, args.gear, args.runs)}-refit")
         backend = _backend(args, args.workers, inline=True)
         with _resumable(lambda: f"{folder} keeps the measurement's finished jobs and the last update"):
-            skill = refit_skill(args.path or skill_path(args.skill, args.gear), out, refit=_refit_config(args),
-                                folder=folder, backend=backend, command=args.provenance, progress=True)
+            skill = refit_skill(args.path or skill_path(args.skill, args.gear), out, _grid_config(args),
+                                refit=_refit_config(args), folder=folder, backend=backend,
+                                command=args.provenance, progress=True)
     else:
         recipe = _skill_recipe(args)
         with _resumable(lambda: _checkpoint_kept(skill_run_folder(args.skill, args.gear, args.runs))):
@@ -455,10 +460,17 @@ def _refit_config(args: argparse.Namespace) -> Any:
     return FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, delta=args.delta)
 
 
+def _grid_config(args: argparse.Namespace) -> Any:
+    import dataclasses
+
+    from learning.skills import INSERT_GRID
+    return dataclasses.replace(INSERT_GRID, confirm_variant=args.confirm_variant)
+
+
 def _skill_recipe(args: argparse.Namespace) -> Any:
     from learning.skills import SkillRecipe
     return SkillRecipe(seed=args.seed, total_steps=args.total_steps, refine_steps=args.refine_steps,
-                       fit_rounds=args.fit_rounds, refit=_refit_config(args))
+                       fit_rounds=args.fit_rounds, grid=_grid_config(args), refit=_refit_config(args))
 
 
 def _skill_train_grid(args: argparse.Namespace, gears: list[str]) -> int:

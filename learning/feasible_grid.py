@@ -81,6 +81,9 @@ class FeasibleGridConfig:
     coarse_cells: tuple[int, ...] | int = 11  # coarse cells per axis over the whole box
     centre: tuple[float, ...] | None = None  # None: the flow's per-axis median
     variant: str | None = None  # the skill's env variant the episodes run in (None: its own)
+    # a second variant in which every cell and draw that succeeded is run again; it stays feasible
+    # only if it succeeds there too (e.g. "panda": the full station confirms the fast variant)
+    confirm_variant: str | None = None
 
     def plan(self, space: ParamSpace, median: ArrayLike) -> GridPlan:
         """The grid over `space`, its fine region centred on `centre` or else on `median` (the

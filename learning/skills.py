@@ -55,8 +55,9 @@ _ENV = {"insert": "goflow/GearInsertion-v0"}
 #: The insert skill's measurement grid: 0.3 mm cells over 12 mm x 12 mm around the flow's median,
 #: 3 yaw layers over the whole yaw range, and 11 x 11 x 3 coarse cells over the box (docs/skills.md).
 INSERT_GRID = FeasibleGridConfig(fine_width=(0.012, 0.012, 0.786), fine_cells=(40, 40, 3), coarse_cells=(11, 11, 3))
-#: Episodes per job of a measurement or a refit round.
+#: Episodes per job of a measurement, and of a refit update (whose batch is small: several workers share it).
 PART = 128
+REFIT_PART = 16
 
 
 def _check_name(name: str, gear: str) -> None:
@@ -477,10 +478,11 @@ def _returns_at(path: str, variant: str, xi: NDArray[np.float64]) -> NDArray[np.
 
 
 def _returns(path: str, variant: str, xi: NDArray[np.float64], backend: Backend, progress: bool, desc: str,
-             done: dict[int, NDArray[np.float64]] | None = None, save: Any = None) -> NDArray[np.float64]:
-    """Returns at each row of xi, in jobs of `PART` rows on `backend`. Jobs already in `done`
+             done: dict[int, NDArray[np.float64]] | None = None, save: Any = None,
+             part: int = PART) -> NDArray[np.float64]:
+    """Returns at each row of xi, in jobs of `part` rows on `backend`. Jobs already in `done`
     (job index -> returns) are not run again; `save(done)` is called as each job finishes."""
-    parts = [np.arange(k, min(k + PART, len(xi))) for k in range(0, len(xi), PART)]
+    parts = [np.arange(k, min(k + part, len(xi))) for k in range(0, len(xi), part)]
     done = {} if done is None else done
     todo = [k for k in range(len(parts)) if k not in done]
 
@@ -499,21 +501,18 @@ def _flow_median(skill: Skill) -> NDArray[np.float64]:
     return np.median(skill.sampler.sample(4096, np.random.default_rng(0)), axis=0)
 
 
-def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
-                         backend: Backend | None = None, progress: bool = False,
-                         checkpoint: str | os.PathLike[str] | None = None) -> FeasibleSet:
-    """Where the deterministic policy of the skill file at `path` succeeds: one episode at the
-    centre of each cell of `grid` (learning.feasible_grid), in the grid's variant (default the
-    skill's own), in jobs of `PART` cells on `backend` (default: this process). With
-    `checkpoint`, each finished job is saved there, and a later call for the same file and grid
-    resumes from them."""
-    path = Path(path).resolve()
-    skill = Skill.load(path)
-    variant = grid.variant or skill.env_kwargs.get("variant", "fast")
-    plan = grid.plan(skill.space, _flow_median(skill))
-    key = {"skill_sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "grid": [*plan.key(), variant, PART]}
+def _variants(skill: Skill, grid: FeasibleGridConfig) -> tuple[str, ...]:
+    """The env variants a cell must succeed in: the grid's (default the skill's own), then the
+    confirming one."""
+    first = grid.variant or skill.env_kwargs.get("variant", "fast")
+    return (first,) if grid.confirm_variant in (None, first) else (first, grid.confirm_variant)
+
+
+def _checkpointed_returns(path: Path, variant: str, xi: NDArray[np.float64], key: dict[str, Any],
+                          checkpoint: Path | None, backend: Backend, progress: bool, desc: str) -> NDArray[np.float64]:
+    """`_returns` whose finished jobs are saved in `checkpoint` under `key` and reused from it."""
     done: dict[int, NDArray[np.float64]] = {}
-    if checkpoint is not None and Path(checkpoint).is_file():
+    if checkpoint is not None and checkpoint.is_file():
         saved = load_tensors(checkpoint, "feasible-set measurement checkpoint")
         if isinstance(saved, dict) and saved.get("key") == key:
             done = {int(k): torch.as_tensor(v).numpy() for k, v in saved["parts"].items()}
@@ -521,9 +520,37 @@ def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig 
     def save(parts: dict[int, NDArray[np.float64]]) -> None:
         save_tensors(checkpoint, {"key": key, "parts": {str(k): torch.from_numpy(v) for k, v in parts.items()}})
 
-    returns = _returns(str(path), variant, plan.points(), backend or InlineBackend(), progress, "feasible set", done,
-                       save if checkpoint is not None else None)
-    return plan.feasible_set(returns, skill.success_threshold, variant)
+    return _returns(str(path), variant, xi, backend, progress, desc, done, save if checkpoint is not None else None)
+
+
+def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
+                         backend: Backend | None = None, progress: bool = False,
+                         checkpoint: str | os.PathLike[str] | None = None) -> FeasibleSet:
+    """Where the deterministic policy of the skill file at `path` succeeds: one episode at the
+    centre of each cell of `grid` (learning.feasible_grid), in the grid's variant (default the
+    skill's own), in jobs of `PART` cells on `backend` (default: this process); with
+    `grid.confirm_variant`, the cells that succeeded are run again there and keep the lower
+    return. With `checkpoint`, each finished job is saved there (the confirming episodes beside
+    it, "<stem>-<variant>.pt"), and a later call for the same file and grid resumes from them."""
+    path = Path(path).resolve()
+    skill = Skill.load(path)
+    variants = _variants(skill, grid)
+    plan = grid.plan(skill.space, _flow_median(skill))
+    backend = backend or InlineBackend()
+    sha = hashlib.sha256(path.read_bytes()).hexdigest()
+    checkpoint = None if checkpoint is None else Path(checkpoint)
+    xi = plan.points()
+    returns = _checkpointed_returns(path, variants[0], xi, {"skill_sha256": sha, "grid": [*plan.key(), variants[0],
+                                                                                         PART]},
+                                    checkpoint, backend, progress, "feasible set")
+    for variant in variants[1:]:
+        good = np.flatnonzero(returns >= skill.success_threshold)
+        again = _checkpointed_returns(
+            path, variant, xi[good], {"skill_sha256": sha, "grid": [*plan.key(), variant, PART], "cells": good.tolist()},
+            None if checkpoint is None else checkpoint.with_name(f"{checkpoint.stem}-{variant}.pt"), backend,
+            progress, f"feasible set, {variant}")
+        returns[good] = np.minimum(returns[good], again)
+    return plan.feasible_set(returns, skill.success_threshold, "+".join(variants))
 
 
 def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
@@ -555,10 +582,10 @@ def _refit_checkpoint(folder: Path | None, path: Path) -> Path | None:
 
 def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, refit: FlowRefitConfig,
                  folder: Path | None, backend: Backend, command: str, progress: bool) -> Skill:
-    variant = grid.variant or skill.env_kwargs.get("variant", "fast")
+    variants = _variants(skill, grid)
     plan = grid.plan(skill.space, _flow_median(skill))
     feasible = skill.feasible  # the file's own policy measured: kept when it was on a grid of the same cells
-    if feasible is None or feasible.variant != variant or (feasible.fine_cells, feasible.coarse_cells) != (
+    if feasible is None or feasible.variant != "+".join(variants) or (feasible.fine_cells, feasible.coarse_cells) != (
             plan.fine_cells, plan.coarse_cells) or not np.allclose(feasible.fine_high - feasible.fine_low,
                                                                    plan.high - plan.low):
         feasible = measure_feasible_set(path, grid, backend, progress,
@@ -566,7 +593,12 @@ def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, 
     before = flow_report(skill.sampler, feasible)
 
     def evaluate(xi: NDArray[np.float64], update: int) -> NDArray[np.float64]:
-        return _returns(str(path), variant, xi, backend, False, f"refit update {update}")
+        returns = _returns(str(path), variants[0], xi, backend, False, f"refit update {update}", part=REFIT_PART)
+        for variant in variants[1:]:  # a success must hold in the confirming variant too
+            good = np.flatnonzero(returns >= skill.success_threshold)
+            returns[good] = np.minimum(returns[good], _returns(str(path), variant, xi[good], backend, False,
+                                                               f"refit update {update}, {variant}", part=REFIT_PART))
+        return returns
 
     with backend:  # one pool or cluster for every update
         sampler, records = refit_flow(skill.sampler, feasible, evaluate, refit,

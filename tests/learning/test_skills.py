@@ -206,3 +206,31 @@ def test_training_never_overwrites_the_shipped_skills_by_default():
     assert inspect.signature(train_skill).parameters["runs"].default == RUNS_SKILL_DIR == Path("runs/skills")
     assert skill_path("insert", "small", RUNS_SKILL_DIR) == Path("runs/skills/insert-small.pt")
     assert skill_path("insert", "small").parent == SKILL_DIR
+
+
+def test_a_confirming_variant_keeps_only_cells_that_succeed_in_both(tmp_path):
+    """measure_feasible_set with confirm_variant="panda": the cells that succeed in the fast
+    variant run again on the full Panda, and each keeps the lower return; a second call resumes
+    from the checkpoints without running an episode."""
+    from learning.execution import InlineBackend
+    from learning.skills import measure_feasible_set
+
+    grid = FeasibleGridConfig(fine_width=(0.002, 0.002, 0.786), fine_cells=(2, 2, 1), coarse_cells=(1, 1, 1))
+    path = skill_path("insert", "small")
+    fast = measure_feasible_set(path, grid)
+    assert fast.variant == "fast" and fast.fine_success.sum() >= 2  # 1 mm around the flow's median: inside F
+    both = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
+                                checkpoint=tmp_path / "feasible.pt")
+    assert both.variant == "fast+panda"
+    assert np.all(both.fine_returns <= fast.fine_returns + 1e-9)
+    ok = fast.fine_success
+    np.testing.assert_array_equal(both.fine_returns[~ok], fast.fine_returns[~ok])  # failures are not run again
+    assert (tmp_path / "feasible-panda.pt").is_file()
+
+    class NoEpisodes(InlineBackend):
+        def run(self, jobs, board):
+            raise AssertionError("a resumed measurement ran episodes")
+
+    again = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
+                                 backend=NoEpisodes(), checkpoint=tmp_path / "feasible.pt")
+    np.testing.assert_array_equal(again.fine_returns, both.fine_returns)
