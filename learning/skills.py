@@ -574,10 +574,12 @@ def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid:
         return _refit_skill(skill, path, out, grid, refit, Path(folder), backend, command, progress)
 
 
-def _refit_checkpoint(folder: Path | None, path: Path) -> Path | None:
-    """The refit's checkpoint in `folder`, named for the input file's content (another input
-    starts afresh)."""
-    return None if folder is None else folder / f"refit-{hashlib.sha256(path.read_bytes()).hexdigest()[:16]}.pt"
+def _refit_checkpoint(folder: Path | None, path: Path, feasible: FeasibleSet) -> Path | None:
+    """The refit's checkpoint in `folder`, named for the input file's content and the variants
+    its feasible set was measured in (another input or measurement starts afresh)."""
+    if folder is None:
+        return None
+    return folder / f"refit-{hashlib.sha256(path.read_bytes()).hexdigest()[:16]}-{feasible.variant}.pt"
 
 
 def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, refit: FlowRefitConfig,
@@ -602,7 +604,7 @@ def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, 
 
     with backend:  # one pool or cluster for every update
         sampler, records = refit_flow(skill.sampler, feasible, evaluate, refit,
-                                      _refit_checkpoint(folder, path), progress)
+                                      _refit_checkpoint(folder, path, feasible), progress)
     provenance = {**skill.provenance, "refit": {"command": command, "config": refit.to_dict(),
                                                 "feasible_set": feasible.summary(), "before": before,
                                                 "updates": records, "date": time.strftime("%Y-%m-%d")}}
