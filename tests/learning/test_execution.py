@@ -197,7 +197,7 @@ def test_ray_reports_a_failed_job_and_a_worker_that_keeps_dying(ray_backend):
 
 def _tiny_recipe():
     from learning.skills import SkillRecipe
-    return SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1, refine_steps=0, fit_rounds=0,
+    return SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1, refine_steps=0, fit_rounds=0, refit=None,
                        sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
                                        "report_samples": 256},
                        ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
