@@ -36,7 +36,7 @@ from pydrake.math import RigidTransform
 import assembly.envs  # noqa: F401  (registers goflow/GearInsertion-v0)
 from assembly.envs.drake_sim import advance
 from assembly.gearset import GEAR_BORE_CHAMFER, GEAR_BORE_RADIUS, SHAFT_CHAMFER, SHAFT_HEIGHT, gear_spec
-from assembly.samplers import FullDR
+from assembly.samplers import FullDR, NoDR
 from assembly.world import ContactOverrides, GraspHold
 from common.checks import check_choice, check_finite_array, check_int
 from common.errors import InputError
@@ -134,16 +134,21 @@ def _load(skill: Any, gear: str):
 
 
 def make_insertion_env(effects: Mapping[str, Any] | None = None, gear: str = "medium", skill: Any = None,
-                       variant: str = "panda", xi: str = "flow") -> gymnasium.Env:
+                       variant: str = "panda", xi: str | tuple[float, float, float] = "flow") -> gymnasium.Env:
     """The skill's GearInsertion env in `variant` with `effects` in its physics, drawing xi from the
-    skill's flow (`xi="flow"`) or uniformly over the box (`"uniform"`), as Skill.make_env does.
+    skill's flow (`xi="flow"`) or uniformly over the box (`"uniform"`), as Skill.make_env does, or
+    holding every episode at one grasp error (`xi` = (x [m], y [m], yaw [rad]) in the box).
     Effects need variant "panda" (InputError otherwise)."""
-    check_choice(xi, ("flow", "uniform"), "xi")
+    if isinstance(xi, str):
+        check_choice(xi, ("flow", "uniform"), "xi")
+    else:
+        xi = check_finite_array(xi, "xi", (3,))
     sk = _load(skill, gear)
     if sk.gear != gear:
         raise InputError(f"skill {sk.name}-{sk.gear} is for the {sk.gear} gear; expected gear = {gear!r}")
     env = _env(effects, gear, variant, sk.env_id, sk.env_kwargs)
-    env.unwrapped.sampler = sk.sampler if xi == "flow" else FullDR(sk.space)
+    env.unwrapped.sampler = (sk.sampler if xi == "flow" else FullDR(sk.space)) if isinstance(xi, str) \
+        else NoDR(sk.space, point=tuple(xi))
     return env
 
 
@@ -398,11 +403,13 @@ def replay_insertion(log: RobotLog, effects: Mapping[str, Any] | None) -> RobotL
 
 
 def skill_success(effects: Mapping[str, Any] | None, gear: str = "medium", episodes: int = 10, seed: int = 0,
-                  variant: str = "panda", skill: Any = None, xi: str = "flow", num_envs: int = 1) -> float:
+                  variant: str = "panda", skill: Any = None, xi: str | tuple[float, float, float] = "flow",
+                  num_envs: int = 1) -> float:
     """The success rate of the skill's deterministic policy over `episodes` episodes with `effects`
     in the physics, xi drawn as learning.skills.evaluate_skill draws it (the skill's flow or the
-    uniform box, reset seed `seed`): the same seed gives the same xi for every `effects`, so two
-    rates differ by the effect alone (with num_envs as in evaluate_skill, the same episodes as it)."""
+    uniform box, reset seed `seed`), or held at one grasp error (`make_insertion_env`): the same
+    seed gives the same xi for every `effects`, so two rates differ by the effect alone (with
+    num_envs as in evaluate_skill, the same episodes as it)."""
     episodes = check_int(episodes, "episodes", 1)
     check_int(seed, "seed", 0)
     n = max(1, min(check_int(num_envs, "num_envs", 1), episodes))

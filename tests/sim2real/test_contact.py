@@ -12,7 +12,8 @@ from sim2real.station_logs import CONTACT_CASE, make_insertion_log, with_sensor_
 
 
 def test_shaft_friction_is_found_in_the_insertion_phase():
-    log, _ = make_insertion_log(CONTACT_CASE, gear="medium", seed=0)
+    # a grasp error inside the medium skill's feasible set (a flow draw may land near its edge)
+    log, _ = make_insertion_log(CONTACT_CASE, gear="medium", xi=(0.0008, -0.0018, 0.04), seed=0)
     d = diagnose_insertion(with_sensor_noise(log), episodes=0)
     s = d.summary()
     assert s["where"]["dominant_phase"] in ("contact", "insertion")
