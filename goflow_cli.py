@@ -386,6 +386,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------
 
 def _skill_flags(p: argparse.ArgumentParser) -> None:
+    from assembly.envs.gear_insertion import VARIANTS
     from assembly.gearset import GEARS
     from learning.feasible_grid import FlowRefitConfig
     from learning.skills import RUNS_SKILL_DIR, SKILLS, SkillRecipe
@@ -405,14 +406,13 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     _add_field(p, FlowRefitConfig, "episodes", "--refit-episodes", doc="train (stage 4), refit: episodes per update")
     _add_field(p, FlowRefitConfig, "delta", doc="train (stage 4), refit: the flow's mass allowed outside the "
                                                 "feasible set")
-    from assembly.envs.gear_insertion import VARIANTS
     p.add_argument("--confirm-variant", choices=VARIANTS, default=None,
                    help="train (stage 4), refit: run every cell and draw that succeeded again in this env variant; "
                         "it stays feasible only if it succeeds there too (default: the skill's own variant alone)")
     p.add_argument("--runs", type=Path, default=RUNS_SKILL_DIR,
                    help="train: the folder of the training run <runs>/<skill>-<gear>/ (resumable)")
     p.add_argument("--run", type=Path, help="export: the `goflow train` run folder to package")
-    p.add_argument("--out", type=Path, help="train, export: the skill file to write (default: "
+    p.add_argument("--out", type=Path, help="train, export, refit: the skill file to write (default: "
                                             "<runs>/<skill>-<gear>.pt; the shipped files only when named)")
     p.add_argument("--path", type=Path, help="show, refit: a skill file other than the shipped one")
     p.add_argument("--workers", type=int, default=1, help="train: gears trained at once, one process each; refit: "
