@@ -177,17 +177,15 @@ class FeasibleSet:
     def coarse_success(self) -> NDArray[np.bool_]:
         return np.nan_to_num(self.coarse_returns, nan=-np.inf) >= self.success_threshold
 
-    def points(self, rng: np.random.Generator | None = None) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-        """One point per measured cell (fine, then the coarse ones run) and its 0/1 label: the cell
-        centres, or with `rng` a point uniform in each cell, labelled by `contains` (a flow's
-        update learns better from points spread over the cells than from a lattice of centres)."""
+    def points(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """One point uniform in each measured cell (fine, then the coarse ones run) and its 0/1
+        label from `contains` (a flow's update learns better from points spread over the cells
+        than from a lattice of their centres)."""
         run = np.isfinite(self.coarse_returns)
         fine_cell = (self.fine_high - self.fine_low) / np.asarray(self.fine_cells)
         coarse_cell = (self.space.high - self.space.low) / np.asarray(self.coarse_cells)
         fine = _centres(self.fine_low, self.fine_high, self.fine_cells)
         coarse = _centres(self.space.low, self.space.high, self.coarse_cells)[run]
-        if rng is None:
-            return np.concatenate([fine, coarse]), np.concatenate([self.fine_success, self.coarse_success[run]])
         xi = np.concatenate([fine + fine_cell * (rng.random(fine.shape) - 0.5),
                              coarse + coarse_cell * (rng.random(coarse.shape) - 0.5)])
         return xi, self.contains(xi)
