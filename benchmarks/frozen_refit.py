@@ -28,7 +28,7 @@ import torch
 from common.files import write_json
 from learning.experiment import load_run, probe_env
 from learning.feasible_grid import FeasibleGridConfig, FlowRefitConfig, flow_report, refit_flow
-from learning.feasible_sets import coverage, mass_on
+from learning.feasible_sets import report_on
 from learning.skills import rollout_return
 
 
@@ -38,16 +38,6 @@ def success_rate(agent, env, xi: np.ndarray, threshold: float, repeats: int) -> 
     policy = SimpleNamespace(act=lambda obs: agent.act(obs, deterministic=True))
     return np.array([np.mean([rollout_return(policy, x, env, seed=r) >= threshold for r in range(repeats)])
                      for x in xi])
-
-
-def env_report(sampler, env, space, rng: np.random.Generator) -> dict:
-    """Mass on and coverage (10 %, 1 %) of the env's own feasible set."""
-    box = space.low + (space.high - space.low) * rng.random((200_000, space.dim))
-    inside = box[np.asarray(env.feasible_set(box), bool)]
-    share, volume = len(inside) / len(box), float(np.prod(space.high - space.low))
-    return {"share": share, "mass_on": mass_on(sampler.sample(20_000, rng), env.feasible_set),
-            "coverage10": coverage(sampler.log_prob, inside, share, 0.1, volume),
-            "coverage1": coverage(sampler.log_prob, inside, share, 0.01, volume)}
 
 
 def main() -> None:
@@ -83,11 +73,11 @@ def main() -> None:
         # a cell's value is its success rate, F_pi = {rate >= level}
         feasible = plan.feasible_set(success_rate(loaded.agent, env, plan.points(), threshold, args.repeats),
                                      args.level, "own")
-        before = (flow_report(loaded.sampler, feasible), env_report(loaded.sampler, env, space,
-                                                                      np.random.default_rng(1)))
+        before = (flow_report(loaded.sampler, feasible), report_on(loaded.sampler, env.feasible_set, space,
+                                                                    np.random.default_rng(1)))
         sampler, records = refit_flow(loaded.sampler, feasible,
                                       lambda xi, update: success_rate(loaded.agent, env, xi, threshold, 1), refit)
-        after = (flow_report(sampler, feasible), env_report(sampler, env, space, np.random.default_rng(1)))
+        after = (flow_report(sampler, feasible), report_on(sampler, env.feasible_set, space, np.random.default_rng(1)))
         row = {"run": str(run), "policy_set": {"before": before[0], "after": after[0]},
                "env_set": {"before": before[1], "after": after[1]}, "updates": records,
                "seconds": time.perf_counter() - t0}

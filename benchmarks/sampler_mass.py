@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from learning.experiment import load_run, probe_env
-from learning.feasible_sets import coverage, mass_on
+from learning.feasible_sets import mass_on, report_on
 from learning.samplers.registry import METHODS
 from common.files import write_json
 
@@ -36,22 +36,15 @@ def region_mass(run: Path, low: np.ndarray | None, high: np.ndarray | None, draw
         env = probe_env(loaded.config.env, loaded.config.env_kwargs)
         if not hasattr(env, "feasible_set"):
             raise ValueError(f"{loaded.config.env} has no feasible_set(points); give --low and --high")
-        contains = env.feasible_set
-        space = loaded.space
-        box = space.low + (space.high - space.low) * rng.random((200_000, space.dim))
-        inside = box[np.asarray(contains(box), bool)]
-        share, volume = len(inside) / len(box), float(np.prod(space.high - space.low))
-        for level, key in ((0.1, "coverage10"), (0.01, "coverage1")):
-            row[key] = coverage(loaded.sampler.log_prob, inside, share, level, volume) if len(inside) else 0.0
-        row["share"] = share
+        row = report_on(loaded.sampler, env.feasible_set, loaded.space, rng, draws)
+        mass = row.pop("mass_on")
     else:
         if len(low) != loaded.space.dim or len(high) != loaded.space.dim:
             raise ValueError(f"--low/--high need {loaded.space.dim} numbers ({', '.join(loaded.space.names)}), "
                              f"got {len(low)} and {len(high)}")
-        contains = lambda x: np.all((x >= low) & (x <= high), axis=1)  # noqa: E731
-    xi = loaded.sampler.sample(draws, rng)
+        mass = mass_on(loaded.sampler.sample(draws, rng), lambda x: np.all((x >= low) & (x <= high), axis=1))
     log = loaded.state["log"]
-    return {"mass": mass_on(xi, contains), **row,
+    return {"mass": mass, **row,
             "entropy": float(loaded.sampler.entropy()),
             "final_success": float(log["curve"][-1][1]),
             "uniform_return": float(np.mean([c[2] for c in log["curve"][-3:]])),
@@ -67,7 +60,8 @@ def main() -> None:
                         help="the run env's own feasible set instead of --low/--high, with coverage")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    if args.env_feasible_set == (args.low is not None or args.high is not None) or (args.low is None) != (args.high is None):
+    box_given = args.low is not None or args.high is not None
+    if args.env_feasible_set == box_given or (args.low is None) != (args.high is None):
         raise SystemExit("give either --low and --high, or --env-feasible-set")
     low, high = (None, None) if args.env_feasible_set else (np.asarray(args.low), np.asarray(args.high))
     table = {}

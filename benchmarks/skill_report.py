@@ -15,8 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from learning.feasible_grid import flow_report
-from learning.skills import evaluate_skill, flow_width, load_skill, skill_path
+from learning.skills import evaluate_skill, feasible_report, flow_width, load_skill, skill_path
 from common.files import write_json
 
 
@@ -44,8 +43,7 @@ def main() -> None:
         skill = load_skill("insert", gear, path=path)
         volume = float((skill.space.high - skill.space.low).prod())
         widths = [flow_width(skill, eps=ratio / volume) for ratio in args.eps_ratio]
-        feasible = None if skill.feasible is None else {**skill.feasible.summary(),
-                                                        **flow_report(skill.sampler, skill.feasible)}
+        feasible = feasible_report(skill)
         for variant, episodes in (("fast", args.episodes), ("panda", args.panda_episodes)):
             for xi in args.xi:
                 result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed).to_json()
@@ -60,8 +58,9 @@ def main() -> None:
             print(f"{gear:<7} flow entropy {w['entropy']:.2f} nats (uniform {w['uniform_entropy']:.2f}); density > "
                   f"{w['eps_uniform_ratio']:g} x uniform on {100 * w['trusted_fraction']:.2f} % of the box")
         if feasible is not None:
-            print(f"{gear:<7} measured feasible set: {100 * feasible['share']:.3f} % of the box; flow mass on it "
-                  f"{feasible['mass_on']:.3f}, coverage {feasible['coverage10']:.3f} (10 %) {feasible['coverage1']:.3f} (1 %)")
+            print(f"{gear:<7} measured feasible set: {100 * feasible['share']:.3f} % of the box; "
+                  f"flow mass on it {feasible['mass_on']:.3f}, coverage {feasible['coverage10']:.3f} (10 %) "
+                  f"{feasible['coverage1']:.3f} (1 %)")
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             write_json(args.json, {"rows": rows})

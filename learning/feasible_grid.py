@@ -35,6 +35,7 @@ import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -224,14 +225,18 @@ class FeasibleSet:
             else np.zeros((0, d))
         return np.concatenate([inside, outer[hit][: n - n_in]]), share
 
+    @cached_property
+    def share(self) -> float:
+        """F's share of the box (`sample_box` with REPORT_SAMPLES points and a fixed seed)."""
+        return self.sample_box(REPORT_SAMPLES, np.random.default_rng(REPORT_SEED))[1]
+
     def summary(self) -> dict[str, Any]:
         """Plain data: cells run, successes, the fine region and F's share of the box."""
-        _, share = self.sample_box(REPORT_SAMPLES, np.random.default_rng(REPORT_SEED))
         return {"variant": self.variant, "fine_low": self.fine_low.tolist(), "fine_high": self.fine_high.tolist(),
                 "fine_cells": list(self.fine_cells), "coarse_cells": list(self.coarse_cells),
                 "episodes": int(len(self.fine_returns) + np.isfinite(self.coarse_returns).sum()),
                 "fine_successes": int(self.fine_success.sum()), "coarse_successes": int(self.coarse_success.sum()),
-                "share": share}
+                "share": self.share}
 
     def state_dict(self) -> dict[str, Any]:
         """Tensors and plain data (for a skill file or a checkpoint)."""
@@ -261,11 +266,13 @@ class FeasibleSet:
 def flow_report(sampler: Any, feasible: FeasibleSet, samples: int = REPORT_SAMPLES,
                 seed: int = REPORT_SEED) -> dict[str, float]:
     """A sampler against a measured feasible set F: its mass on F (share of `samples` draws), the
-    mass outside, and its coverage of F at 10 % and 1 % of the uniform-on-F density, with F's
-    share of the box. Deterministic for a given sampler (fixed seed)."""
+    mass outside, and its coverage of F at 10 % and 1 % of the uniform-on-F density (at
+    `samples` / 10 points uniform on F), with F's share of the box (`FeasibleSet.share`).
+    Deterministic for a given sampler (fixed seed)."""
     samples = check_int(samples, "samples", 1)
     rng = np.random.default_rng(seed)
-    inside, share = feasible.sample_box(samples // 10, rng)
+    inside, _ = feasible.sample_box(samples // 10, rng)
+    share = feasible.share
     mass = mass_on(sampler.sample(samples, rng), feasible.contains)
     volume = float(np.prod(feasible.space.high - feasible.space.low))
     report = {"share": share, "mass_on": mass, "mass_outside": 1.0 - mass, "coverage10": 0.0, "coverage1": 0.0}
@@ -320,8 +327,9 @@ def refit_flow(sampler: GoFlowSampler, feasible: FeasibleSet, evaluate: Evaluate
                config: FlowRefitConfig | None = None, checkpoint: str | os.PathLike[str] | None = None,
                progress: bool = False) -> tuple[GoFlowSampler, list[dict[str, float]]]:
     """Refit `sampler`'s flow in GoFlow's constrained mode: one update from the measured grid
-    `feasible` (a point uniform in each cell, with the cell's label), then `config.rounds` updates, each from `config.episodes` of the flow's own draws
-    labelled by `evaluate` (success: return >= the set's J_T). Returns the refitted sampler (a
+    `feasible` (a point uniform in each cell, with the cell's label), then `config.rounds`
+    updates, each from `config.episodes` of the flow's own draws labelled by `evaluate`
+    (success: return >= the set's J_T). Returns the refitted sampler (a
     new one; `sampler` is not changed) and one record per update: the success on its draws, and
     `flow_report` against `feasible` after it. With `checkpoint`, the state is written there after
     every update and a call with the same config resumes from it. Torch runs on one thread (the

@@ -51,6 +51,7 @@ __all__ = [
     "unit_space",
     "mass_on",
     "coverage",
+    "report_on",
     "optimum_log_prob",
     "optimum_mass",
     "kl_to_optimum",
@@ -331,6 +332,21 @@ def coverage(log_prob: LogDensity, inside_points: ArrayLike, share: float, level
     volume = check_number(volume, "volume", 0.0, low_open=True)
     lp = _finite_log(log_prob(x), "coverage")
     return float(np.mean(lp > math.log(level) - math.log(share * volume)))
+
+
+def report_on(sampler: Any, contains: Callable[[NDArray[np.float64]], NDArray[np.bool_]], space: ParamSpace,
+              rng: np.random.Generator, draws: int = 20_000, box_points: int = 200_000) -> dict[str, float]:
+    """A sampler (`sample`, `log_prob`) against a feasible set given by `contains` over the box of
+    `space`: the set's share of the box (`box_points` uniform draws), the sampler's mass on it
+    (`draws` of its draws, after the box's from the same `rng`), and its coverage at 10 % and 1 %
+    of the uniform-on-set density (0 when no box draw falls in the set)."""
+    box = space.low + (space.high - space.low) * rng.random((box_points, space.dim))
+    inside = box[np.asarray(contains(box), bool)]
+    share, volume = len(inside) / len(box), float(np.prod(space.high - space.low))
+    report = {"share": share, "mass_on": mass_on(sampler.sample(draws, rng), contains)}
+    for level, key in ((0.1, "coverage10"), (0.01, "coverage1")):
+        report[key] = coverage(sampler.log_prob, inside, share, level, volume) if len(inside) else 0.0
+    return report
 
 
 def optimum_log_prob(layout: Layout, objective: tuple[str, float]) -> LogDensity:

@@ -42,9 +42,10 @@ from learning.feasible_grid import FeasibleGridConfig, FeasibleSet, FlowRefitCon
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import make_sampler
 
-__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "INSERT_GRID", "Skill", "SkillEvaluation", "SkillRecipe", "describe",
-           "evaluate_skill", "export_skill", "flow_width", "load_skill", "measure_feasible_set", "refit_skill",
-           "rollout_return", "skill_path", "skill_run_folder", "train_skill", "train_skills", "evaluate_skill_jobs"]
+__all__ = ["SKILLS", "SKILL_DIR", "RUNS_SKILL_DIR", "INSERT_GRID", "Skill", "SkillEvaluation", "SkillRecipe",
+           "describe", "evaluate_skill", "evaluate_skill_jobs", "export_skill", "feasible_report", "flow_width",
+           "load_skill", "measure_feasible_set", "refit_skill", "rollout_return", "skill_path", "skill_run_folder",
+           "train_skill", "train_skills"]
 
 SKILL_DIR = Path(__file__).parent / "skill_files"
 #: Where `train_skill` and `goflow skill train/export` write by default (never the shipped files).
@@ -440,8 +441,16 @@ def describe(skill: Skill) -> str:
     if "refit" in skill.provenance:
         line["refit_command"] = skill.provenance["refit"].get("command")
     if skill.feasible is not None:
-        line["feasible_set"] = {**skill.feasible.summary(), **flow_report(skill.sampler, skill.feasible)}
+        line["feasible_set"] = feasible_report(skill)
     return json.dumps(line)
+
+
+def feasible_report(skill: Skill) -> dict[str, Any] | None:
+    """The skill's measured feasible set (`FeasibleSet.summary`) and its flow against it
+    (`flow_report`) in one plain dict, or None when the file holds no measurement."""
+    if skill.feasible is None:
+        return None
+    return {**skill.feasible.summary(), **flow_report(skill.sampler, skill.feasible)}
 
 
 # -- where the policy succeeds, and the flow refitted to it ---------------------------------------
@@ -546,7 +555,8 @@ def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig 
     for variant in variants[1:]:
         good = np.flatnonzero(returns >= skill.success_threshold)
         again = _checkpointed_returns(
-            path, variant, xi[good], {"skill_sha256": sha, "grid": [*plan.key(), variant, PART], "cells": good.tolist()},
+            path, variant, xi[good],
+            {"skill_sha256": sha, "grid": [*plan.key(), variant, PART], "cells": good.tolist()},
             None if checkpoint is None else checkpoint.with_name(f"{checkpoint.stem}-{variant}.pt"), backend,
             progress, f"feasible set, {variant}")
         returns[good] = np.minimum(returns[good], again)
