@@ -27,6 +27,10 @@ ENVS = {
     "goflow/Cartpole-v0": {},
     "goflow/Quadrotor-v0": {},
     "goflow/Ant-v0": {},
+    "goflow/Hopper-v0": {},
+    "goflow/Walker2d-v0": {},
+    "goflow/HalfCheetah-v0": {},
+    "goflow/Humanoid-v0": {},
     "goflow/GearInsertion-v0 fast": {"variant": "fast"},
     "goflow/GearInsertion-v0 panda": {"variant": "panda"},
 }

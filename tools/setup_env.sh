@@ -21,8 +21,12 @@ if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
 fi
 
 # test: pytest and the notebook runner; ray: the optional Ray backend of the run grids, so that the
-# tests cover it (goflow itself runs without it: learning/execution.py imports it only for --ray).
-"$PIP" install -q -e ".[test,ray]"
+# tests cover it (goflow itself runs without it: learning/execution.py imports it only for --ray);
+# mujoco: gymnasium's originals for the locomotion envs' fidelity test (benchmark-only).
+"$PIP" install -q -e ".[test,ray,mujoco]" || {
+    echo "setup_env: the mujoco extra did not install; the MuJoCo fidelity test will skip" >&2
+    "$PIP" install -q -e ".[test,ray]"
+}
 
 # Drake's VTK renderer draws headless through EGL/OSMesa; install the runtime libraries only if
 # the import or a tiny render fails (Debian/Ubuntu package names).

@@ -12,6 +12,10 @@ _ENVS = {
     "goflow/Cartpole-v0": ("assembly.envs.cartpole:CartpoleEnv", {}),
     "goflow/Quadrotor-v0": ("assembly.envs.quadrotor:QuadrotorEnv", {}),
     "goflow/Ant-v0": ("assembly.envs.ant:AntEnv", {}),
+    "goflow/Hopper-v0": ("assembly.envs.locomotion:HopperEnv", {}),
+    "goflow/Walker2d-v0": ("assembly.envs.locomotion:Walker2dEnv", {}),
+    "goflow/HalfCheetah-v0": ("assembly.envs.locomotion:HalfCheetahEnv", {}),
+    "goflow/Humanoid-v0": ("assembly.envs.locomotion:HumanoidEnv", {}),
     "goflow/GearInsertion-v0": ("assembly.envs.gear_insertion:GearInsertionEnv",
                                 {"gear": "medium", "variant": "fast"}),
 }
