@@ -272,7 +272,7 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     level = drake_log.level
     drake_log.setLevel(logging.ERROR)  # the parser lists every attribute it drops; we rebuild them
     try:
-        Parser(plant).AddModels(str(spec.path))
+        Parser(plant).AddModelsFromString(chained_joints_xml(spec.path), "xml")
     finally:
         drake_log.setLevel(level)
     joints = {name: plant.GetJointByName(name) for name in spec.joints if spec.joint_types[name] != "free"}
@@ -348,6 +348,35 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     return MjcfPlant(spec, diagram, plant, scene_graph, bodies, masses, actuated, np.array(gear), np.array(lo),
                      np.array(hi), np.array(q_index, dtype=np.int64), np.array(v_index, dtype=np.int64), free,
                      floor_friction, geometry_ids, joints)
+
+
+def chained_joints_xml(path: Path) -> str:
+    """The MJCF text of `path` with every body of several joints split into a chain of nested
+    bodies, one joint each, at coincident frames (the outer ones massless, the original body
+    innermost with the geoms and children). MuJoCo composes a body's joints in exactly this way;
+    Drake's parser (1.51) rotates all but the last about the parent's origin instead of the
+    joint's anchor, which moved the Humanoid's thighs by 3 cm at 0.3 rad of hip_x."""
+    root = ET.parse(path).getroot()
+    for body in list(root.find("worldbody").iter("body")):
+        joints = [el for el in body if el.tag == "joint"]
+        if len(joints) < 2:
+            continue
+        rest = [el for el in body if el.tag != "joint"]
+        for el in list(body):
+            body.remove(el)
+        name = body.get("name")
+        body.set("name", f"{name}__{joints[0].get('name')}")
+        outer = body
+        for i, joint in enumerate(joints):
+            outer.append(joint)
+            if i == len(joints) - 1:
+                break
+            inner = ET.SubElement(outer, "body", {"name": name if i == len(joints) - 2 else
+                                                  f"{name}__{joints[i + 1].get('name')}"})
+            outer = inner
+        for el in rest:
+            outer.append(el)
+    return ET.tostring(root, encoding="unicode")
 
 
 def _parents(spec: MjcfSpec) -> dict[str, str]:

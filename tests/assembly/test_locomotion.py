@@ -135,7 +135,7 @@ def test_rebuilt_features_match_the_file():
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_fidelity_against_mujoco_at_small_size(env_id):
-    pytest.importorskip("mujoco", reason="the `mujoco` extra is not installed")
+    mujoco = pytest.importorskip("mujoco", reason="the `mujoco` extra is not installed")
     from assembly.envs.mujoco_reference import paired_rollout, reference_env
 
     ours = gymnasium.make(env_id).unwrapped
@@ -145,6 +145,21 @@ def test_fidelity_against_mujoco_at_small_size(env_id):
     dofs = {n: i for i, n in enumerate(ours.model.spec.joints)}
     for name, (k, _) in ours.model.spec.stiffness.items():
         assert m.jnt_stiffness[dofs[name]] == pytest.approx(k)
+    # Kinematics: at a random configuration every body sits where MuJoCo puts it (Drake's parser
+    # alone composed a body's several joints wrongly).
+    ref.reset(seed=2)
+    ref.data.qpos[len(ref.data.qpos) - len(ours.model.joints):] += np.random.default_rng(0).uniform(
+        -0.3, 0.3, len(ours.model.joints))
+    mujoco.mj_forward(m, ref.data)
+    plant, ctx = ours.model.plant, ours._plant_context
+    plant.SetPositionsAndVelocities(ctx, ours.model.from_mujoco(ref.data.qpos, ref.data.qvel))
+    for i, body in enumerate(ours.model.bodies):
+        np.testing.assert_allclose(plant.EvalBodyPoseInWorld(ctx, body).translation(), ref.data.xpos[i + 1],
+                                   atol=1e-9, err_msg=body.name())
+    if hasattr(ours, "com_quantities"):
+        q = ours.com_quantities()
+        np.testing.assert_allclose(q["cinert"], ref.data.cinert[1:], atol=1e-9)
+        np.testing.assert_allclose(q["cvel"], ref.data.cvel[1:], atol=1e-9)
     # Lifted off the floor, zero action for 0.1 s: the multibody dynamics agree closely.
     ref.reset(seed=0)
     qpos, qvel = ref.data.qpos.copy(), ref.data.qvel.copy()
