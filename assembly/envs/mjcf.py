@@ -68,6 +68,7 @@ class MjcfSpec:
     geoms: dict[str, dict[str, Any]]  # name -> body, contype, conaffinity, condim, friction
     actuators: tuple[tuple[str, str, float, float, float], ...]  # (name, joint, gear, ctrl lo, hi)
     floor: str  # the world geom the robot stands on
+    parents: dict[str, str]  # body -> its parent body (top-level bodies absent: their parent is the world)
 
 
 def _floats(text: str | None, n: int | None = None) -> list[float]:
@@ -109,8 +110,10 @@ def read_mjcf(path: str | Path) -> MjcfSpec:
     for geom in world.findall("geom"):
         floor = floor or geom.get("name")
         geoms[geom.get("name")] = _geom_entry(geom, attr, "world")
+    parents = {}
     for body in world.iter("body"):
         bodies.append(body.get("name"))
+        parents.update({child.get("name"): body.get("name") for child in body.findall("body")})
         for joint in body.findall("joint"):
             name = joint.get("name")
             joints.append(name)
@@ -141,7 +144,7 @@ def read_mjcf(path: str | Path) -> MjcfSpec:
         if act is not None and any(a.get("tendon") == tendon.get("name") for a in act):
             raise InputError(f"{path.name}: tendon {tendon.get('name')!r} is actuated; unsupported")
     return MjcfSpec(path, timestep, total_mass, tuple(joints), joint_types, stiffness, tuple(bodies),
-                    geoms, tuple(actuators), floor)
+                    geoms, tuple(actuators), floor, parents)
 
 
 def _geom_entry(geom: ET.Element, attr, body: str) -> dict[str, Any]:
@@ -320,7 +323,7 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     # MuJoCo's filter: a pair collides iff (contype1 & conaffinity2) | (contype2 & conaffinity1),
     # and never within one body or between a body and its parent (filterparent, world excepted).
     names = list(geometry_ids)
-    parent = _parents(spec)
+    parent = spec.parents
     declaration = CollisionFilterDeclaration()
     for i, a in enumerate(names):
         ga = spec.geoms[a]
@@ -377,12 +380,3 @@ def chained_joints_xml(path: Path) -> str:
         for el in rest:
             outer.append(el)
     return ET.tostring(root, encoding="unicode")
-
-
-def _parents(spec: MjcfSpec) -> dict[str, str]:
-    root = ET.parse(spec.path).getroot()
-    out = {}
-    for body in root.find("worldbody").iter("body"):
-        for child in body.findall("body"):
-            out[child.get("name")] = body.get("name")
-    return out
