@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
 from assembly.envs.drake_sim import HeldInput, advance
-from assembly.envs.mjcf import ContactSettings, MjcfPlant, build_plant, gymnasium_asset, read_mjcf
+from assembly.envs.mjcf import ContactSettings, MjcfPlant, build_plant, gymnasium_asset, pair_friction, read_mjcf
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from common.checks import check_choice, check_int, check_number
@@ -148,7 +148,7 @@ class LocomotionEnv(ParamEnv):
         self._k = 0
         low, high = m.ctrl_low, m.ctrl_high
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-        obs = self._observe()
+        obs = self._observe(*self.mujoco_state())
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=obs.shape, dtype=np.float32)
 
     # -- parameters -----------------------------------------------------------------------------
@@ -165,8 +165,7 @@ class LocomotionEnv(ParamEnv):
                 handles = [m.joints[t] for t in targets]
                 nominal, box = float(handles[0].default_damping()), DAMPING_BOX
             else:  # friction: the first target geom's pair value
-                nominal, box, handles = float(spec.geoms[targets[0]]["friction"]), FRICTION_BOX, []
-                nominal = max(nominal, spec.geoms[spec.floor]["friction"])
+                nominal, box, handles = pair_friction(spec, targets[0]), FRICTION_BOX, []
             out.append((Param(name, box[0] * nominal, box[1] * nominal, unit, nominal=nominal), kind, handles))
         return out
 
@@ -220,12 +219,13 @@ class LocomotionEnv(ParamEnv):
         self._input.set(self._u)
         self.set_mujoco_state(qpos, qvel)
         self._k = 0
-        return self._observe()
+        return self._observe(*self.mujoco_state())
 
     def _velocity_noise(self, rng: np.random.Generator, s: float, n: int) -> NDArray[np.float64]:
         return rng.uniform(-s, s, size=n)
 
-    def _advance(self, action: NDArray[np.float64]) -> None:
+    def _advance(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Hold gear x clamped ctrl for one control step; return MuJoCo's (qpos, qvel) after it."""
         m = self.model
         ctrl = np.clip(action, m.ctrl_low, m.ctrl_high)
         self._u[:] = m.gear * ctrl
@@ -235,35 +235,39 @@ class LocomotionEnv(ParamEnv):
         x = m.plant.GetPositionsAndVelocities(self._plant_context)
         if not np.all(np.isfinite(x)):
             raise SimulationError(f"{type(self).__name__}: non-finite state at t = {self._k * self.control_dt:g} s")
+        return m.to_mujoco(x)
 
-    def _observe(self) -> NDArray[np.float32]:
+    # The per-step hooks take the state read once per step, in MuJoCo's coordinates.
+
+    def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
         raise NotImplementedError
 
-    def _forward_position(self) -> float:
-        return float(self.mujoco_state()[0][0])
+    def _forward_position(self, qpos: NDArray[np.float64]) -> float:
+        return float(qpos[0])
 
-    def _healthy(self) -> bool:
+    def _healthy(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> bool:
         return True
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         task = self.task
-        x_before = self._forward_position()
-        self._advance(action)
-        x_after = self._forward_position()
+        x_before = self._forward_position(self.mujoco_state()[0])
+        qpos, qvel = self._advance(action)
+        x_after = self._forward_position(qpos)
         velocity = (x_after - x_before) / self.control_dt
         ctrl_cost = task.ctrl_cost_weight * float(np.sum(np.square(action)))
-        healthy = self._healthy()
+        healthy = self._healthy(qpos, qvel)
         forward = task.forward_reward_weight * velocity
         survive = task.healthy_reward * float(healthy)
-        extra = self._extra_cost()
-        reward = forward + survive - ctrl_cost - extra
+        obs = self._observe(qpos, qvel)
+        reward = forward + survive - ctrl_cost - self._extra_cost()
         terminated = (not healthy) and self.config.terminate_when_unhealthy
         info = {"x_position": x_after, "x_velocity": velocity, "reward_forward": forward,
                 "reward_ctrl": -ctrl_cost, "reward_survive": survive}
-        return self._observe(), float(reward), bool(terminated), info
+        return obs, float(reward), bool(terminated), info
 
     def _extra_cost(self) -> float:
+        """A task's cost beyond control; called after `_observe` of the same step."""
         return 0.0
 
 
@@ -277,8 +281,7 @@ def _model_file(name: str) -> Path:
     return gymnasium_asset(name)
 
 
-def _planar_observation(env: LocomotionEnv, clip: bool) -> NDArray[np.float32]:
-    qpos, qvel = env.mujoco_state()
+def _planar_observation(qpos: NDArray[np.float64], qvel: NDArray[np.float64], clip: bool) -> NDArray[np.float32]:
     velocity = np.clip(qvel, -10.0, 10.0) if clip else qvel
     return np.concatenate([qpos[1:], velocity]).astype(np.float32)
 
@@ -292,11 +295,10 @@ class HopperEnv(LocomotionEnv):
         ("thigh_damping", "damping", ("thigh_joint",), "N m s/rad"),
         ("leg_damping", "damping", ("leg_joint",), "N m s/rad")))
 
-    def _observe(self) -> NDArray[np.float32]:
-        return _planar_observation(self, clip=True)
+    def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
+        return _planar_observation(qpos, qvel, clip=True)
 
-    def _healthy(self) -> bool:
-        qpos, qvel = self.mujoco_state()
+    def _healthy(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> bool:
         state = np.concatenate([qpos, qvel])[2:]
         return bool(np.all((-100.0 < state) & (state < 100.0)) and qpos[1] > 0.7 and -0.2 < qpos[2] < 0.2)
 
@@ -311,11 +313,10 @@ class Walker2dEnv(LocomotionEnv):
         ("knee_damping", "damping", ("leg_joint", "leg_left_joint"), "N m s/rad"),
         ("floor_friction", "friction", ("foot_geom",), "1")))
 
-    def _observe(self) -> NDArray[np.float32]:
-        return _planar_observation(self, clip=True)
+    def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
+        return _planar_observation(qpos, qvel, clip=True)
 
-    def _healthy(self) -> bool:
-        qpos = self.mujoco_state()[0]
+    def _healthy(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> bool:
         return bool(0.8 < qpos[1] < 2.0 and -1.0 < qpos[2] < 1.0)
 
 
@@ -329,8 +330,8 @@ class HalfCheetahEnv(LocomotionEnv):
         *((f"{n}_damping", "damping", (n,), "N m s/rad") for n in _links),
         ("floor_friction", "friction", ("bfoot",), "1")))
 
-    def _observe(self) -> NDArray[np.float32]:
-        return _planar_observation(self, clip=False)
+    def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
+        return _planar_observation(qpos, qvel, clip=False)
 
     def _velocity_noise(self, rng: np.random.Generator, s: float, n: int) -> NDArray[np.float64]:
         return s * rng.standard_normal(n)
@@ -352,15 +353,15 @@ class HumanoidEnv(LocomotionEnv):
     contact_cost_weight = 5e-7
     contact_cost_max = 10.0
 
-    def _forward_position(self) -> float:
-        return float(self._com()[0])
+    def _forward_position(self, qpos: NDArray[np.float64]) -> float:
+        return float(self._com()[0])  # the centre of mass, as Humanoid-v5's mass_center
 
     def _com(self) -> NDArray[np.float64]:
         plant, ctx = self.model.plant, self._plant_context
         return plant.CalcCenterOfMassPositionInWorld(ctx, [plant.GetModelInstanceByName("humanoid")])
 
-    def _healthy(self) -> bool:
-        return bool(1.0 < self.mujoco_state()[0][2] < 2.0)
+    def _healthy(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> bool:
+        return bool(1.0 < qpos[2] < 2.0)
 
     def com_quantities(self) -> dict[str, NDArray[np.float64]]:
         """MuJoCo's cinert, cvel and cfrc_ext (rows for the 13 bodies, world excluded) and
@@ -394,9 +395,8 @@ class HumanoidEnv(LocomotionEnv):
                     cfrc[row[index], 3:] += sign * f
         return {"cinert": cinert, "cvel": cvel, "cfrc_ext": cfrc, "qfrc_actuator": self._u.copy()}
 
-    def _observe(self) -> NDArray[np.float32]:
-        qpos, qvel = self.mujoco_state()
-        q = self.com_quantities()
+    def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
+        q = self._quantities = self.com_quantities()  # the contact cost of this step reads them
         return np.concatenate([qpos[2:], qvel, q["cinert"].ravel(), q["cvel"].ravel(),
                                q["qfrc_actuator"][self._hinge_order()], q["cfrc_ext"].ravel()]).astype(np.float32)
 
@@ -408,5 +408,5 @@ class HumanoidEnv(LocomotionEnv):
         return self._hinge_rows
 
     def _extra_cost(self) -> float:
-        cost = self.contact_cost_weight * float(np.sum(np.square(self.com_quantities()["cfrc_ext"])))
+        cost = self.contact_cost_weight * float(np.sum(np.square(self._quantities["cfrc_ext"])))
         return min(cost, self.contact_cost_max)

@@ -33,7 +33,8 @@ from numpy.typing import NDArray
 
 from common.errors import InputError
 
-__all__ = ["MjcfSpec", "MjcfPlant", "ContactSettings", "gymnasium_asset", "read_mjcf", "build_plant"]
+__all__ = ["MjcfSpec", "MjcfPlant", "ContactSettings", "gymnasium_asset", "read_mjcf", "build_plant",
+           "pair_friction", "drake_coefficient"]
 
 #: Drake's floor coefficient; each robot geometry's coefficient is solved so that Drake's pair
 #: combination 2ab/(a+b) equals MuJoCo's pair value (any floor value above half the largest works).
@@ -249,7 +250,8 @@ def _rotation(quat: NDArray[np.float64]) -> NDArray[np.float64]:
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def _pair_friction(spec: MjcfSpec, geom: str) -> float:
+def pair_friction(spec: MjcfSpec, geom: str) -> float:
+    """MuJoCo's Coulomb coefficient between `geom` and the floor: the larger of the two."""
     return max(spec.geoms[geom]["friction"], spec.geoms[spec.floor]["friction"])
 
 
@@ -311,7 +313,7 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
             raise InputError(f"{spec.path.name}: Drake geometry {name!r} has no MJCF geom")
         geometry_ids[name] = gid
         props = ProximityProperties(inspector.GetProximityProperties(gid))
-        mu = FLOOR_FRICTION if name == spec.floor else drake_coefficient(_pair_friction(spec, name))
+        mu = FLOOR_FRICTION if name == spec.floor else drake_coefficient(pair_friction(spec, name))
         for key in ("coulomb_friction", "point_contact_stiffness", "hunt_crossley_dissipation"):
             if props.HasProperty("material", key):
                 props.RemoveProperty("material", key)
@@ -319,7 +321,7 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
                            friction=CoulombFriction(mu, mu), properties=props)
         scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
         if name != spec.floor:
-            floor_friction[gid] = _pair_friction(spec, name)
+            floor_friction[gid] = pair_friction(spec, name)
     # MuJoCo's filter: a pair collides iff (contype1 & conaffinity2) | (contype2 & conaffinity1),
     # and never within one body or between a body and its parent (filterparent, world excepted).
     names = list(geometry_ids)
