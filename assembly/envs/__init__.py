@@ -12,6 +12,7 @@ _ENVS = {
     "goflow/Cartpole-v0": ("assembly.envs.cartpole:CartpoleEnv", {}),
     "goflow/Quadrotor-v0": ("assembly.envs.quadrotor:QuadrotorEnv", {}),
     "goflow/Ant-v0": ("assembly.envs.ant:AntEnv", {}),
+    "goflow/Anymal-v0": ("assembly.envs.anymal:AnymalEnv", {}),
     "goflow/Hopper-v0": ("assembly.envs.locomotion:HopperEnv", {}),
     "goflow/Walker2d-v0": ("assembly.envs.locomotion:Walker2dEnv", {}),
     "goflow/HalfCheetah-v0": ("assembly.envs.locomotion:HalfCheetahEnv", {}),
