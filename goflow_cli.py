@@ -601,9 +601,10 @@ def _bench_calibration(args: argparse.Namespace) -> int:
 
 def _collect_flags(p: argparse.ArgumentParser) -> None:
     from learning.estimation.collect import CollectConfig
+    from learning.estimation.targets import TARGETS
     _add_field(p, CollectConfig, "env", required=True, doc="simulator id, e.g. goflow/Cartpole-v0")
-    _add_field(p, CollectConfig, "xi", choices=["gaussian", "mixture"],
-               doc="true parameter distribution (mixture: means in an L shape)")
+    _add_field(p, CollectConfig, "xi", choices=list(TARGETS),
+               doc="true parameter distribution (mixture, mixture5: 3 or 5 Gaussians with means in an L shape)")
     _add_field(p, CollectConfig, "episodes", doc="trajectories")
     _add_field(p, CollectConfig, "steps", type=int)
     _add_field(p, CollectConfig, "policy")

@@ -6,7 +6,9 @@ overhead against advancing the bare Drake simulator through the same steps.
 Every env runs at its nominal xi (a NoDR sampler), so all columns do the same physics.
 Columns: steps/s and real-time factor (simulated s per wall s) in one process; steps/s of an
 AsyncVectorEnv with `--workers` processes (one env each); wrapper overhead = env.step time over
-bare-simulator time for the same xi and actions, minus 1 (envs with a bare_rollout method).
+bare-simulator time for the same xi and actions, minus 1 (envs with a bare_rollout method);
+MuJoCo steps/s = gymnasium's MuJoCo original of a locomotion env (Hopper-v5, ...) stepped with the
+same actions in the same process, when the `mujoco` extra is installed.
 """
 
 from __future__ import annotations
@@ -62,6 +64,12 @@ def make_nominal(name: str, kwargs: dict) -> gymnasium.Env:
 def single(name: str, kwargs: dict, steps: int, seed: int) -> tuple[float, float]:
     """(steps per second, real-time factor) of env.step in this process, random actions."""
     env = make_nominal(name, kwargs).unwrapped
+    wall = step_seconds(env, name, steps, seed)
+    return steps / wall, steps * env.control_dt / wall
+
+
+def step_seconds(env: gymnasium.Env, name: str, steps: int, seed: int) -> float:
+    """Wall seconds spent in `steps` calls of env.step (resets on episode ends not counted)."""
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
     wall = 0.0
@@ -71,7 +79,22 @@ def single(name: str, kwargs: dict, steps: int, seed: int) -> tuple[float, float
         wall += time.perf_counter() - t0
         if terminated or truncated:
             env.reset(seed=int(rng.integers(1 << 31)))
-    return steps / wall, steps * env.control_dt / wall
+    return wall
+
+
+def mujoco_speed(name: str, steps: int, seed: int) -> float | None:
+    """Steps per second of gymnasium's MuJoCo original of `name` (None: no original, or no
+    `mujoco` package), the same action workload as `single`."""
+    from assembly.envs.mujoco_reference import ORIGINALS, reference_env
+    from common.errors import InputError
+
+    if _env_id(name) not in ORIGINALS:
+        return None
+    try:
+        env = reference_env(_env_id(name))
+    except InputError:
+        return None
+    return steps / step_seconds(env, name, steps, seed)
 
 
 def vectorized(name: str, kwargs: dict, steps: int, workers: int, seed: int) -> float:
@@ -121,7 +144,7 @@ def main() -> None:
     args = parser.parse_args()
     rows = []
     header = (f"{'env':<32} {'steps/s':>9} {'RTF':>7} {f'steps/s x{args.workers}':>12} "
-              f"{'overhead':>9}")
+              f"{'overhead':>9} {'MuJoCo steps/s':>15}")
     print(header)
     print("-" * len(header))
     for name, kwargs in ENVS.items():
@@ -135,11 +158,13 @@ def main() -> None:
             continue
         vps = vectorized(name, kwargs, steps, args.workers, args.seed)
         ovh = overhead(name, kwargs, steps, args.seed)
+        mj = mujoco_speed(name, steps, args.seed)
         rows.append({"env": name, "steps_per_s": sps, "real_time_factor": rtf,
                      "vector_workers": args.workers, "vector_steps_per_s": vps,
-                     "wrapper_overhead": ovh})
+                     "wrapper_overhead": ovh, "mujoco_steps_per_s": mj})
         ovh_text = "n/a" if ovh is None else f"{100 * ovh:.1f}%"
-        print(f"{name:<32} {sps:>9.1f} {rtf:>7.1f} {vps:>12.1f} {ovh_text:>9}", flush=True)
+        mj_text = "n/a" if mj is None else f"{mj:.1f}"
+        print(f"{name:<32} {sps:>9.1f} {rtf:>7.1f} {vps:>12.1f} {ovh_text:>9} {mj_text:>15}", flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         write_json(args.json, {"rows": rows})

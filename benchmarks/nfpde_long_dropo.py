@@ -1,9 +1,14 @@
 """How long does DROPO need to match NFPDE-Softmax? One DROPO run with `--factor` times the table's
-simulator budget on Cartpole's mixed-Gaussian target (dataset and estimator seed 0), compared with
-the NFPDE-Softmax runs of docs/results/nfpde_runs.json on the same dataset: when (wall time,
-simulator calls) each first reaches a given OT. Writes docs/results/nfpde_long_dropo.json.
+simulator budget on one (env, target) cell of a `benchmarks/nfpde_table.py` runs file (dataset and
+estimator seed `--seed`), compared with that cell's NFPDE-Softmax and DROPO runs: when (wall time,
+simulator calls) each first reaches a given OT, and the ratio DROPO / NFPDE-Softmax at each level
+(a lower bound, marked, where the long DROPO run never reaches it).
+
+Levels: 1.1 x NFPDE-Softmax's final OT (DROPO matching NFPDE), DROPO's final OT at the table's budget
+(NFPDE matching DROPO), and 0.2. Writes docs/results/<name>_long_dropo-<env>-<target>.json.
 
 Usage: .venv/bin/python benchmarks/nfpde_long_dropo.py --factor 5
+       .venv/bin/python benchmarks/nfpde_long_dropo.py --name nfpde_locomotion --env goflow/Hopper-v0 --target mixture5
 """
 
 from __future__ import annotations
@@ -17,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nfpde_table import RESULTS, run_one  # noqa: E402
-from common.files import write_json  # noqa: E402
+from common.files import read_json, write_json  # noqa: E402
+from learning.estimation.targets import TARGETS  # noqa: E402
 
 
 def first_reach(trace: list[dict], level: float) -> dict | None:
@@ -25,28 +31,57 @@ def first_reach(trace: list[dict], level: float) -> dict | None:
     return next(({"seconds": t["seconds"], "calls": t["calls"], "ot": t["ot"]} for t in trace if t["ot"] <= level), None)
 
 
+def ratio(slow: dict | None, fast: dict | None, slow_run: dict) -> dict | None:
+    """DROPO's time and calls to a level over NFPDE-Softmax's; where DROPO never got there, its
+    whole run over NFPDE's (a lower bound, `at_least`). None where NFPDE never got there."""
+    if fast is None:
+        return None
+    if slow is None:
+        return {"seconds": slow_run["seconds_total"] / max(fast["seconds"], 1e-9),
+                "calls": slow_run["sim_calls"] / max(fast["calls"], 1), "at_least": True}
+    return {"seconds": slow["seconds"] / max(fast["seconds"], 1e-9), "calls": slow["calls"] / max(fast["calls"], 1),
+            "at_least": False}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--name", default="nfpde", help="stem of the nfpde_table runs file")
     p.add_argument("--env", default="goflow/Cartpole-v0")
-    p.add_argument("--target", default="mixture")
+    p.add_argument("--target", default="mixture", choices=TARGETS)
+    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--factor", type=float, default=5.0)
     args = p.parse_args()
-    runs = json.loads((RESULTS / "nfpde_runs.json").read_text())["runs"]
-    nf = next(r for r in runs if (r["env"], r["target"], r["method"], r["seed"]) == (args.env, args.target, "nfpde-softmax", 0))
-    dropo = next(r for r in runs if (r["env"], r["target"], r["method"], r["seed"]) == (args.env, args.target, "dropo", 0))
+    stem = args.env.split("/")[-1].split("-v")[0].lower()
+    out_path = RESULTS / f"{args.name}_long_dropo-{stem}-{args.target}.json"
+    runs = read_json(RESULTS / f"{args.name}_runs.json", "nfpde_table runs file")["runs"]
+    cell = (args.env, args.target, args.seed)
+    try:
+        nf = next(r for r in runs if (r["env"], r["target"], r["seed"]) == cell and r["method"] == "nfpde-softmax")
+        dropo = next(r for r in runs if (r["env"], r["target"], r["seed"]) == cell and r["method"] == "dropo")
+    except StopIteration:
+        raise SystemExit(f"nfpde_long_dropo: {args.name}_runs.json has no nfpde-softmax and dropo runs for {cell}; "
+                         f"run benchmarks/nfpde_table.py on that cell first") from None
     budget = int(args.factor * nf["sim_budget"])
-    long = run_one(args.env, args.target, "dropo", 0, budget, 48, {})
-    levels = sorted({round(nf["ot"] * 1.1, 4), round(dropo["ot"], 4), 0.2})
-    out = {"env": args.env, "target": args.target, "budget_nfpde": nf["sim_budget"], "budget_dropo_long": budget,
+    long = run_one(args.env, args.target, "dropo", args.seed, budget, len(nf["true_u"]), {})
+    levels = {"1.1 x nfpde-softmax final": round(nf["ot"] * 1.1, 4), "dropo final": round(dropo["ot"], 4),
+              "0.2": 0.2}
+    reach = {}
+    for label, level in levels.items():
+        nf_at, long_at = first_reach(nf["trace"], level), first_reach(long["trace"], level)
+        reach[label] = {"level": level, "nfpde-softmax": nf_at, "dropo (long)": long_at,
+                        "dropo / nfpde-softmax": ratio(long_at, nf_at, long)}
+    out = {"env": args.env, "target": args.target, "seed": args.seed, "budget_nfpde": nf["sim_budget"],
+           "budget_dropo_long": budget,
            "nfpde_softmax": {"ot": nf["ot"], "seconds_total": nf["seconds_total"]},
-           "dropo_long": {"ot": long["ot"], "seconds_total": long["seconds_total"], "trace": long["trace"],
-                          "details": long["details"]},
-           "reach": {str(level): {"nfpde-softmax": first_reach(nf["trace"], level),
-                                  "dropo (long)": first_reach(long["trace"], level)} for level in levels},
+           "dropo": {"ot": dropo["ot"], "seconds_total": dropo["seconds_total"]},
+           "dropo_long": {"ot": long["ot"], "seconds_total": long["seconds_total"], "sim_calls": long["sim_calls"],
+                          "trace": long["trace"], "details": long["details"]},
+           "reach": reach,
            "command": "python benchmarks/nfpde_long_dropo.py " + " ".join(sys.argv[1:])}
-    write_json(RESULTS / "nfpde_long_dropo.json", out)
+    write_json(out_path, out)
     print(json.dumps({k: v for k, v in out.items() if k != "dropo_long"}, indent=1))
-    print("dropo long: OT", round(long["ot"], 3), "in", round(long["seconds_total"], 1), "s")
+    print(f"dropo long: OT {long['ot']:.3f} in {long['seconds_total']:.1f} s ({long['sim_calls']} calls); "
+          f"written {out_path}")
     return 0
 
 

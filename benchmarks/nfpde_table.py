@@ -46,7 +46,7 @@ from learning.estimation import ESTIMATORS  # noqa: E402
 from learning.estimation.collect import CollectConfig, collect  # noqa: E402
 from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
 from learning.estimation.metrics import ot_cost  # noqa: E402
-from learning.estimation.targets import TargetConfig, sample_target  # noqa: E402
+from learning.estimation.targets import TARGETS, TargetConfig, sample_target  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -150,7 +150,7 @@ def summarize(runs: list[dict], oracle: dict) -> dict:
     """The rows of docs/results/nfpde.json."""
     rows = []
     for env in dict.fromkeys(r["env"] for r in runs):
-        for target in ("gaussian", "mixture"):
+        for target in TARGETS:
             for method in _labels(runs):
                 sel = [r for r in runs if (r["env"], r["target"], r["method"]) == (env, target, method)]
                 if not sel:
@@ -179,8 +179,10 @@ def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
     labels = _labels(runs)
     for env in dict.fromkeys(r["env"] for r in runs):
         stem = env.split("/")[-1].split("-v")[0].lower()
-        fig, axs = plt.subplots(2, len(labels), figsize=(3.2 * len(labels), 6.4), squeeze=False)
-        for i, target in enumerate(("gaussian", "mixture")):
+        targets = [t for t in TARGETS if any((r["env"], r["target"]) == (env, t) for r in runs)]
+        fig, axs = plt.subplots(len(targets), len(labels), figsize=(3.2 * len(labels), 3.2 * len(targets)),
+                                squeeze=False)
+        for i, target in enumerate(targets):
             for j, method in enumerate(labels):
                 ax = axs[i, j]
                 sel = [r for r in runs if (r["env"], r["target"], r["method"], r["seed"]) == (env, target, method, 0)]
@@ -198,8 +200,8 @@ def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
         plt.close(fig)
 
         for xkey, label in (("seconds", "wall time [s]"), ("calls", "simulator calls")):
-            fig, axs = plt.subplots(1, 2, figsize=(10, 4))
-            for ax, target in zip(axs, ("gaussian", "mixture")):
+            fig, axs = plt.subplots(1, len(targets), figsize=(5 * len(targets), 4), squeeze=False)
+            for ax, target in zip(axs[0], targets):
                 for method in labels:
                     sel = [r for r in runs if (r["env"], r["target"], r["method"]) == (env, target, method)]
                     for k, r in enumerate(sel):
@@ -220,7 +222,7 @@ def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--envs", nargs="+", default=["goflow/Cartpole-v0"])
-    p.add_argument("--targets", nargs="+", default=["gaussian", "mixture"])
+    p.add_argument("--targets", nargs="+", default=["gaussian", "mixture"], choices=TARGETS)
     p.add_argument("--methods", nargs="*", default=list(ESTIMATORS), choices=ESTIMATORS)
     p.add_argument("--variant", action="append", default=[], metavar="LABEL=METHOD[:KEY=VALUE,...]",
                    help="also run METHOD with these options, recorded as LABEL")

@@ -196,6 +196,12 @@ class LocomotionEnv(ParamEnv):
         plant.SetPositionsAndVelocities(self._plant_context, x)
         self._simulator.Initialize()
 
+    @property
+    def plant_state(self) -> NDArray[np.float64]:
+        """The plant's state [q; v] in Drake's coordinates, a copy (what transition logs hold;
+        `model.to_mujoco` converts it, normalizing the free joint's quaternion)."""
+        return self.model.plant.GetPositionsAndVelocities(self._plant_context).copy()
+
     def mujoco_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The plant state as MuJoCo's (qpos, qvel)."""
         return self.model.to_mujoco(self.model.plant.GetPositionsAndVelocities(self._plant_context))

@@ -3,7 +3,7 @@ logged action under parameters xi, return the next state.
 
 Every simulator keeps one contract (`base.TransitionSim`); `base.BatchTransitionSim` owns the batch
 loop and each model implements its hooks (one module per model: `point_mass`, `cartpole`, `ant`,
-`panda_arm`); `parallel.ParallelTransitionSim` splits batches over processes.
+`panda_arm`, `locomotion`); `parallel.ParallelTransitionSim` splits batches over processes.
 
 Simulators are registered by name, lazily like gymnasium's `register`: an entry point is a
 "module:Class" string imported on first use, so listing the ids imports no Drake.
@@ -59,6 +59,10 @@ for _env_id, _entry_point in (
     ("goflow/Cartpole-v0", "assembly.transition.cartpole:CartpoleTransitionSim"),
     ("goflow/Ant-v0", "assembly.transition.ant:AntTransitionSim"),
     ("goflow/PandaArm-v0", "assembly.transition.panda_arm:PandaArmSim"),
+    ("goflow/Hopper-v0", "assembly.transition.locomotion:HopperTransitionSim"),
+    ("goflow/Walker2d-v0", "assembly.transition.locomotion:Walker2dTransitionSim"),
+    ("goflow/HalfCheetah-v0", "assembly.transition.locomotion:HalfCheetahTransitionSim"),
+    ("goflow/Humanoid-v0", "assembly.transition.locomotion:HumanoidTransitionSim"),
 ):
     register_transition_sim(_env_id, _entry_point)
 

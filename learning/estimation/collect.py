@@ -19,9 +19,11 @@ from learning.estimation.targets import TargetConfig, sample_target, target_desc
 
 __all__ = ["CollectConfig", "collect", "collect_to_file", "DEFAULT_STEPS"]
 
-#: Steps per trajectory by default: the env's episode length (Cartpole, Ant: 2 s), 1 s of the arm.
+#: Steps per trajectory by default: the env's episode length (Cartpole, Ant: 2 s), 1 s of the arm;
+#: 100 steps of the locomotion envs (Hopper, Walker2d 0.8 s, HalfCheetah 5 s, Humanoid 1.5 s).
 DEFAULT_STEPS = {"goflow/PointMass-v0": 40, "goflow/Cartpole-v0": 120, "goflow/Ant-v0": 128,
-                 "goflow/PandaArm-v0": 100}
+                 "goflow/PandaArm-v0": 100, "goflow/Hopper-v0": 100, "goflow/Walker2d-v0": 100,
+                 "goflow/HalfCheetah-v0": 100, "goflow/Humanoid-v0": 100}
 
 
 @dataclass
@@ -29,7 +31,7 @@ class CollectConfig:
     """One dataset. Every `goflow collect` flag maps to a field."""
 
     env: str = "goflow/Cartpole-v0"
-    xi: str = "gaussian"  # target kind: "gaussian" | "mixture"
+    xi: str = "gaussian"  # target kind: one of targets.TARGETS
     episodes: int = 48
     steps: int | None = None  # per trajectory; None: DEFAULT_STEPS[env]
     policy: str = "random"  # "random" or the path of a PPO checkpoint (PPO.save or `goflow train`)

@@ -1,6 +1,8 @@
 """True parameter distributions for collecting datasets: a Gaussian, or a mixture of Gaussians whose
-means form an L shape (the seed paper's mixed-Gaussian target), both defined on the unit box of a
-ParamSpace and truncated to it (draws outside are redrawn)."""
+means form an L shape (the seed paper's mixed-Gaussian target: "mixture" with 3 components, at the
+L's ends and corner; "mixture5" with 5, adding the middle of each arm, as in the paper's locomotion
+tables), both defined on the unit box of a ParamSpace and truncated to it (draws outside are
+redrawn)."""
 
 from __future__ import annotations
 
@@ -14,26 +16,32 @@ from assembly.params import ParamSpace
 from common.checks import check_finite_array
 from common.errors import InputError
 
-__all__ = ["TargetConfig", "TargetSampler", "sample_target", "target_description", "TARGETS"]
+__all__ = ["TargetConfig", "TargetSampler", "sample_target", "target_description", "TARGETS", "L_MEANS"]
 
-TARGETS = ("gaussian", "mixture")
+TARGETS = ("gaussian", "mixture", "mixture5")
+
+#: Component means (u_1, u_2) of the L-shaped mixtures: top of the stem, the corner, the end of the
+#: foot; the 5-component L adds the middle of the stem and of the foot.
+L_MEANS = {"mixture": ((0.25, 0.75), (0.25, 0.25), (0.75, 0.25)),
+           "mixture5": ((0.2, 0.8), (0.2, 0.5), (0.2, 0.2), (0.5, 0.2), (0.8, 0.2))}
 
 
 @dataclass(frozen=True)
 class TargetConfig:
     """Where the true parameters lie, in unit-box coordinates (0 = low bound, 1 = high bound)."""
 
-    kind: str = "gaussian"  # "gaussian" | "mixture"
+    kind: str = "gaussian"  # one of TARGETS
     mean: float = 0.5  # Gaussian mean on every dimension (and the mixture's dimensions >= 2)
     std: float = 0.1  # Gaussian std on every dimension (and the mixture's dimensions >= 2)
-    # mixture: component means on the first two dimensions, an L: top of the stem, the corner,
-    # the end of the foot
-    l_means: tuple[tuple[float, float], ...] = ((0.25, 0.75), (0.25, 0.25), (0.75, 0.25))
+    # mixtures: component means on the first two dimensions; None: L_MEANS[kind]
+    l_means: tuple[tuple[float, float], ...] | None = None
     l_std: float = 0.06  # per-dimension std of each component
 
     def __post_init__(self) -> None:
         if self.kind not in TARGETS:
             raise InputError(f"target kind {self.kind!r} is unknown; expected one of {list(TARGETS)}")
+        if self.l_means is None:
+            object.__setattr__(self, "l_means", L_MEANS.get(self.kind, L_MEANS["mixture"]))
         if not (0 < self.std < 1 and 0 < self.l_std < 1 and 0 < self.mean < 1):
             raise InputError(f"target mean/std/l_std must lie in (0, 1) (unit box), got "
                              f"{self.mean}, {self.std}, {self.l_std}")
@@ -57,7 +65,7 @@ def sample_target(config: TargetConfig, space: ParamSpace, n: int, rng: np.rando
     d = space.dim
     mean = np.full((n, d), config.mean)
     std = np.full((n, d), config.std)
-    if config.kind == "mixture":
+    if config.kind != "gaussian":
         means = np.asarray(config.l_means, dtype=np.float64)
         k = rng.integers(len(means), size=n)
         if d == 1:  # a 1-D "L" degenerates to two modes along the one parameter

@@ -99,7 +99,7 @@ def test_a_failing_row_is_nan_and_the_others_are_finite(sims, env_id):
     sim = sims(env_id)
     rng = np.random.default_rng(4)
     states, actions, xi = _batch(sim, 4, rng)
-    nq = {"goflow/Ant-v0": 15}.get(env_id, sim.state_dim // 2)  # Ant: a quaternion, so nq = nv + 1
+    nq = sim._plant.num_positions()
     states[1, nq:] = 1e150  # absurd speeds: Drake fails or diverges
     out = sim.step(states, actions, xi)
     assert np.all(np.isnan(out[1]))
@@ -177,6 +177,34 @@ def test_ant_step_matches_the_env_at_nominal_damping(sims):
     damped = sim.step(s0[None], a[None], [[4.0, 2.0]])[0]
     assert np.abs(damped - nxt).max() > 1e-4
     assert sim.observe(s0).shape == env.observation_space.shape
+
+
+LOCOMOTION = {"goflow/Hopper-v0": "HopperEnv", "goflow/Walker2d-v0": "Walker2dEnv",
+              "goflow/HalfCheetah-v0": "HalfCheetahEnv", "goflow/Humanoid-v0": "HumanoidEnv"}
+
+
+@pytest.mark.parametrize("env_id", sorted(LOCOMOTION))
+def test_locomotion_step_matches_the_env_and_every_parameter_acts(sims, env_id):
+    from assembly.envs import locomotion
+
+    sim = sims(env_id)
+    env = getattr(locomotion, LOCOMOTION[env_id])(terminate_when_unhealthy=False)
+    rng = np.random.default_rng(5)
+    xi = sim.space.denormalize(rng.uniform(0.2, 0.8, size=sim.space.dim))
+    env.reset(seed=2, options={"xi": xi})
+    for _ in range(30):  # into contact, joints off their limits (the Humanoid's knees start on them)
+        env.step(sim.ctrl(rng.uniform(-1, 1, sim.action_dim)))
+    s0, a = env.plant_state, rng.uniform(-1, 1, sim.action_dim)
+    obs = env.step(sim.ctrl(a))[0]
+    nxt = sim.step(s0[None], a[None], xi[None])[0]
+    np.testing.assert_array_equal(nxt, env.plant_state)
+    assert sim.observe(nxt).shape == obs.shape == env.observation_space.shape
+    for k, name in enumerate(sim.space.names):
+        moved = xi.copy()
+        moved[k] = sim.space.high[k]
+        assert np.abs(sim.step(s0[None], a[None], moved[None])[0] - nxt).max() > 1e-8, f"{name} has no effect"
+    np.testing.assert_allclose(sim.ctrl([-1.0] * sim.action_dim), env.action_space.low, rtol=1e-6)
+    np.testing.assert_allclose(sim.ctrl([2.0] * sim.action_dim), env.action_space.high, rtol=1e-6)
 
 
 def test_panda_arm_parameters_change_the_motion(sims):

@@ -129,3 +129,21 @@ def test_target_and_config_errors():
     from assembly.transition.point_mass import POINT_MASS_SPACE
     xi = sample_target(TargetConfig(kind="mixture"), POINT_MASS_SPACE, 300, np.random.default_rng(0))
     assert np.all(POINT_MASS_SPACE.contains(xi))
+
+
+def test_five_component_l_target_puts_a_fifth_of_its_mass_on_each_arm_point():
+    from assembly.transition.point_mass import POINT_MASS_SPACE
+    from learning.estimation.targets import L_MEANS, TargetSampler, target_description
+
+    config = TargetConfig(kind="mixture5")
+    assert config.l_means == L_MEANS["mixture5"] and len(config.l_means) == 5
+    u = POINT_MASS_SPACE.normalize(sample_target(config, POINT_MASS_SPACE, 5000, np.random.default_rng(1)))
+    means = np.array(config.l_means)
+    nearest = np.argmin(np.linalg.norm(u[:, None, :] - means[None], axis=-1), axis=1)
+    np.testing.assert_allclose(np.bincount(nearest, minlength=5) / len(u), 0.2, atol=0.02)
+    np.testing.assert_allclose((u - means[nearest]).std(axis=0), config.l_std, rtol=0.1)
+    # the exact density: higher on the L's middle points than between them
+    sampler = TargetSampler(POINT_MASS_SPACE, config)
+    lp = sampler.log_prob(POINT_MASS_SPACE.denormalize(np.array([[0.2, 0.5], [0.35, 0.35]])))
+    assert lp[0] > lp[1] + 5
+    assert target_description(config)["l_means"] == [list(m) for m in L_MEANS["mixture5"]]
