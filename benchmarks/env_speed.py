@@ -29,6 +29,7 @@ ENVS = {
     "goflow/Cartpole-v0": {},
     "goflow/Quadrotor-v0": {},
     "goflow/Ant-v0": {},
+    "goflow/Anymal-v0": {},
     "goflow/Hopper-v0": {},
     "goflow/Walker2d-v0": {},
     "goflow/HalfCheetah-v0": {},

@@ -33,8 +33,9 @@ def first_reach(trace: list[dict], level: float) -> dict | None:
 
 def ratio(slow: dict | None, fast: dict | None, slow_run: dict) -> dict | None:
     """DROPO's time and calls to a level over NFPDE-Softmax's; where DROPO never got there, its
-    whole run over NFPDE's (a lower bound, `at_least`). None where NFPDE never got there."""
-    if fast is None:
+    whole run over NFPDE's (a lower bound, `at_least`). None where NFPDE never got there, or where
+    both were there from their first snapshot (no time to compare)."""
+    if fast is None or (fast["calls"] == 0 and (slow is None or slow["calls"] == 0)):
         return None
     if slow is None:
         return {"seconds": slow_run["seconds_total"] / max(fast["seconds"], 1e-9),
