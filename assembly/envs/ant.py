@@ -37,7 +37,7 @@ from assembly.envs.base import ParamEnv, SimulationError
 from common.checks import check_choice, check_number
 from common.config import config_with_overrides
 from common.errors import InputError
-from assembly.envs.drake_sim import advance
+from assembly.envs.drake_sim import PlantAccess, advance
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -246,7 +246,7 @@ def _fixed_frame(name, parent_frame, X):
     return FixedOffsetFrame(name, parent_frame, X)
 
 
-class AntEnv(ParamEnv):
+class AntEnv(PlantAccess, ParamEnv):
     """Run forward for 2 s with a quadruped whose torso mass xi is drawn per episode."""
 
     def __init__(self, config: AntConfig | None = None, *, sampler: Sampler | None = None,
@@ -311,15 +311,6 @@ class AntEnv(ParamEnv):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(8,), dtype=np.float32)
 
     # -- model ----------------------------------------------------------------------------------
-
-    @property
-    def plant(self):
-        """The Drake MultibodyPlant (read-only use)."""
-        return self._plant
-
-    def state(self) -> NDArray[np.float64]:
-        """The plant's full state [q; v] (torso quaternion wxyz, position, joints; velocities)."""
-        return np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
 
     def torso_mass(self) -> float:
         """The torso mass currently set in the Context [kg]."""

@@ -46,7 +46,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
-from assembly.envs.drake_sim import HeldInput, advance
+from assembly.envs.drake_sim import HeldInput, PlantAccess, advance
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from common.checks import check_choice, check_number
@@ -266,7 +266,7 @@ def _quat_to_rotation(w: float, x: float, y: float, z: float) -> NDArray[np.floa
                      [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)]])
 
 
-class AnymalEnv(ParamEnv):
+class AnymalEnv(PlantAccess, ParamEnv):
     """Track 1 m/s forward for 5 s with an ANYmal-C-sized quadruped whose base mass and hip joint
     frictions xi are drawn per episode."""
 
@@ -340,15 +340,6 @@ class AnymalEnv(ParamEnv):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(12,), dtype=np.float32)
 
     # -- model ----------------------------------------------------------------------------------
-
-    @property
-    def plant(self):
-        """The Drake MultibodyPlant (read-only use)."""
-        return self._plant
-
-    def state(self) -> NDArray[np.float64]:
-        """The plant's full state [q; v] (base quaternion wxyz, position, joints; velocities)."""
-        return np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
 
     def base_mass(self) -> float:
         """The base mass currently set in the Context [kg]."""

@@ -57,6 +57,19 @@ def rollout_fixed_inputs(simulator: Simulator, held: HeldInput, inputs: NDArray[
     return np.array(out)
 
 
+class PlantAccess:
+    """`plant` and `state()` of an env that keeps `_plant` and `_plant_context` (Ant, Anymal)."""
+
+    @property
+    def plant(self):
+        """The Drake MultibodyPlant (read-only use)."""
+        return self._plant
+
+    def state(self) -> NDArray[np.float64]:
+        """The plant's full state [q; v] (floating base quaternion wxyz, position, joints; velocities)."""
+        return np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
+
+
 class PlantEnv(ParamEnv):
     """A ParamEnv over one MultibodyPlant, simulated by one Simulator and Context reused for every
     episode and driven through one HeldInput.

@@ -132,8 +132,13 @@ def test_bare_rollout_equals_env_step(env):
         env.step(acts[0])
 
 
-def test_simulation_error_ends_episode_truncated(env):
-    env.reset(seed=0, options={"xi": [1.0]})
+@pytest.mark.parametrize("make, xi", [(AntEnv, [1.0]), ("anymal", None)])
+def test_simulation_error_ends_episode_truncated(make, xi):
+    if make == "anymal":  # the other quadruped: same failure path
+        from assembly.envs.anymal import NOMINAL_BASE_MASS, AnymalEnv
+        make, xi = AnymalEnv, [NOMINAL_BASE_MASS, 0.0, 0.0, 0.0, 0.0]
+    env = make()
+    env.reset(seed=0, options={"xi": xi})
     real = env._simulator
 
     class Failing:
@@ -142,7 +147,7 @@ def test_simulation_error_ends_episode_truncated(env):
 
     env._simulator = Failing()
     try:
-        obs, reward, terminated, truncated, info = env.step(np.zeros(8))
+        obs, reward, terminated, truncated, info = env.step(np.zeros(env.action_space.shape))
     finally:
         env._simulator = real
     assert truncated and not terminated and "solver diverged" in info["sim_error"]
