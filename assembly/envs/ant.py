@@ -24,7 +24,6 @@ Skills", ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at 2
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -37,7 +36,7 @@ from assembly.envs.base import ParamEnv, SimulationError
 from common.checks import check_choice, check_number
 from common.config import config_with_overrides
 from common.errors import InputError
-from assembly.envs.drake_sim import PlantAccess, advance
+from assembly.envs.drake_sim import PlantAccess, advance, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -259,16 +258,11 @@ class AntEnv(PlantAccess, ParamEnv):
         from pydrake.systems.analysis import Simulator
 
         # Silence Drake's "half spaces are not supported for deformable contact" (we have none).
-        drake_log = logging.getLogger("drake")
-        level = drake_log.level
-        drake_log.setLevel(logging.ERROR)
-        try:
+        with quiet_drake():
             (self._diagram, self._plant, self._torso, self._joints, self._actuators,
              m_torso) = _build(cfg)
             self._simulator = Simulator(self._diagram)
             self._simulator.Initialize()
-        finally:
-            drake_log.setLevel(level)
         plant = self._plant
         self._com0 = np.asarray(m_torso.get_com())
         self._unit_inertia0 = m_torso.get_unit_inertia()

@@ -36,7 +36,6 @@ PxArticulationJointReducedCoordinate::setFrictionCoefficient (joint friction def
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -46,7 +45,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
-from assembly.envs.drake_sim import HeldInput, PlantAccess, advance
+from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from common.checks import check_choice, check_number
@@ -281,16 +280,11 @@ class AnymalEnv(PlantAccess, ParamEnv):
         from pydrake.systems.analysis import Simulator
 
         # Silence Drake's "half spaces are not supported for deformable contact" (we have none).
-        drake_log = logging.getLogger("drake")
-        level = drake_log.level
-        drake_log.setLevel(logging.ERROR)
-        try:
+        with quiet_drake():
             (self._diagram, self._plant, self._base, self._joints, self._actuators, self._haa,
              base_geoms, thigh_geoms, foot_geoms) = _build(cfg)
             self._simulator = Simulator(self._diagram)
             self._simulator.Initialize()
-        finally:
-            drake_log.setLevel(level)
         plant = self._plant
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)

@@ -4,9 +4,10 @@ drive one MultibodyPlant through one held input (Cartpole, Quadrotor)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
+import logging
 import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -14,6 +15,19 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, InputPort
 
 from assembly.envs.base import ParamEnv, SimulationError
+
+
+@contextmanager
+def quiet_drake() -> Iterator[None]:
+    """Drake's log at ERROR inside the block (its parser lists what it drops, and every diagram with
+    a half space warns that deformable contact ignores it), restored after."""
+    log = logging.getLogger("drake")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
 
 
 class HeldInput:

@@ -21,7 +21,6 @@ original that remain (contact model, frictionless self-contacts, integrator): do
 
 from __future__ import annotations
 
-import logging
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -269,17 +268,14 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     from pydrake.multibody.tree import RevoluteSpring
     from pydrake.systems.framework import DiagramBuilder
 
+    from assembly.envs.drake_sim import quiet_drake
+
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(time_step=contact.time_step, contact_model="point",
                              discrete_contact_approximation=contact.approximation), builder)
-    drake_log = logging.getLogger("drake")
-    level = drake_log.level
-    drake_log.setLevel(logging.ERROR)  # the parser lists every attribute it drops; we rebuild them
-    try:
+    with quiet_drake():  # the parser lists every attribute it drops; we rebuild them
         Parser(plant).AddModelsFromString(chained_joints_xml(spec.path), "xml")
-    finally:
-        drake_log.setLevel(level)
     joints = {name: plant.GetJointByName(name) for name in spec.joints if spec.joint_types[name] != "free"}
     for name, (k, ref) in spec.stiffness.items():
         if spec.joint_types[name] != "hinge":

@@ -3,12 +3,12 @@ with the torso mass and the leg joint damping as parameters."""
 
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from assembly.envs.drake_sim import quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.transition.drake import DrakeTransitionSim
 
@@ -41,15 +41,10 @@ class AntTransitionSim(DrakeTransitionSim):
 
         self._env = ant.AntEnv(**env_kwargs)  # initial states and observations
         self.config = self._env.config
-        drake_log = logging.getLogger("drake")
-        level = drake_log.level
-        drake_log.setLevel(logging.ERROR)
-        try:
+        with quiet_drake():
             built = ant._build(self.config)
             self._diagram, self._plant, self._torso, self._joints, _, m_torso = built
             self._simulator = Simulator(self._diagram)
-        finally:
-            drake_log.setLevel(level)
         self._com0 = np.asarray(m_torso.get_com())
         self._unit_inertia0 = m_torso.get_unit_inertia()
         self._context = self._simulator.get_mutable_context()

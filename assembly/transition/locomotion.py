@@ -3,12 +3,12 @@ envs' own Drake plants (`assembly.envs.locomotion`), with their Table I paramete
 
 from __future__ import annotations
 
-import logging
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from assembly.envs.drake_sim import quiet_drake
 from assembly.transition.drake import DrakeTransitionSim
 
 __all__ = ["LocomotionTransitionSim", "HopperTransitionSim", "Walker2dTransitionSim",
@@ -33,13 +33,8 @@ class LocomotionTransitionSim(DrakeTransitionSim):
     def __init__(self, **env_kwargs: Any) -> None:
         from assembly.envs import locomotion
 
-        drake_log = logging.getLogger("drake")
-        level = drake_log.level
-        drake_log.setLevel(logging.ERROR)  # the parser's warnings about what mjcf rebuilds
-        try:
+        with quiet_drake():  # the parser's warnings about what mjcf rebuilds
             self._env = env = getattr(locomotion, self.env_class)(**env_kwargs)
-        finally:
-            drake_log.setLevel(level)
         m = env.model
         self.config = env.config
         self._simulator, self._context = env._simulator, env._context
