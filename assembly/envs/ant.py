@@ -36,7 +36,7 @@ from assembly.envs.base import ParamEnv, SimulationError
 from common.checks import check_choice, check_number
 from common.config import config_with_overrides
 from common.errors import InputError
-from assembly.envs.drake_sim import PlantAccess, advance, quiet_drake
+from assembly.envs.drake_sim import PlantAccess, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -152,10 +152,9 @@ class AntConfig:
 
 def _build(config: AntConfig):
     """The Drake diagram (plant + scene graph) of the ant on a ground plane; returns handles."""
-    from pydrake.geometry import (AddContactMaterial, Box, Capsule, CollisionFilterDeclaration,
-                                  GeometrySet, HalfSpace, ProximityProperties, Sphere)
+    from pydrake.geometry import Box, Capsule, CollisionFilterDeclaration, GeometrySet, HalfSpace, Sphere
     from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig)
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
     from pydrake.multibody.tree import RevoluteJoint, SpatialInertia
     from pydrake.systems.framework import DiagramBuilder
 
@@ -165,13 +164,8 @@ def _build(config: AntConfig):
                              discrete_contact_approximation=config.contact_approximation),
         builder)
 
-    friction = CoulombFriction(config.friction, config.friction)
-
-    def props() -> ProximityProperties:
-        p = ProximityProperties()
-        AddContactMaterial(dissipation=config.hunt_crossley_dissipation,
-                           point_stiffness=config.point_stiffness, friction=friction, properties=p)
-        return p
+    def props():
+        return point_contact_properties(config.point_stiffness, config.hunt_crossley_dissipation, config.friction)
 
     def capsule_pose(end: np.ndarray) -> RigidTransform:
         """Pose of a Drake capsule (axis z) spanning the segment from the origin to `end`."""

@@ -45,7 +45,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
-from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, quiet_drake
+from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from common.checks import check_choice, check_number
@@ -176,10 +176,9 @@ class _Mirror:
 
 def _build(config: AnymalConfig):
     """The Drake diagram (plant + scene graph) of the robot on a ground plane; returns handles."""
-    from pydrake.geometry import (AddContactMaterial, Box, Capsule, CollisionFilterDeclaration, GeometrySet,
-                                  HalfSpace, ProximityProperties, Sphere)
+    from pydrake.geometry import Box, Capsule, CollisionFilterDeclaration, GeometrySet, HalfSpace, Sphere
     from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
     from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, RevoluteJoint
     from pydrake.systems.framework import DiagramBuilder
 
@@ -189,13 +188,8 @@ def _build(config: AnymalConfig):
                              discrete_contact_approximation=config.contact_approximation,
                              use_sampled_output_ports=True),
         builder)
-    friction = CoulombFriction(config.friction, config.friction)
-
-    def props() -> ProximityProperties:
-        p = ProximityProperties()
-        AddContactMaterial(dissipation=config.hunt_crossley_dissipation,
-                           point_stiffness=config.point_stiffness, friction=friction, properties=p)
-        return p
+    def props():
+        return point_contact_properties(config.point_stiffness, config.hunt_crossley_dissipation, config.friction)
 
     def segment(body, start, end, radius, name, color):
         """A collision + visual capsule on `body` from `start` to `end` (body frame)."""

@@ -35,7 +35,7 @@ from assembly.envs.base import clipped_float32
 from common.checks import check_finite_array, check_number
 from common.config import config_with_overrides
 from common.errors import InputError
-from assembly.envs.drake_sim import HeldInput, PlantEnv
+from assembly.envs.drake_sim import HeldInput, PlantEnv, point_contact_properties
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -90,13 +90,7 @@ class CartpoleConfig:
 
 
 def _proximity(mu: float, cfg: CartpoleConfig):
-    from pydrake.geometry import AddContactMaterial, ProximityProperties
-    from pydrake.multibody.plant import CoulombFriction
-
-    props = ProximityProperties()
-    AddContactMaterial(dissipation=cfg.contact_dissipation, point_stiffness=cfg.contact_stiffness,
-                       friction=CoulombFriction(mu, mu), properties=props)
-    return props
+    return point_contact_properties(cfg.contact_stiffness, cfg.contact_dissipation, mu)
 
 
 class CartpoleEnv(PlantEnv):

@@ -30,6 +30,18 @@ def quiet_drake() -> Iterator[None]:
         log.setLevel(level)
 
 
+def point_contact_properties(stiffness: float, dissipation: float, friction: float):
+    """ProximityProperties of a point-contact geometry: stiffness [N/m], Hunt-Crossley dissipation
+    [s/m], Coulomb friction (static = dynamic)."""
+    from pydrake.geometry import AddContactMaterial, ProximityProperties
+    from pydrake.multibody.plant import CoulombFriction
+
+    props = ProximityProperties()
+    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness,
+                       friction=CoulombFriction(friction, friction), properties=props)
+    return props
+
+
 class HeldInput:
     """A vector input port fixed once in its Context and then rewritten in place.
 

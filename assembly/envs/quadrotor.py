@@ -36,7 +36,7 @@ from assembly.envs.base import SimulationError, clipped_float32
 from common.checks import check_finite_array, check_number
 from common.config import config_with_overrides
 from common.errors import InputError
-from assembly.envs.drake_sim import HeldInput, PlantEnv
+from assembly.envs.drake_sim import HeldInput, PlantEnv, point_contact_properties
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -131,9 +131,9 @@ class QuadrotorEnv(PlantEnv):
     # -- Drake model ---------------------------------------------------------------------------
 
     def _build(self) -> None:
-        from pydrake.geometry import AddContactMaterial, Box, ProximityProperties, Sphere
+        from pydrake.geometry import Box, Sphere
         from pydrake.math import RigidTransform
-        from pydrake.multibody.plant import (AddMultibodyPlantSceneGraph, CoulombFriction, DiscreteContactApproximation,
+        from pydrake.multibody.plant import (AddMultibodyPlantSceneGraph, DiscreteContactApproximation,
                                              Propeller, PropellerInfo)
         from pydrake.multibody.tree import QuaternionFloatingJoint, SpatialInertia, UnitInertia
         from pydrake.systems.analysis import Simulator
@@ -149,9 +149,7 @@ class QuadrotorEnv(PlantEnv):
         # term diverges (NaN within 0.2 s at 0.05 kg); PhysX (the seed) damps and caps angular velocity.
         plant.AddJoint(QuaternionFloatingJoint("body_free", plant.world_frame(), body.body_frame(),
                                                angular_damping=cfg.angular_damping, translational_damping=0.0))
-        props = ProximityProperties()
-        AddContactMaterial(dissipation=20.0, point_stiffness=1e5, friction=CoulombFriction(1.0, 1.0),
-                           properties=props)
+        props = point_contact_properties(1e5, 20.0, 1.0)
         plant.RegisterCollisionGeometry(body, RigidTransform(), Sphere(cfg.collision_radius), "body", props)
         plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]), Box(200.0, 200.0, 1.0),
                                         "ground", props)
