@@ -44,7 +44,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError
+from assembly.envs.base import ParamEnv, SimulationError, quaternion_rotation
 from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -250,15 +250,6 @@ def _build(config: AnymalConfig):
     return diagram, plant, base, joints, actuators, haa, base_geoms, thighs, feet
 
 
-def _quat_to_rotation(w: float, x: float, y: float, z: float) -> NDArray[np.float64]:
-    """R_WB of a (not necessarily unit) quaternion."""
-    n = w * w + x * x + y * y + z * z
-    s = 2.0 / n
-    return np.array([[1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
-                     [s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)],
-                     [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)]])
-
-
 class AnymalEnv(PlantAccess, ParamEnv):
     """Track 1 m/s forward for 5 s with an ANYmal-C-sized quadruped whose base mass and hip joint
     frictions xi are drawn per episode."""
@@ -436,7 +427,7 @@ class AnymalEnv(PlantAccess, ParamEnv):
                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Base linear velocity, angular velocity and projected gravity, all in the base frame."""
         nq = self._nq
-        R = _quat_to_rotation(*x[self._iq_quat])
+        R = quaternion_rotation(x[self._iq_quat])
         v_b = R.T @ x[nq + self._iv_lin.start:nq + self._iv_lin.stop]
         w_b = R.T @ x[nq + self._iv_ang.start:nq + self._iv_ang.stop]
         return v_b, w_b, -R[2]  # R^T (0, 0, -1)

@@ -29,7 +29,7 @@ from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from common.errors import SimulationError
 
-__all__ = ["ParamEnv", "SimulationError", "clipped_float32"]
+__all__ = ["ParamEnv", "SimulationError", "clipped_float32", "quaternion_rotation"]
 
 def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[np.float32]:
     """values clipped to [-high, high] as a float32 array, in plain Python (an env's per-step path:
@@ -37,6 +37,15 @@ def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[n
     if all(-h <= v <= h for v, h in zip(values, high)):
         return np.array(values, dtype=np.float32)
     return np.array([min(h, max(-h, v)) for v, h in zip(values, high)], dtype=np.float32)
+
+
+def quaternion_rotation(q: ArrayLike) -> NDArray[np.float64]:
+    """R_WB of the quaternion q = (w, x, y, z) (Drake's floating-body order), normalized first: a
+    discrete plant's quaternion drifts slightly off unit length."""
+    w, x, y, z = np.asarray(q, dtype=np.float64) / math.sqrt(float(np.dot(q, q)))
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 class ParamEnv(gymnasium.Env):

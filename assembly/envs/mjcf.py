@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from assembly.envs.base import quaternion_rotation
 from common.errors import InputError
 
 __all__ = ["MjcfSpec", "MjcfPlant", "ContactSettings", "gymnasium_asset", "read_mjcf", "build_plant",
@@ -224,7 +225,7 @@ class MjcfPlant:
             quat = q[0:4] / np.linalg.norm(q[0:4])
             qpos[0:3], qpos[3:7] = q[4:7], quat
             qvel[0:3] = v[3:6]
-            qvel[3:6] = _rotation(quat).T @ v[0:3]
+            qvel[3:6] = quaternion_rotation(quat).T @ v[0:3]
         return qpos, qvel
 
     def from_mujoco(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -238,15 +239,8 @@ class MjcfPlant:
             quat = np.asarray(qpos[3:7], dtype=float) / np.linalg.norm(qpos[3:7])
             q[0:4], q[4:7] = quat, qpos[0:3]
             v[3:6] = qvel[0:3]
-            v[0:3] = _rotation(quat) @ np.asarray(qvel[3:6])
+            v[0:3] = quaternion_rotation(quat) @ np.asarray(qvel[3:6])
         return np.concatenate([q, v])
-
-
-def _rotation(quat: NDArray[np.float64]) -> NDArray[np.float64]:
-    w, x, y, z = quat
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def pair_friction(spec: MjcfSpec, geom: str) -> float:

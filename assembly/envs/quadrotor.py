@@ -190,19 +190,9 @@ class QuadrotorEnv(PlantEnv):
     # -- observation and reward ----------------------------------------------------------------
     # Drake's free-body state: q = (qw, qx, qy, qz, x, y, z), v = (w_WB in world, v_WB in world).
 
-    @staticmethod
-    def _rotation(q: NDArray[np.float64]) -> NDArray[np.float64]:
-        """R_WB from a (possibly slightly unnormalized) quaternion (w, x, y, z)."""
-        w, x, y, z = q / math.sqrt(float(q @ q))
-        return np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ])
-
     def _observe_and_reward(self, state: list[float]) -> tuple[NDArray[np.float32], float]:
         """Observation (v_B, w_B, gravity direction in B, goal offset in B) and the step reward, in
-        Python floats (the same maths as R_WB^T applied with `_rotation`)."""
+        Python floats (the same maths as R_WB^T applied with `base.quaternion_rotation`)."""
         cfg = self.config
         qw, qx, qy, qz, px, py, pz, wx, wy, wz, vx, vy, vz = state
         n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)

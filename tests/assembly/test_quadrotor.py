@@ -6,6 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import assembly  # noqa: F401  (registers the goflow/ ids)
+from assembly.envs.base import quaternion_rotation
 from assembly.envs.quadrotor import QuadrotorEnv
 
 
@@ -24,7 +25,7 @@ def position_controller(env, mass, kp=8.0, kd=5.0, kr=200.0, kw=25.0, a_max=8.0)
     mixer = np.linalg.inv(np.vstack([np.ones(4), P[:, 1], -P[:, 0], S * c.moment_ratio]))
 
     def act(state):
-        R = env._rotation(state[:4])
+        R = quaternion_rotation(state[:4])
         p, w_b, v = state[4:7], R.T @ state[7:10], state[10:13]
         a = kp * (env.goal - p) - kd * v
         n = np.linalg.norm(a[:2])
