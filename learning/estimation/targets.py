@@ -59,22 +59,28 @@ def _truncated_normal(mean: NDArray, std: NDArray, rng: np.random.Generator) -> 
     return out
 
 
+def _components(config: TargetConfig, d: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The target's equally weighted components in unit-box coordinates: means and stds, (k, d) each."""
+    if config.kind == "gaussian":
+        return np.full((1, d), config.mean), np.full((1, d), config.std)
+    l_means = np.asarray(config.l_means, dtype=np.float64)
+    means = np.full((len(l_means), d), config.mean)
+    stds = np.full((len(l_means), d), config.std)
+    if d == 1:  # a 1-D "L" degenerates to two modes along the one parameter
+        means[:, 0] = l_means[:, 0] if len(set(l_means[:, 0])) > 1 else l_means[:, 1]
+        stds[:, 0] = config.l_std
+    else:
+        means[:, :2] = l_means
+        stds[:, :2] = config.l_std
+    return means, stds
+
+
 def sample_target(config: TargetConfig, space: ParamSpace, n: int, rng: np.random.Generator
                   ) -> NDArray[np.float64]:
     """n true parameter vectors (n, d) in parameter units."""
-    d = space.dim
-    mean = np.full((n, d), config.mean)
-    std = np.full((n, d), config.std)
-    if config.kind != "gaussian":
-        means = np.asarray(config.l_means, dtype=np.float64)
-        k = rng.integers(len(means), size=n)
-        if d == 1:  # a 1-D "L" degenerates to two modes along the one parameter
-            mean[:, 0] = means[k, 0] if len(set(means[:, 0])) > 1 else means[k, 1]
-            std[:, 0] = config.l_std
-        else:
-            mean[:, :2] = means[k]
-            std[:, :2] = config.l_std
-    return space.denormalize(_truncated_normal(mean, std, rng))
+    means, stds = _components(config, space.dim)
+    k = np.zeros(n, dtype=np.int64) if config.kind == "gaussian" else rng.integers(len(means), size=n)
+    return space.denormalize(_truncated_normal(means[k], stds[k], rng))
 
 
 def target_description(config: TargetConfig) -> dict[str, Any]:
@@ -96,21 +102,7 @@ class TargetSampler:
 
     def __init__(self, space: ParamSpace, config: TargetConfig) -> None:
         self.space, self.config = space, config
-        d = space.dim
-        if config.kind == "gaussian":
-            self._means = np.full((1, d), config.mean)
-            self._stds = np.full((1, d), config.std)
-        else:
-            k = len(config.l_means)
-            self._means = np.full((k, d), config.mean)
-            self._stds = np.full((k, d), config.std)
-            if d == 1:
-                means = np.asarray(config.l_means)
-                self._means[:, 0] = means[:, 0] if len(set(means[:, 0])) > 1 else means[:, 1]
-                self._stds[:, 0] = config.l_std
-            else:
-                self._means[:, :2] = np.asarray(config.l_means)
-                self._stds[:, :2] = config.l_std
+        self._means, self._stds = _components(config, space.dim)
 
     def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
         """n draws (n, d) in parameter units."""
