@@ -22,9 +22,10 @@ fi
 
 # test: pytest and the notebook runner; ray: the optional Ray backend of the run grids, so that the
 # tests cover it (goflow itself runs without it: learning/execution.py imports it only for --ray);
-# mujoco: gymnasium's originals for the locomotion envs' fidelity test (benchmark-only).
-"$PIP" install -q -e ".[test,ray,mujoco]" || {
-    echo "setup_env: the mujoco extra did not install; the MuJoCo fidelity test will skip" >&2
+# mujoco: gymnasium's originals for the locomotion envs' fidelity test; sb3: SAC for the estimates'
+# policies (both benchmark-only).
+"$PIP" install -q -e ".[test,ray,mujoco,sb3]" || {
+    echo "setup_env: the mujoco or sb3 extra did not install; the tests that need them will skip" >&2
     "$PIP" install -q -e ".[test,ray]"
 }
 
