@@ -94,7 +94,7 @@ def main() -> int:
     stem = "" if cartpole else args.env.split("/")[-1].split("-v")[0].lower() + "-"
     res_path = out / f"nfpde_policy-{stem}{args.target}.json"
     doc = json.loads(res_path.read_text()) if res_path.exists() else {"runs": [], "estimates": {}}
-    doc["command"] = "python benchmarks/nfpde_policy.py " + " ".join(sys.argv[1:])
+    command = "python benchmarks/nfpde_policy.py " + " ".join(sys.argv[1:])
 
     target = TARGET_CONFIGS[args.target]
     episodes = args.episodes or (48 if cartpole else 10)
@@ -128,15 +128,20 @@ def main() -> int:
                 res = train_and_evaluate(samplers[name], true_sampler, config)
                 run = {"algo": algo, "train_on": name, "seed": seed, "target": args.target, **res}
                 doc["runs"] = merge_runs(res_path, doc["runs"] + [run])
+                doc["commands"] = merge_commands(res_path, doc.get("commands", []) + [command])
                 write_json(res_path, doc)  # atomic: an interrupted run keeps every finished one
                 print(f"{algo} on {name:<14} seed {seed}: return on the truth {res['final_mean_return']:.1f}, "
                       f"success {res['final_success']:.2f} ({res['seconds']:.0f} s)", flush=True)
 
+    doc.pop("command", None)
+    doc["runs"] = merge_runs(res_path, doc["runs"])
+    doc["commands"] = merge_commands(res_path, doc.get("commands", []))
     doc["summary"] = summarize(doc["runs"])
     write_json(res_path, doc)
     plot(doc["runs"], out / f"nfpde-policy-{stem}{args.target}.png", f"{args.env}, {args.target} target")
     for key, s in doc["summary"].items():
-        print(f"{key:<20} {s['final_return_mean']:8.1f} +- {s['final_return_se']:.1f} ({s['seeds']} seeds)")
+        print(f"{key:<20} final {s['final_return_mean']:8.1f} +- {s['final_return_se']:.1f}, over the curve "
+              f"{s['curve_return_mean']:8.1f} +- {s['curve_return_se']:.1f} ({s['seeds']} seeds)")
     return 0
 
 
@@ -149,6 +154,13 @@ def merge_runs(path: Path, runs: list[dict]) -> list[dict]:
     return list(merged.values())
 
 
+def merge_commands(path: Path, commands: list[str]) -> list[str]:
+    """The commands that added runs to `path`, each once, in order (an older file's "command" first)."""
+    old = json.loads(path.read_text()) if path.exists() else {}
+    seen = ([old["command"]] if "command" in old else []) + old.get("commands", []) + commands
+    return list(dict.fromkeys(seen))
+
+
 def _groups(runs: list[dict]) -> dict[tuple[str, str], list[dict]]:
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
@@ -157,13 +169,19 @@ def _groups(runs: list[dict]) -> dict[tuple[str, str], list[dict]]:
 
 
 def summarize(runs: list[dict]) -> dict[str, dict]:
-    """Per "<algo>/<train_on>": the final return's mean and standard error over seeds."""
+    """Per "<algo>/<train_on>", mean and standard error over seeds of the final return on the truth
+    and of the mean return over the curve's evaluations (how soon a policy is good)."""
+    def mean_se(values: list[float]) -> tuple[float, float]:
+        se = float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
+        return float(np.mean(values)), se
+
     summary = {}
     for (algo, name), group in _groups(runs).items():
-        finals = [r["final_mean_return"] for r in group]
-        se = float(np.std(finals, ddof=1) / np.sqrt(len(finals))) if len(finals) > 1 else 0.0
-        summary[f"{algo}/{name}"] = {"final_return_mean": float(np.mean(finals)), "final_return_se": se,
-                                     "seeds": len(finals)}
+        final, final_se = mean_se([r["final_mean_return"] for r in group])
+        area, area_se = mean_se([float(np.mean([pt[1] for pt in r["curve"]])) for r in group])
+        summary[f"{algo}/{name}"] = {"final_return_mean": final, "final_return_se": final_se,
+                                     "curve_return_mean": area, "curve_return_se": area_se,
+                                     "seeds": len(group)}
     return summary
 
 
