@@ -127,15 +127,14 @@ def main() -> int:
                 config = TransferConfig(**{**vars(base), "seed": seed, "algo": algo})
                 res = train_and_evaluate(samplers[name], true_sampler, config)
                 run = {"algo": algo, "train_on": name, "seed": seed, "target": args.target, **res}
-                doc["runs"] = merge_runs(res_path, doc["runs"] + [run])
-                doc["commands"] = merge_commands(res_path, doc.get("commands", []) + [command])
+                doc["runs"], doc["commands"] = merge_with_file(res_path, doc["runs"] + [run],
+                                                               doc.get("commands", []) + [command])
                 write_json(res_path, doc)  # atomic: an interrupted run keeps every finished one
                 print(f"{algo} on {name:<14} seed {seed}: return on the truth {res['final_mean_return']:.1f}, "
                       f"success {res['final_success']:.2f} ({res['seconds']:.0f} s)", flush=True)
 
     doc.pop("command", None)
-    doc["runs"] = merge_runs(res_path, doc["runs"])
-    doc["commands"] = merge_commands(res_path, doc.get("commands", []))
+    doc["runs"], doc["commands"] = merge_with_file(res_path, doc["runs"], doc.get("commands", []))
     doc["summary"] = summarize(doc["runs"])
     write_json(res_path, doc)
     plot(doc["runs"], out / f"nfpde-policy-{stem}{args.target}.png", f"{args.env}, {args.target} target")
@@ -145,20 +144,16 @@ def main() -> int:
     return 0
 
 
-def merge_runs(path: Path, runs: list[dict]) -> list[dict]:
-    """`runs` with the runs another process has written to `path` since (one per algo, sampler and
-    seed), so that processes sharing a results file keep each other's runs."""
-    key = lambda r: (r.get("algo", "ppo"), r["train_on"], r["seed"])  # noqa: E731
-    merged = {key(r): r for r in (json.loads(path.read_text())["runs"] if path.exists() else [])}
-    merged.update({key(r): r for r in runs})
-    return list(merged.values())
-
-
-def merge_commands(path: Path, commands: list[str]) -> list[str]:
-    """The commands that added runs to `path`, each once, in order (an older file's "command" first)."""
+def merge_with_file(path: Path, runs: list[dict], commands: list[str]) -> tuple[list[dict], list[str]]:
+    """`runs` and `commands` joined with those another process has written to `path` since: one
+    run per algo, sampler and seed, each command once in order (an older file's "command" first),
+    so that processes sharing a results file keep each other's runs."""
     old = json.loads(path.read_text()) if path.exists() else {}
+    key = lambda r: (r.get("algo", "ppo"), r["train_on"], r["seed"])  # noqa: E731
+    merged = {key(r): r for r in old.get("runs", [])}
+    merged.update({key(r): r for r in runs})
     seen = ([old["command"]] if "command" in old else []) + old.get("commands", []) + commands
-    return list(dict.fromkeys(seen))
+    return list(merged.values()), list(dict.fromkeys(seen))
 
 
 def _groups(runs: list[dict]) -> dict[tuple[str, str], list[dict]]:
