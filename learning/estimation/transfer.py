@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.samplers import Sampler
+from common.checks import check_choice, check_int
 from learning.experiment import TrainConfig, _make_vector_env
 from learning.ppo import PPO, PPOConfig
 
@@ -38,9 +39,9 @@ class SACConfig:
     learning_starts: int = 100  # sb3's default
 
     def __post_init__(self) -> None:
-        if self.steps < 1 or self.eval_every < 1 or self.learning_starts < 0:
-            raise ValueError(f"SACConfig: steps and eval_every must be >= 1 and learning_starts >= 0, got "
-                             f"{self.steps}, {self.eval_every}, {self.learning_starts}")
+        check_int(self.steps, "SACConfig.steps", 1)
+        check_int(self.eval_every, "SACConfig.eval_every", 1)
+        check_int(self.learning_starts, "SACConfig.learning_starts", 0)
 
 
 @dataclass
@@ -62,8 +63,7 @@ class TransferConfig:
         if self.iterations < 1 or self.eval_every < 1 or self.eval_episodes < 1:
             raise ValueError(f"TransferConfig: iterations, eval_every and eval_episodes must be >= 1, got "
                              f"{self.iterations}, {self.eval_every}, {self.eval_episodes}")
-        if self.algo not in ALGOS:
-            raise ValueError(f"TransferConfig: algo must be one of {ALGOS}, got {self.algo!r}")
+        check_choice(self.algo, ALGOS, "TransferConfig.algo")
 
 
 def train_and_evaluate(train_sampler: Sampler, true_sampler: Sampler, config: TransferConfig) -> dict[str, Any]:
