@@ -657,6 +657,9 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="report folder (report.md, report.json, figures)")
     p.add_argument("--effects", nargs="+", metavar="NAME", help="catalogue effects to consider (default: all)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap intervals")
+    p.add_argument("--torque-filter", default="none", choices=["none", "matched"],
+                   help="arm: 'matched' smooths the logged torques with the kernel of the acceleration's "
+                        "derivative filter (for logs with impacts, e.g. backlash; docs/sim2real.md)")
     p.add_argument("--episodes", type=int, default=10,
                    help="station: episodes per success rate of the shipped skill (0: skip the downstream figure)")
 
@@ -664,7 +667,9 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from sim2real.diagnosis import DiagnosisConfig
     from sim2real.files import diagnose_file
-    config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed)
+    from sim2real.replay import ReplayConfig
+    config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed,
+                             replay=ReplayConfig(torque_filter=args.torque_filter))
     if args.episodes < 0:
         raise InputError(f"--episodes = {args.episodes}; expected an integer >= 0")
     d, paths = diagnose_file(args.log, args.out, args.model, config, progress=True, episodes=args.episodes)

@@ -22,13 +22,15 @@ sys.path.insert(0, str(ROOT))
 
 from common.files import check_output_dir, check_output_file, read_json, write_json  # noqa: E402
 from learning.execution import Job, make_backend, run_grid  # noqa: E402
-from sim2real.validation import cases, run_case, summarize  # noqa: E402
+from sim2real.validation import MAGNITUDES, cases, run_case, summarize  # noqa: E402
 
 
-def _case_job(case, duration: float, path: str) -> dict:
+def _case_job(case, duration: float, path: str, torque_filter: str = "none") -> dict:
     if Path(path).is_file():
         return read_json(path, "validation case")
-    result = run_case(case, duration)
+    from sim2real.diagnosis import DiagnosisConfig
+    from sim2real.replay import ReplayConfig
+    result = run_case(case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter)))
     write_json(path, result)
     return result
 
@@ -63,18 +65,24 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, default=None, help="summary JSON (default <out>/summary.json)")
     p.add_argument("--no-contact", action="store_true", help="skip the station contact case")
     p.add_argument("--episodes", type=int, default=10, help="episodes per success rate of the contact case")
+    p.add_argument("--torque-filter", default="none", choices=["none", "matched"],
+                   help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)")
+    p.add_argument("--effects", nargs="+", choices=sorted(MAGNITUDES), metavar="NAME",
+                   help="only these effects' cases and the out-of-catalogue ripple (default: the whole grid)")
     args = p.parse_args(argv)
     out = check_output_dir(args.out, "--out")
     summary_path = check_output_file(args.json or out / "summary.json", "--json")
-    grid = cases(seeds=tuple(args.seeds))
-    jobs = [Job(c.name, _case_job, (c, args.duration, str(out / f"{c.name}.json"))) for c in grid]
+    grid = cases(seeds=tuple(args.seeds), effects=tuple(args.effects) if args.effects else None,
+                 pairs=not args.effects)
+    jobs = [Job(c.name, _case_job, (c, args.duration, str(out / f"{c.name}.json"), args.torque_filter))
+            for c in grid]
     if not args.no_contact:
         jobs.append(Job("contact", _contact_job, (str(out / "contact.json"), args.episodes)))
     with make_backend(None, args.workers) as backend:
         results = run_grid(jobs, backend, desc="sim2real validation")
     arm = [r for r in results if "magnitude" in r]
     summary = {"command": "benchmarks/sim2real_validation.py " + " ".join(argv or sys.argv[1:]),
-               "duration": args.duration, "seeds": args.seeds, "summary": summarize(arm), "cases": arm}
+               "torque_filter": args.torque_filter, "duration": args.duration, "seeds": args.seeds, "summary": summarize(arm), "cases": arm}
     if not args.no_contact:
         summary["contact"] = results[-1]
     write_json(summary_path, summary)

@@ -76,12 +76,15 @@ class DiagnosisConfig:
                 raise InputError(f"DiagnosisConfig.effects has {name!r}; expected names from {sorted(CATALOGUE)}")
 
 
-def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101) -> Array:
+def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101,
+                kernel: Array | None = None) -> Array:
     """Per column of a (T, k) residual: the standard deviation of what varies faster than any
     effect of the state can (vibration, sensor noise, derivative noise): the residual minus its
     cubic Savitzky-Golay smoothing over `window` samples, robustly (1.4826 MAD), corrected for the
     part of white noise the smoothing keeps (divided by sqrt(1 - h0), h0 the filter's centre
-    weight). White noise gives its own standard deviation; slow model error gives ~0."""
+    weight). White noise gives its own standard deviation; slow model error gives ~0. With a
+    `kernel`, the residual's noise is white noise smoothed by it (a replay's torque filter): the
+    correction is the share of such noise that the fast part keeps."""
     from scipy.signal import savgol_coeffs, savgol_filter
 
     r = residual[valid]
@@ -89,9 +92,15 @@ def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101) ->
     if window < 7:  # too few samples to tell fast from slow: the whole spread, conservatively
         return np.maximum(np.std(r, axis=0), 1e-9)
     fast = r - savgol_filter(r, window, 3, axis=0)
-    h0 = savgol_coeffs(window, 3)[window // 2]
+    if kernel is None:
+        kept = 1.0 - savgol_coeffs(window, 3)[window // 2]
+    else:  # the fast part of kernel-smoothed white noise: (I - SG) * kernel
+        impulse = np.zeros(window + 2 * len(kernel))
+        impulse[len(impulse) // 2] = 1.0
+        seen = np.convolve(impulse, kernel[::-1], mode="same")
+        kept = float(np.sum((seen - savgol_filter(seen, window, 3)) ** 2) / np.sum(kernel ** 2))
     mad = np.median(np.abs(fast - np.median(fast, axis=0)), axis=0)
-    floor = 1.4826 * mad / np.sqrt(1.0 - h0)
+    floor = 1.4826 * mad / np.sqrt(kept)
     scale = np.sqrt(np.mean(r ** 2, axis=0))
     return np.maximum(floor, 1e-6 * np.maximum(scale, 1e-12) + 1e-9)
 
@@ -448,6 +457,9 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
                      f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
     else:
         rep = replay(log, c.replay)
+    # the filtered torque channels' noise: the unfiltered residual's floor through the filter
+    floor = {ch: np.maximum(noise_floor(rep.residual[ch], rep.valid, kernel=rep.kernel), ARM_FLOOR_MIN[ch])
+             for ch in rep.unfiltered}
     phase = segment_phases(rep.log)
     if rep.log.phase is None and np.any(phase != 0):
         notes.append("the log has no phase labels: phases segmented from its external force (sim2real/phases.py)")
@@ -455,7 +467,7 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
                     pool=candidates(rep, c.effects), audit=functools.partial(_arm_audit, rep), x=rep.log.dq,
                     x_label="dq [rad/s]", time=rep.log.time, meta={**log.meta, "end_effector": rep.model.end_effector},
-                    floor_min=dict(ARM_FLOOR_MIN), notes=notes)
+                    floor_min=dict(ARM_FLOOR_MIN), notes=notes, floor=floor)
 
 
 def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None

@@ -10,6 +10,10 @@ A channel is one signal compared with what the model predicts for it, per joint:
   commanded torque for k samples (re-synchronised to the log every k samples) and the predicted
   velocity is compared with the logged one.
 Accelerations come from a Savitzky-Golay derivative of the logged velocity on a uniform grid.
+The measured and commanded torques are smoothed with the kernel that derivative implies ("parallel
+filtering", as in robot identification): a torque and the velocity change it causes are seen through
+the same filter, so that a sharp event (a gear's impact across its backlash) leaves no residual of
+its own; `Replay.smooth` applies the kernel to an effect's predicted torque the same way.
 """
 
 from __future__ import annotations
@@ -18,14 +22,15 @@ import dataclasses
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import savgol_filter
+from scipy.ndimage import correlate1d
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from common.checks import check_choice
 from common.errors import InputError
 from sim2real.arm import ArmModel, ArmTerms
 from sim2real.log import RobotLog
 
-__all__ = ["ReplayConfig", "Replay", "replay", "uniform", "CHANNELS"]
+__all__ = ["ReplayConfig", "Replay", "replay", "uniform", "matched_kernel", "CHANNELS"]
 
 CHANNELS: tuple[str, ...] = ("tau", "cmd", "ctrl", "dq")
 
@@ -38,13 +43,16 @@ class ReplayConfig:
     (None: as meta["torque_side"] says, "link" (default, Franka's tau_J) excludes it: the
     sensor sits between the gearbox and the link, the rotor before it); torque_hold: "zoh" (a
     torque sample holds over the period after it, as in a 1 kHz torque loop: the model is
-    evaluated at the period's midpoint) or "sample" (at the sample instant)."""
+    evaluated at the period's midpoint) or "sample" (at the sample instant); torque_filter:
+    "matched" (the torques are smoothed with the kernel matched to the acceleration's derivative
+    filter, see `matched_kernel`) or "none" (raw torques against the smoothed acceleration)."""
 
     derivative_window: float = 0.041
     forward_steps: int = 20
     end_effector: str | None = None
     rotor_in_tau: bool | None = None
     torque_hold: str = "zoh"
+    torque_filter: str = "none"
 
 
 @dataclasses.dataclass
@@ -53,7 +61,9 @@ class Replay:
 
     residual[channel]: (T, 7) measured minus predicted; base[channel]: the nominal prediction's
     pieces the effects build on (see sim2real/effects.py). valid: (T,) samples away from the
-    ends (the derivative filter's half window and the forward horizon) that the fits use."""
+    ends (the derivative filter's half window and the forward horizon) that the fits use.
+    kernel: the torque channels' smoothing kernel (None: none); unfiltered: the torque channels'
+    residual before it (what the noise floor is estimated from)."""
 
     log: RobotLog
     dt: float
@@ -68,10 +78,23 @@ class Replay:
     tau_cmd: NDArray[np.float64] | None
     law: NDArray[np.float64] | None
     rotor_in_tau: bool = False
+    kernel: NDArray[np.float64] | None = None
+    unfiltered: dict[str, NDArray[np.float64]] = dataclasses.field(default_factory=dict)
 
     @property
     def channels(self) -> tuple[str, ...]:
         return tuple(c for c in CHANNELS if c in self.residual)
+
+    def smooth(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """x (T, ...) seen through the torque channels' filter along time (as is without one)."""
+        if self.kernel is None:
+            return x
+        return correlate1d(x, self.kernel, axis=0, mode="nearest")
+
+    @property
+    def noise_gain(self) -> float:
+        """The factor by which the torque filter scales white noise's standard deviation."""
+        return 1.0 if self.kernel is None else float(np.sqrt(np.sum(self.kernel ** 2)))
 
     def forward(self, torque: NDArray[np.float64]) -> NDArray[np.float64]:
         """The k-step integral of M_total^-1 torque dt (T, 7): how a torque perturbation of the
@@ -92,6 +115,32 @@ class Replay:
             M = self.terms.mass + np.eye(7)[None] * self.model.reflected_inertia[None, :, None]
             self._minv = np.linalg.inv(M)
         return self._minv
+
+
+def matched_kernel(window: int, hold: str = "zoh") -> NDArray[np.float64]:
+    """The smoothing kernel s (window + 1 taps, centred) that turns the torque's acceleration into
+    the replay's: sum_i s_i a[k + i] equals the cubic Savitzky-Golay derivative of the velocity at
+    the torque's instant k (the hold period's midpoint under "zoh", the sample under "sample"),
+    where a[k] is the velocity's change over the torque's period divided by it ("zoh":
+    v[k+1] - v[k]; "sample": the central difference). The taps sum to 1."""
+    h = window // 2
+    g = savgol_coeffs(window, 3, deriv=1, use="dot")  # per unit time step: sum_j g_j v[k - h + j]
+    if hold == "zoh":
+        g = 0.5 * (np.concatenate([g, [0.0]]) + np.concatenate([[0.0], g]))  # taps k-h .. k+h+1
+        first, lo, hi = -h, 0, 1  # a[k] = v[k + 1] - v[k]
+    else:
+        first, lo, hi = -h, -1, 1  # a[k] = (v[k + 1] - v[k - 1]) / 2
+    n = window + 1
+    taps = np.arange(n) - n // 2  # s_i for i in taps
+    cols = np.zeros((len(g) + 2, n))  # the velocity index j - first + 1 (room for the ends)
+    for c, i in enumerate(taps):
+        scale = 1.0 if hold == "zoh" else 0.5
+        cols[i + hi - first + 1, c] += scale
+        cols[i + lo - first + 1, c] -= scale
+    target = np.zeros(len(g) + 2)
+    target[1:1 + len(g)] = g
+    s, *_ = np.linalg.lstsq(cols, target, rcond=None)
+    return s / s.sum()
 
 
 def uniform(log: RobotLog) -> RobotLog:
@@ -149,6 +198,8 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
     ee = c.end_effector or log.meta.get("end_effector", "hand")
     model = ArmModel(ee)
     check_choice(c.torque_hold, ("zoh", "sample"), "ReplayConfig.torque_hold")
+    check_choice(c.torque_filter, ("matched", "none"), "ReplayConfig.torque_filter")
+    kernel = matched_kernel(window, c.torque_hold) if c.torque_filter == "matched" else None
     q_t = log.q
     dq_s = savgol_filter(log.dq, window, 3, axis=0)
     ddq = savgol_filter(log.dq, window, 3, deriv=1, delta=dt, axis=0)
@@ -176,7 +227,12 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
             residual["ctrl"] = commanded - law
     rep = Replay(log=log, dt=dt, q=q_t, dq=dq_s, ddq=ddq, terms=terms, model=model, residual=residual,
                  valid=np.ones(log.n_samples, dtype=bool), forward_steps=c.forward_steps,
-                 tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau)
+                 tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau, kernel=kernel)
+    measured = {"tau": log.tau, "cmd": commanded}
+    for ch in ("tau", "cmd"):  # the measured torque through the filter; the model's side is smooth
+        if ch in residual and kernel is not None:
+            rep.unfiltered[ch] = residual[ch]
+            residual[ch] = residual[ch] + rep.smooth(measured[ch]) - measured[ch]
     if log.tau is None and tau_cmd is not None:
         # state log: from each re-synchronisation the model integrates its own acceleration
         # M_total^-1 (tau_cmd - h); the logged velocity integrates the logged one. Their

@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim2real.catalogue import CATALOGUE
+
+if TYPE_CHECKING:
+    from sim2real.diagnosis import DiagnosisConfig
 
 __all__ = ["Case", "MAGNITUDES", "FAINT", "PAIRS", "OUTSIDE", "cases", "run_case", "summarize", "ripple_torque"]
 
@@ -109,8 +112,8 @@ def _expected_channels(names: tuple[str, ...]) -> set[str]:
     return chans
 
 
-def run_case(case: Case, duration: float = 10.0) -> dict[str, Any]:
-    """Make the case's log, diagnose it, score it; plain data."""
+def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None = None) -> dict[str, Any]:
+    """Make the case's log, diagnose it (with `config`; None: the defaults), score it; plain data."""
     from sim2real.diagnosis import diagnose
     from sim2real.reality import RealityConfig, make_arm_log
 
@@ -118,7 +121,7 @@ def run_case(case: Case, duration: float = 10.0) -> dict[str, Any]:
     extra = ripple_torque if OUTSIDE in case.effects else None
     log = make_arm_log(case.settings(), RealityConfig(duration=duration, seed=case.seed), extra_torque=extra)
     made = time.perf_counter() - start
-    d = diagnose(log)
+    d = diagnose(log, config)
     s = d.summary()
     chosen = [r["effect"] for r in s["selected"]]
     if OUTSIDE in case.effects:
