@@ -76,7 +76,7 @@ def _route(rep: Replay, place: str, torque: Array) -> dict[str, Array]:
     through the replay's torque filter, as they see the measured torque."""
     out: dict[str, Array] = {}
     chans = rep.channels
-    seen = rep.smooth(torque)
+    seen = rep.smooth(torque) if place != "controller" else torque
     if place == "motor" and rep.rotor_in_tau:
         place = "dynamics"
     if place in ("dynamics", "motor"):
