@@ -657,9 +657,9 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="report folder (report.md, report.json, figures)")
     p.add_argument("--effects", nargs="+", metavar="NAME", help="catalogue effects to consider (default: all)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap intervals")
-    p.add_argument("--torque-filter", default="none", choices=["none", "matched"],
-                   help="arm: 'matched' smooths the logged torques with the kernel of the acceleration's "
-                        "derivative filter (for logs with impacts, e.g. backlash; docs/sim2real.md)")
+    p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
+                   help="arm: 'matched' (default) smooths the logged torques with the kernel of the "
+                        "acceleration's derivative filter; 'none' compares raw torques (docs/sim2real.md)")
     p.add_argument("--episodes", type=int, default=10,
                    help="station: episodes per success rate of the shipped skill (0: skip the downstream figure)")
 

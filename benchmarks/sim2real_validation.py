@@ -25,7 +25,7 @@ from learning.execution import Job, make_backend, run_grid  # noqa: E402
 from sim2real.validation import MAGNITUDES, cases, run_case, summarize  # noqa: E402
 
 
-def _case_job(case, duration: float, path: str, torque_filter: str = "none") -> dict:
+def _case_job(case, duration: float, path: str, torque_filter: str = "matched") -> dict:
     if Path(path).is_file():
         return read_json(path, "validation case")
     from sim2real.diagnosis import DiagnosisConfig
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, default=None, help="summary JSON (default <out>/summary.json)")
     p.add_argument("--no-contact", action="store_true", help="skip the station contact case")
     p.add_argument("--episodes", type=int, default=10, help="episodes per success rate of the contact case")
-    p.add_argument("--torque-filter", default="none", choices=["none", "matched"],
+    p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
                    help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)")
     p.add_argument("--effects", nargs="+", choices=sorted(MAGNITUDES), metavar="NAME",
                    help="only these effects' cases and the out-of-catalogue ripple (default: the whole grid)")

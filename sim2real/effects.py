@@ -25,7 +25,7 @@ from assembly.panda_model import TAU_MAX
 from sim2real.catalogue import CATALOGUE, effect
 from sim2real.replay import Replay
 
-__all__ = ["Candidate", "candidates", "backlash_excess", "FITTABLE", "STRIBECK_SIGN_VELOCITY",
+__all__ = ["Candidate", "Family", "candidates", "backlash_excess", "FITTABLE", "STRIBECK_SIGN_VELOCITY",
            "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
 
 STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
@@ -56,10 +56,52 @@ class Candidate:
     names: list[str]
     bounds: Array
     to_params: Callable[[Array], dict[str, float | list[float]]]
+    family: Family | None = None  # the one-parameter family this candidate is a member of
 
     @property
     def n_coef(self) -> int:
         return len(self.names)
+
+
+@dataclasses.dataclass(frozen=True)
+class Family:
+    """An effect's candidates along its one nonlinear setting `key`: the ascending `grid` they were
+    made at, the range [low, high] (> 0) a refinement may explore, and `at(value)`, the member at
+    any value in that range (made once per value)."""
+
+    key: str
+    grid: tuple[float, ...]
+    low: float
+    high: float
+    at: Callable[[float], Candidate]
+
+    def bracket(self, value: float) -> tuple[float, float]:
+        """The grid's neighbours of `value` (beyond an end of the grid: one grid step further,
+        within [low, high])."""
+        g = self.grid
+        i = int(np.argmin(np.abs(np.log(np.asarray(g) / value))))
+        below = g[i - 1] if i > 0 else (g[0] ** 2 / g[1] if len(g) > 1 else g[0] / 2.0)
+        above = g[i + 1] if i + 1 < len(g) else (g[-1] ** 2 / g[-2] if len(g) > 1 else g[-1] * 2.0)
+        return max(below, self.low), min(above, self.high)
+
+
+def _family(name: str, key: str, grid: tuple[float, ...], make: Callable[[float], Candidate],
+            high: float | None = None) -> list[Candidate]:
+    """The candidates of `make` at `grid` (ascending), members of one Family whose range is the
+    catalogue's bounds of `key` capped at `high`; where the catalogue's lower bound is 0 (no
+    effect), the grid's first value is the smallest setting resolved (a 1 ms delay, a 1 mrad band)."""
+    spec = effect(name).param(key)
+    made: dict[float, Candidate] = {}
+
+    def at(value: float) -> Candidate:
+        value = float(value)
+        if value not in made:
+            made[value] = dataclasses.replace(make(value), family=fam)
+        return made[value]
+
+    low = spec.low if spec.low > 0 else grid[0]
+    fam = Family(key, tuple(grid), low, min(spec.high, high) if high is not None else spec.high, at)
+    return [at(v) for v in grid]
 
 
 def _diag(x: Array) -> Array:
@@ -120,15 +162,15 @@ def _friction(rep: Replay, name: str, shape: Array, pname: str, setting: dict[st
 
 def _coulomb(rep: Replay) -> list[Candidate]:
     dq = rep.dq
-    return [_friction(rep, "coulomb", np.tanh(dq / vs), "fc", {"v_smooth": vs}, {"v_smooth": vs})
-            for vs in (0.005, 0.01, 0.02, 0.04, 0.08, 0.15, 0.3, 0.5)]
+    return _family("coulomb", "v_smooth", (0.005, 0.01, 0.02, 0.04, 0.08, 0.15, 0.3, 0.5), lambda vs: _friction(
+        rep, "coulomb", np.tanh(dq / vs), "fc", {"v_smooth": vs}, {"v_smooth": vs}))
 
 
 def _stribeck(rep: Replay) -> list[Candidate]:
     dq = rep.dq
     sign = np.tanh(dq / STRIBECK_SIGN_VELOCITY)
-    return [_friction(rep, "stribeck", np.exp(-(dq / vs) ** 2) * sign, "fs", {"vs": vs}, {"vs": vs})
-            for vs in (0.01, 0.02, 0.05, 0.1, 0.2, 0.4)]
+    return _family("stribeck", "vs", (0.01, 0.02, 0.05, 0.1, 0.2, 0.4), lambda vs: _friction(
+        rep, "stribeck", np.exp(-(dq / vs) ** 2) * sign, "fs", {"vs": vs}, {"vs": vs}))
 
 
 def _viscous(rep: Replay) -> list[Candidate]:
@@ -190,17 +232,20 @@ def _shift(x: Array, steps: float) -> Array:
     return np.stack([np.interp(src, np.arange(T), x[:, j]) for j in range(x.shape[1])], axis=1)
 
 
+def _fixed_actuation(rep: Replay, name: str, key: str, value: float, excess: Array) -> Candidate:
+    """An actuation effect with no linear coefficient at setting `key` = `value`, whose delivered
+    torque falls short of the command by `excess` (T, 7) = c - A(c)."""
+    off = _route(rep, "actuation", excess[..., None])
+    return Candidate(name, {key: value}, {}, {k: v[..., 0] for k, v in off.items()}, [], np.zeros((0, 2)),
+                     lambda coef: {key: value})
+
+
 def _delay(rep: Replay) -> list[Candidate]:
     c = rep.tau_cmd
     if c is None:
         return []
-    out = []
-    for d in (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03):
-        diff = c - _shift(c, d / rep.dt)  # c - A(c)
-        off = _route(rep, "actuation", diff[..., None])
-        out.append(Candidate("actuation_delay", {"delay": d}, {}, {k: v[..., 0] for k, v in off.items()},
-                             [], np.zeros((0, 2)), lambda coef, d=d: {"delay": d}))
-    return out
+    return _family("actuation_delay", "delay", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03),
+                   lambda d: _fixed_actuation(rep, "actuation_delay", "delay", d, c - _shift(c, d / rep.dt)))
 
 
 def _gain(rep: Replay) -> list[Candidate]:
@@ -217,16 +262,12 @@ def _saturation(rep: Replay) -> list[Candidate]:
     c = rep.tau_cmd
     if c is None:
         return []
-    peak = np.max(np.abs(c) / TAU_MAX)
-    out = []
-    for s in (0.05, 0.08, 0.12, 0.17, 0.25, 0.35, 0.5, 0.7):
-        if s >= peak:
-            break
-        diff = c - np.clip(c, -s * TAU_MAX, s * TAU_MAX)
-        off = _route(rep, "actuation", diff[..., None])
-        out.append(Candidate("torque_saturation", {"s": s}, {}, {k: v[..., 0] for k, v in off.items()},
-                             [], np.zeros((0, 2)), lambda coef, s=s: {"s": s}))
-    return out
+    peak = float(np.max(np.abs(c) / TAU_MAX))  # a level at or above the peak changes nothing
+    grid = tuple(s for s in (0.05, 0.08, 0.12, 0.17, 0.25, 0.35, 0.5, 0.7) if s < peak)
+    if not grid:
+        return []
+    return _family("torque_saturation", "s", grid, lambda s: _fixed_actuation(
+        rep, "torque_saturation", "s", s, c - np.clip(c, -s * TAU_MAX, s * TAU_MAX)), high=peak)
 
 
 def backlash_excess(command: Array, ddq: Array, dt: float, b: float, motor_inertia: Array) -> Array:
@@ -297,46 +338,53 @@ def mesh_motor_acceleration(command: Array, q: Array, dq: Array, dt: float, widt
     return out
 
 
+_MESH_BYTES = 2 ** 28  # the size of one array of the mesh search's predictions (a few are held at once)
+
+
 def _backlash_mesh(rep: Replay, c: Array) -> list[Candidate]:
     """Backlash seen through the replay's torque filter: the compliant mesh simulated behind each
     joint; per joint the width and the motor's start in the band that best fit the command
     channel (a geometric search in steps of 10 %, then three halvings of the step; width 0: none)."""
     log = rep.log
+    T = log.n_samples
     motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
     a_fd = np.zeros_like(log.dq)
     a_fd[:-1] = np.diff(log.dq, axis=0) / rep.dt  # the link's acceleration over each period
     target = rep.residual["cmd"]
     mask = rep.valid[:, None]
-
-    def predictions(widths: Array) -> tuple[Array, Array]:  # widths (W, 7) -> per width and start
-        rows = np.repeat(widths, len(_BAND_STARTS), axis=0)
-        starts = np.tile(np.array(_BAND_STARTS)[:, None], (len(widths), N))
-        acc = mesh_motor_acceleration(c, log.q, log.dq, rep.dt, rows, starts, motor)
-        pred = np.stack([rep.smooth(motor * (a - a_fd)) for a in acc])
-        sse = np.sum(((target[None] - pred) ** 2) * mask[None], axis=1)  # (rows, 7)
-        return pred, sse
-
     cols = np.arange(N)
-    coarse = np.tile(BACKLASH_WIDTHS[:, None], (1, N))
-    pred, sse = predictions(coarse)
     best_sse = np.sum((target ** 2) * mask, axis=0)  # width 0
     best_pred = np.zeros_like(target)
     best_w = np.zeros(N)
-    pick = np.argmin(sse, axis=0)
-    better = sse[pick, cols] < best_sse
-    best_sse = np.where(better, sse[pick, cols], best_sse)
-    best_pred[:, better] = pred[pick, :, cols].T[:, better]
-    best_w = np.where(better, coarse[pick // len(_BAND_STARTS), cols], best_w)
+    chunk = max(1, _MESH_BYTES // (8 * N * T))
+
+    def search(widths: Array, allowed: NDArray[np.bool_]) -> None:
+        """Keep, per joint where `allowed`, the row of `widths` (W, 7) at any start in the band
+        that fits better than the best so far."""
+        nonlocal best_sse, best_w
+        rows = np.repeat(widths, len(_BAND_STARTS), axis=0)
+        starts = np.tile(np.array(_BAND_STARTS)[:, None], (len(widths), N))
+        for lo in range(0, len(rows), chunk):
+            acc = mesh_motor_acceleration(c, log.q, log.dq, rep.dt, rows[lo:lo + chunk], starts[lo:lo + chunk], motor)
+            acc -= a_fd
+            acc *= motor
+            pred = rep.smooth(np.moveaxis(acc, 0, -1))  # (T, 7, rows)
+            del acc
+            miss = target[..., None] - pred
+            miss *= miss
+            sse = np.einsum("tjr,t->jr", miss, mask[:, 0].astype(float))  # (7, rows)
+            del miss
+            pick = np.argmin(sse, axis=1)
+            better = (sse[cols, pick] < best_sse) & allowed
+            best_sse = np.where(better, sse[cols, pick], best_sse)
+            best_pred[:, better] = pred[:, cols, pick][:, better]
+            best_w = np.where(better, rows[lo + pick, cols], best_w)
+
+    search(np.tile(BACKLASH_WIDTHS[:, None], (1, N)), np.ones(N, dtype=bool))
     ratio = BACKLASH_WIDTHS[1] / BACKLASH_WIDTHS[0]
     for step in (0.5, 0.25, 0.125):
         base = np.where(best_w > 0, best_w, BACKLASH_WIDTHS[0])
-        trial = np.stack([base * ratio ** -step, base * ratio ** step])
-        pred, sse = predictions(trial)
-        pick = np.argmin(sse, axis=0)
-        better = (sse[pick, cols] < best_sse) & (best_w > 0)
-        best_sse = np.where(better, sse[pick, cols], best_sse)
-        best_pred[:, better] = pred[pick, :, cols].T[:, better]
-        best_w = np.where(better, trial[pick // len(_BAND_STARTS), cols], best_w)
+        search(np.stack([base * ratio ** -step, base * ratio ** step]), best_w > 0)
     widths = [float(w) for w in best_w]
     return [Candidate("backlash", {"b": float(np.median(best_w))}, {}, {"cmd": best_pred}, [], np.zeros((0, 2)),
                       lambda coef, widths=widths: {"b": widths})]
@@ -349,12 +397,8 @@ def _backlash(rep: Replay) -> list[Candidate]:
     if rep.kernel is not None and "cmd" in rep.residual:
         return _backlash_mesh(rep, c)
     motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
-    out = []
-    for b in (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02):
-        off = _route(rep, "actuation", backlash_excess(c, rep.ddq, rep.dt, b, motor)[..., None])
-        out.append(Candidate("backlash", {"b": b}, {}, {k: v[..., 0] for k, v in off.items()},
-                             [], np.zeros((0, 2)), lambda coef, b=b: {"b": b}))
-    return out
+    return _family("backlash", "b", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02), lambda b: _fixed_actuation(
+        rep, "backlash", "b", b, backlash_excess(c, rep.ddq, rep.dt, b, motor)))
 
 
 def _controller(rep: Replay) -> list[Candidate]:

@@ -44,15 +44,16 @@ class ReplayConfig:
     sensor sits between the gearbox and the link, the rotor before it); torque_hold: "zoh" (a
     torque sample holds over the period after it, as in a 1 kHz torque loop: the model is
     evaluated at the period's midpoint) or "sample" (at the sample instant); torque_filter:
-    "matched" (the torques are smoothed with the kernel matched to the acceleration's derivative
-    filter, see `matched_kernel`) or "none" (raw torques against the smoothed acceleration)."""
+    "matched" (default: the torques are smoothed with the kernel matched to the acceleration's
+    derivative filter, see `matched_kernel`) or "none" (raw torques against the smoothed
+    acceleration)."""
 
     derivative_window: float = 0.041
     forward_steps: int = 20
     end_effector: str | None = None
     rotor_in_tau: bool | None = None
     torque_hold: str = "zoh"
-    torque_filter: str = "none"
+    torque_filter: str = "matched"
 
 
 @dataclasses.dataclass
