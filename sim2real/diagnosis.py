@@ -262,18 +262,16 @@ def _best_setting(design: Design, options: list[Candidate], base: list[Candidate
         m = Model(design, base + [cand])
         return float(m.block_sse(m.fit(ones)).sum())
 
-    scored = [(sse(c), i, c) for i, c in enumerate(options)]
-    best_sse, _, best = min(scored, key=lambda x: (x[0], x[1]))
+    best_sse, best = min(((sse(c), c) for c in options), key=lambda x: x[0])
     fam = best.family
     if fam is None:
         return best
     v = best.setting[fam.key]
     lo, hi = fam.bracket(v)
     for _ in range(REFINE_STEPS):
-        trials = [x for x in (np.sqrt(lo * v), np.sqrt(v * hi)) if fam.low <= x <= fam.high and x != v]
-        outcome = [(sse(fam.at(x)), x) for x in trials]
         left, right = np.sqrt(lo * v), np.sqrt(v * hi)
-        win = min(outcome, default=(np.inf, v))
+        trials = [(sse(fam.at(x)), x) for x in (left, right) if fam.low <= x <= fam.high and x != v]
+        win = min(trials, default=(np.inf, v))
         if win[0] < best_sse:
             best_sse, best = win[0], fam.at(win[1])
             lo, hi = (lo, v) if win[1] < v else (v, hi)
