@@ -341,19 +341,19 @@ def mesh_motor_acceleration(command: Array, q: Array, dq: Array, dt: float, widt
 _MESH_BYTES = 2 ** 28  # the size of one array of the mesh search's predictions (a few are held at once)
 
 
-def _backlash_mesh(rep: Replay, c: Array) -> list[Candidate]:
+def _backlash_mesh(rep: Replay, c: Array, motor: Array) -> list[Candidate]:
     """Backlash seen through the replay's torque filter: the compliant mesh simulated behind each
-    joint; per joint the width and the motor's start in the band that best fit the command
-    channel (a geometric search in steps of 10 %, then three halvings of the step; width 0: none)."""
+    joint (motor inertias `motor`, (7,)); per joint the width and the motor's start in the band
+    that best fit the command channel (a geometric search in steps of 10 %, then three halvings of
+    the step; width 0: none)."""
     log = rep.log
     T = log.n_samples
-    motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
     a_fd = np.zeros_like(log.dq)
     a_fd[:-1] = np.diff(log.dq, axis=0) / rep.dt  # the link's acceleration over each period
     target = rep.residual["cmd"]
-    mask = rep.valid[:, None]
+    weight = rep.valid.astype(float)
     cols = np.arange(N)
-    best_sse = np.sum((target ** 2) * mask, axis=0)  # width 0
+    best_sse = weight @ (target ** 2)  # width 0
     best_pred = np.zeros_like(target)
     best_w = np.zeros(N)
     chunk = max(1, _MESH_BYTES // (8 * N * T))
@@ -372,7 +372,7 @@ def _backlash_mesh(rep: Replay, c: Array) -> list[Candidate]:
             del acc
             miss = target[..., None] - pred
             miss *= miss
-            sse = np.einsum("tjr,t->jr", miss, mask[:, 0].astype(float))  # (7, rows)
+            sse = np.einsum("tjr,t->jr", miss, weight)  # (7, rows)
             del miss
             pick = np.argmin(sse, axis=1)
             better = (sse[cols, pick] < best_sse) & allowed
@@ -394,9 +394,9 @@ def _backlash(rep: Replay) -> list[Candidate]:
     c = rep.tau_cmd
     if c is None:
         return []
-    if rep.kernel is not None and "cmd" in rep.residual:
-        return _backlash_mesh(rep, c)
     motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
+    if rep.kernel is not None and "cmd" in rep.residual:
+        return _backlash_mesh(rep, c, motor)
     return _family("backlash", "b", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02), lambda b: _fixed_actuation(
         rep, "backlash", "b", b, backlash_excess(c, rep.ddq, rep.dt, b, motor)))
 
