@@ -17,8 +17,10 @@ $(STAMP): pyproject.toml tools/setup_env.sh
 demo: $(STAMP)
 	$(BIN)/goflow demo
 
+# The test files run in parallel, one process per core (at most 4: each holds Drake and torch),
+# each file whole on one worker.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile
 
 # Regenerate every committed model file (bit-identical for the same code).
 models: $(STAMP)
