@@ -25,8 +25,8 @@ from assembly.panda_model import TAU_MAX
 from sim2real.catalogue import CATALOGUE, effect
 from sim2real.replay import Replay
 
-__all__ = ["Candidate", "Family", "candidates", "backlash_excess", "FITTABLE", "STRIBECK_SIGN_VELOCITY",
-           "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
+__all__ = ["Candidate", "Family", "candidates", "backlash_excess", "backlash_motor_inertia", "FITTABLE",
+           "STRIBECK_SIGN_VELOCITY", "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
 
 STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
 # The backlash transmission (sim2real/reality.py simulates the same one): the motor side holds
@@ -40,6 +40,12 @@ BACKLASH_MOTOR_INERTIA_MIN = 1.0e-3  # [kg m^2]
 N = 7
 
 Array = NDArray[np.float64]
+
+
+def backlash_motor_inertia(reflected_inertia: Array) -> Array:
+    """The motor side's inertia behind a dead band [kg m^2], per joint: BACKLASH_MOTOR_FRACTION of
+    the reflected inertia, at least BACKLASH_MOTOR_INERTIA_MIN."""
+    return np.maximum(np.asarray(reflected_inertia) * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
 
 
 @dataclasses.dataclass
@@ -394,7 +400,7 @@ def _backlash(rep: Replay) -> list[Candidate]:
     c = rep.tau_cmd
     if c is None:
         return []
-    motor = np.maximum(rep.model.reflected_inertia * BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN)
+    motor = backlash_motor_inertia(rep.model.reflected_inertia)
     if rep.kernel is not None and "cmd" in rep.residual:
         return _backlash_mesh(rep, c, motor)
     return _family("backlash", "b", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02), lambda b: _fixed_actuation(

@@ -45,7 +45,7 @@ from common.errors import InputError, SimulationError
 from sim2real.arm import END_EFFECTORS, N_ARM, ArmModel, arm_plant
 from sim2real.catalogue import ARM_EFFECTS, effect
 from sim2real.effects import (BACKLASH_DAMPING, BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN,
-                              BACKLASH_STIFFNESS, STRIBECK_SIGN_VELOCITY)
+                              BACKLASH_STIFFNESS, STRIBECK_SIGN_VELOCITY, backlash_motor_inertia)
 from sim2real.log import UNITS, RobotLog
 from sim2real.trajectory import default_base_frequency, exciting_trajectory
 
@@ -276,7 +276,7 @@ class _Plant:
         self.notes: list[str] = []
         link_inertia = truth.inertia * (1.0 - BACKLASH_MOTOR_FRACTION) if self.two_mass else truth.inertia
         self.link_inertia = link_inertia  # the reflected inertia the joint carries (before the sensor)
-        self.motor_inertia = np.maximum(truth.inertia * BACKLASH_MOTOR_FRACTION, MOTOR_INERTIA_MIN)
+        self.motor_inertia = backlash_motor_inertia(truth.inertia)
         if self.two_mass and (low := truth.inertia * BACKLASH_MOTOR_FRACTION < MOTOR_INERTIA_MIN).any():
             self.notes.append(f"backlash: the motor-side inertia is raised to {MOTOR_INERTIA_MIN:g} kg m^2 on joints "
                               f"{(np.flatnonzero(low) + 1).tolist()}")
