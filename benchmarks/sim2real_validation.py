@@ -87,16 +87,17 @@ def main(argv: list[str] | None = None) -> int:
         summary["contact"] = results[-1]
     write_json(summary_path, summary)
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
+    no_gap = lambda row: f"{row['no_gap']}" + (f" ({row['inactive']} never acted)" if row["inactive"] else "")  # noqa: E731
     print("| group | cases | top-1 | located | no gap above the floor | closed (median) | closed >= 80 % |")
     print("|---|---|---|---|---|---|---|")
     for group, row in summary["summary"].items():
         if group == "per_effect":
             continue
-        print(f"| {group} | {row['cases']} | {pct(row['top1'])} | {pct(row['located'])} | {row['no_gap']} | "
+        print(f"| {group} | {row['cases']} | {pct(row['top1'])} | {pct(row['located'])} | {no_gap(row)} | "
               f"{pct(row['closed_median'])} | {pct(row['closed_ge_80'])} |")
     print("\n| effect (magnitude) | n | top-1 | located | no gap | closed (mean) |\n|---|---|---|---|---|---|")
     for name, row in summary["summary"]["per_effect"].items():
-        print(f"| {name} | {row['n']} | {pct(row['top1'])} | {pct(row['located'])} | {row['no_gap']} | "
+        print(f"| {name} | {row['n']} | {pct(row['top1'])} | {pct(row['located'])} | {no_gap(row)} | "
               f"{pct(row['closed'])} |")
     if not args.no_contact:
         print("\ncontact:", summary["contact"])

@@ -64,7 +64,7 @@ class Replay:
     pieces the effects build on (see sim2real/effects.py). valid: (T,) samples away from the
     ends (the derivative filter's half window and the forward horizon) that the fits use.
     kernel: the torque channels' smoothing kernel (None: none); unfiltered: the torque channels'
-    residual before it (what the noise floor is estimated from)."""
+    residual before it; window: the derivative filter's length in samples."""
 
     log: RobotLog
     dt: float
@@ -81,6 +81,14 @@ class Replay:
     rotor_in_tau: bool = False
     kernel: NDArray[np.float64] | None = None
     unfiltered: dict[str, NDArray[np.float64]] = dataclasses.field(default_factory=dict)
+    window: int = 1
+
+    @property
+    def reach(self) -> int:
+        """The residual noise's correlation length in samples: the derivative filter's and the
+        torque kernel's span, plus the forward replay's horizon."""
+        span = max(self.window, 0 if self.kernel is None else len(self.kernel)) + 2
+        return span + (self.forward_steps if "dq" in self.residual else 0)
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -228,7 +236,8 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
             residual["ctrl"] = commanded - law
     rep = Replay(log=log, dt=dt, q=q_t, dq=dq_s, ddq=ddq, terms=terms, model=model, residual=residual,
                  valid=np.ones(log.n_samples, dtype=bool), forward_steps=c.forward_steps,
-                 tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau, kernel=kernel)
+                 tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau, kernel=kernel,
+                 window=window)
     measured = {"tau": log.tau, "cmd": commanded}
     for ch in ("tau", "cmd"):  # the measured torque through the filter; the model's side is smooth
         if ch in residual and kernel is not None:

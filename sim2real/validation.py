@@ -124,22 +124,33 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
     d = diagnose(log, config)
     s = d.summary()
     chosen = [r["effect"] for r in s["selected"]]
+    active = True
+    if s["verdict"]["label"] == "no gap" and OUTSIDE not in case.effects:
+        # an effect the trajectory never triggers (a saturation level it never reaches) leaves
+        # the log as the nominal one, sample for sample: "no gap" is then the right answer
+        nominal = make_arm_log({}, RealityConfig(duration=duration, seed=case.seed))
+        active = not all(np.array_equal(getattr(log, f), getattr(nominal, f)) for f in ("q", "dq", "tau", "tau_cmd"))
+    carry = s["where"]["channels"][0]["channel"] if s["where"]["channels"] else ""
     if OUTSIDE in case.effects:
         top1 = s["verdict"]["label"] == "unexplained"
+    elif not active:
+        top1 = True
     else:
         k = len(case.effects)
         top1 = set(chosen[:k]) == set(case.effects)
-    carry = s["where"]["channels"][0]["channel"] if s["where"]["channels"] else ""
-    located = carry in _expected_channels(case.effects) and s["where"]["dominant_phase"] == "free"
+    located = (carry in _expected_channels(case.effects) and s["where"]["dominant_phase"] == "free") or not active
     return {"case": case.name, "effects": list(case.effects), "magnitude": case.magnitude, "seed": case.seed,
-            "selected": chosen, "verdict": s["verdict"]["label"], "top1": bool(top1), "located": bool(located),
+            "active": active, "selected": chosen, "verdict": s["verdict"]["label"], "top1": bool(top1),
+            "located": bool(located),
             "top_channel": carry, "closed": s["how_far"]["closed_total"],  # None: no gap above the floor
             "heldout_before": s["verdict"]["heldout_before"], "heldout_after": s["verdict"]["heldout_after"],
             "make_s": made, "diagnose_s": time.perf_counter() - start - made}
 
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
-    """Rates per magnitude group: top1, located, closed >= 0.8 (catalogue cases), flagged (ripple)."""
+    """Rates per magnitude group: top1, located, closed >= 0.8 (catalogue cases), flagged (ripple);
+    `inactive` counts cases whose effect never acted (their log is the nominal one; scored right
+    when the verdict is "no gap")."""
     out: dict[str, Any] = {}
     for mag in ("large", "small", "faint", "pair", "outside"):
         rows = [r for r in results if r["magnitude"] == mag]
@@ -148,15 +159,16 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
         gaps = [r["closed"] for r in rows if r["closed"] is not None]
         out[mag] = {"cases": len(rows), "top1": float(np.mean([r["top1"] for r in rows])),
                     "located": float(np.mean([r["located"] for r in rows])),
-                    "no_gap": len(rows) - len(gaps),
+                    "no_gap": len(rows) - len(gaps), "inactive": sum(not r.get("active", True) for r in rows),
                     "closed_median": float(np.median(gaps)) if gaps else None,
                     "closed_ge_80": float(np.mean([g >= 0.8 for g in gaps])) if gaps else None}
     per_effect: dict[str, dict[str, Any]] = {}
     for r in results:
         if r["magnitude"] in ("large", "small", "faint"):
             e = per_effect.setdefault(f"{r['effects'][0]} ({r['magnitude']})", {"n": 0, "top1": 0.0, "located": 0.0,
-                                                                              "closed": []})
+                                                                              "closed": [], "inactive": 0})
             e["n"] += 1
+            e["inactive"] += int(not r.get("active", True))
             e["top1"] += r["top1"] / 1.0
             e["located"] += r["located"] / 1.0
             if r["closed"] is not None:

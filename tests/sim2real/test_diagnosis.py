@@ -31,6 +31,52 @@ def test_nominal_log_is_at_the_noise_floor(nominal_log):
     assert d.selected == []
 
 
+def test_a_nominal_log_reads_the_level_of_a_log_with_no_gap(nominal_log):
+    """The floor is calibrated: a log of the nominal model reads what noise alone gives (1 noise
+    variance per torque column; the control law, reproduced to rounding, ~0)."""
+    v = diagnose(nominal_log).verdict
+    assert v["floor_level"] == pytest.approx(2 / 3, abs=0.01)  # tau, cmd at 1; ctrl at ~0
+    assert abs(v["heldout_before"] - v["floor_level"]) < 0.03, v
+
+
+@pytest.mark.parametrize("gap", ["delay 1 ms", "ripple 0.02 N m"])
+def test_a_gap_under_the_sensor_noise_is_found_and_told_apart(gap):
+    """Effects far under the 0.05 N m torque noise are still gaps: a 1 ms actuation delay is
+    named, a 0.02 N m ripple no catalogue effect explains reads unexplained."""
+    cfg = RealityConfig(duration=DURATION, seed=4)
+    if gap.startswith("delay"):
+        log = make_arm_log(Case("x", ("actuation_delay",), "faint", 4).settings(), cfg)
+    else:
+        log = make_arm_log({}, cfg, extra_torque=lambda q, dq: -0.02 * np.sin(2 * np.pi * 6 * np.asarray(q)))
+    d = diagnose(log)
+    if gap.startswith("delay"):
+        assert d.verdict["label"] == "explained", d.verdict
+        assert d.selected[0]["effect"] == "actuation_delay"
+    else:
+        assert d.verdict["label"] == "unexplained", d.verdict
+        assert d.verdict["heldout_before"] > d.verdict["floor_level"] + 0.2
+
+
+def test_noise_floor_reads_filtered_noise_whatever_its_spectrum():
+    """Noise bluer than the kernel-smoothed white noise the fast-part estimate assumes (a
+    Savitzky-Golay derivative's) reads at its level once its correlation length is known."""
+    from scipy.signal import savgol_filter
+
+    rng = np.random.default_rng(1)
+    n, window = 20_000, 41
+    kernel = matched_kernel(window)
+    t = np.arange(n) * 1e-3
+    sensor = np.convolve(rng.standard_normal(n), kernel, mode="same")
+    derivative = savgol_filter(rng.standard_normal(n), window, 3, deriv=1)
+    noise = sensor / sensor.std() + derivative / derivative.std()
+    r = (np.sin(2 * np.pi * 0.4 * t) + noise)[:, None]
+    valid = np.ones(n, dtype=bool)
+    assumed = noise_floor(r, valid, kernel=kernel)[0]
+    known = noise_floor(r, valid, kernel=kernel, reach=window + 2)[0]
+    assert assumed > 1.1 * noise.std()  # the assumed spectrum reads too high
+    assert known == pytest.approx(noise.std(), rel=0.06)
+
+
 def test_noise_floor_recovers_white_noise_under_a_slow_signal():
     rng = np.random.default_rng(0)
     t = np.linspace(0, 10, 10_000)
@@ -138,6 +184,14 @@ def test_an_effect_active_in_a_few_blocks_is_significant():
     result = run_case(case, duration=10.0)
     assert result["selected"][:1] == ["torque_saturation"], result
     assert result["closed"] > 0.9, result
+
+
+def test_an_effect_that_never_acts_is_scored_as_no_gap():
+    """A saturation at 60 % of the torque limit that seed 0's trajectory never reaches leaves
+    the nominal log: the validation scores "no gap" as right there, not as a miss."""
+    result = run_case(Case("torque_saturation-faint", ("torque_saturation",), "faint", seed=0), duration=DURATION)
+    assert result["verdict"] == "no gap" and not result["active"], result
+    assert result["top1"] and result["closed"] is None
 
 
 def test_fitted_values_match_the_truth():
