@@ -6,7 +6,8 @@ case in the station.
     .venv/bin/python benchmarks/sim2real_validation.py [--seeds 0 1] [--duration 10] [--workers 2]
         [--out runs/sim2real_validation] [--json docs/results/sim2real.json] [--no-contact]
 
-Each case writes <out>/<case>.json atomically and is skipped when present (rerun to resume). The
+Each case writes <out>/<case>.json atomically and is skipped when present with the same --duration
+and --torque-filter (rerun to resume; a case made with other settings is made again). The
 summary (rates per magnitude group and per effect, sim2real.validation.summarize) and every case's
 row go to --json, and a table is printed.
 """
@@ -26,11 +27,16 @@ from sim2real.validation import MAGNITUDES, cases, run_case, summarize  # noqa: 
 
 
 def _case_job(case, duration: float, path: str, torque_filter: str = "matched") -> dict:
+    """One case, or its saved result when that was made with the same log length and filter."""
+    settings = {"duration": duration, "torque_filter": torque_filter}
     if Path(path).is_file():
-        return read_json(path, "validation case")
+        saved = read_json(path, "validation case")
+        if saved.get("settings") == settings:
+            return saved
     from sim2real.diagnosis import DiagnosisConfig
     from sim2real.replay import ReplayConfig
     result = run_case(case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter)))
+    result["settings"] = settings
     write_json(path, result)
     return result
 
