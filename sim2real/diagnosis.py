@@ -510,7 +510,8 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
                      f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
     else:
         rep = replay(log, c.replay)
-    # the filtered torque channels' noise: white noise through the filter, or the variogram's
+    # the filtered torque channels' noise: kernel-smoothed white noise's share of the fast part, or
+    # the variogram's nugget (noise_floor)
     floor = {ch: noise_floor(rep.residual[ch], rep.valid, kernel=rep.kernel, reach=rep.reach)
              for ch in rep.unfiltered}
     phase = segment_phases(rep.log)
@@ -538,10 +539,12 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     rng = np.random.default_rng(c.seed)
     chans = tuple(ch for ch in ("tau", "cmd", "ctrl", "dq", "tool", "pose") if ch in ev.residual)
     y = np.stack([ev.residual[ch] for ch in chans], axis=1)
-    noise = noise_floor(y.reshape(len(y), -1), ev.valid, reach=ev.reach).reshape(len(chans), 7)
-    for i, ch in enumerate(chans):
-        if ch in ev.floor:  # the evidence knows its noise (one row per scene: no time to smooth over)
-            noise[i] = ev.floor[ch]
+    # per channel its noise: the evidence's where it knows it (the filtered torques; one row per
+    # scene, with no time to smooth over), else estimated from the residual
+    noise = np.stack([ev.floor[ch] if ch in ev.floor else np.zeros(7) for ch in chans])
+    free = [i for i, ch in enumerate(chans) if ch not in ev.floor]
+    if free:
+        noise[free] = noise_floor(y[:, free].reshape(len(y), -1), ev.valid, reach=ev.reach).reshape(len(free), 7)
     floor = np.stack([np.maximum(noise[i], ev.floor_min.get(ch, 0.0)) for i, ch in enumerate(chans)])
     # what a log with no gap reads, in noise variances: 1 per column, less where the floor is the
     # channel's resolution (a control law reproduced to rounding)
