@@ -39,7 +39,8 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
           f"channels {', '.join(s['channels'])}.", ""]
     L += ["## Verdict", "", f"**{v['label']}**: {v['text']}.",
           f"Held-out residual, in noise-floor variances: {v['heldout_before']:.3g} before, "
-          f"{v['heldout_after']:.3g} after (1 = at the noise floor).", ""]
+          f"{v['heldout_after']:.3g} after (a log with no gap reads {v.get('floor_level', 1.0):.3g}: 1 per column "
+          "at its noise floor, less where the floor is the channel's resolution).", ""]
     w = s["where"]
     L += ["## Where", "", "Residual RMS over the noise floor per channel and joint (largest excess first):", "",
           "| channel | column | RMS | noise floor | ratio | share of excess |", "|---|---|---|---|---|---|"]
