@@ -57,10 +57,11 @@ RIPPLE_AMPLITUDE = 0.5  # [N m]
 RIPPLE_PERIODS = 6.0  # periods per radian of joint travel
 
 
-def ripple_torque(q: NDArray[np.float64], dq: NDArray[np.float64]) -> NDArray[np.float64]:
+def ripple_torque(q: NDArray[np.float64], dq: NDArray[np.float64],
+                  amplitude: float = RIPPLE_AMPLITUDE) -> NDArray[np.float64]:
     """The out-of-catalogue effect: a joint torque ripple periodic in the joint angle (cogging, a
-    worn gear tooth), acting on every joint: -A sin(2 pi n q)."""
-    return -RIPPLE_AMPLITUDE * np.sin(2 * np.pi * RIPPLE_PERIODS * np.asarray(q))
+    worn gear tooth), acting on every joint: -A sin(2 pi n q), A = `amplitude` [N m]."""
+    return -amplitude * np.sin(2 * np.pi * RIPPLE_PERIODS * np.asarray(q))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,6 +4,7 @@ each effect's fit, selection, the unexplained verdict, localisation and the repo
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 
 import numpy as np
@@ -25,16 +26,13 @@ def nominal_log():
 
 
 def test_nominal_log_is_at_the_noise_floor(nominal_log):
+    """No gap, and the floor is calibrated: a log of the nominal model reads what noise alone
+    gives (1 noise variance per torque column; the control law, reproduced to rounding, ~0)."""
     d = diagnose(nominal_log)
     assert d.verdict["label"] == "no gap", d.verdict
     assert d.verdict["heldout_before"] < 1.5
     assert d.selected == []
-
-
-def test_a_nominal_log_reads_the_level_of_a_log_with_no_gap(nominal_log):
-    """The floor is calibrated: a log of the nominal model reads what noise alone gives (1 noise
-    variance per torque column; the control law, reproduced to rounding, ~0)."""
-    v = diagnose(nominal_log).verdict
+    v = d.verdict
     assert v["floor_level"] == pytest.approx(2 / 3, abs=0.01)  # tau, cmd at 1; ctrl at ~0
     assert abs(v["heldout_before"] - v["floor_level"]) < 0.03, v
 
@@ -47,7 +45,7 @@ def test_a_gap_under_the_sensor_noise_is_found_and_told_apart(gap):
     if gap.startswith("delay"):
         log = make_arm_log(Case("x", ("actuation_delay",), "faint", 4).settings(), cfg)
     else:
-        log = make_arm_log({}, cfg, extra_torque=lambda q, dq: -0.02 * np.sin(2 * np.pi * 6 * np.asarray(q)))
+        log = make_arm_log({}, cfg, extra_torque=functools.partial(ripple_torque, amplitude=0.02))
     d = diagnose(log)
     if gap.startswith("delay"):
         assert d.verdict["label"] == "explained", d.verdict
