@@ -30,7 +30,8 @@ from common.errors import InputError
 from sim2real.arm import END_EFFECTORS, ArmModel
 from sim2real.catalogue import CATALOGUE
 from sim2real.effects import Candidate, candidates
-from sim2real.fitting import Design, Model
+from sim2real.fitting import Design, Model, bootstrap_mean
+from sim2real.structure import hat_basis, structure_gains, trend_basis
 from sim2real.log import PHASES, RobotLog
 from sim2real.phases import segment_phases
 from sim2real.replay import Replay, ReplayConfig, replay
@@ -50,7 +51,10 @@ class DiagnosisConfig:
     an effect to be added, and min_gain_abs the least in noise variances (2 % of the noise
     variance: below it an effect is too weak to tell from the model's own small misfits, which
     reach 0.3 % on the simulated reality's nominal logs); explained: fraction of the excess the selection must close for the
-    verdict "explained"; seed: of the bootstrap."""
+    verdict "explained"; structure: the least share of the excess that structure left in the
+    residual after the selection (a generic function of the joint velocity, a trend in time:
+    sim2real/structure.py) must predict on held-out data for the verdict to read "unexplained"
+    although the selection closes `explained` of it; seed: of the bootstrap."""
 
     blocks: int = 20
     folds: int = 5
@@ -60,6 +64,7 @@ class DiagnosisConfig:
     min_gain: float = 0.005
     min_gain_abs: float = 0.02
     explained: float = 0.6
+    structure: float = 0.05
     seed: int = 0
     replay: ReplayConfig = dataclasses.field(default_factory=ReplayConfig)
 
@@ -72,6 +77,7 @@ class DiagnosisConfig:
         check_int(self.max_effects, "DiagnosisConfig.max_effects", 1)
         check_number(self.min_gain, "DiagnosisConfig.min_gain", 0.0, 1.0)
         check_number(self.explained, "DiagnosisConfig.explained", 0.0, 1.0)
+        check_number(self.structure, "DiagnosisConfig.structure", 0.0, 1.0)
         for name in self.effects or ():
             if name not in CATALOGUE:
                 raise InputError(f"DiagnosisConfig.effects has {name!r}; expected names from {sorted(CATALOGUE)}")
@@ -165,7 +171,8 @@ class Evidence:
     x: (T, 7) what the residual figure plots it against, x_label its name; time: (T,); floor_min:
     the least noise floor per channel; floor: a channel's noise floor when the evidence knows it
     (else it is estimated from the residual by `noise_floor`); reach: the residual noise's
-    correlation length in samples, where known (`noise_floor`)."""
+    correlation length in samples, where known (`noise_floor`); structure: bases (T, 7, K) of the
+    state in which the verdict looks for structure the selection left (sim2real/structure.py)."""
 
     residual: dict[str, Array]
     labels: dict[str, list[str]]
@@ -182,6 +189,7 @@ class Evidence:
     notes: list[str] = dataclasses.field(default_factory=list)
     floor: dict[str, Array] = dataclasses.field(default_factory=dict)
     reach: int | None = None
+    structure: dict[str, Array] = dataclasses.field(default_factory=dict)
 
 
 #: The least noise floor per arm channel: a torque resolution of 1e-3 N m (a channel the model
@@ -311,16 +319,6 @@ def _best_setting(design: Design, options: list[Candidate], base: list[Candidate
 def _score(design: Design, cands: list[Candidate], folds) -> _Scored:
     sse, thetas = Model(design, cands).cross_validate(folds)
     return _Scored(cands, sse, thetas)
-
-
-def _bootstrap_mean(diff: Array, n: int, rng: np.random.Generator) -> tuple[float, float]:
-    """The 95 % interval of the mean of the per-block `diff` by the Bayesian block bootstrap
-    (Rubin 1981: Dirichlet(1, ..., 1) block weights). Unlike resampling whole blocks it never
-    leaves a block out entirely, so an effect acting in two or three blocks only (a saturation the
-    trajectory reaches a few times) is not judged by the resamples that happen to miss them."""
-    weights = rng.dirichlet(np.ones(len(diff)), size=n)
-    means = weights @ diff
-    return float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
 
 
 def _params_with_intervals(design: Design, cands: list[Candidate], n: int, rng: np.random.Generator
@@ -521,7 +519,8 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
                     pool=candidates(rep, c.effects), audit=functools.partial(_arm_audit, rep), x=rep.log.dq,
                     x_label="dq [rad/s]", time=rep.log.time, meta={**log.meta, "end_effector": rep.model.end_effector},
-                    floor_min=dict(ARM_FLOOR_MIN), notes=notes, floor=floor, reach=rep.reach)
+                    floor_min=dict(ARM_FLOOR_MIN), notes=notes, floor=floor, reach=rep.reach,
+                    structure={"joint velocity": hat_basis(rep.dq), "time": trend_basis(rep.log.time, 7)})
 
 
 def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None
@@ -569,7 +568,7 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
         s = _score(design, [cand], folds)
         e = s.sse.sum() / n_rows.sum()
         diff = (base.sse - s.sse) / np.maximum(n_rows, 1)
-        lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
+        lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
         ranking.append({"effect": name, "setting": cand.setting, "heldout": float(e),
                         "gain": float(e0 - e), "gain_low": lo, "gain_high": hi,
                         "closed": float((e0 - e) / excess0) if excess0 >= 0.05 else None,
@@ -595,7 +594,7 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
             break
         cand, s = best
         diff = (current.sse - s.sse) / np.maximum(n_rows, 1)
-        lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
+        lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
         gain = float((current.sse.sum() - s.sse.sum()) / n_rows.sum())
         if lo <= 0 or gain < max(c.min_gain * excess0, c.min_gain_abs):
             break
@@ -609,7 +608,7 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     def _marginal(k: int) -> tuple[float, float, float, _Scored]:
         rest = _score(design, chosen[:k] + chosen[k + 1:], folds)
         diff = (rest.sse - current.sse) / np.maximum(n_rows, 1)
-        lo, hi = _bootstrap_mean(diff, c.bootstrap, rng)
+        lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
         return float((rest.sse.sum() - current.sse.sum()) / n_rows.sum()), lo, hi, rest
 
     while len(chosen) > 1:
@@ -659,6 +658,15 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     how_far = _how_far(ev, design, floor, pred, level)
 
     e_final = current.sse.sum() / n_rows.sum()
+    # structure the selection left: what a generic function of the state predicts of the rest
+    structure = []
+    if ev.structure and excess0 >= 0.05:
+        structure = structure_gains(design.y - pred, design.w, ev.valid, design.starts, folds, ev.structure,
+                                    c.bootstrap, rng)
+        for st in structure:
+            st["share"] = float(st["gain"] / excess0)
+            st["left"] = bool(st["low"] > 0 and st["gain"] >= max(c.structure * excess0, c.min_gain_abs))
+    left = [st for st in structure if st["left"]]
     # a selected effect is a gap by itself (its held-out gain is significant and at least
     # min_gain_abs), even within the floor's own uncertainty (excess0 < 0.05): a faint gap
     closed = min((e0 - e_final) / max(excess0, 1e-12), 1.0)
@@ -670,11 +678,13 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
         verdict = {"label": "unexplained", "closed": 0.0,
                    "text": f"the residual exceeds the noise floor ({e0:.2f} noise variances) and no catalogue "
                            "effect closes a significant part of it on held-out data"}
-    elif closed < c.explained:
+    elif closed < c.explained or left:
+        where_left = (" in " + " and in ".join(f"{st['basis']} ({100 * st['share']:.0f} % of the excess)" for st in left)
+                      if left else "")
         verdict = {"label": "unexplained", "closed": float(closed),
                    "text": f"{', '.join(x.name for x in chosen)} close{'s' if len(chosen) == 1 else ''} "
                            f"{100 * closed:.0f} % of the held-out excess; the rest ({e_final:.2f} noise "
-                           "variances) has structure no catalogue effect explains",
+                           f"variances) has structure{where_left} no catalogue effect explains",
                    "partial": [x.name for x in chosen]}
     else:
         names = ", ".join(x.name for x in chosen)
@@ -689,6 +699,7 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     verdict["heldout_before"] = float(e0)
     verdict["heldout_after"] = float(e_final)
     verdict["floor_level"] = level
+    verdict["structure"] = structure
 
     meta = {k: v for k, v in ev.meta.items() if k != "truth"}
     arrays = {"residual": design.y, "after": design.y - pred, "floor": floor, "x": ev.x,

@@ -41,6 +41,14 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
           f"Held-out residual, in noise-floor variances: {v['heldout_before']:.3g} before, "
           f"{v['heldout_after']:.3g} after (a log with no gap reads {v.get('floor_level', 1.0):.3g}: 1 per column "
           "at its noise floor, less where the floor is the channel's resolution).", ""]
+    if v.get("structure"):
+        L += ["Structure left after the selection (what a generic function predicts of the rest on held-out "
+              "blocks, beyond a constant; a share of at least the threshold turns the verdict unexplained):", "",
+              "| in | gain [noise var.] | 95 % interval | share of the excess | left |", "|---|---|---|---|---|"]
+        for st in v["structure"]:
+            L.append(f"| {st['basis']} | {st['gain']:.3g} | {st['low']:.3g} .. {st['high']:.3g} | "
+                     f"{100 * st['share']:.1f} % | {'yes' if st['left'] else 'no'} |")
+        L.append("")
     w = s["where"]
     L += ["## Where", "", "Residual RMS over the noise floor per channel and joint (largest excess first):", "",
           "| channel | column | RMS | noise floor | ratio | share of excess |", "|---|---|---|---|---|---|"]
