@@ -7,7 +7,8 @@ case in the station.
         [--out runs/sim2real_validation] [--json docs/results/sim2real.json] [--no-contact]
 
 Each case writes <out>/<case>.json atomically and is skipped when present with the same --duration
-and --torque-filter (rerun to resume; a case made with other settings is made again). The
+and --torque-filter, by a diagnosis with the same structure threshold (rerun to resume; a case made
+with other settings is made again). The
 summary (rates per magnitude group and per effect, sim2real.validation.summarize) and every case's
 row go to --json, and a table is printed.
 """
@@ -28,12 +29,12 @@ from sim2real.validation import MAGNITUDES, cases, run_case, summarize  # noqa: 
 
 def _case_job(case, duration: float, path: str, torque_filter: str = "matched") -> dict:
     """One case, or its saved result when that was made with the same log length and filter."""
-    settings = {"duration": duration, "torque_filter": torque_filter}
+    from sim2real.diagnosis import DiagnosisConfig
+    settings = {"duration": duration, "torque_filter": torque_filter, "structure": DiagnosisConfig().structure}
     if Path(path).is_file():
         saved = read_json(path, "validation case")
         if saved.get("settings") == settings:
             return saved
-    from sim2real.diagnosis import DiagnosisConfig
     from sim2real.replay import ReplayConfig
     result = run_case(case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter)))
     result["settings"] = settings
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
                    help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)")
     p.add_argument("--effects", nargs="+", choices=sorted(MAGNITUDES), metavar="NAME",
-                   help="only these effects' cases and the out-of-catalogue ripple (default: the whole grid)")
+                   help="only these effects' cases and the effects outside the catalogue (default: the whole grid)")
     args = p.parse_args(argv)
     out = check_output_dir(args.out, "--out")
     summary_path = check_output_file(args.json or out / "summary.json", "--json")
@@ -94,12 +95,12 @@ def main(argv: list[str] | None = None) -> int:
     write_json(summary_path, summary)
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
     no_gap = lambda row: f"{row['no_gap']}" + (f" ({row['inactive']} never acted)" if row["inactive"] else "")  # noqa: E731
-    print("| group | cases | top-1 | located | no gap above the floor | closed (median) | closed >= 80 % |")
-    print("|---|---|---|---|---|---|---|")
+    print("| group | cases | top-1 | located | verdict explained | no gap above the floor | closed (median) | closed >= 80 % |")
+    print("|---|---|---|---|---|---|---|---|")
     for group, row in summary["summary"].items():
         if group == "per_effect":
             continue
-        print(f"| {group} | {row['cases']} | {pct(row['top1'])} | {pct(row['located'])} | {no_gap(row)} | "
+        print(f"| {group} | {row['cases']} | {pct(row['top1'])} | {pct(row['located'])} | {pct(row['explained'])} | {no_gap(row)} | "
               f"{pct(row['closed_median'])} | {pct(row['closed_ge_80'])} |")
     print("\n| effect (magnitude) | n | top-1 | located | no gap | closed (mean) |\n|---|---|---|---|---|---|")
     for name, row in summary["summary"]["per_effect"].items():

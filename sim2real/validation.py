@@ -1,32 +1,37 @@
 """Leave-one-effect-out validation: logs of the simulated reality with known effects, diagnosed
 without being told, and scored.
 
-A case is a set of injected effects (one catalogue effect at a "large" or "small" magnitude, a
-pair, or the out-of-catalogue ripple) and a seed. Scores per case:
+A case is a set of injected effects (one catalogue effect at a "large", "small" or "faint"
+magnitude, a pair, or one effect outside the catalogue) and a seed. Scores per case:
 - top1: the first effect the selection adds is the injected one (a pair: the first two are the
-  pair, in either order; the ripple: the verdict is "unexplained");
+  pair, in either order; an effect outside the catalogue: the verdict is "unexplained");
 - located: the channel carrying the most excess is one the effect acts in (sim2real.catalogue
   places) and the phase with the most excess is the effect's ("free" for arm logs);
 - closed: the fraction of the held-out gap (RMS toward the noise floor) the selection closes.
-The out-of-catalogue effect, a position-periodic joint torque ripple (cogging-like), lives only
-here: the diagnosis never sees its definition.
+- explained: the verdict reads "explained" (what a catalogue effect should get).
+The effects outside the catalogue live only here, the diagnosis never sees their definitions: a
+position-periodic joint torque ripple (cogging-like), a drag quadratic in the joint speed, and a
+torque-sensor offset drifting in time.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim2real.catalogue import CATALOGUE
+from sim2real.log import RobotLog
 
 if TYPE_CHECKING:
     from sim2real.diagnosis import DiagnosisConfig
 
-__all__ = ["Case", "MAGNITUDES", "FAINT", "PAIRS", "OUTSIDE", "cases", "run_case", "summarize", "ripple_torque"]
+__all__ = ["Case", "MAGNITUDES", "FAINT", "PAIRS", "OUTSIDE_EFFECTS", "cases", "run_case", "summarize", "ripple_torque",
+           "drag_torque", "drifting_sensor"]
 
 #: Per effect: (large, small) settings; per-joint values apply to every joint.
 MAGNITUDES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
@@ -52,29 +57,53 @@ FAINT: dict[str, dict[str, Any]] = {
 }
 PAIRS: tuple[tuple[str, str], ...] = (("coulomb", "payload"), ("viscous", "torque_offset"),
                                       ("rotor_inertia", "actuation_delay"), ("coulomb", "torque_gain"))
-OUTSIDE = "ripple"
 RIPPLE_AMPLITUDE = 0.5  # [N m]
 RIPPLE_PERIODS = 6.0  # periods per radian of joint travel
+DRAG = 1.0  # [N m s^2/rad^2] the quadratic drag's coefficient
+DRIFT = 0.4  # [N m] the torque sensors' offset drift over the log
 
 
 def ripple_torque(q: NDArray[np.float64], dq: NDArray[np.float64],
                   amplitude: float = RIPPLE_AMPLITUDE) -> NDArray[np.float64]:
-    """The out-of-catalogue effect: a joint torque ripple periodic in the joint angle (cogging, a
+    """An out-of-catalogue effect: a joint torque ripple periodic in the joint angle (cogging, a
     worn gear tooth), acting on every joint: -A sin(2 pi n q), A = `amplitude` [N m]."""
     return -amplitude * np.sin(2 * np.pi * RIPPLE_PERIODS * np.asarray(q))
+
+
+def drag_torque(q: NDArray[np.float64], dq: NDArray[np.float64], coefficient: float = DRAG) -> NDArray[np.float64]:
+    """An out-of-catalogue effect: a drag growing with the square of the joint speed (a seal or
+    lubricant shearing at speed), on every joint: -c dq |dq|. The catalogue's viscous friction fits
+    most of it and leaves a function of the speed."""
+    return -coefficient * np.asarray(dq) * np.abs(dq)
+
+
+def drifting_sensor(log: RobotLog, drift: float = DRIFT) -> RobotLog:
+    """An out-of-catalogue sensing effect: every torque sensor's offset drifts linearly from 0 to
+    `drift` [N m] over the log (a strain gauge warming up). It acts on the measurement, where a
+    sensor effect acts: the catalogue's constant offset fits its mean."""
+    return dataclasses.replace(log, tau=log.tau + np.linspace(0.0, drift, log.n_samples)[:, None])
+
+
+#: The effects outside the catalogue, which live only here: name -> (a joint torque acting in the
+#: dynamics, or a change of the measurement) and the place it acts (for "located").
+OUTSIDE_EFFECTS: dict[str, tuple[Callable[..., NDArray[np.float64]] | None, Callable[[RobotLog], RobotLog] | None, str]] = {
+    "ripple": (ripple_torque, None, "dynamics"),
+    "drag": (drag_torque, None, "dynamics"),
+    "drift": (None, drifting_sensor, "sensing"),
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class Case:
     name: str
-    effects: tuple[str, ...]  # injected catalogue effects, or (OUTSIDE,)
+    effects: tuple[str, ...]  # injected catalogue effects, or one of OUTSIDE_EFFECTS
     magnitude: str  # "large", "small", "faint", "pair", "outside"
     seed: int
 
     def settings(self, n_joints: int = 7) -> dict[str, dict[str, Any]]:
         out = {}
         for name in self.effects:
-            if name == OUTSIDE:
+            if name in OUTSIDE_EFFECTS:
                 continue
             large, small = MAGNITUDES[name]
             chosen = {"small": small, "faint": FAINT[name]}.get(self.magnitude, large)
@@ -85,8 +114,8 @@ class Case:
 
 def cases(magnitudes: tuple[str, ...] = ("large", "small", "faint"), seeds: tuple[int, ...] = (0, 1),
           effects: tuple[str, ...] | None = None, pairs: bool = True, outside: bool = True) -> list[Case]:
-    """The validation grid: every effect x magnitude x seed, then the pairs and the ripple (each
-    seed)."""
+    """The validation grid: every effect x magnitude x seed, then the pairs and the effects outside
+    the catalogue (each seed)."""
     out = []
     for name in effects or tuple(MAGNITUDES):
         for mag in magnitudes:
@@ -97,15 +126,16 @@ def cases(magnitudes: tuple[str, ...] = ("large", "small", "faint"), seeds: tupl
             for seed in seeds:
                 out.append(Case(f"{a}+{b}-s{seed}", (a, b), "pair", seed))
     if outside:
-        for seed in seeds:
-            out.append(Case(f"{OUTSIDE}-s{seed}", (OUTSIDE,), "outside", seed))
+        for name in OUTSIDE_EFFECTS:
+            for seed in seeds:
+                out.append(Case(f"{name}-s{seed}", (name,), "outside", seed))
     return out
 
 
 def _expected_channels(names: tuple[str, ...]) -> set[str]:
     chans: set[str] = set()
     for name in names:
-        place = CATALOGUE[name].place if name in CATALOGUE else "dynamics"
+        place = CATALOGUE[name].place if name in CATALOGUE else OUTSIDE_EFFECTS[name][2]
         chans |= {"dynamics": {"tau", "cmd"}, "sensing": {"tau"}, "actuation": {"cmd"},
                   "controller": {"ctrl"}}.get(place, set())
         if name == "rotor_inertia":
@@ -119,20 +149,23 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
     from sim2real.reality import RealityConfig, make_arm_log
 
     start = time.perf_counter()
-    extra = ripple_torque if OUTSIDE in case.effects else None
+    outside = case.effects[0] if case.effects[0] in OUTSIDE_EFFECTS else None
+    extra, sense, _ = OUTSIDE_EFFECTS.get(outside, (None, None, ""))
     log = make_arm_log(case.settings(), RealityConfig(duration=duration, seed=case.seed), extra_torque=extra)
+    if sense is not None:
+        log = sense(log)
     made = time.perf_counter() - start
     d = diagnose(log, config)
     s = d.summary()
     chosen = [r["effect"] for r in s["selected"]]
     active = True
-    if s["verdict"]["label"] == "no gap" and OUTSIDE not in case.effects:
+    if s["verdict"]["label"] == "no gap" and outside is None:
         # an effect the trajectory never triggers (a saturation level it never reaches) leaves
         # the log as the nominal one, sample for sample: "no gap" is then the right answer
         nominal = make_arm_log({}, RealityConfig(duration=duration, seed=case.seed))
         active = not all(np.array_equal(getattr(log, f), getattr(nominal, f)) for f in ("q", "dq", "tau", "tau_cmd"))
     carry = s["where"]["channels"][0]["channel"] if s["where"]["channels"] else ""
-    if OUTSIDE in case.effects:
+    if outside is not None:
         top1 = s["verdict"]["label"] == "unexplained"
     elif not active:
         top1 = True
@@ -142,6 +175,7 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
     located = (carry in _expected_channels(case.effects) and s["where"]["dominant_phase"] == "free") or not active
     return {"case": case.name, "effects": list(case.effects), "magnitude": case.magnitude, "seed": case.seed,
             "active": active, "selected": chosen, "verdict": s["verdict"]["label"], "top1": bool(top1),
+            "structure_left": [st["basis"] for st in s["verdict"].get("structure", []) if st["left"]],
             "located": bool(located),
             "top_channel": carry, "closed": s["how_far"]["closed_total"],  # None: no gap above the floor
             "heldout_before": s["verdict"]["heldout_before"], "heldout_after": s["verdict"]["heldout_after"],
@@ -161,6 +195,7 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
         out[mag] = {"cases": len(rows), "top1": float(np.mean([r["top1"] for r in rows])),
                     "located": float(np.mean([r["located"] for r in rows])),
                     "no_gap": len(rows) - len(gaps), "inactive": sum(not r.get("active", True) for r in rows),
+                    "explained": float(np.mean([r["verdict"] == "explained" for r in rows])),
                     "closed_median": float(np.median(gaps)) if gaps else None,
                     "closed_ge_80": float(np.mean([g >= 0.8 for g in gaps])) if gaps else None}
     per_effect: dict[str, dict[str, Any]] = {}

@@ -9,6 +9,7 @@ from sim2real.diagnosis import diagnose
 from sim2real.fitting import block_starts
 from sim2real.reality import RealityConfig, make_arm_log
 from sim2real.structure import hat_basis, structure_gains, trend_basis
+from sim2real.validation import drag_torque, drifting_sensor
 
 T, J = 4000, 3
 
@@ -58,13 +59,9 @@ def test_hat_basis_sums_to_one_and_handles_a_constant_column():
     assert np.allclose(B.sum(axis=2), 1.0)
 
 
-def _quadratic_drag(q, dq):
-    return -1.0 * dq * np.abs(dq)
-
-
 @pytest.fixture(scope="module")
 def drag_log():
-    return make_arm_log({}, RealityConfig(duration=6.0, seed=0), extra_torque=_quadratic_drag)
+    return make_arm_log({}, RealityConfig(duration=6.0, seed=0), extra_torque=drag_torque)
 
 
 def test_out_of_catalogue_drag_that_viscous_friction_partly_fits_reads_unexplained(drag_log):
@@ -79,10 +76,9 @@ def test_out_of_catalogue_drag_that_viscous_friction_partly_fits_reads_unexplain
 
 
 def test_a_drifting_sensor_offset_reads_unexplained_on_a_torque_only_log():
-    log = make_arm_log({}, RealityConfig(duration=6.0, seed=1))
-    drift = np.linspace(0.0, 0.4, log.n_samples)[:, None]
+    log = drifting_sensor(make_arm_log({}, RealityConfig(duration=6.0, seed=1)))
     meta = {k: log.meta[k] for k in ("robot", "joint_names", "units", "end_effector", "torque_side")}
-    log = dataclasses.replace(log, tau=log.tau + drift, tau_cmd=None, q_cmd=None, dq_cmd=None, meta=meta)
+    log = dataclasses.replace(log, tau_cmd=None, q_cmd=None, dq_cmd=None, meta=meta)  # the real log's layout
     v = diagnose(log).summary()["verdict"]
     assert v["label"] == "unexplained"
     assert {s["basis"] for s in v["structure"] if s["left"]} == {"time"}
