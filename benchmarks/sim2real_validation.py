@@ -7,7 +7,7 @@ case in the station.
         [--out runs/sim2real_validation] [--json docs/results/sim2real.json] [--no-contact]
 
 Each case writes <out>/<case>.json atomically and is skipped when present with the same --duration
-and --torque-filter, by a diagnosis with the same structure threshold (rerun to resume; a case made
+and --torque-filter, by a diagnosis with the same structure thresholds (rerun to resume; a case made
 with other settings is made again). The
 summary (rates per magnitude group and per effect, sim2real.validation.summarize) and every case's
 row go to --json, and a table is printed.
@@ -30,7 +30,8 @@ from sim2real.validation import MAGNITUDES, cases, run_case, summarize  # noqa: 
 def _case_job(case, duration: float, path: str, torque_filter: str = "matched") -> dict:
     """One case, or its saved result when that was made with the same log length and filter."""
     from sim2real.diagnosis import DiagnosisConfig
-    settings = {"duration": duration, "torque_filter": torque_filter, "structure": DiagnosisConfig().structure}
+    c = DiagnosisConfig()
+    settings = {"duration": duration, "torque_filter": torque_filter, "structure": [c.structure, c.structure_rest]}
     if Path(path).is_file():
         saved = read_json(path, "validation case")
         if saved.get("settings") == settings:

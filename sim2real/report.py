@@ -43,11 +43,14 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
           "at its noise floor, less where the floor is the channel's resolution).", ""]
     if v.get("structure"):
         L += ["Structure left after the selection (what a generic function predicts of the rest on held-out "
-              "blocks, beyond a constant; a share of at least the threshold turns the verdict unexplained):", "",
-              "| in | gain [noise var.] | 95 % interval | share of the excess | left |", "|---|---|---|---|---|"]
+              "blocks, beyond a constant; a share of the excess or of what the selection leaves of at least its "
+              "threshold turns the verdict unexplained):", "",
+              "| in | gain [noise var.] | 95 % interval | share of the excess | share of what is left | left |",
+              "|---|---|---|---|---|---|"]
         for st in v["structure"]:
             L.append(f"| {st['basis']} | {st['gain']:.3g} | {st['low']:.3g} .. {st['high']:.3g} | "
-                     f"{100 * st['share']:.1f} % | {'yes' if st['left'] else 'no'} |")
+                     f"{100 * st['share']:.1f} % | {100 * st.get('share_rest', 0.0):.1f} % | "
+                     f"{'yes' if st['left'] else 'no'} |")
         L.append("")
     w = s["where"]
     L += ["## Where", "", "Residual RMS over the noise floor per channel and joint (largest excess first):", "",

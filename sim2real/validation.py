@@ -176,6 +176,8 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
     return {"case": case.name, "effects": list(case.effects), "magnitude": case.magnitude, "seed": case.seed,
             "active": active, "selected": chosen, "verdict": s["verdict"]["label"], "top1": bool(top1),
             "structure_left": [st["basis"] for st in s["verdict"].get("structure", []) if st["left"]],
+            "structure": [{k: st[k] for k in ("basis", "gain", "low", "share", "share_rest")}
+                          for st in s["verdict"].get("structure", [])],
             "located": bool(located),
             "top_channel": carry, "closed": s["how_far"]["closed_total"],  # None: no gap above the floor
             "heldout_before": s["verdict"]["heldout_before"], "heldout_after": s["verdict"]["heldout_after"],

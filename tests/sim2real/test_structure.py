@@ -1,6 +1,7 @@
 """Structure left in a residual (sim2real/structure.py) and the verdict it turns."""
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -73,6 +74,18 @@ def test_out_of_catalogue_drag_that_viscous_friction_partly_fits_reads_unexplain
     left = {s["basis"]: s for s in v["structure"]}
     assert left["joint velocity"]["left"] and not left["time"]["left"]
     assert "joint velocity" in v["text"]
+
+
+def test_a_strong_drag_that_several_effects_mimic_reads_unexplained():
+    # at 3x the drag, viscous friction, a saturation and Coulomb friction together close over 90 %
+    # of the excess; what they leave is under 5 % of the excess but most of what is left, and a
+    # function of the joint velocity
+    log = make_arm_log({}, RealityConfig(duration=6.0, seed=0),
+                       extra_torque=functools.partial(drag_torque, coefficient=3.0))
+    v = diagnose(log).summary()["verdict"]
+    assert v["label"] == "unexplained"
+    velocity = {s["basis"]: s for s in v["structure"]}["joint velocity"]
+    assert velocity["left"] and velocity["share_rest"] >= 0.25
 
 
 def test_a_drifting_sensor_offset_reads_unexplained_on_a_torque_only_log():
