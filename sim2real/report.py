@@ -49,7 +49,7 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
               "|---|---|---|---|---|---|"]
         for st in v["structure"]:
             L.append(f"| {st['basis']} | {st['gain']:.3g} | {st['low']:.3g} .. {st['high']:.3g} | "
-                     f"{100 * st['share']:.1f} % | {100 * st.get('share_rest', 0.0):.1f} % | "
+                     f"{100 * st['share']:.1f} % | {100 * st['share_rest']:.1f} % | "
                      f"{'yes' if st['left'] else 'no'} |")
         L.append("")
     w = s["where"]

@@ -165,6 +165,7 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
         nominal = make_arm_log({}, RealityConfig(duration=duration, seed=case.seed))
         active = not all(np.array_equal(getattr(log, f), getattr(nominal, f)) for f in ("q", "dq", "tau", "tau_cmd"))
     carry = s["where"]["channels"][0]["channel"] if s["where"]["channels"] else ""
+    structure = s["verdict"].get("structure", [])
     if outside is not None:
         top1 = s["verdict"]["label"] == "unexplained"
     elif not active:
@@ -175,9 +176,8 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
     located = (carry in _expected_channels(case.effects) and s["where"]["dominant_phase"] == "free") or not active
     return {"case": case.name, "effects": list(case.effects), "magnitude": case.magnitude, "seed": case.seed,
             "active": active, "selected": chosen, "verdict": s["verdict"]["label"], "top1": bool(top1),
-            "structure_left": [st["basis"] for st in s["verdict"].get("structure", []) if st["left"]],
-            "structure": [{k: st[k] for k in ("basis", "gain", "low", "share", "share_rest")}
-                          for st in s["verdict"].get("structure", [])],
+            "structure_left": [st["basis"] for st in structure if st["left"]],
+            "structure": [{k: st[k] for k in ("basis", "gain", "low", "share", "share_rest")} for st in structure],
             "located": bool(located),
             "top_channel": carry, "closed": s["how_far"]["closed_total"],  # None: no gap above the floor
             "heldout_before": s["verdict"]["heldout_before"], "heldout_after": s["verdict"]["heldout_after"],
