@@ -68,6 +68,8 @@ def main() -> None:
         for method in METHODS:
             variants = [("", ours, {})] if method != "goflow" else [
                 (" (entropy)", ours, {"mode": "entropy"}), (" (constrained)", ours, {"mode": "constrained"}),
+                (" (constrained, k-NN, flow alone)", ours,
+                 {"mode": "constrained", "feasible_model": "knn", "feasible_level": 0.8, "truncate": False}),
                 (" (paper)", ours, {"mode": "paper"}), (" (paper, zuko NSF class)", _zuko_nsf, {"mode": "paper"})]
             for suffix, builder, config in variants:
                 goflow_module.build_spline_flow = builder

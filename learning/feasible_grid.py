@@ -50,7 +50,7 @@ from common.config import config_to_dict
 from common.errors import FileFormatError, InputError
 from common.files import load_tensors, save_tensors
 from learning.feasible_sets import coverage, mass_on
-from learning.samplers.goflow import GoFlowSampler
+from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
 
 __all__ = ["FeasibleGridConfig", "GridPlan", "FeasibleSet", "FlowRefitConfig", "flow_report", "constrained_copy",
            "refit_flow"]
@@ -311,7 +311,11 @@ def constrained_copy(sampler: GoFlowSampler, delta: float, steps: int | None = N
     if not isinstance(sampler, GoFlowSampler):
         raise InputError(f"the refit needs a GoFlow flow, not {type(sampler).__name__}")
     state = sampler.state_dict()
-    config = {**state["config"], "mode": "constrained", "delta": float(delta), "beta": 0.0}
+    # the constrained mode's own estimate of the feasible set and its truncation, whatever the
+    # source flow was saved with (a flow saved before they existed loads with the k-NN vote)
+    fresh = GoFlowConfig()
+    config = {**state["config"], "mode": "constrained", "delta": float(delta), "beta": 0.0,
+              **{k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level")}}
     if steps is not None:
         config["steps"] = int(steps)
     new = GoFlowSampler(sampler.space, sampler.success_threshold, config)

@@ -92,6 +92,17 @@ class Evidence:
         dist, _ = self._kd_tree().query(np.asarray(points_unit, dtype=np.float64), k=2)
         return dist[:, 1]
 
+    def design_weights(self, clip: float = 30.0) -> NDArray[np.float64]:
+        """Weights that make the rows stand for a uniform design over the box: each row's k-nearest-
+        neighbour ball volume (r_k^dim, an inverse density), relative to the median and clipped to
+        [1 / clip, clip]; shape (n,). Rows from a sampler's own draws crowd where it samples, and
+        these weights let the few rows elsewhere count as much as a uniform batch's would."""
+        if len(self) <= self.neighbours:
+            return np.ones(len(self))
+        dist, _ = self._kd_tree().query(self.xi, k=self.neighbours + 1)
+        volume = np.maximum(dist[:, -1], 1e-12) ** self.dim
+        return np.clip(volume / np.median(volume), 1.0 / clip, clip)
+
     def state_dict(self) -> dict[str, Any]:
         """JSON-serializable rows."""
         return {"xi": self.xi.tolist(), "signal": self.signal.tolist()}

@@ -17,8 +17,14 @@ the objective that `config.mode` names:
 
 The entropy and constrained modes keep the newest `memory` evaluated rows (`Evidence`) and estimate
 the signal anywhere as a k-nearest-neighbour mean, which does not depend on which protocol drew the
-rows. Each update then draws a proposal (uniform on the box, the current flow, and Gaussians around
-the rows that succeeded) with its exact mixture density, weights the draws by target / proposal
+rows. The constrained mode estimates its feasible set F-hat = {P(success) >= feasible_level} with
+a success classifier fitted to the rows, each weighted as a uniform design would count it
+(`learning.samplers.feasibility`; or the k-NN vote, `feasible_model="knn"`), and by default
+samples the flow truncated to F-hat with mass 1 - delta plus delta uniform on the rest of the box
+(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one.
+
+Each update draws a proposal (uniform on the box, the current flow, and Gaussians around the rows
+that succeeded) with its exact mixture density, weights the draws by target / proposal
 (self-normalized), and fits the flow by maximum likelihood on draws resampled by those weights:
 a forward KL(p* || q) fit, which covers every component of the target instead of collapsing onto
 one. `beta` > 0 adds KL(q_old || q) on the old flow's draws as a trust region (default 0).
@@ -27,9 +33,12 @@ Steps with a non-finite loss or gradient are skipped, gradients are clipped at n
 reverts to its pre-update parameters if any parameter ends non-finite (all reported in the
 returned diagnostics).
 
-Conventions: `sample` draws exactly from the flow truncated to the box; `log_prob` is that
-truncated density in parameter units, normalized exactly over the box (-inf outside); `entropy()`
-is -E_p[log p] in parameter units from a fixed-seed set of flow draws (deterministic). The flow
+Conventions: `sample` draws exactly from the flow truncated to the box (with `truncate`, from the
+mixture above: flow draws in F-hat by rejection, uniform ones outside); `log_prob` is that
+density in parameter units, normalized over the box (-inf outside; with `truncate` the flow's
+mass in F-hat is a fixed-seed Monte Carlo estimate from 16384 draws, refreshed at each update and
+load); `entropy()` is -E_p[log p] in parameter units from a fixed-seed set of the sampler's draws
+(deterministic). The flow
 starts as the identity on a N(0, 2.5^2) base in box coordinates (broad, close to uniform). An
 update depends only on the flow, the batch and (config.seed, update count), so a run resumed from
 a `state_dict` reproduces the uninterrupted one.
@@ -70,16 +79,22 @@ from common.checks import check_choice, check_int, check_number
 from common.errors import InputError
 from common.config import config_to_dict, config_with_overrides
 from learning.samplers.evidence import Evidence
+from learning.samplers.feasibility import SuccessClassifier
 
-__all__ = ["MODES", "GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
+__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
 
 #: What an update optimizes (GoFlowConfig.mode).
 MODES: tuple[str, ...] = ("entropy", "constrained", "paper")
+#: How the constrained mode estimates the feasible set (GoFlowConfig.feasible_model).
+FEASIBLE_MODELS: tuple[str, ...] = ("classifier", "knn")
 
 BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (the GoFlow authors' code maps the box onto it)
 _BOX_TOL = 1e-4  # float32 rounding slack (box coordinates) before a draw counts as outside
 _LOG_Q_FLOOR = -1e4  # clamp for log q in the entropy term: exp underflows to 0 well before this
 _CHUNK = 65536  # rows per flow evaluation outside training
+_GATE_DRAWS = 16384  # fixed-seed draws behind the truncation's two shares (flow mass in F-hat, box share outside)
+_GATE_MIN_ACCEPT = 0.01  # below this flow mass in F-hat the flow is not truncated (rejection would stall)
+_GATE_SEED = 15_485_863
 
 
 class _SplineTransform(MonotonicRQSTransform):
@@ -181,7 +196,16 @@ class GoFlowConfig:
     memory: int = 16384  # evaluated rows kept as evidence (entropy and constrained modes)
     neighbours: int = 5  # k of the nearest-neighbour signal estimate
     outside_weight: float = 1.0  # constrained mode: weight of the flow's excess density outside the feasible set
-    feasible_level: float = 0.8  # constrained mode: estimated success rate from which a point counts as feasible
+    # constrained mode: estimated success probability from which a point counts as feasible (the
+    # classifier's even-odds contour; the k-NN vote of 5 rows erodes less at 0.8, its old default)
+    feasible_level: float = 0.5
+    # constrained mode: how the feasible set F-hat is estimated from the evidence, "knn" (the
+    # k-nearest-neighbour vote) or "classifier" (an MLP fitted to the rows, learning.samplers.feasibility)
+    feasible_model: str = "classifier"
+    classifier_steps: int = 100  # Adam steps of the classifier per update (it continues from the last fit)
+    # constrained mode: the sampler is the flow truncated to F-hat with mass 1 - delta, plus delta
+    # uniform on the rest of the box (docs/learning.md#goflow-modes); False: the flow alone
+    truncate: bool = True
     proposal_samples: int = 2048  # per proposal component (uniform, the flow, around successes) per update
     fit_batch: int = 512  # points resampled from the weighted proposal at each of the K steps
 
@@ -205,6 +229,10 @@ class GoFlowConfig:
         check_number(self.delta, "GoFlowConfig.delta", 0.0, 1.0, low_open=True, high_open=True)
         check_number(self.outside_weight, "GoFlowConfig.outside_weight", 0.0)
         check_number(self.feasible_level, "GoFlowConfig.feasible_level", 0.0, 1.0, low_open=True)
+        check_choice(self.feasible_model, FEASIBLE_MODELS, "GoFlowConfig.feasible_model")
+        check_int(self.classifier_steps, "GoFlowConfig.classifier_steps", 1)
+        if not isinstance(self.truncate, bool):
+            raise InputError(f"GoFlowConfig.truncate = {self.truncate!r}; expected true or false")
         for name in ("memory", "neighbours", "proposal_samples", "fit_batch"):
             check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
         if self.signal_range is not None:
@@ -263,6 +291,10 @@ def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
             config[key] = state[key]
     if state.get("type") == "GoFlowSampler" and "mode" not in config:
         config["mode"] = "paper"  # saved before the modes existed: the paper's update made it
+    if state.get("type") == "GoFlowSampler" and "feasible_model" not in config:
+        # saved before the classifier and the truncation existed: the k-NN vote and the flow alone made it
+        config["feasible_model"], config["truncate"] = "knn", False
+        config.setdefault("feasible_level", 0.8)  # the k-NN vote's level of that time
     return config
 
 
@@ -298,6 +330,10 @@ class GoFlowSampler:
         self._flow = self._build_flow()
         self._entropy_cache: float | None = None
         self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range)
+        self._classifier = self._make_classifier(self.config)
+        # the truncation to F-hat (constrained mode): (log flow mass in F-hat, log box share outside
+        # it), or None while the sampler is the flow alone
+        self._gate: tuple[float, float] | None = None
 
     @property
     def alpha(self) -> float:
@@ -332,6 +368,12 @@ class GoFlowSampler:
                     for p in t.parameters():
                         p.zero_()
         return flow
+
+    def _make_classifier(self, config: GoFlowConfig) -> SuccessClassifier | None:
+        """The success classifier behind F-hat (constrained mode with feasible_model "classifier")."""
+        if config.mode != "constrained" or config.feasible_model != "classifier":
+            return None
+        return SuccessClassifier(self.space.dim, (64, 64), config.seed)
 
     # -- coordinates -----------------------------------------------------------------------------
 
@@ -377,6 +419,69 @@ class GoFlowSampler:
             need -= len(y)
         return torch.cat(out) if out else torch.zeros((0, self.space.dim))
 
+    def _feasible_hat(self, y: torch.Tensor) -> torch.Tensor:
+        """Whether box-coordinate points lie in the estimated feasible set F-hat (bool, shape (n,))."""
+        u = _box_to_unit(y)
+        p = self._classifier.probability(u) if self._classifier is not None else self._evidence.estimate(u)
+        return torch.as_tensor(p >= self.config.feasible_level)
+
+    def _refresh_gate(self) -> None:
+        """Re-estimate the truncation's shares from fixed-seed draws (deterministic in the flow and
+        F-hat); no truncation outside the constrained mode, while F-hat is empty or the whole box,
+        or while the flow puts under 1 % of its mass in F-hat."""
+        self._gate = None
+        if self.config.mode != "constrained" or not self.config.truncate or not len(self._evidence):
+            return
+        if not np.ptp(self._evidence.signal) > 0:
+            return
+        gen = torch.Generator().manual_seed(int(self.config.seed) + _GATE_SEED)
+        accept = float(self._feasible_hat(self._draw_box(_GATE_DRAWS, gen)).double().mean())
+        outside = 1.0 - float(self._feasible_hat(_uniform_box(_GATE_DRAWS, self.space.dim, gen)).double().mean())
+        if accept >= _GATE_MIN_ACCEPT and 0.0 < outside < 1.0:
+            self._gate = (math.log(accept), math.log(outside))
+
+    def _log_p_box(self, y: torch.Tensor) -> torch.Tensor:
+        """The sampler's log density in box coordinates, normalized over the box (float64): the
+        truncated flow, or with the truncation (1 - delta) x the flow in F-hat / its mass there, and
+        delta x uniform on the rest of the box."""
+        lq = (self._log_q(y) - self._log_z).double()
+        if self._gate is None:
+            return lq
+        log_accept, log_outside = self._gate
+        delta, d = self.config.delta, self.space.dim
+        outside = math.log(delta) - log_outside - d * math.log(2.0 * BOX_BOUND)
+        return torch.where(self._feasible_hat(y), math.log1p(-delta) + lq - log_accept,
+                           torch.full_like(lq, outside))
+
+    def _sample_box(self, n: int, gen: torch.Generator) -> torch.Tensor:
+        """n draws of the sampler in box coordinates: the flow truncated to the box, or with the
+        truncation a delta share of uniform draws outside F-hat and the rest flow draws in F-hat
+        (by rejection), shuffled."""
+        if self._gate is None:
+            return self._draw_box(n, gen)
+        n_out = int((torch.rand(n, generator=gen, dtype=torch.float64) < self.config.delta).sum())
+        log_accept, log_outside = self._gate
+        inside = self._draw_where(lambda m: self._draw_box(m, gen), True, n - n_out, math.exp(log_accept))
+        rest = self._draw_where(lambda m: _uniform_box(m, self.space.dim, gen), False, n_out, math.exp(log_outside))
+        return torch.cat([inside, rest])[torch.randperm(n, generator=gen)]
+
+    def _draw_where(self, draw: Callable[[int], torch.Tensor], in_hat: bool, n: int, rate: float) -> torch.Tensor:
+        """n of `draw`'s points that are (in_hat) or are not in F-hat, by rejection at about `rate`."""
+        out: list[torch.Tensor] = []
+        need = n
+        for _ in range(self.config.max_redraws + 1):
+            if need <= 0:
+                return torch.cat(out)[:n] if out else torch.zeros((0, self.space.dim))
+            y = draw(min(int(math.ceil(need / max(rate, _GATE_MIN_ACCEPT) * 1.2)) + 16, 1 << 22))
+            y = y[self._feasible_hat(y) == in_hat]
+            out.append(y)
+            need -= len(y)
+        if need <= 0:
+            return torch.cat(out)[:n]
+        where = "in" if in_hat else "outside"
+        raise RuntimeError(f"GoFlowSampler: {need} of {n} draws {where} the estimated feasible set still missing after "
+                           f"{self.config.max_redraws + 1} rounds of rejection (expected rate {rate:.3g})")
+
     def _params_finite(self) -> bool:
         return all(bool(torch.isfinite(p).all()) for p in self._flow.parameters())
 
@@ -392,7 +497,7 @@ class GoFlowSampler:
         gen = torch.Generator().manual_seed(int(rng.integers(0, 2**63 - 1)))
         if n == 0:
             return np.zeros((0, self.space.dim))
-        y = self._draw_box(n, gen).to(torch.float64).numpy()
+        y = self._sample_box(n, gen).to(torch.float64).numpy()
         xi = self._from_box(y)
         return np.clip(xi, self._low, self._low + self._width)
 
@@ -403,8 +508,7 @@ class GoFlowSampler:
         inside = np.asarray(self.space.contains(batch), dtype=bool)
         if inside.any():
             y = torch.as_tensor(self._to_box(batch[inside]), dtype=torch.float32)
-            lq = self._log_q(y).to(torch.float64).numpy()
-            out[inside] = lq - self._log_z + self._log_jac
+            out[inside] = self._log_p_box(y).numpy() + self._log_jac
         return out
 
     def entropy(self) -> float:
@@ -415,9 +519,8 @@ class GoFlowSampler:
         """
         if self._entropy_cache is None:
             gen = torch.Generator().manual_seed(int(self.config.seed) + 7_919)
-            y = self._draw_box(self.config.report_samples, gen)
-            lq = self._log_q(y).to(torch.float64)
-            h_box = -float((lq - self._log_z).mean())
+            y = self._sample_box(self.config.report_samples, gen)
+            h_box = -float(self._log_p_box(y).mean())
             self._entropy_cache = h_box - self._log_jac
         return self._entropy_cache
 
@@ -500,16 +603,16 @@ class GoFlowSampler:
         constrained mode the optimum's log density outside the feasible set, "log_ceiling"); and the
         draws outside the estimated feasible set where that ceiling applies (none otherwise)."""
         cfg = self.config
-        r_hat = torch.as_tensor(self._evidence.estimate(_box_to_unit(y)))
         log_w = -log_m.double()
         info: dict[str, float] = {}
         outside = y[:0]
         if cfg.mode == "entropy":
+            r_hat = torch.as_tensor(self._evidence.estimate(_box_to_unit(y)))
             log_w = log_w + r_hat / cfg.alpha if cfg.alpha > 0 else torch.where(
                 r_hat >= r_hat.max(), log_w, torch.full_like(log_w, -math.inf))
             w = torch.softmax(log_w, dim=0)
         else:
-            inside = r_hat >= cfg.feasible_level
+            inside = self._feasible_hat(y)
             base = torch.softmax(log_w, dim=0)
             share = float(base[inside].sum())  # the box share of the estimated feasible set
             info["feasible_share"] = share
@@ -566,6 +669,15 @@ class GoFlowSampler:
         cfg = self.config
         self._evidence.add((xi_arr - self._low) / self._width, ret)
         gen = self._update_generator()
+        if self._classifier is not None:
+            ev = self._evidence
+            # the first fit starts from scratch: ten times the steps of one that continues
+            steps = cfg.classifier_steps * (1 if self._classifier.fitted else 10)
+            loss = self._classifier.fit(ev.xi, ev.scaled_signal(), ev.design_weights(), steps=steps,
+                                        batch=cfg.fit_batch, lr=3e-3, gen=gen)
+            info_classifier = {"classifier_loss": math.nan if loss is None else loss}
+        else:
+            info_classifier = {}
         y, log_m, lq_prop, n = self._proposal(gen)
         w, info, outside = self._target_weights(y, log_m)
         y_old, lq_old = y[n : 2 * n], lq_prop[n : 2 * n] + self._log_z  # the pre-update flow's own draws
@@ -595,10 +707,14 @@ class GoFlowSampler:
             return loss, terms
 
         run = self._descend(step_loss, y_old, lq_old)
+        self._refresh_gate()
+        if self._gate is not None:
+            info["flow_mass_in_feasible"] = math.exp(self._gate[0])
         return update_diagnostics(
             ret, self.entropy(), first=run["first"], last=run["last"], steps=cfg.steps, skipped=run["skipped"],
             reverted=run["reverted"], has_signal=bool(np.ptp(self._evidence.signal) > 0), update_index=self.n_updates,
-            t0=t0, fit=run["last"].get("fit", math.nan), evidence_rows=len(self._evidence), kl=run["kl"], **info)
+            t0=t0, fit=run["last"].get("fit", math.nan), evidence_rows=len(self._evidence), kl=run["kl"], **info,
+            **info_classifier)
 
     def _paper_update(self, xi_arr: NDArray[np.float64], ret: NDArray[np.float64]) -> dict[str, Any]:
         """The GoFlow paper's update: K Adam steps on the loss of the module docstring."""
@@ -646,6 +762,7 @@ class GoFlowSampler:
             "n_updates": self.n_updates,
             "flow": {k: _tensor_to_json(v) for k, v in self._flow.state_dict().items()},
             "evidence": self._evidence.state_dict(),
+            **({"classifier": self._classifier.state_dict()} if self._classifier is not None else {}),
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -676,8 +793,12 @@ class GoFlowSampler:
             raise ValueError(f"load_state_dict: flow tensors do not fit this architecture: {exc}") from exc
         evidence = Evidence(self.space.dim, config.memory, config.neighbours, config.signal_range)
         evidence.load_state_dict(state.get("evidence", {}))
-        self.config, self.n_updates, self._evidence = config, n_updates, evidence
+        classifier = self._make_classifier(config)
+        if classifier is not None and "classifier" in state:
+            classifier.load_state_dict(state["classifier"])
+        self.config, self.n_updates, self._evidence, self._classifier = config, n_updates, evidence, classifier
         self._entropy_cache = None
+        self._refresh_gate()
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> GoFlowSampler:

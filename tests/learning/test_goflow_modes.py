@@ -96,6 +96,8 @@ def test_constrained_mode_refuses_graded_signals():
     ("delta", 0.0, r"delta = 0\.0"), ("delta", 1.0, r"delta = 1\.0"), ("delta", math.nan, "delta"),
     ("mode", "greedy", r"mode = 'greedy'; expected one of"), ("signal_range", (1.0, 0.0), "lo < hi"),
     ("feasible_level", 0.0, "feasible_level"), ("memory", 0, "memory"), ("outside_weight", -1.0, "outside_weight"),
+    ("feasible_model", "svm", r"feasible_model = 'svm'; expected one of"), ("truncate", "yes", r"truncate = 'yes'"),
+    ("classifier_steps", 0, "classifier_steps"),
 ])
 def test_bad_settings_name_the_value(field, value, match):
     with pytest.raises(InputError, match=match):
@@ -129,3 +131,32 @@ def test_states_saved_before_the_modes_load_as_the_papers_update():
     state = a.state_dict()
     del state["config"]["mode"], state["evidence"]
     assert GoFlowSampler.from_state_dict(state).config.mode == "paper"
+
+
+def test_the_truncated_sampler_is_a_normalized_density_with_delta_outside():
+    """With the truncation, log_prob integrates to 1 over the box, the draws follow it, and the
+    mass off the feasible set is delta (0.05 here, so that it shows in 20000 draws)."""
+    s = GoFlowSampler(_unit_box(2), None, mode="constrained", delta=0.05, steps=40, proposal_samples=512, seed=0)
+    _train(s, _small_disk, rounds=12, batch=256, seed=0)
+    u = np.random.default_rng(1).uniform(size=(400000, 2))
+    assert abs(np.mean(np.exp(s.log_prob(u))) - 1.0) < 0.02
+    draws = s.sample(20000, np.random.default_rng(2))
+    assert abs(1.0 - _small_disk(draws).mean() - 0.05) < 0.015
+    # the draws' histogram follows log_prob: the share in the disk's left half against its integral
+    left = (draws[:, 0] < 0.65) & (_small_disk(draws) == 1)
+    left_u = (u[:, 0] < 0.65) & (_small_disk(u) == 1)
+    assert abs(left.mean() - np.mean(np.exp(s.log_prob(u)) * left_u)) < 0.02
+
+
+def test_constrained_states_saved_before_the_classifier_load_as_the_knn_vote_untruncated():
+    a = GoFlowSampler(_unit_box(2), None, mode="constrained", steps=2, proposal_samples=128, fit_batch=64)
+    _train(a, _disks, rounds=2, batch=64, seed=0)
+    state = json.loads(json.dumps(a.state_dict()))
+    for key in ("feasible_model", "truncate"):
+        del state["config"][key]
+    del state["classifier"]
+    b = GoFlowSampler.from_state_dict(state)
+    assert (b.config.feasible_model, b.config.truncate) == ("knn", False)
+    xi = np.random.default_rng(0).uniform(size=(200, 2))
+    lq = b._log_q(torch.as_tensor(b._to_box(xi), dtype=torch.float32)).double().numpy()
+    np.testing.assert_allclose(b.log_prob(xi), lq - b._log_z + b._log_jac, atol=1e-5)

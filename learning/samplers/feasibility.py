@@ -1,0 +1,120 @@
+"""The feasible set a constrained sampler has learned: P(success | xi) from the evidence rows.
+
+`SuccessClassifier` is a small MLP (logistic output) fitted to the 0/1 rows of an `Evidence`, in
+the unit box. Each `fit` continues from the previous parameters (fresh Adam, a fixed number of
+steps), so the estimate sharpens as rows accumulate, whichever batch protocol drew them.
+Minibatches are class-balanced (half successes, half failures): a set of 0.3 % of the box is seen
+in every step, and the 0.5 contour is the boundary between successes and failures whatever share
+of the rows each class holds. That share depends on who drew the rows (under 1 % successes on
+uniform batches around a small set, over 95 % on the sampler's own draws), so correcting the
+output by it would move the boundary inward or outward with the protocol. With noisy successes
+the output is P(success) at even odds of the two classes. Against the k-nearest-neighbour vote of `Evidence` it draws a
+smooth boundary that does not erode with the level and does not fray in 3-D and 6-D (measured in
+docs/learning.md#sampler-quality-on-known-feasible-sets-issue-21).
+
+The parameters are plain tensors; `state_dict` is JSON-serializable and a resumed run continues
+from exactly the same classifier.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from numpy.typing import NDArray
+
+from common.errors import InputError
+
+__all__ = ["SuccessClassifier"]
+
+_CHUNK = 65536
+
+
+class SuccessClassifier:
+    """P(success | xi) on the unit box: an MLP with SiLU layers and a logistic output.
+
+    Arguments:
+        dim: the parameter dimension.
+        hidden: layer sizes.
+        seed: the initialization's seed.
+    """
+
+    def __init__(self, dim: int, hidden: tuple[int, ...] = (64, 64), seed: int = 0) -> None:
+        self.dim, self.hidden = dim, tuple(hidden)
+        layers: list[torch.nn.Module] = []
+        width = dim
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            for h in self.hidden:
+                layers += [torch.nn.Linear(width, h), torch.nn.SiLU()]
+                width = h
+            layers.append(torch.nn.Linear(width, 1))
+        self._net = torch.nn.Sequential(*layers)
+        self.fitted = False
+
+    def _logit(self, x_unit: torch.Tensor) -> torch.Tensor:
+        return self._net(x_unit * 2.0 - 1.0).squeeze(-1)
+
+    def fit(self, xi_unit: NDArray[np.float64], success: NDArray[np.float64], weights: NDArray[np.float64], *,
+            steps: int, batch: int, lr: float, gen: torch.Generator) -> float | None:
+        """`steps` Adam steps of logistic regression on the rows, each row's loss weighted by
+        `weights` (positive, shape (n,)); returns the last loss, or None (nothing fitted) while the
+        rows hold only one class.
+
+        Each minibatch holds `batch` / 2 successes and as many failures, drawn in proportion to
+        their weights, and the two halves' losses are scaled by their classes' total weights, so
+        the steps estimate the weighted loss with both classes seen in every step."""
+        success = np.asarray(success) >= 0.5
+        weights = np.asarray(weights, dtype=np.float64)
+        good, bad = np.flatnonzero(success), np.flatnonzero(~success)
+        if not len(good) or not len(bad):
+            return None
+        x = torch.as_tensor(np.asarray(xi_unit), dtype=torch.float32)
+        x_good, x_bad = x[good], x[bad]
+        w_good, w_bad = torch.as_tensor(weights[good]), torch.as_tensor(weights[bad])
+        share = float(w_good.sum() / (w_good.sum() + w_bad.sum()))
+        half = max(batch // 2, 1)
+        target = torch.cat([torch.ones(half), torch.zeros(half)])
+        scale = torch.cat([torch.full((half,), share), torch.full((half,), 1.0 - share)]) * 2.0
+        optimizer = torch.optim.Adam(self._net.parameters(), lr=lr)
+        loss = torch.zeros(())
+        for _ in range(steps):
+            xb = torch.cat([x_good[torch.multinomial(w_good, half, replacement=True, generator=gen)],
+                            x_bad[torch.multinomial(w_bad, half, replacement=True, generator=gen)]])
+            loss = (scale * F.binary_cross_entropy_with_logits(self._logit(xb), target, reduction="none")).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+        self.fitted = True
+        return float(loss.detach())
+
+    def probability(self, xi_unit: NDArray[np.float64] | torch.Tensor) -> NDArray[np.float64]:
+        """P(success) at points of the unit box, shape (n,) (zeros before the first fit)."""
+        x = torch.as_tensor(np.asarray(xi_unit), dtype=torch.float32).reshape(-1, self.dim)
+        if not self.fitted:
+            return np.zeros(len(x))
+        with torch.no_grad():
+            logits = torch.cat([self._logit(x[i : i + _CHUNK]) for i in range(0, len(x), _CHUNK)]) if len(x) else x[:, 0]
+        return torch.sigmoid(logits.double()).numpy()
+
+    def state_dict(self) -> dict[str, Any]:
+        """JSON-serializable parameters."""
+        return {"fitted": self.fitted,
+                "params": {k: v.flatten().tolist() for k, v in self._net.state_dict().items()}}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore what `state_dict` saved (InputError if the shapes do not fit this classifier)."""
+        own = self._net.state_dict()
+        try:
+            params = {k: torch.tensor(state["params"][k], dtype=torch.float32).reshape(v.shape) for k, v in own.items()}
+            fitted = bool(state["fitted"])
+        except (KeyError, TypeError, RuntimeError, ValueError) as exc:
+            raise InputError(f"success classifier state: {exc!r}; expected the state_dict of a {self.hidden} "
+                             f"classifier on {self.dim} parameters") from exc
+        if not all(torch.isfinite(v).all() for v in params.values()):
+            raise InputError("success classifier state: non-finite parameters; expected finite ones")
+        self._net.load_state_dict(params)
+        self.fitted = fitted

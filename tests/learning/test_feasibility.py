@@ -1,0 +1,73 @@
+"""The success classifier behind the constrained mode's feasible set, and the evidence's design
+weights that make its rows stand for a uniform design."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from common.errors import InputError
+from learning.samplers.evidence import Evidence
+from learning.samplers.feasibility import SuccessClassifier
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    torch.set_num_threads(1)
+
+
+def _ring(x: np.ndarray) -> np.ndarray:
+    r = np.linalg.norm(x - 0.5, axis=1)
+    return ((r >= 0.2) & (r <= 0.35)).astype(float)
+
+
+def _fit(x: np.ndarray, y: np.ndarray, steps: int = 600) -> SuccessClassifier:
+    c = SuccessClassifier(2, (64, 64), seed=0)
+    c.fit(x, y, np.ones(len(x)), steps=steps, batch=512, lr=3e-3, gen=torch.Generator().manual_seed(0))
+    return c
+
+
+def test_the_classifier_draws_a_ring_from_uniform_rows():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(size=(8000, 2))
+    c = _fit(x, _ring(x))
+    test = rng.uniform(size=(20000, 2))
+    agree = np.mean((c.probability(test) >= 0.5) == (_ring(test) == 1))
+    assert agree >= 0.97, agree
+
+
+def test_one_class_fits_nothing_and_reads_infeasible():
+    c = SuccessClassifier(2)
+    x = np.random.default_rng(0).uniform(size=(100, 2))
+    assert c.fit(x, np.zeros(100), np.ones(100), steps=5, batch=32, lr=1e-3, gen=torch.Generator()) is None
+    assert not c.fitted and np.all(c.probability(x) == 0.0)
+
+
+def test_a_saved_classifier_reads_the_same_and_a_bad_state_is_refused():
+    rng = np.random.default_rng(1)
+    x = rng.uniform(size=(2000, 2))
+    c = _fit(x, _ring(x), steps=50)
+    d = SuccessClassifier(2, (64, 64), seed=5)
+    d.load_state_dict(json.loads(json.dumps(c.state_dict())))
+    np.testing.assert_array_equal(c.probability(x), d.probability(x))
+    with pytest.raises(InputError, match="success classifier state"):
+        SuccessClassifier(3).load_state_dict(c.state_dict())
+
+
+def test_design_weights_give_crowded_rows_less_weight_than_sparse_ones():
+    """A sampler's own draws crowd a small disk; the few rows elsewhere must count as a uniform
+    batch's would: their weights are larger by about the density ratio (clipped)."""
+    rng = np.random.default_rng(2)
+    crowd = 0.5 + 0.05 * rng.uniform(-1, 1, size=(4000, 2))
+    sparse = rng.uniform(size=(400, 2))
+    ev = Evidence(2, 10000, 5)
+    ev.add(np.concatenate([crowd, sparse]), np.zeros(4400))
+    w = ev.design_weights()
+    assert np.median(w[4000:]) > 20 * np.median(w[:4000])
+    assert w.min() >= 1 / 30 and w.max() <= 30
+    uniform = Evidence(2, 10000, 5)
+    uniform.add(rng.uniform(size=(4000, 2)), np.zeros(4000))
+    assert 0.5 <= np.median(uniform.design_weights()) <= 2.0
