@@ -65,10 +65,11 @@ def _small_disk(xi: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("protocol", ["uniform", "own"])
 def test_constrained_mode_concentrates_on_and_covers_the_feasible_set(protocol):
-    """A small off-centre disk after 30 rounds. Measured (seed 0): mass 0.987 / 0.993 and coverage
-    0.907 / 0.974 (uniform / own batches); the paper's update gets 0.87-0.93 and 0.5-0.77 on the
-    same disk after 100 rounds (docs/learning.md#goflow-modes). Issue 21's 99 % / 95 % targets
-    need more rounds than a test affords."""
+    """A small off-centre disk after 30 rounds. Measured (seed 0, the classifier and the
+    truncation): mass 0.994 / 0.971 and coverage 0.979 / 0.992 (uniform / own batches); the k-NN
+    vote without truncation covered 0.907 / 0.974, and the paper's update gets 0.87-0.93 and
+    0.5-0.77 on the same disk after 100 rounds (docs/learning.md#goflow-modes). Issue 21's 99 %
+    mass on own draws needs more rounds than a test affords."""
     s = GoFlowSampler(_unit_box(2), None, mode="constrained", beta=0.0, seed=0)
     _train(s, _small_disk, rounds=30, batch=256, seed=0, protocol=protocol)
     draws = s.sample(20000, np.random.default_rng(1))
@@ -79,7 +80,7 @@ def test_constrained_mode_concentrates_on_and_covers_the_feasible_set(protocol):
     share = len(inside) / len(u)
     coverage = np.mean(np.exp(s.log_prob(inside)) >= 0.1 / share)
     assert mass >= 0.965, mass
-    assert coverage >= 0.9, coverage
+    assert coverage >= 0.95, coverage
 
 
 def test_constrained_mode_refuses_graded_signals():
