@@ -1,15 +1,13 @@
 """The feasible set a constrained sampler has learned: P(success | xi) from the evidence rows.
 
 `SuccessClassifier` is a small MLP (logistic output) fitted to the 0/1 rows of an `Evidence`, in
-the unit box. Each `fit` continues from the previous parameters (fresh Adam, a fixed number of
-steps), so the estimate sharpens as rows accumulate, whichever batch protocol drew them.
-Minibatches are class-balanced (half successes, half failures): a set of 0.3 % of the box is seen
-in every step, and the 0.5 contour is the boundary between successes and failures whatever share
-of the rows each class holds. That share depends on who drew the rows (under 1 % successes on
-uniform batches around a small set, over 95 % on the sampler's own draws), so correcting the
-output by it would move the boundary inward or outward with the protocol. With noisy successes
-the output is P(success) at even odds of the two classes. Against the k-nearest-neighbour vote of `Evidence` it draws a
-smooth boundary that does not erode with the level and does not fray in 3-D and 6-D (measured in
+the unit box, each row's loss weighted (GoFlow passes `Evidence.design_weights`, which make the
+rows count as a uniform design would, whichever protocol drew them). Each `fit` continues from
+the previous parameters (fresh Adam, a fixed number of steps), so the estimate sharpens as rows
+accumulate. Minibatches hold half successes and half failures, and each half's loss is scaled by
+its class's total weight: the steps estimate the weighted loss, and a set of 0.3 % of the box is
+seen in every step. Against the k-nearest-neighbour vote of `Evidence` it draws a smooth boundary
+that does not erode with the level and does not fray in 3-D and 6-D (measured in
 docs/learning.md#sampler-quality-on-known-feasible-sets-issue-21).
 
 The parameters are plain tensors; `state_dict` is JSON-serializable and a resumed run continues

@@ -467,17 +467,16 @@ class GoFlowSampler:
 
     def _draw_where(self, draw: Callable[[int], torch.Tensor], in_hat: bool, n: int, rate: float) -> torch.Tensor:
         """n of `draw`'s points that are (in_hat) or are not in F-hat, by rejection at about `rate`."""
+        if n <= 0:
+            return torch.zeros((0, self.space.dim))
         out: list[torch.Tensor] = []
         need = n
         for _ in range(self.config.max_redraws + 1):
-            if need <= 0:
-                return torch.cat(out)[:n] if out else torch.zeros((0, self.space.dim))
             y = draw(min(int(math.ceil(need / max(rate, _GATE_MIN_ACCEPT) * 1.2)) + 16, 1 << 22))
-            y = y[self._feasible_hat(y) == in_hat]
-            out.append(y)
-            need -= len(y)
-        if need <= 0:
-            return torch.cat(out)[:n]
+            out.append(y[self._feasible_hat(y) == in_hat])
+            need -= len(out[-1])
+            if need <= 0:
+                return torch.cat(out)[:n]
         where = "in" if in_hat else "outside"
         raise RuntimeError(f"GoFlowSampler: {need} of {n} draws {where} the estimated feasible set still missing after "
                            f"{self.config.max_redraws + 1} rounds of rejection (expected rate {rate:.3g})")
