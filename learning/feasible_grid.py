@@ -315,10 +315,12 @@ def constrained_copy(sampler: GoFlowSampler, delta: float, steps: int | None = N
     # source flow was saved with (a flow saved before they existed loads with the k-NN vote)
     fresh = GoFlowConfig()
     config = {**state["config"], "mode": "constrained", "delta": float(delta), "beta": 0.0,
-              **{k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level")}}
+              **{k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level", "leak_target",
+                                                "level_step")}}
     if steps is not None:
         config["steps"] = int(steps)
     new = GoFlowSampler(sampler.space, sampler.success_threshold, config)
+    state.pop("feasible_level", None)  # F-hat's level starts again at the config's
     new.load_state_dict({**state, "config": config, "n_updates": 0, "evidence": {}})
     return new
 

@@ -16,6 +16,7 @@ from exactly the same classifier.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,6 +30,7 @@ from common.errors import InputError
 __all__ = ["SuccessClassifier"]
 
 _CHUNK = 65536
+AVERAGE_DECAY = 0.99  # per step: the average spans about the last 100 steps, one GoFlow update's fit
 
 
 class SuccessClassifier:
@@ -51,10 +53,15 @@ class SuccessClassifier:
                 width = h
             layers.append(torch.nn.Linear(width, 1))
         self._net = torch.nn.Sequential(*layers)
+        # what `probability` reads: an exponential moving average of the parameters over the steps,
+        # so the boundary does not jitter with the last minibatches (each fit's fresh Adam jolts the
+        # parameters by about lr in its first steps)
+        self._average = copy.deepcopy(self._net).requires_grad_(False)
         self.fitted = False
 
-    def _logit(self, x_unit: torch.Tensor) -> torch.Tensor:
-        return self._net(x_unit * 2.0 - 1.0).squeeze(-1)
+    @staticmethod
+    def _logit(net: torch.nn.Module, x_unit: torch.Tensor) -> torch.Tensor:
+        return net(x_unit * 2.0 - 1.0).squeeze(-1)
 
     def fit(self, xi_unit: NDArray[np.float64], success: NDArray[np.float64], weights: NDArray[np.float64], *,
             steps: int, batch: int, lr: float, gen: torch.Generator) -> float | None:
@@ -82,11 +89,17 @@ class SuccessClassifier:
         for _ in range(steps):
             xb = torch.cat([x_good[torch.multinomial(w_good, half, replacement=True, generator=gen)],
                             x_bad[torch.multinomial(w_bad, half, replacement=True, generator=gen)]])
-            loss = (scale * F.binary_cross_entropy_with_logits(self._logit(xb), target, reduction="none")).mean()
+            loss = (scale * F.binary_cross_entropy_with_logits(self._logit(self._net, xb), target,
+                                                               reduction="none")).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-        self.fitted = True
+            with torch.no_grad():
+                if not self.fitted:  # the first step of the first fit starts the average
+                    self._average.load_state_dict(self._net.state_dict())
+                    self.fitted = True
+                for avg, p in zip(self._average.parameters(), self._net.parameters()):
+                    avg.lerp_(p, 1.0 - AVERAGE_DECAY)
         return float(loss.detach())
 
     def probability(self, xi_unit: NDArray[np.float64] | torch.Tensor) -> NDArray[np.float64]:
@@ -95,24 +108,30 @@ class SuccessClassifier:
         if not self.fitted:
             return np.zeros(len(x))
         with torch.no_grad():
-            logits = torch.cat([self._logit(x[i : i + _CHUNK]) for i in range(0, len(x), _CHUNK)]) if len(x) else x[:, 0]
+            logits = (torch.cat([self._logit(self._average, x[i : i + _CHUNK]) for i in range(0, len(x), _CHUNK)])
+                      if len(x) else x[:, 0])
         return torch.sigmoid(logits.double()).numpy()
 
     def state_dict(self) -> dict[str, Any]:
         """JSON-serializable parameters."""
         return {"fitted": self.fitted,
-                "params": {k: v.flatten().tolist() for k, v in self._net.state_dict().items()}}
+                "params": {k: v.flatten().tolist() for k, v in self._net.state_dict().items()},
+                "average": {k: v.flatten().tolist() for k, v in self._average.state_dict().items()}}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore what `state_dict` saved (InputError if the shapes do not fit this classifier)."""
         own = self._net.state_dict()
         try:
             params = {k: torch.tensor(state["params"][k], dtype=torch.float32).reshape(v.shape) for k, v in own.items()}
+            # states saved before the average existed read their last parameters
+            saved = state.get("average", state["params"])
+            average = {k: torch.tensor(saved[k], dtype=torch.float32).reshape(v.shape) for k, v in own.items()}
             fitted = bool(state["fitted"])
         except (KeyError, TypeError, RuntimeError, ValueError) as exc:
             raise InputError(f"success classifier state: {exc!r}; expected the state_dict of a {self.hidden} "
                              f"classifier on {self.dim} parameters") from exc
-        if not all(torch.isfinite(v).all() for v in params.values()):
+        if not all(torch.isfinite(v).all() for v in [*params.values(), *average.values()]):
             raise InputError("success classifier state: non-finite parameters; expected finite ones")
         self._net.load_state_dict(params)
+        self._average.load_state_dict(average)
         self.fitted = fitted

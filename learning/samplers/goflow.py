@@ -17,11 +17,14 @@ the objective that `config.mode` names:
 
 The entropy and constrained modes keep the newest `memory` evaluated rows (`Evidence`) and estimate
 the signal anywhere as a k-nearest-neighbour mean, which does not depend on which protocol drew the
-rows. The constrained mode estimates its feasible set F-hat = {P(success) >= feasible_level} with
-a success classifier fitted to the rows, each weighted as a uniform design would count it
+rows. The constrained mode estimates its feasible set F-hat = {P(success) >= level} with a success
+classifier fitted to the rows, each weighted as a uniform design would count it
 (`learning.samplers.feasibility`; or the k-NN vote, `feasible_model="knn"`), and by default
 samples the flow truncated to F-hat with mass 1 - delta plus delta uniform on the rest of the box
-(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one.
+(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one. The level starts at
+`feasible_level` and follows the constraint by dual ascent: each batch, before it joins the
+evidence, is a held-out test of F-hat, and the level rises while more than `leak_target` of the
+sampler's mass in F-hat fails and falls while less does.
 
 Each update draws a proposal (uniform on the box, the current flow, and Gaussians around the rows
 that succeeded) with its exact mixture density, weights the draws by target / proposal
@@ -95,6 +98,9 @@ _CHUNK = 65536  # rows per flow evaluation outside training
 _GATE_DRAWS = 16384  # fixed-seed draws behind the truncation's two shares (flow mass in F-hat, box share outside)
 _GATE_MIN_ACCEPT = 0.01  # below this flow mass in F-hat the flow is not truncated (rejection would stall)
 _GATE_SEED = 15_485_863
+_MIX_ITERATIONS = 50  # EM iterations for a batch's share of the sampler's own draws
+_LEVEL_MAX_STEP = 0.25  # the most one update moves F-hat's level, in logits
+_LEVEL_LOGIT = (-6.0, 8.0)  # the range of F-hat's level under dual ascent, in logits (0.0025 to 0.9997)
 
 
 class _SplineTransform(MonotonicRQSTransform):
@@ -199,6 +205,12 @@ class GoFlowConfig:
     # constrained mode: estimated success probability from which a point counts as feasible (the
     # classifier's even-odds contour; the k-NN vote of 5 rows erodes less at 0.8, its old default)
     feasible_level: float = 0.5
+    # constrained mode: the level follows the constraint by dual ascent (docs/learning.md#goflow-modes).
+    # Each update first scores the current F-hat on the new batch, rows it has not been fitted to: every
+    # held-out row in F-hat moves the level's logit by level_step x (failed - leak_target), so the level
+    # settles where the share of F-hat's rows that fail is leak_target; level_step 0 keeps feasible_level.
+    leak_target: float = 0.004
+    level_step: float = 0.2
     # constrained mode: how the feasible set F-hat is estimated from the evidence, "knn" (the
     # k-nearest-neighbour vote) or "classifier" (an MLP fitted to the rows, learning.samplers.feasibility)
     feasible_model: str = "classifier"
@@ -229,6 +241,8 @@ class GoFlowConfig:
         check_number(self.delta, "GoFlowConfig.delta", 0.0, 1.0, low_open=True, high_open=True)
         check_number(self.outside_weight, "GoFlowConfig.outside_weight", 0.0)
         check_number(self.feasible_level, "GoFlowConfig.feasible_level", 0.0, 1.0, low_open=True)
+        check_number(self.leak_target, "GoFlowConfig.leak_target", 0.0, 1.0, low_open=True, high_open=True)
+        check_number(self.level_step, "GoFlowConfig.level_step", 0.0)
         check_choice(self.feasible_model, FEASIBLE_MODELS, "GoFlowConfig.feasible_model")
         check_int(self.classifier_steps, "GoFlowConfig.classifier_steps", 1)
         if not isinstance(self.truncate, bool):
@@ -295,6 +309,8 @@ def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
         # saved before the classifier and the truncation existed: the k-NN vote and the flow alone made it
         config["feasible_model"], config["truncate"] = "knn", False
         config.setdefault("feasible_level", 0.8)  # the k-NN vote's level of that time
+    if state.get("type") == "GoFlowSampler" and "level_step" not in config:
+        config["level_step"] = 0.0  # saved before the level followed the constraint: a fixed level made it
     return config
 
 
@@ -334,6 +350,7 @@ class GoFlowSampler:
         # the truncation to F-hat (constrained mode): (log flow mass in F-hat, log box share outside
         # it), or None while the sampler is the flow alone
         self._gate: tuple[float, float] | None = None
+        self._level = self.config.feasible_level  # F-hat's level now (constrained mode; see GoFlowConfig)
 
     @property
     def alpha(self) -> float:
@@ -423,7 +440,40 @@ class GoFlowSampler:
         """Whether box-coordinate points lie in the estimated feasible set F-hat (bool, shape (n,))."""
         u = _box_to_unit(y)
         p = self._classifier.probability(u) if self._classifier is not None else self._evidence.estimate(u)
-        return torch.as_tensor(p >= self.config.feasible_level)
+        return torch.as_tensor(p >= self._level)
+
+    def _follow_constraint(self, xi_arr: NDArray[np.float64], ret: NDArray[np.float64]) -> dict[str, float]:
+        """One dual-ascent step of F-hat's level on a batch F-hat has not been fitted to (constrained
+        mode, while the sampler is truncated).
+
+        The batch may be the sampler's own draws, uniform ones, or a mix: its density is estimated
+        as pi x the sampler + (1 - pi) x uniform (pi by maximum likelihood), and each row in F-hat
+        is weighted by the sampler's density over that estimate, so `leak` estimates the share of
+        the sampler's mass in F-hat that fails. The level's logit moves by level_step x n_eff x
+        (leak - leak_target), n_eff the weights' effective count. Returns what the step saw."""
+        cfg = self.config
+        if cfg.mode != "constrained" or cfg.level_step == 0 or self._gate is None:
+            return {}
+        y = torch.as_tensor(self._to_box(xi_arr), dtype=torch.float32).clamp(-BOX_BOUND, BOX_BOUND)
+        inside = self._feasible_hat(y).numpy()
+        if not inside.any():
+            return {"heldout_in_feasible": 0.0}
+        log_ratio = self._log_p_box(y).numpy() + self.space.dim * math.log(2.0 * BOX_BOUND)  # sampler / uniform
+        ratio = np.exp(np.minimum(log_ratio, 700.0))
+        pi = 0.5
+        for _ in range(_MIX_ITERATIONS):  # EM for the batch's share of sampler draws
+            pi = float(np.mean(pi * ratio / (pi * ratio + 1.0 - pi)))
+        w = (ratio / (pi * ratio + 1.0 - pi))[inside]
+        failed = (ret[inside] < 0.5).astype(np.float64)
+        leak = float(np.sum(w * failed) / np.sum(w))
+        n_eff = float(np.sum(w) ** 2 / np.sum(w**2))
+        logit = math.log(self._level) - math.log1p(-self._level) if self._level < 1.0 else _LEVEL_LOGIT[1]
+        step = cfg.level_step * n_eff * (leak - cfg.leak_target)
+        logit += min(max(step, -_LEVEL_MAX_STEP), _LEVEL_MAX_STEP)
+        logit = min(max(logit, _LEVEL_LOGIT[0]), _LEVEL_LOGIT[1])
+        self._level = 1.0 / (1.0 + math.exp(-logit))
+        return {"heldout_in_feasible": float(inside.sum()), "heldout_failed": float(failed.sum()),
+                "heldout_leak": leak, "heldout_own_share": pi}
 
     def _refresh_gate(self) -> None:
         """Re-estimate the truncation's shares from fixed-seed draws (deterministic in the flow and
@@ -666,6 +716,7 @@ class GoFlowSampler:
         on draws resampled from the mode's optimum given the evidence (docs/learning.md#goflow-modes)."""
         t0 = time.perf_counter()
         cfg = self.config
+        info_level = self._follow_constraint(xi_arr, ret)  # before the batch joins the evidence: held out
         self._evidence.add((xi_arr - self._low) / self._width, ret)
         gen = self._update_generator()
         if self._classifier is not None:
@@ -709,11 +760,13 @@ class GoFlowSampler:
         self._refresh_gate()
         if self._gate is not None:
             info["flow_mass_in_feasible"] = math.exp(self._gate[0])
+        if cfg.mode == "constrained":
+            info["feasible_level"] = self._level
         return update_diagnostics(
             ret, self.entropy(), first=run["first"], last=run["last"], steps=cfg.steps, skipped=run["skipped"],
             reverted=run["reverted"], has_signal=bool(np.ptp(self._evidence.signal) > 0), update_index=self.n_updates,
             t0=t0, fit=run["last"].get("fit", math.nan), evidence_rows=len(self._evidence), kl=run["kl"], **info,
-            **info_classifier)
+            **info_classifier, **info_level)
 
     def _paper_update(self, xi_arr: NDArray[np.float64], ret: NDArray[np.float64]) -> dict[str, Any]:
         """The GoFlow paper's update: K Adam steps on the loss of the module docstring."""
@@ -762,6 +815,7 @@ class GoFlowSampler:
             "flow": {k: _tensor_to_json(v) for k, v in self._flow.state_dict().items()},
             "evidence": self._evidence.state_dict(),
             **({"classifier": self._classifier.state_dict()} if self._classifier is not None else {}),
+            "feasible_level": self._level,
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -795,7 +849,10 @@ class GoFlowSampler:
         classifier = self._make_classifier(config)
         if classifier is not None and "classifier" in state:
             classifier.load_state_dict(state["classifier"])
+        level = check_number(state.get("feasible_level", config.feasible_level), "state feasible_level", 0.0, 1.0,
+                             low_open=True)
         self.config, self.n_updates, self._evidence, self._classifier = config, n_updates, evidence, classifier
+        self._level = level
         self._entropy_cache = None
         self._refresh_gate()
 

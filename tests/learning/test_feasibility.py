@@ -71,3 +71,20 @@ def test_design_weights_give_crowded_rows_less_weight_than_sparse_ones():
     uniform = Evidence(2, 10000, 5)
     uniform.add(rng.uniform(size=(4000, 2)), np.zeros(4000))
     assert 0.5 <= np.median(uniform.design_weights()) <= 2.0
+
+
+def test_the_boundary_is_read_from_the_averaged_parameters_and_old_states_load():
+    """`probability` reads the steps' moving average, which a state keeps beside the last
+    parameters; a state saved before the average existed reads its last parameters."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(size=(2000, 2))
+    c = _fit(x, _ring(x), steps=50)
+    state = json.loads(json.dumps(c.state_dict()))
+    assert state["average"] != state["params"]
+    del state["average"]
+    old = SuccessClassifier(2, (64, 64), seed=5)
+    old.load_state_dict(state)
+    last = SuccessClassifier(2, (64, 64), seed=5)
+    last.load_state_dict({**state, "average": state["params"]})
+    np.testing.assert_array_equal(old.probability(x), last.probability(x))
+    assert not np.array_equal(old.probability(x), c.probability(x))

@@ -65,11 +65,12 @@ def _small_disk(xi: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("protocol", ["uniform", "own"])
 def test_constrained_mode_concentrates_on_and_covers_the_feasible_set(protocol):
-    """A small off-centre disk after 30 rounds. Measured (seed 0, the classifier and the
-    truncation): mass 0.994 / 0.971 and coverage 0.979 / 0.992 (uniform / own batches); the k-NN
-    vote without truncation covered 0.907 / 0.974, and the paper's update gets 0.87-0.93 and
-    0.5-0.77 on the same disk after 100 rounds (docs/learning.md#goflow-modes). Issue 21's 99 %
-    mass on own draws needs more rounds than a test affords."""
+    """A small off-centre disk after 30 rounds: issue 21's targets (mass >= 0.99, coverage >= 0.95)
+    in a test-sized run. Measured (seed 0, the level following the constraint): mass 0.998 /
+    0.995 and coverage 0.956 / 0.975 (uniform / own batches); with the level fixed at 0.5, mass
+    0.994 / 0.971 and coverage 0.979 / 0.992; the k-NN vote without truncation covered 0.907 /
+    0.974, and the paper's update gets 0.87-0.93 and 0.5-0.77 on the same disk after 100 rounds
+    (docs/learning.md#goflow-modes)."""
     s = GoFlowSampler(_unit_box(2), None, mode="constrained", beta=0.0, seed=0)
     _train(s, _small_disk, rounds=30, batch=256, seed=0, protocol=protocol)
     draws = s.sample(20000, np.random.default_rng(1))
@@ -79,7 +80,7 @@ def test_constrained_mode_concentrates_on_and_covers_the_feasible_set(protocol):
     inside = u[_small_disk(u) == 1]
     share = len(inside) / len(u)
     coverage = np.mean(np.exp(s.log_prob(inside)) >= 0.1 / share)
-    assert mass >= 0.965, mass
+    assert mass >= 0.99, mass
     assert coverage >= 0.95, coverage
 
 
@@ -98,7 +99,8 @@ def test_constrained_mode_refuses_graded_signals():
     ("mode", "greedy", r"mode = 'greedy'; expected one of"), ("signal_range", (1.0, 0.0), "lo < hi"),
     ("feasible_level", 0.0, "feasible_level"), ("memory", 0, "memory"), ("outside_weight", -1.0, "outside_weight"),
     ("feasible_model", "svm", r"feasible_model = 'svm'; expected one of"), ("truncate", "yes", r"truncate = 'yes'"),
-    ("classifier_steps", 0, "classifier_steps"),
+    ("classifier_steps", 0, "classifier_steps"), ("leak_target", 0.0, r"leak_target = 0\.0"),
+    ("leak_target", 1.0, r"leak_target = 1\.0"), ("level_step", -0.1, r"level_step = -0\.1"),
 ])
 def test_bad_settings_name_the_value(field, value, match):
     with pytest.raises(InputError, match=match):
@@ -161,3 +163,39 @@ def test_constrained_states_saved_before_the_classifier_load_as_the_knn_vote_unt
     xi = np.random.default_rng(0).uniform(size=(200, 2))
     lq = b._log_q(torch.as_tensor(b._to_box(xi), dtype=torch.float32)).double().numpy()
     np.testing.assert_allclose(b.log_prob(xi), lq - b._log_z + b._log_jac, atol=1e-5)
+
+
+def test_the_level_follows_the_constraint_on_held_out_rows():
+    """F-hat's level rises when the batch's rows in F-hat fail and falls when they succeed, by at
+    most 0.25 logits an update; the batch's share of the sampler's own draws is estimated (own
+    draws near 1, a uniform batch near 0); level_step 0 holds the level; a reload keeps it."""
+    small = dict(mode="constrained", steps=10, proposal_samples=256, fit_batch=128, beta=0.0, seed=0)
+    s = GoFlowSampler(_unit_box(2), None, **small)
+    _train(s, _small_disk, rounds=4, batch=256, seed=0)
+    state = json.loads(json.dumps(s.state_dict()))
+    copy = lambda: GoFlowSampler.from_state_dict(state)  # noqa: E731
+    logit = lambda p: math.log(p / (1.0 - p))  # noqa: E731
+    before = state["feasible_level"]
+    own = s.sample(256, np.random.default_rng(3))
+    fail = copy().update(own, np.zeros(256))  # every held-out row fails
+    assert fail["heldout_own_share"] > 0.9 and fail["heldout_failed"] == fail["heldout_in_feasible"] > 200
+    assert 0.0 < logit(fail["feasible_level"]) - logit(before) <= 0.25 + 1e-9
+    succeed = copy().update(own, np.ones(256))  # every held-out row succeeds
+    assert succeed["feasible_level"] < before
+    uniform = np.random.default_rng(4).uniform(size=(2048, 2))
+    assert copy().update(uniform, _small_disk(uniform))["heldout_own_share"] < 0.1
+    b = copy()
+    b.update(own, np.zeros(256))
+    assert GoFlowSampler.from_state_dict(json.loads(json.dumps(b.state_dict()))).state_dict()["feasible_level"] == \
+        fail["feasible_level"]
+    fixed = GoFlowSampler(_unit_box(2), None, **{**small, "level_step": 0.0})
+    _train(fixed, _small_disk, rounds=5, batch=256, seed=0, protocol="own")
+    assert fixed.state_dict()["feasible_level"] == 0.5
+
+
+def test_states_saved_before_the_level_followed_the_constraint_keep_a_fixed_level():
+    a = GoFlowSampler(_unit_box(2), None, mode="constrained", steps=2, proposal_samples=128, fit_batch=64)
+    state = json.loads(json.dumps(a.state_dict()))
+    del state["config"]["level_step"], state["feasible_level"]
+    b = GoFlowSampler.from_state_dict(state)
+    assert b.config.level_step == 0.0 and b.state_dict()["feasible_level"] == b.config.feasible_level
