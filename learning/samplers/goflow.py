@@ -303,13 +303,15 @@ def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
     for key in ("alpha", "beta"):
         if key in state and key not in config:
             config[key] = state[key]
-    if state.get("type") == "GoFlowSampler" and "mode" not in config:
+    if state.get("type") != "GoFlowSampler":
+        return config
+    if "mode" not in config:
         config["mode"] = "paper"  # saved before the modes existed: the paper's update made it
-    if state.get("type") == "GoFlowSampler" and "feasible_model" not in config:
+    if "feasible_model" not in config:
         # saved before the classifier and the truncation existed: the k-NN vote and the flow alone made it
         config["feasible_model"], config["truncate"] = "knn", False
         config.setdefault("feasible_level", 0.8)  # the k-NN vote's level of that time
-    if state.get("type") == "GoFlowSampler" and "level_step" not in config:
+    if "level_step" not in config:
         config["level_step"] = 0.0  # saved before the level followed the constraint: a fixed level made it
     return config
 
@@ -452,7 +454,7 @@ class GoFlowSampler:
         the sampler's mass in F-hat that fails. The level's logit moves by level_step x n_eff x
         (leak - leak_target), n_eff the weights' effective count. Returns what the step saw."""
         cfg = self.config
-        if cfg.mode != "constrained" or cfg.level_step == 0 or self._gate is None:
+        if cfg.level_step == 0 or self._gate is None:  # the gate exists in the constrained mode alone
             return {}
         y = torch.as_tensor(self._to_box(xi_arr), dtype=torch.float32).clamp(-BOX_BOUND, BOX_BOUND)
         inside = self._feasible_hat(y).numpy()
