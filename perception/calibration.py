@@ -41,7 +41,9 @@ class CalibrationConfig:
     """scenes: random scenes per perturbation group (three gears each); seed: of the scene stream
     (>= HELD_OUT_SEED: never used for tuning); groups: perturbations (perception.scenes); workers:
     processes (one group at a time each); close_prior: (multiple of the far posterior's std, min,
-    max half-width [m]) of the inspect view's prior box."""
+    max half-width [m]) of the inspect view's prior box; tempering_factors: factors on each
+    posterior's tempering at which the truth's credible level is also recorded (`scaled_levels`,
+    for fitting the tempering: benchmarks/perception_tempering.py)."""
 
     scenes: int = 34
     seed: int = HELD_OUT_SEED
@@ -50,6 +52,7 @@ class CalibrationConfig:
     workers: int = 1
     close_prior: tuple[float, float, float] = (4.0, 0.005, 0.03)
     search: SearchConfig = field(default_factory=SearchConfig)
+    tempering_factors: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         check_int(self.scenes, "scenes", minimum=1)
@@ -60,6 +63,9 @@ class CalibrationConfig:
             raise InputError(f"groups = {list(self.groups)}; expected some of {list(PERTURBATIONS)}")
         if not all(0 < level < 1 for level in self.levels):
             raise InputError(f"levels = {list(self.levels)}; expected probabilities in (0, 1)")
+        if not all(np.isfinite(f) and f > 0 for f in self.tempering_factors):
+            raise InputError(f"tempering_factors = {list(self.tempering_factors)}; expected "
+                             "finite factors > 0")
 
 
 def pose_error(estimate: np.ndarray, truth: np.ndarray, period: float) -> tuple[float, float]:
@@ -77,8 +83,13 @@ def confidently_wrong(row: dict) -> bool:
     return row["xy_error_m"] > 0.002 or bool(sigmas.max() > 3.0)
 
 
+# What each row keeps of the posterior's search info (explain a miscalibration after the fact).
+ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "inlier_fraction", "valid_fraction",
+            "depth_noise")
+
+
 def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: PosePosterior,
-         prior: Prior, seconds: float) -> dict:
+         prior: Prior, seconds: float, factors: tuple[float, ...] = ()) -> dict:
     period = post.period
     d, e = pose_error(post.map_pose, truth, period)
     err = post.map_pose - truth
@@ -88,7 +99,9 @@ def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: 
             "level": post.credible_level(truth), "xy_error_m": d, "yaw_error_rad": e,
             "map_error": err.tolist(), "std": post.std().tolist(), "truth": truth.tolist(),
             "map": post.map_pose.tolist(), "prior_half_width": prior.half_width,
-            "seconds": seconds, "gsd": post.info.get("gsd"), "tempering": post.info.get("tempering")}
+            "seconds": seconds, **{k: post.info.get(k) for k in ROW_INFO},
+            **({"scaled_levels": [post.tempered(f).credible_level(truth) for f in factors]}
+               if factors and post.informative else {})}
 
 
 def _close_prior(far: PosePosterior, fallback: Prior, config: CalibrationConfig) -> Prior:
@@ -120,7 +133,7 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
             t0 = time.perf_counter()
             far = estimate_pose(view.obs, gear_model(gear), det.prior, config.search)
             rows.append(_row(group, "scene", scene.index, gear, truth, far, det.prior,
-                             time.perf_counter() - t0))
+                             time.perf_counter() - t0, config.tempering_factors))
             rows[-1]["detect_seconds"] = t_detect
             rows[-1]["hidden_fraction"] = view.hidden_fraction if view.gear == gear else None
             prior = _close_prior(far, det.prior, config)
@@ -129,7 +142,7 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
             t0 = time.perf_counter()
             post = estimate_pose(close.obs, gear_model(gear), prior, config.search)
             rows.append(_row(group, "inspect", scene.index, gear, truth, post, prior,
-                             time.perf_counter() - t0))
+                             time.perf_counter() - t0, config.tempering_factors))
             rows[-1]["far_std"] = far.std().tolist()
             rows[-1]["hidden_fraction"] = close.hidden_fraction
     return rows

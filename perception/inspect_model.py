@@ -26,9 +26,9 @@ from perception.posterior import PosePosterior
 # percentile over every perturbation group, and the fraction of close views that were informative.
 # Measured by `goflow bench calibration` on the held-out scenes (docs/results/perception_calibration.json).
 CLOSE_VIEW: dict[str, dict[str, tuple[float, ...] | float]] = {
-    "small": {"median": (3.4e-5, 3.3e-5, 3.5e-3), "p90": (4.5e-5, 4.3e-5, 5.2e-3), "informative": 1.0},
-    "medium": {"median": (4.0e-5, 4.5e-5, 2.0e-3), "p90": (5.4e-5, 6.0e-5, 3.3e-3), "informative": 1.0},
-    "large": {"median": (4.5e-5, 3.9e-5, 1.3e-3), "p90": (6.7e-5, 5.6e-5, 2.2e-3), "informative": 1.0},
+    "small": {"median": (3.3e-5, 3.1e-5, 3.4e-3), "p90": (4.1e-5, 4.1e-5, 4.8e-3), "informative": 1.0},
+    "medium": {"median": (3.6e-5, 4.0e-5, 1.8e-3), "p90": (4.8e-5, 5.3e-5, 2.7e-3), "informative": 1.0},
+    "large": {"median": (4.7e-5, 4.3e-5, 1.4e-3), "p90": (6.8e-5, 5.9e-5, 2.2e-3), "informative": 1.0},
 }
 
 

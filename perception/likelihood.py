@@ -15,13 +15,18 @@ full-resolution product.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
 from assembly.gear_meshes import gearset_model_paths
-from assembly.gearset import gear_spec
+from assembly.gearset import GEAR_MODULE, gear_spec
+
+
+# Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
+# scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
+GEAR_TEMPERING = {"small": (0.966, 0.2), "medium": (1.149, -0.1), "large": (0.901, -0.1)}
 
 
 @dataclass
@@ -29,7 +34,8 @@ class LikelihoodConfig:
     """p_out: outlier probability; b_rgb: colour scale (L1 over r, g, b in [0, 1]); b_d: depth
     scale [m]; depth_range: support of the outlier depth density [m]; tempering: exponent on the
     full-resolution product of pixel likelihoods (accounts for correlated pixels); its default
-    comes from the view: correlation_length, gsd_exponent and reference_gsd (tempering_for)."""
+    comes from the view and the gear: correlation_length, gsd_exponent, reference_gsd and
+    gear_tempering, per gear (A, B) of a factor A (gsd / g0)^B on the shared law (tempering_for)."""
 
     p_out: float = 0.1
     b_rgb: float = 0.15
@@ -39,6 +45,10 @@ class LikelihoodConfig:
     correlation_length: float = 1.0e-3  # [m] along the gear's outline (calibrated, docs)
     gsd_exponent: float = 1.77          # how the tempering grows with the pixel size (calibrated)
     reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
+    gear_tempering: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(GEAR_TEMPERING))
+    occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
+    noise_exponent: float = 0.5         # evidence under depth noise (calibrated)
+    brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
@@ -50,26 +60,61 @@ class LikelihoodConfig:
                 continue
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value > 0")
+        for name in ("occlusion_exponent", "noise_exponent", "brightness_exponent"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value >= 0")
+        for gear, factor in self.gear_tempering.items():
+            gear_spec(gear)  # a known gear, or ValueError naming the valid ones
+            if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
+                    and np.isfinite(factor[1])):
+                raise ValueError(f"LikelihoodConfig.gear_tempering[{gear!r}] = {factor}; expected "
+                                 "(A > 0, B) of the factor A (gsd / reference_gsd)^B")
 
     def tempering_for(self, gear: str, gsd: float) -> float:
         """The tempering exponent for `gear` seen at ground sampling distance `gsd` [m of table per
         pixel]: the fixed `tempering` if set, else
 
-            min(1, g0^2 (gsd / g0)^k / (correlation_length * tip radius)),  g0 = reference_gsd,
-            k = gsd_exponent.
+            min(1, A (gsd / g0)^B g0^2 (gsd / g0)^k / (correlation_length * tip radius)),
+            g0 = reference_gsd, k = gsd_exponent, (A, B) = gear_tempering[gear] ((1, 0) if absent).
 
         The evidence about a gear's pose lies along its outline (silhouette and teeth), where
         neighbouring pixels err together over about `correlation_length`: a pixel of area gsd^2
         is worth that fraction of one independent look at a piece of outline (k = 2), and the
         outline grows with the radius. Measured, the exponent is a little below 2: the coarser,
-        oblique scene view needs relatively less weight than the close view (docs)."""
+        oblique scene view needs relatively less weight than the close view; and the gears'
+        tooth patterns differ in how much their pixels err together (the per-gear factor; docs)."""
         if self.tempering is not None:
             return float(self.tempering)
         if not (np.isfinite(gsd) and gsd > 0):
             raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
         g0 = self.reference_gsd
-        pixel = g0 ** 2 * (gsd / g0) ** self.gsd_exponent
+        a, b = self.gear_tempering.get(gear, (1.0, 0.0))
+        pixel = a * g0 ** 2 * (gsd / g0) ** (self.gsd_exponent + b)
         return float(min(1.0, pixel / (self.correlation_length * gear_spec(gear).tip_radius)))
+
+    def evidence_factor(self, gsd: float, visible: float, depth_noise: float) -> float:
+        """What the tempering is multiplied by once the best pose is known, from the view
+        (`gsd` [m/pixel]), the share of the gear's predicted pixels that pose explains (`visible`,
+        in (0, 1]) and the depth noise read off the table (`depth_noise` [m]):
+
+            visible^(-occlusion_exponent * w) * (b_d / hypot(b_d, depth_noise))^noise_exponent,
+
+        w = clip((tooth pitch / gsd - 2) / 4, 0, 1) how well the view resolves the teeth (none
+        below 2 pixels a tooth, fully from 6). Where the teeth are resolved, the pose's error is
+        dominated by what every tooth shares (the model's small mismatch), so hiding part of the
+        gear costs less evidence than its share of pixels; noisy depth costs more than the widened
+        depth scale says. Both exponents are fitted on tuning scenes (docs/perception.md)."""
+        if not (np.isfinite(gsd) and gsd > 0):
+            raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
+        if not (np.isfinite(visible) and 0 < visible <= 1):
+            raise ValueError(f"visible = {visible}; expected a share in (0, 1]")
+        if not (np.isfinite(depth_noise) and depth_noise >= 0):
+            raise ValueError(f"depth_noise = {depth_noise}; expected a standard deviation >= 0 [m]")
+        resolved = float(np.clip((np.pi * GEAR_MODULE / gsd - 2.0) / 4.0, 0.0, 1.0))
+        occlusion = max(visible, 0.25) ** (-self.occlusion_exponent * resolved)
+        noise = (self.b_d / np.hypot(self.b_d, depth_noise)) ** self.noise_exponent
+        return float(occlusion * noise)
 
     def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
                      depth_hat: np.ndarray) -> np.ndarray:

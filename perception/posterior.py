@@ -68,13 +68,18 @@ class PosePosterior:
             if not (x0 < x1 and y0 < y1):
                 raise ValueError(f"support {self.support}; expected (x0, x1, y0, y1) with x0 < x1 "
                                  "and y0 < y1")
-            with np.errstate(divide="ignore"):
-                lm = (lm + np.log(cell_overlap(self.xs, self.dx, x0, x1))[None, :, None, None]
-                      + np.log(cell_overlap(self.ys, self.dy, y0, y1))[None, None, :, None])
+            lm = lm + self._support_cut()
         if not np.isfinite(lm.max()):
             raise ValueError("the posterior has no mass (every cell is -inf or outside its support)")
         lm = lm - lm.max()
         self.log_mass = lm - np.log(np.exp(lm).sum())
+
+    def _support_cut(self) -> np.ndarray:
+        """(1, nx, ny, 1) log of each cell's fraction inside the support box (-inf outside)."""
+        x0, x1, y0, y1 = self.support
+        with np.errstate(divide="ignore"):
+            return (np.log(cell_overlap(self.xs, self.dx, x0, x1))[None, :, None, None]
+                    + np.log(cell_overlap(self.ys, self.dy, y0, y1))[None, None, :, None])
 
     @property
     def dx(self) -> float:
@@ -202,6 +207,21 @@ class PosePosterior:
         levels = np.empty(flat.size)
         levels[order] = np.repeat(group_mid, counts)
         return levels.reshape(self.mass.shape)
+
+    def tempered(self, factor: float) -> "PosePosterior":
+        """The posterior with its tempering exponent multiplied by `factor` (> 0), on the same
+        cells: log-masses scaled by `factor` and renormalized. A factor below 1 widens it, above 1
+        sharpens it; used to fit the tempering (docs/perception.md), exact when the cells cover
+        the rescaled posterior."""
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"factor = {factor}; expected a finite tempering factor > 0")
+        lm = self.log_mass
+        if self.support is not None:  # the cut to the support is geometry, not evidence: keep it
+            cut = self._support_cut()
+            lm = np.where(np.isfinite(cut), lm - np.where(np.isfinite(cut), cut, 0.0), -np.inf)
+        return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets,
+                             factor * lm, self.informative, self.reason, dict(self.info),
+                             self.period, self.support)
 
     def credible_mask(self, level: float = 0.9) -> np.ndarray:
         """Cells of the highest-probability region holding `level` of the mass (a cell is in when

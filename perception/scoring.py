@@ -97,14 +97,15 @@ class ImageScorer:
 
     def _set_light(self, light: np.ndarray) -> None:
         """Assume the light arrives from direction `light` (world, unit): read the image's
-        conditions off the bare table under it and set the pixel model (colour differences scale
-        with the light's brightness, a dimmer image has smaller ones; depth residuals widen with
-        the noise)."""
+        conditions off the bare table under it and set the pixel model (colour differences grow
+        with the light's brightness, a little slower than it: part of them, quantization and
+        antialiased edges, does not scale; depth residuals widen with the noise)."""
         self.light = np.asarray(light, float)
         self.conditions = _read_conditions(self.obs, *self._table, self.origin, self.light)
         brightness = float(np.mean(self.conditions.gain))
         self.pixels_model = replace(
-            self.likelihood, b_rgb=self.likelihood.b_rgb * float(np.clip(brightness, 0.25, 4.0)),
+            self.likelihood, b_rgb=self.likelihood.b_rgb
+            * float(np.clip(brightness, 0.25, 4.0)) ** self.likelihood.brightness_exponent,
             b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
         self._sets = {}
 

@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.special import logsumexp
@@ -193,8 +193,16 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         info["seconds"] = time.perf_counter() - t0
         return uniform_posterior(model.name, (prior.x, prior.y), prior.half_width, reason,
                                  period=model.period, info=info)
-    # 3. Posterior grid around the MAP.
-    post = _posterior_grid(model, best, score, fine, config, prior)
+    # 3. Posterior grid around the MAP, its evidence weighed by what the view and the MAP say.
+    factor = config.likelihood.evidence_factor(scorer.gsd, inliers / pixels,
+                                               scorer.conditions.depth_noise)
+    info.update(evidence_factor=factor, tempering=scorer.tempering * factor)
+
+    def weighed(poses, stride):
+        scores = score(poses, stride)
+        return replace(scores, loglik=factor * scores.loglik)
+
+    post = _posterior_grid(model, best, weighed, fine, config, prior)
     info["seconds"] = time.perf_counter() - t0
     post.info.update(info)
     return post

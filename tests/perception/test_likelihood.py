@@ -27,5 +27,43 @@ def test_bad_configs_are_named():
         LikelihoodConfig(tempering=float("nan"))
 
 
+def test_gear_tempering_is_a_factor_on_the_shared_law():
+    base = LikelihoodConfig(gear_tempering={})
+    cfg = LikelihoodConfig(gear_tempering={"medium": (0.5, 1.0)})
+    g0 = cfg.reference_gsd
+    assert cfg.tempering_for("medium", g0) == pytest.approx(0.5 * base.tempering_for("medium", g0))
+    assert cfg.tempering_for("medium", 3 * g0) == pytest.approx(1.5 * base.tempering_for("medium", 3 * g0))
+    assert cfg.tempering_for("large", 3 * g0) == pytest.approx(base.tempering_for("large", 3 * g0))
+    assert LikelihoodConfig(tempering=0.01, gear_tempering={"large": (2.0, 0.0)}).tempering_for(
+        "large", g0) == 0.01  # a fixed exponent overrides the law
+    with pytest.raises(ValueError, match="unknown gear 'huge'"):
+        LikelihoodConfig(gear_tempering={"huge": (1.0, 0.0)})
+    with pytest.raises(ValueError, match=r"gear_tempering\['small'\]"):
+        LikelihoodConfig(gear_tempering={"small": (0.0, 0.0)})
+    with pytest.raises(ValueError, match=r"gear_tempering\['small'\]"):
+        LikelihoodConfig(gear_tempering={"small": (1.0, float("inf"))})
+
+
+def test_evidence_factor_follows_occlusion_where_teeth_are_resolved_and_depth_noise():
+    cfg = LikelihoodConfig(occlusion_exponent=0.5, noise_exponent=1.0)
+    close, coarse = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2  # 8 and 2 pixels a tooth
+    assert cfg.evidence_factor(close, 1.0, 0.0) == pytest.approx(1.0)
+    # half the gear hidden: sqrt(2) times the weight a pixel where teeth are resolved ...
+    assert cfg.evidence_factor(close, 0.5, 0.0) == pytest.approx(np.sqrt(2))
+    # ... none where they are not (the error there shrinks with the pixels seen)
+    assert cfg.evidence_factor(coarse, 0.5, 0.0) == pytest.approx(1.0)
+    noisy = cfg.evidence_factor(close, 1.0, cfg.b_d)
+    assert noisy == pytest.approx(1 / np.sqrt(2))
+    assert LikelihoodConfig(occlusion_exponent=0.0, noise_exponent=0.0).evidence_factor(
+        close, 0.3, 0.01) == pytest.approx(1.0)
+    for kwargs, name in (({"gsd": 0.0}, "gsd"), ({"visible": 0.0}, "visible"),
+                         ({"visible": 1.5}, "visible"), ({"depth_noise": float("nan")}, "depth_noise")):
+        args = {"gsd": close, "visible": 1.0, "depth_noise": 0.0, **kwargs}
+        with pytest.raises(ValueError, match=name):
+            cfg.evidence_factor(**args)
+    with pytest.raises(ValueError, match="occlusion_exponent"):
+        LikelihoodConfig(occlusion_exponent=-1.0)
+
+
 def test_table_colour_comes_from_its_model():
     np.testing.assert_allclose(table_albedo(), [0.62, 0.45, 0.28], atol=1e-6)

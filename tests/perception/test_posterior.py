@@ -124,3 +124,24 @@ def test_symmetry_class_and_credible_levels_of_own_samples_are_uniform():
     with pytest.raises(ValueError, match="period"):
         PosePosterior("medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets, post.log_mass,
                       period=0.3)
+
+
+def test_tempered_scales_the_evidence_and_keeps_the_support():
+    post = _gaussian()
+    np.testing.assert_allclose(post.tempered(1.0).log_mass, post.log_mass, atol=1e-12)
+    # a Gaussian's log-density times f is a Gaussian with std / sqrt(f) (cells resolve it)
+    np.testing.assert_allclose(post.tempered(4.0).std()[:2], post.std()[:2] / 2, rtol=0.05)
+    assert np.all(post.tempered(0.5).std() > post.std())
+    xs = np.linspace(0.39, 0.41, 5)
+    offs = np.linspace(-0.01, 0.01, 5)
+    ll = -np.arange(5.0)[None, :, None, None] * np.ones((1, 5, 5, 5))
+    cut = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, ll,
+                        support=(0.39, 0.41, -0.01, 0.01))
+    # the half cells at the support's edges keep half their (rescaled) mass, none lies outside
+    hot = cut.tempered(2.0)
+    assert hot.sample(2000, seed=0)[:, 0].min() >= 0.39 and hot.support == cut.support
+    raw = np.exp(-2.0 * np.arange(5.0)) * [0.5, 1, 1, 1, 0.5]
+    np.testing.assert_allclose(hot.marginal("x")[1], raw / raw.sum(), rtol=1e-9)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="factor"):
+            post.tempered(bad)

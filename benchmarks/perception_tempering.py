@@ -1,0 +1,215 @@
+"""Fit the likelihood's tempering on tuning scenes (never the calibration benchmark's).
+
+A posterior's tempering exponent (perception.likelihood.LikelihoodConfig) is the shared law
+
+    tau = min(1, g0^2 (gsd / g0)^k / (l r_tip))
+
+times a factor per gear, A (gsd / g0)^B (`gear_tempering`), times the evidence factor set once
+the best pose is known: visible^(-gamma w) (b_d / hypot(b_d, depth noise))^eta (`evidence_factor`;
+w: how well the view resolves the teeth). This script runs the calibration pipeline (detection,
+far posterior, inspect view, close posterior) on tuning scenes, records for every posterior the
+truth's credible level with its tempering multiplied by each of a grid of factors
+(PosePosterior.tempered: rescaling the tempering moves no MAP, only the posterior), and fits
+gamma and eta (grids) and, for each, every gear's (A, B) (grids) so that the truths' levels are
+closest to uniform in every perturbation group x view cell.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/perception_tempering.py --scenes 30 --seed 400 \
+        --workers 2 --rows runs/tempering/seed400.json
+
+prints the coverage at 50/68/80/90/95 % with the tempering the rows were made with and with the
+fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
+occlusion_exponent and noise_exponent hold). `--rows PATH` stores the rows there; existing files
+are read back instead (nothing rendered again), a later file's groups replacing an earlier one's
+(rows made under another colour model, say). The colour scale's brightness exponent changes the
+pixels' scores, not only their weight, so it cannot be fitted this way: it was chosen from the
+dim and bright groups and checked by collecting them again (docs/perception.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from common.errors import InputError
+from common.files import check_output_file, read_json, write_json
+from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, run_calibration
+from perception.likelihood import LikelihoodConfig
+
+FACTORS = tuple(float(f) for f in np.geomspace(0.25, 4.0, 33))
+FIT_LEVELS = np.linspace(0.05, 0.95, 19)  # the levels whose coverage the fit matches
+AMPLITUDES = np.geomspace(0.5, 2.0, 41)
+EXPONENTS = np.linspace(-0.75, 0.75, 31)
+OCCLUSION = np.linspace(0.0, 1.0, 5)
+NOISE = np.linspace(0.0, 2.0, 5)
+
+
+def collect(scenes: int, seed: int, workers: int) -> dict:
+    """The calibration pipeline's rows on tuning scenes, with each posterior's scaled levels."""
+    if seed + scenes > HELD_OUT_SEED:
+        raise InputError(f"--seed {seed} with --scenes {scenes} reaches the benchmark's scenes "
+                         f"(seeds from {HELD_OUT_SEED}); tune on seeds below it")
+    result = run_calibration(CalibrationConfig(scenes=scenes, seed=seed, workers=workers,
+                                               tempering_factors=FACTORS), progress=True)
+    result["config"]["tempering_factors"] = list(FACTORS)
+    return result
+
+
+def coverage(levels: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+    """Observed coverage at each nominal level."""
+    return (levels[:, None] < nominal[None, :]).mean(axis=0)
+
+
+class Rows:
+    """The informative posteriors' rows as arrays, and their truth levels at any tempering."""
+
+    def __init__(self, rows: list[dict], factors: np.ndarray) -> None:
+        bare = LikelihoodConfig(gear_tempering={})
+        self.rows = rows
+        self.logf = np.log(factors)
+        self.table = np.array([r["scaled_levels"] for r in rows])
+        self.gsd = np.array([r["gsd"] for r in rows])
+        # the shared law alone (no gear factor, no evidence factor), over what each row used
+        self.bare = np.array([bare.tempering_for(r["gear"], r["gsd"]) / r["tempering"] for r in rows])
+        self.visible = np.array([r["inlier_fraction"] for r in rows])
+        self.noise = np.array([r["depth_noise"] for r in rows])
+
+    def levels(self, scale: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        """Each row's (of `mask`'s) truth level with its tempering multiplied by scale[i]
+        (interpolated in log factor between the recorded ones, clipped to their range)."""
+        table = self.table if mask is None else self.table[mask]
+        s = np.clip(np.log(scale), self.logf[0], self.logf[-1])
+        idx = np.clip(np.searchsorted(self.logf, s) - 1, 0, len(self.logf) - 2)
+        t = (s - self.logf[idx]) / (self.logf[idx + 1] - self.logf[idx])
+        n = np.arange(len(s))
+        return table[n, idx] * (1 - t) + table[n, idx + 1] * t
+
+    def scale(self, config: LikelihoodConfig) -> np.ndarray:
+        """Per row: the tempering `config` gives it over the one it was recorded with."""
+        out = np.empty(len(self.rows))
+        for i, r in enumerate(self.rows):
+            a, b = config.gear_tempering.get(r["gear"], (1.0, 0.0))
+            out[i] = (self.bare[i] * a * (r["gsd"] / config.reference_gsd) ** b
+                      * config.evidence_factor(r["gsd"], self.visible[i], self.noise[i]))
+        return out
+
+
+def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
+    """Squared coverage error at FIT_LEVELS, summed over the cells each row's key names."""
+    keys = np.asarray(keys)
+    return float(sum(((coverage(levels[keys == k], FIT_LEVELS) - FIT_LEVELS) ** 2).sum()
+                     for k in np.unique(keys)))
+
+
+def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
+        noise: np.ndarray = NOISE) -> LikelihoodConfig:
+    """`base` with the occlusion and noise exponents (from the grids `occlusion`, `noise`) and, for
+    each pair, every gear's (A, B) (grids AMPLITUDES x EXPONENTS): the set whose truth levels are
+    closest to uniform in every perturbation group x view cell."""
+    g0 = base.reference_gsd
+    views = [r["view"] for r in data.rows]
+    cells = [f"{r['group']}/{r['view']}" for r in data.rows]
+    gears = np.array([r["gear"] for r in data.rows])
+    best = (np.inf, base)
+    for gamma in occlusion:
+        for eta in noise:
+            cfg = replace(base, gear_tempering={}, occlusion_exponent=float(gamma),
+                          noise_exponent=float(eta))
+            scale = data.scale(cfg)
+            per_gear = {}
+            for gear in np.unique(gears):
+                m = gears == gear
+                sub = [v for v, k in zip(views, m) if k]
+                ratio = (data.gsd[m] / g0)
+                options = [(cell_loss(data.levels(scale[m] * a * ratio ** b, m), sub), a, b)
+                           for a in AMPLITUDES for b in EXPONENTS]
+                _, a, b = min(options)
+                per_gear[str(gear)] = (float(a), float(b))
+            cfg = replace(cfg, gear_tempering=per_gear)
+            loss = cell_loss(data.levels(data.scale(cfg)), cells)
+            if loss < best[0]:
+                best = (loss, cfg)
+    return best[1]
+
+
+def _table(data: Rows, today: np.ndarray, fitted: np.ndarray, key) -> list[str]:
+    """Markdown rows: coverage at LEVELS today and fitted, per value of key(row)."""
+    nominal = np.asarray(LEVELS)
+    fmt = lambda c: "/".join(f"{100 * x:.0f}" for x in c)  # noqa: E731
+    keys = [key(r) for r in data.rows]
+    out = []
+    for k in dict.fromkeys(keys):
+        m = np.array([x == k for x in keys])
+        out.append(f"| {' | '.join(k)} | {m.sum()} | {fmt(coverage(today[m], nominal))} | "
+                   f"{fmt(coverage(fitted[m], nominal))} |")
+    return out
+
+
+def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray]:
+    """The informative rows of every file; a later file's groups replace an earlier one's."""
+    rows: dict[str, list[dict]] = {}
+    factors = None
+    for path in paths:
+        result = read_json(path, "calibration rows")
+        f = np.asarray(result["config"]["tempering_factors"])
+        if factors is not None and not np.allclose(f, factors):
+            raise InputError(f"{path}: its tempering factors differ from the first file's")
+        factors = f
+        for group in result["config"]["groups"]:
+            rows[group] = [r for r in result["rows"] if r["group"] == group
+                           and r.get("informative") and "scaled_levels" in r]
+    return [r for group in rows.values() for r in group], factors
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scenes", type=int, default=30)
+    p.add_argument("--seed", type=int, default=400, help=f"first tuning scene seed (< {HELD_OUT_SEED})")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--rows", type=Path, nargs="+", default=None,
+                   help="store the rows here (one path), or read them from existing files (a later "
+                        "file's groups replace an earlier one's)")
+    p.add_argument("--json", type=Path, default=None, help="write the fit and the tables here")
+    args = p.parse_args(argv)
+    try:
+        out = check_output_file(args.json, "--json") if args.json else None
+        if args.rows and all(path.exists() for path in args.rows):
+            rows, factors = load_rows(args.rows)
+        else:
+            if args.rows and len(args.rows) > 1:
+                raise InputError(f"--rows: {[str(x) for x in args.rows if not x.exists()]} missing")
+            if args.rows:
+                check_output_file(args.rows[0], "--rows")
+            result = collect(args.scenes, args.seed, args.workers)
+            if args.rows:
+                write_json(args.rows[0], result)
+            rows, factors = load_rows(args.rows) if args.rows else (
+                [r for r in result["rows"] if r.get("informative") and "scaled_levels" in r],
+                np.asarray(FACTORS))
+    except (InputError, OSError, ValueError) as e:
+        print(f"perception_tempering: {e}", file=sys.stderr)
+        return 2
+    data = Rows(rows, factors)
+    today = np.array([r["level"] for r in rows])
+    config = fit(data, LikelihoodConfig())
+    fitted = data.levels(data.scale(config))
+    head = "| {} | n | today 50/68/80/90/95 | fitted |"
+    lines = [head.format("gear | view"), "|---|---|---|---|---|"]
+    lines += _table(data, today, fitted, lambda r: (r["gear"], r["view"]))
+    lines += ["", head.format("group | view"), "|---|---|---|---|---|"]
+    lines += _table(data, today, fitted, lambda r: (r["group"], r["view"]))
+    print("\n".join(lines))
+    fits = {"gear_tempering": {g: [round(a, 4), round(b, 4)] for g, (a, b) in config.gear_tempering.items()},
+            "occlusion_exponent": config.occlusion_exponent, "noise_exponent": config.noise_exponent,
+            "posteriors": len(rows)}
+    print(f"fitted: {fits}")
+    if out is not None:
+        write_json(out, {"fit": fits, "table": lines})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

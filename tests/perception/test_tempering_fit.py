@@ -1,0 +1,50 @@
+"""The tempering fit (benchmarks/perception_tempering.py) on rows whose miscalibration is known."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from perception.likelihood import LikelihoodConfig
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "perception_tempering.py"
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("perception_tempering", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_fit_recovers_each_gears_factor():
+    """Each gear's posteriors too sharp or too wide by a known factor on its tempering: the truths'
+    squared Mahalanobis distances are chi2_3 times it, so multiplying the tempering by its inverse
+    makes the levels uniform; the fit must find that factor per gear and leave the exponents."""
+    mod = _script()
+    rng = np.random.default_rng(0)
+    bare = LikelihoodConfig(gear_tempering={})
+    truth = {"small": 1.0, "medium": 1.5, "large": 0.7}  # > 1: over-confident
+    factors = np.asarray(mod.FACTORS)
+    rows = []
+    for gear, k in truth.items():
+        for view, gsd in (("scene", 1.2e-3), ("inspect", 4.1e-4)):
+            m2 = k * rng.chisquare(3, 1000)
+            for i, d2 in enumerate(m2):
+                rows.append({"gear": gear, "view": view, "group": "clean", "gsd": gsd,
+                             "tempering": bare.tempering_for(gear, gsd), "inlier_fraction": 1.0,
+                             "depth_noise": 0.0, "level": float(chi2.cdf(d2, 3)),
+                             "scaled_levels": chi2.cdf(d2 * factors, 3).tolist()})
+    data = mod.Rows(rows, factors)
+    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]))
+    for gear, k in truth.items():
+        a, b = fitted.gear_tempering[gear]
+        assert abs(np.log(a * k)) < 0.12, (gear, a, 1 / k)   # A ~ 1 / k, within 12 %
+        assert abs(b) <= 0.15, (gear, b)                       # the same at both pixel sizes
+    levels = data.levels(data.scale(fitted))
+    cover = mod.coverage(levels, np.array([0.5, 0.9]))
+    np.testing.assert_allclose(cover, [0.5, 0.9], atol=0.04)
+    assert (fitted.occlusion_exponent, fitted.noise_exponent) == (0.5, 0.5)
