@@ -19,8 +19,8 @@ closest to uniform in every perturbation group x view cell.
 prints the coverage at 50/68/80/90/95 % with the tempering the rows were made with and with the
 fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
 occlusion_exponent and noise_exponent hold). `--rows PATH` stores the rows there; existing files
-are read back instead (nothing rendered again), a later file's groups replacing an earlier one's
-(rows made under another colour model, say). The colour scale's brightness exponent changes the
+are read back instead (nothing rendered again) and pooled, a later file's groups replacing an
+earlier one's of the same scene seed (rows made under another colour model, say). The colour scale's brightness exponent changes the
 pixels' scores, not only their weight, so it cannot be fitted this way: it was chosen from the
 dim and bright groups and checked by collecting them again (docs/perception.md).
 """
@@ -149,8 +149,9 @@ def _table(data: Rows, today: np.ndarray, fitted: np.ndarray, key) -> list[str]:
 
 
 def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray]:
-    """The informative rows of every file; a later file's groups replace an earlier one's."""
-    rows: dict[str, list[dict]] = {}
+    """The informative rows of every file, pooled; a later file's groups replace an earlier one's
+    of the same scene seed."""
+    rows: dict[tuple[int, str], list[dict]] = {}
     factors = None
     for path in paths:
         result = read_json(path, "calibration rows")
@@ -159,8 +160,9 @@ def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray]:
             raise InputError(f"{path}: its tempering factors differ from the first file's")
         factors = f
         for group in result["config"]["groups"]:
-            rows[group] = [r for r in result["rows"] if r["group"] == group
-                           and r.get("informative") and "scaled_levels" in r]
+            rows[result["config"]["seed"], group] = [
+                r for r in result["rows"]
+                if r["group"] == group and r.get("informative") and "scaled_levels" in r]
     return [r for group in rows.values() for r in group], factors
 
 
@@ -170,8 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=400, help=f"first tuning scene seed (< {HELD_OUT_SEED})")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--rows", type=Path, nargs="+", default=None,
-                   help="store the rows here (one path), or read them from existing files (a later "
-                        "file's groups replace an earlier one's)")
+                   help="store the rows here (one path), or read them from existing files, pooled (a "
+                        "later file's groups replace an earlier one's of the same seed)")
     p.add_argument("--json", type=Path, default=None, help="write the fit and the tables here")
     args = p.parse_args(argv)
     try:

@@ -47,7 +47,7 @@ class LikelihoodConfig:
     reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
     gear_tempering: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(GEAR_TEMPERING))
     occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
-    noise_exponent: float = 0.5         # evidence under depth noise (calibrated)
+    noise_exponent: float = 0.0         # evidence under depth noise (off: see docs, Tempering)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
 
     def __post_init__(self) -> None:
