@@ -104,7 +104,8 @@ class LikelihoodConfig:
         below 2 pixels a tooth, fully from 6). Where the teeth are resolved, the pose's error is
         dominated by what every tooth shares (the model's small mismatch), so hiding part of the
         gear costs less evidence than its share of pixels; noisy depth costs more than the widened
-        depth scale says. Both exponents are fitted on tuning scenes (docs/perception.md)."""
+        depth scale says. The occlusion exponent is fitted on tuning scenes; the noise exponent
+        ships 0, until the table's noise reader tells a depth bias from noise (docs/perception.md)."""
         if not (np.isfinite(gsd) and gsd > 0):
             raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
         if not (np.isfinite(visible) and 0 < visible <= 1):
