@@ -20,9 +20,10 @@ prints the coverage at 50/68/80/90/95 % with the tempering the rows were made wi
 fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
 occlusion_exponent and noise_exponent hold). `--rows PATH` stores the rows there; existing files
 are read back instead (nothing rendered again) and pooled, a later file's groups replacing an
-earlier one's of the same scene seed (rows made under another colour model, say). The colour scale's brightness exponent changes the
-pixels' scores, not only their weight, so it cannot be fitted this way: it was chosen from the
-dim and bright groups and checked by collecting them again (docs/perception.md).
+earlier one's of the same scene seed (rows made under another colour model, say). The colour
+scale's brightness exponent changes the pixels' scores, not only their weight, so it cannot be
+fitted this way: it was chosen from the dim and bright groups and checked by collecting them
+again (docs/perception.md).
 """
 
 from __future__ import annotations
@@ -67,15 +68,10 @@ class Rows:
     """The informative posteriors' rows as arrays, and their truth levels at any tempering."""
 
     def __init__(self, rows: list[dict], factors: np.ndarray) -> None:
-        bare = LikelihoodConfig(gear_tempering={})
         self.rows = rows
         self.logf = np.log(factors)
         self.table = np.array([r["scaled_levels"] for r in rows])
         self.gsd = np.array([r["gsd"] for r in rows])
-        # the shared law alone (no gear factor, no evidence factor), over what each row used
-        self.bare = np.array([bare.tempering_for(r["gear"], r["gsd"]) / r["tempering"] for r in rows])
-        self.visible = np.array([r["inlier_fraction"] for r in rows])
-        self.noise = np.array([r["depth_noise"] for r in rows])
 
     def levels(self, scale: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         """Each row's (of `mask`'s) truth level with its tempering multiplied by scale[i]
@@ -89,12 +85,9 @@ class Rows:
 
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the tempering `config` gives it over the one it was recorded with."""
-        out = np.empty(len(self.rows))
-        for i, r in enumerate(self.rows):
-            a, b = config.gear_tempering.get(r["gear"], (1.0, 0.0))
-            out[i] = (self.bare[i] * a * (r["gsd"] / config.reference_gsd) ** b
-                      * config.evidence_factor(r["gsd"], self.visible[i], self.noise[i]))
-        return out
+        return np.array([config.tempering_for(r["gear"], r["gsd"])
+                         * config.evidence_factor(r["gsd"], r["inlier_fraction"], r["depth_noise"])
+                         / r["tempering"] for r in self.rows])
 
 
 def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
@@ -159,11 +152,15 @@ def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray]:
         if factors is not None and not np.allclose(f, factors):
             raise InputError(f"{path}: its tempering factors differ from the first file's")
         factors = f
+        usable = fit_rows(result)
         for group in result["config"]["groups"]:
-            rows[result["config"]["seed"], group] = [
-                r for r in result["rows"]
-                if r["group"] == group and r.get("informative") and "scaled_levels" in r]
+            rows[result["config"]["seed"], group] = [r for r in usable if r["group"] == group]
     return [r for group in rows.values() for r in group], factors
+
+
+def fit_rows(result: dict) -> list[dict]:
+    """The rows of a calibration result the fit can use: informative, with scaled levels."""
+    return [r for r in result["rows"] if r.get("informative") and "scaled_levels" in r]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -188,9 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             result = collect(args.scenes, args.seed, args.workers)
             if args.rows:
                 write_json(args.rows[0], result)
-            rows, factors = load_rows(args.rows) if args.rows else (
-                [r for r in result["rows"] if r.get("informative") and "scaled_levels" in r],
-                np.asarray(FACTORS))
+            rows, factors = fit_rows(result), np.asarray(FACTORS)
     except (InputError, OSError, ValueError) as e:
         print(f"perception_tempering: {e}", file=sys.stderr)
         return 2
