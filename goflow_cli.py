@@ -8,7 +8,6 @@ import dataclasses
 import functools
 import inspect
 import io
-import json
 import shlex
 import sys
 import tempfile
@@ -19,45 +18,15 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from common.config import key_values, parse_value
 from common.errors import GoflowError, InputError, OutputPathError
 from common.files import check_output_file, write_atomic, write_json
 
-__all__ = ["main", "make_parser", "parse_value", "key_values"]
+__all__ = ["main", "make_parser"]
 
 # ---------------------------------------------------------------------------------------------
-# Values and KEY=VALUE options
+# KEY=VALUE options (parsed by common.config.key_values)
 # ---------------------------------------------------------------------------------------------
-
-_NON_FINITE = {"nan", "inf", "infinity"}
-
-
-def parse_value(text: str, what: str) -> Any:
-    """A value given on the command line: strict JSON when it is JSON (numbers, true, false, null,
-    lists, objects), else the string itself. NaN and Infinity (in any spelling) are refused with an
-    InputError naming `what`."""
-    def refuse(constant: str) -> Any:
-        raise InputError(f"{what}: {constant} is not allowed; expected a finite number")
-
-    if text.strip().lower().lstrip("+-") in _NON_FINITE:
-        refuse(text.strip())
-    try:
-        return json.loads(text, parse_constant=refuse)
-    except json.JSONDecodeError:
-        return text
-
-
-def key_values(pairs: Iterable[str] | None, flag: str) -> dict[str, Any]:
-    """["a=1", "b=x"] -> {"a": 1, "b": "x"}: the one parser of every KEY=VALUE flag (values by
-    `parse_value`); InputError for a pair without "=" or a key given twice."""
-    out: dict[str, Any] = {}
-    for pair in pairs or []:
-        key, eq, value = pair.partition("=")
-        if not eq or not key:
-            raise InputError(f"{flag} {pair!r}: expected KEY=VALUE")
-        if key in out:
-            raise InputError(f"{flag} {key}: given twice")
-        out[key] = parse_value(value, f"{flag} {pair}")
-    return out
 
 
 def _method_kwargs(pairs: Iterable[str] | None, methods: Iterable[str]) -> dict[str, dict[str, Any]]:

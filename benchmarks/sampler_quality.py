@@ -3,6 +3,14 @@ to the objective's optimum, against update rounds, for GoFlow in each mode and t
 
     .venv/bin/python benchmarks/sampler_quality.py --layouts disks ring --methods uniform lsdr goflow-paper \\
         --seeds 1 --rounds 30 --workers 1 [--out runs/sampler_quality] [--json PATH] [--plot PNG]
+    .venv/bin/python benchmarks/sampler_quality.py --layouts strip --methods goflow-constrained \\
+        --protocols uniform --sampler leak_target=0.008 --out runs/sq_leak0.008
+
+`--sampler KEY=VALUE` (repeatable) sets a GoFlowConfig field of every goflow-* method of the run,
+over the method's own options (values as JSON, else strings: `common.config.key_values`); it is refused
+when a non-goflow method is selected, for `seed` (from `--seeds`) and `mode` (the method's name), and
+for `alpha` with a goflow-entropy-<alpha> method. The KL keeps the method's default objective
+whatever the flag sets (e.g. `delta`).
 
 A run is (layout, method, protocol, seed). Each round draws a batch of `--batch` points, the
 layout's oracle gives the signal (learning/feasible_sets.py), and `sampler.update(batch, signal)`
@@ -28,17 +36,19 @@ atoms: its coverage and KL use that density (the KL on uniform draws on its inte
 real draws, atoms included.
 
 Each run writes <out>/<layout>/<method>/<protocol>/seed<k>.json atomically and is skipped when
-present with the same settings (rerun the command to resume; Ctrl-C loses only the runs in
-progress; a changed sampler default reruns a run, a changed sampler *code* does not: delete the
-folder then). 2-D runs keep the final log density on a 64 x 64 grid for the density figure. The
-summary (mean and standard error over seeds per layout x method x protocol and round) goes to
-`--json` (default <out>/summary.json); `--plot PNG` draws mass and coverage against rounds and,
-beside it (PNG stem + "_density.png"), the final densities of goflow-constrained and goflow-paper on
-every 2-D layout with F's outline (seed = the first seed), the GoFlow paper's Fig. 2 view.
+present with the same settings: rounds, batch, draws and the sampler's resolved config, `--sampler`
+included (a stored run with other settings is refused, never reused; rerun the command to resume;
+Ctrl-C loses only the runs in progress; a changed sampler default reruns a run, a changed sampler
+*code* does not: delete the folder then). 2-D runs keep the final log density on a 64 x 64 grid for
+the density figure. The summary (mean and standard error over seeds per layout x method x protocol
+and round) goes to `--json` (default <out>/summary.json); `--plot PNG` draws mass and coverage
+against rounds and, beside it (PNG stem + "_density.png"), the final densities of goflow-constrained
+and goflow-paper on every 2-D layout with F's outline (seed = the first seed), the GoFlow paper's
+Fig. 2 view.
 
-Determinism: a run depends only on its (layout, method, protocol, seed, rounds, batch, draws): the
-sampler's config seed, the batches, the measurement draws and torch's global RNG all derive from the
-seed; the same seed gives the same row (timings aside).
+Determinism: a run depends only on its (layout, method, protocol, seed, rounds, batch, draws,
+`--sampler` overrides): the sampler's config seed, the batches, the measurement draws and torch's
+global RNG all derive from the seed; the same seed gives the same row (timings aside).
 """
 
 from __future__ import annotations
@@ -127,13 +137,15 @@ class Task:
     rounds: int
     batch: int
     draws: int
+    #: `--sampler` overrides of the goflow-* methods' config, (key, value) pairs sorted by key
+    overrides: tuple[tuple[str, Any], ...] = ()
 
     def path(self, out: Path) -> Path:
         """Where the run's JSON goes."""
         return out / self.layout / self.method / self.protocol / f"seed{self.seed}.json"
 
     def settings(self) -> dict[str, Any]:
-        """The settings a stored run must have to be reused."""
+        """The settings a stored run must have to be reused (the config includes `overrides`)."""
         return {"rounds": self.rounds, "batch": self.batch, "draws": self.draws, "config": resolved_config(self)}
 
 
@@ -149,9 +161,11 @@ def to_plain(obj: Any) -> Any:
 # -- one run ------------------------------------------------------------------------------------
 
 
-def sampler_config(method: Method, protocol: str, seed: int) -> dict[str, Any]:
+def sampler_config(method: Method, protocol: str, seed: int,
+                   overrides: Sequence[tuple[str, Any]] = ()) -> dict[str, Any]:
     """The config `method`'s sampler gets under `protocol` with run seed `seed`: its own options,
-    DORAEMON's proposal for uniform batches, and `seed` where the config has a seed field."""
+    DORAEMON's proposal for uniform batches, `seed` where the config has a seed field, and the
+    `--sampler` `overrides` last."""
     from learning.samplers.registry import sampler_config as registered_config
     fields = {f.name for f in dataclasses.fields(registered_config(method.sampler, None))}
     config = dict(method.config)
@@ -159,6 +173,7 @@ def sampler_config(method: Method, protocol: str, seed: int) -> dict[str, Any]:
         config["proposal"] = "uniform"
     if "seed" in fields:
         config["seed"] = seed
+    config.update(overrides)
     return config
 
 
@@ -170,7 +185,7 @@ def resolved_config(task: Task) -> dict[str, Any]:
     from learning.samplers.registry import sampler_config as registered_config
     method = METHODS[task.method]
     return to_plain(config_to_dict(registered_config(method.sampler, sampler_config(method, task.protocol,
-                                                                                     task.seed))))
+                                                                                     task.seed, task.overrides))))
 
 
 def _signal(layout: Layout, method: Method, xi: np.ndarray) -> np.ndarray:
@@ -219,7 +234,7 @@ def run_task(task: Task) -> dict[str, Any]:
     torch.manual_seed(task.seed)
     t_start = time.perf_counter()
     layout, method = LAYOUTS[task.layout], METHODS[task.method]
-    config = sampler_config(method, task.protocol, task.seed)
+    config = sampler_config(method, task.protocol, task.seed, task.overrides)
     sampler = make_sampler(method.sampler, layout.space, J_T, config)
     batch_rng = np.random.default_rng([task.seed, 0])
     inside = layout.sample_inside(task.draws, np.random.default_rng([task.seed, 2]))
@@ -240,7 +255,8 @@ def run_task(task: Task) -> dict[str, Any]:
         t0 = time.perf_counter()
         sampler.update(xi, signal)
         seconds.append(time.perf_counter() - t0)
-    record = {"benchmark": NAME, **dataclasses.asdict(task), "sampler": method.sampler,
+    record = {"benchmark": NAME, **dataclasses.asdict(task), "overrides": dict(task.overrides),
+              "sampler": method.sampler,
               "config": resolved_config(task),
               "objective": list(method.objective), "signal": method.signal, "rows": rows,
               "update_s": [round(s, 5) for s in seconds],
@@ -300,6 +316,42 @@ def parse_seeds(values: Sequence[str]) -> list[int]:
     return sorted(set(numbers))
 
 
+def _frozen(value: Any) -> Any:
+    """A parsed `--sampler` value with lists as tuples (a Task is frozen and hashable)."""
+    return tuple(_frozen(v) for v in value) if isinstance(value, list) else value
+
+
+def parse_overrides(pairs: Sequence[str] | None, methods: Sequence[str]) -> tuple[tuple[str, Any], ...]:
+    """`--sampler KEY=VALUE ...` for `methods`: (key, value) pairs sorted by key, each checked by
+    the goflow config of every method (`config_with_overrides`); InputError naming the pair otherwise."""
+    from common.config import config_with_overrides, key_values
+    from common.errors import UnknownOptionError
+    values = key_values(pairs, "--sampler")
+    if not values:
+        return ()
+    others = [m for m in methods if METHODS[m].sampler != "goflow"]
+    if others:
+        raise InputError(f"--sampler sets GoFlowConfig fields of the goflow-* methods only; also selected: {others} "
+                         "(choose --methods among the goflow-* ones)")
+    fixed = {"seed": "--seeds sets it", "mode": "the method's name sets it"}
+    if any(METHODS[m].objective[0] == "entropy" for m in methods):
+        fixed["alpha"] = "a goflow-entropy-<alpha> method's name sets it"
+    for key in values:
+        if key in fixed:
+            raise InputError(f"--sampler {key}=...: not allowed ({fixed[key]})")
+    for m in methods:
+        base = sampler_config(METHODS[m], PROTOCOLS[0], 0)
+        for key, value in values.items():  # one at a time, so that an error names its pair
+            try:
+                config_with_overrides(GoFlowConfig, base, {key: value}, owner="--sampler")
+            except UnknownOptionError:
+                raise
+            except (InputError, TypeError) as exc:
+                raise InputError(f"--sampler {key}={value!r}: {' '.join(str(exc).split())}") from None
+        config_with_overrides(GoFlowConfig, base, values, owner="--sampler")  # and together
+    return tuple(sorted((k, _frozen(v)) for k, v in values.items()))
+
+
 def plan(args: argparse.Namespace) -> list[Task]:
     """The runs the flags ask for (ADR only under the `own` protocol), checked before any work."""
     layouts = _expand(args.layouts, LAYOUTS, {}, "layouts")
@@ -310,7 +362,8 @@ def plan(args: argparse.Namespace) -> list[Task]:
     batch = check_int(args.batch, "--batch", 2)
     draws = check_int(args.draws, "--draws", 16)
     check_int(args.workers, "--workers", 1)
-    tasks = [Task(layout, method, protocol, seed, rounds, batch, draws)
+    overrides = parse_overrides(args.sampler, methods)
+    tasks = [Task(layout, method, protocol, seed, rounds, batch, draws, overrides)
              for layout in layouts for method in methods for protocol in protocols for seed in seeds
              if not (METHODS[method].own_only and protocol != "own")]
     if not tasks:
@@ -505,6 +558,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=256, help="points per update")
     p.add_argument("--draws", type=int, default=4096, help="draws per measurement (mass, KL) and points on F (coverage)")
     p.add_argument("--workers", type=int, default=1, help="processes (one torch thread each)")
+    p.add_argument("--sampler", action="append", metavar="KEY=VALUE",
+                   help="a GoFlowConfig field for the goflow-* methods, e.g. leak_target=0.008 (repeatable; value "
+                        "as JSON, else a string); refused with any non-goflow method, and for seed, mode (and alpha "
+                        "of goflow-entropy-<alpha>); the KL keeps the method's default objective. Part of each "
+                        "run's stored config: a stored run with other overrides is refused, never reused")
     add_ray_flag(p)
     p.add_argument("--existing", action="store_true",
                    help="run nothing: summarize (and plot) the runs of the grid already stored in --out")
@@ -551,16 +609,16 @@ def main(argv: list[str] | None = None) -> int:
         run_grid(jobs, make_backend(args.ray, args.workers, inline=True), progress=False, desc=NAME,
                  on_result=lambda _, record: report(record))
 
-        order = {t: i for i, t in enumerate(tasks)}
-        done.sort(key=lambda r: order[Task(**{k: r[k] for k in ("layout", "method", "protocol", "seed", "rounds",
-                                                                 "batch", "draws")})])
+        order = {(t.layout, t.method, t.protocol, t.seed): i for i, t in enumerate(tasks)}
+        done.sort(key=lambda r: order[(r["layout"], r["method"], r["protocol"], r["seed"])])
         rows = summarize(done)
         print(table(rows))
         layouts = list(dict.fromkeys(t.layout for t in tasks))
         write_json(summary_path, {
             "benchmark": NAME, "command": "benchmarks/sampler_quality.py " + " ".join(argv or sys.argv[1:]),
             "settings": {"rounds": tasks[0].rounds, "batch": tasks[0].batch, "draws": tasks[0].draws,
-                         "seeds": sorted({t.seed for t in tasks}), "j_t": J_T, "delta": DELTA, "levels": LEVELS},
+                         "seeds": sorted({t.seed for t in tasks}), "j_t": J_T, "delta": DELTA, "levels": LEVELS,
+                         "sampler_overrides": dict(tasks[0].overrides)},
             "layouts": {name: {**describe(LAYOUTS[name]),
                                "optimum_mass": {m: optimum_mass(LAYOUTS[name], METHODS[m].objective)
                                                 for m in dict.fromkeys(t.method for t in tasks)}}

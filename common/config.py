@@ -5,14 +5,15 @@ and back to plain JSON data: the one helper every config in goflow goes through.
 from __future__ import annotations
 
 import dataclasses
+import json
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
 from common.errors import InputError, UnknownOptionError
 
-__all__ = ["config_with_overrides", "config_to_dict"]
+__all__ = ["config_with_overrides", "config_to_dict", "key_values", "parse_value"]
 
 C = TypeVar("C")
 
@@ -83,3 +84,35 @@ def config_to_dict(config: Any) -> Any:
     if isinstance(config, Path):
         return str(config)
     return config
+
+
+_NON_FINITE = {"nan", "inf", "infinity"}
+
+
+def parse_value(text: str, what: str) -> Any:
+    """A value given on the command line: strict JSON when it is JSON (numbers, true, false, null,
+    lists, objects), else the string itself. NaN and Infinity (in any spelling) are refused with an
+    InputError naming `what`."""
+    def refuse(constant: str) -> Any:
+        raise InputError(f"{what}: {constant} is not allowed; expected a finite number")
+
+    if text.strip().lower().lstrip("+-") in _NON_FINITE:
+        refuse(text.strip())
+    try:
+        return json.loads(text, parse_constant=refuse)
+    except json.JSONDecodeError:
+        return text
+
+
+def key_values(pairs: Iterable[str] | None, flag: str) -> dict[str, Any]:
+    """["a=1", "b=x"] -> {"a": 1, "b": "x"}: the one parser of every KEY=VALUE flag (values by
+    `parse_value`); InputError for a pair without "=" or a key given twice."""
+    out: dict[str, Any] = {}
+    for pair in pairs or []:
+        key, eq, value = pair.partition("=")
+        if not eq or not key:
+            raise InputError(f"{flag} {pair!r}: expected KEY=VALUE")
+        if key in out:
+            raise InputError(f"{flag} {key}: given twice")
+        out[key] = parse_value(value, f"{flag} {pair}")
+    return out

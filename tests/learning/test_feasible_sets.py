@@ -177,6 +177,10 @@ def _script(*args, cwd=ROOT):
     (["--seeds", "a,b"], "--seeds"),
     (["--batch", "1"], "--batch = 1"),
     (["--methods", "adr", "--protocols", "uniform"], "ADR runs only under --protocols own"),
+    (["--methods", "goflow-constrained", "--sampler", "leak_targt=0.01"], "'leak_targt'"),
+    (["--methods", "goflow-constrained", "--sampler", "leak_target=-1"], "--sampler leak_target=-1"),
+    (["--methods", "goflow-constrained", "--sampler", "seed=3"], "--sampler seed="),
+    (["--methods", "goflow-constrained", "lsdr", "--sampler", "leak_target=0.01"], "['lsdr']"),
 ])
 def test_benchmark_bad_input_is_one_line(args, named, tmp_path):
     proc = _script(*args, "--out", str(tmp_path / "out"))
@@ -218,3 +222,23 @@ def test_benchmark_same_seed_same_row(method, protocol):
     if method == "lsdr":  # and another seed another row
         other = bench.run_task(bench.Task("small", method, protocol, seed=4, rounds=2, batch=32, draws=256))
         assert strip(other) != strip(a)
+
+
+def test_benchmark_sampler_flag_reaches_the_goflow_config_and_the_stored_settings():
+    from learning.samplers.registry import make_sampler
+    bench = _benchmark()
+    args = bench.make_parser().parse_args(["--layouts", "small", "--methods", "goflow-constrained", "--protocols",
+                                           "uniform", "--seeds", "2,", "--sampler", "leak_target=0.008",
+                                           "--sampler", "hidden_features=[32, 32]"])
+    (task,) = bench.plan(args)
+    assert task.overrides == (("hidden_features", (32, 32)), ("leak_target", 0.008))
+    method = bench.METHODS[task.method]
+    config = bench.sampler_config(method, task.protocol, task.seed, task.overrides)
+    sampler = make_sampler(method.sampler, bench.LAYOUTS["small"].space, bench.J_T, config)
+    assert sampler.config.leak_target == 0.008 and sampler.config.hidden_features == (32, 32)
+    assert sampler.config.mode == "constrained" and sampler.config.seed == 2  # the method's own options stay
+    # a run with other overrides has other settings: never reused as "already present"
+    plain = bench.Task(*[getattr(task, f) for f in ("layout", "method", "protocol", "seed", "rounds", "batch",
+                                                    "draws")])
+    assert task.settings()["config"]["leak_target"] == 0.008 and plain.settings()["config"]["leak_target"] == 0.004
+    assert task.settings() != plain.settings()
