@@ -86,7 +86,8 @@ class Rows:
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the tempering `config` gives it over the one it was recorded with."""
         return np.array([config.tempering_for(r["gear"], r["gsd"])
-                         * config.evidence_factor(r["gsd"], r["inlier_fraction"], r["depth_noise"])
+                         * config.evidence_factor(r["gsd"], r["inlier_fraction"],
+                                                   r.get("pixel_noise", r["depth_noise"]))
                          / r["tempering"] for r in self.rows])
 
 

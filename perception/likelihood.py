@@ -26,7 +26,7 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 
 # Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
-GEAR_TEMPERING = {"small": (0.966, 0.2), "medium": (1.149, -0.1), "large": (0.901, -0.1)}
+GEAR_TEMPERING = {"small": (1.414, 0.25), "medium": (1.275, 0.2), "large": (1.035, 0.1)}
 
 
 @dataclass
@@ -47,7 +47,7 @@ class LikelihoodConfig:
     reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
     gear_tempering: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(GEAR_TEMPERING))
     occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
-    noise_exponent: float = 0.0         # evidence under depth noise (off: see docs, Tempering)
+    noise_exponent: float = 2.0         # evidence under depth noise (calibrated)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
 
     def __post_init__(self) -> None:
@@ -96,7 +96,8 @@ class LikelihoodConfig:
     def evidence_factor(self, gsd: float, visible: float, depth_noise: float) -> float:
         """What the tempering is multiplied by once the best pose is known, from the view
         (`gsd` [m/pixel]), the share of the gear's predicted pixels that pose explains (`visible`,
-        in (0, 1]) and the depth noise read off the table (`depth_noise` [m]):
+        in (0, 1]) and the per-pixel depth noise read off the table (`depth_noise` [m]; the
+        scorer's `pixel_noise`, which a depth bias or a camera off its pose leaves at 0):
 
             visible^(-occlusion_exponent * w) * (b_d / hypot(b_d, depth_noise))^noise_exponent,
 
@@ -104,8 +105,7 @@ class LikelihoodConfig:
         below 2 pixels a tooth, fully from 6). Where the teeth are resolved, the pose's error is
         dominated by what every tooth shares (the model's small mismatch), so hiding part of the
         gear costs less evidence than its share of pixels; noisy depth costs more than the widened
-        depth scale says. The occlusion exponent is fitted on tuning scenes; the noise exponent
-        ships 0, until the table's noise reader tells a depth bias from noise (docs/perception.md)."""
+        depth scale says. Both exponents are fitted on tuning scenes (docs/perception.md)."""
         if not (np.isfinite(gsd) and gsd > 0):
             raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
         if not (np.isfinite(visible) and 0 < visible <= 1):

@@ -38,11 +38,15 @@ class Scores:
 class ImageConditions:
     """What the bare table in the region says about the image: `gain` multiplies every predicted
     colour (r, g, b); `depth_noise` [m] is the robust standard deviation of the table's depth
-    about its plane; `table_pixels` how many pixels they were read from (0: defaults kept)."""
+    about its plane (noise, a bias and a ramp alike: how far the depth model is off; it widens the
+    depth residual); `table_pixels` how many pixels they were read from (0: defaults kept);
+    `pixel_noise` [m] the independent per-pixel depth noise alone (what the evidence factor
+    discounts; a bias or a ramp leaves it at 0)."""
 
     gain: np.ndarray
     depth_noise: float
     table_pixels: int
+    pixel_noise: float = 0.0
 
 
 @dataclass
@@ -200,21 +204,66 @@ class ImageScorer:
 def _read_conditions(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray,
                      origin: np.ndarray, light: np.ndarray, min_pixels: int = 200
                      ) -> ImageConditions:
-    """Colour gain and depth noise from the pixels (u, v) that see the bare table: depth within
-    2 robust standard deviations (at least 2 mm) of the table plane's."""
+    """Colour gain and depth spread from the pixels (u, v) that see the bare table: depth within
+    2 robust standard deviations (at least 2 mm) of the table plane's. The pixel noise is read
+    apart, from second differences along rows over the pixels within 1 cm of the region's own depth
+    offset, so that a bias or a ramp (a camera off its pose) does not count as noise."""
     plane, shaded = table_prediction(origin, dirs, light)
     resid = obs.depth[v, u] - plane
+    offset = _table_offset(resid, min_pixels)
+    pixel_noise = 0.0
+    if offset is not None:
+        level = np.abs(resid - offset) < 0.01
+        pixel_noise = _row_noise(obs.depth, u[level], v[level])
     near = np.abs(resid) < 0.01
     if np.count_nonzero(near) < min_pixels:
-        return ImageConditions(np.ones(3, np.float32), 0.0, 0)
+        return ImageConditions(np.ones(3, np.float32), 0.0, 0, pixel_noise)
     centred = resid[near] - np.median(resid[near])
-    noise = float(1.4826 * np.median(np.abs(centred)))
-    table = near & (np.abs(resid) < max(0.002, 2 * noise))
+    spread = float(1.4826 * np.median(np.abs(centred)))
+    table = near & (np.abs(resid) < max(0.002, 2 * spread))
     if np.count_nonzero(table) < min_pixels or shaded[0].max() <= 0:
-        return ImageConditions(np.ones(3, np.float32), noise, 0)
+        return ImageConditions(np.ones(3, np.float32), spread, 0, pixel_noise)
     observed = np.median(obs.rgb[v[table], u[table]], axis=0)
     gain = np.clip(observed / np.maximum(shaded[0], 1e-3), 0.1, 10.0).astype(np.float32)
-    return ImageConditions(gain, noise, int(np.count_nonzero(table)))
+    return ImageConditions(gain, spread, int(np.count_nonzero(table)), pixel_noise)
+
+
+def _table_offset(resid: np.ndarray, min_pixels: int, reach: float = 0.06) -> float | None:
+    """The table's depth offset [m] among depth residuals about the table plane `resid`: the
+    deepest strong peak of their histogram (1 mm bins, within +-`reach`), since everything else
+    in view (gears, plate, hand) lies above the table and so nearer the camera; None when fewer
+    than `min_pixels` residuals are within reach."""
+    r = resid[np.abs(resid) < reach]
+    if len(r) < min_pixels:
+        return None
+    counts, edges = np.histogram(r, np.linspace(-reach, reach, int(round(2 * reach / 0.001)) + 1))
+    smooth = np.convolve(counts, np.ones(5), "same")
+    strong = np.flatnonzero(smooth >= 0.2 * smooth.max())
+    start = strong[-1]  # the deepest run of strong bins
+    while start - 1 in strong:
+        start -= 1
+    peak = start + int(np.argmax(smooth[start:strong[-1] + 1]))
+    centre = 0.5 * (edges[peak] + edges[peak + 1])
+    return float(np.median(r[np.abs(r - centre) < 0.003]))
+
+
+def _row_noise(depth: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
+    """Robust standard deviation [m] of independent per-pixel depth noise at the pixels (u, v), from
+    the second difference d[u-1] - 2 d[u] + d[u+1] along each row over triples that are all in the
+    set (its std is sqrt(6) sigma; a plane's curvature over two pixels is far below a micrometre)."""
+    if len(u) == 0:
+        return 0.0
+    u0, v0 = int(u.min()), int(v.min())
+    mask = np.zeros((int(v.max()) - v0 + 1, int(u.max()) - u0 + 3), bool)
+    mask[v - v0, u - u0 + 1] = True
+    inner = mask[:, 1:-1] & mask[:, :-2] & mask[:, 2:]
+    rows, cols = np.nonzero(inner)
+    if len(rows) < 20:
+        return 0.0
+    rows, cols = rows + v0, cols + u0
+    d = depth.astype(np.float64)
+    d2 = d[rows, cols - 1] - 2.0 * d[rows, cols] + d[rows, cols + 1]
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
 def _image_box(obs: Observation, centre: np.ndarray, radius: float, top: float

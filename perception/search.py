@@ -75,8 +75,11 @@ class SearchConfig:
     min_step: float = 2.5e-4        # finest x-y step [m] of the refinement
     min_yaw_step: float = np.radians(0.25)
     grid: int = 7                   # posterior grid points per dimension (odd)
+    cell_step: float = 1.25e-4      # finest x-y step [m] of the posterior grid
+    cell_yaw_step: float = np.radians(0.125)  # ... and yaw step [rad]
     adapt: int = 2                  # posterior grid adaptations
     max_cell_mass: float = 0.5      # shrink an axis whose marginal puts more than this in one cell
+    upsample: int = 2               # posterior cells per scored grid step (cubic spline between)
     min_pixels: int = 25            # fewer gear pixels (at the fine stride) -> uninformative
     min_inlier_fraction: float = 0.5
     fit_light: bool = True          # estimate the light's direction from the gear's shading
@@ -85,6 +88,8 @@ class SearchConfig:
     def __post_init__(self) -> None:
         if self.light_rounds < 0:
             raise ValueError(f"light_rounds = {self.light_rounds}; expected >= 0")
+        if isinstance(self.upsample, bool) or not isinstance(self.upsample, int) or self.upsample < 1:
+            raise ValueError(f"upsample = {self.upsample!r}; expected a whole number >= 1")
         if self.grid < 3 or self.grid % 2 == 0:
             raise ValueError(f"grid = {self.grid}; expected an odd number >= 3")
         if self.beam < 1 or self.coarse_pixels < 10 or self.fine_pixels < self.coarse_pixels:
@@ -180,7 +185,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
     info.update(pixels=pixels, inlier_fraction=inliers / max(pixels, 1), stride=fine,
                 search_hypotheses=info["hypotheses"], gsd=scorer.gsd, tempering=scorer.tempering,
                 depth_noise=scorer.conditions.depth_noise,
-                valid_fraction=scorer.valid_fraction)
+                pixel_noise=scorer.conditions.pixel_noise, valid_fraction=scorer.valid_fraction)
     reason = ""
     if pixels < config.min_pixels:
         reason = (f"only {pixels} pixels of the {model.name} gear at its best pose are in view "
@@ -195,7 +200,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
                                  period=model.period, info=info)
     # 3. Posterior grid around the MAP, its evidence weighed by what the view and the MAP say.
     factor = config.likelihood.evidence_factor(scorer.gsd, inliers / pixels,
-                                               scorer.conditions.depth_noise)
+                                               scorer.conditions.pixel_noise)
     info.update(evidence_factor=factor, tempering=scorer.tempering * factor)
 
     def weighed(poses, stride):
@@ -273,9 +278,9 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
         with np.errstate(divide="ignore"):
             cut = (np.log(cell_overlap(poses[:, 0], steps[0], x0, x1))
                    + np.log(cell_overlap(poses[:, 1], steps[1], y0, y1)))
-        ll = (score(poses, stride).loglik + cut).reshape(n, n, n)
-        p = np.exp(ll - logsumexp(ll))
-        best = np.array(np.unravel_index(np.argmax(ll), ll.shape)) - half
+        ll = score(poses, stride).loglik.reshape(n, n, n)  # the support cut is the posterior's own
+        p = np.exp(ll + cut.reshape(n, n, n) - logsumexp(ll + cut.reshape(n, n, n)))
+        best = np.array(np.unravel_index(np.argmax(p), p.shape)) - half
         grow = np.zeros(3, bool)
         shrink = np.zeros(3, bool)
         for d in range(3):
@@ -297,14 +302,15 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
     ys = centre[1] + (np.arange(n) - half) * steps[1]
     if model.symmetry > 1:  # yaw is a class modulo the period: one mode
         return PosePosterior(model.name, xs, ys, centre[2:3], offsets, ll[None],
-                             period=model.period, support=prior.box)
+                             period=model.period, support=prior.box).upsampled(config.upsample)
     # A marked gear: every tooth-pitch repeat of the MAP yaw, its yaw slice through the MAP (x, y).
     repeats = wrap(centre[2] + pitch * np.arange(teeth))
     slice_poses = np.array([[centre[0], centre[1], r + o] for r in repeats for o in offsets])
     slice_ll = score(slice_poses, stride).loglik.reshape(teeth, n)
     evidence = logsumexp(slice_ll, axis=1)
     log_mass = ll[None] + (evidence - evidence[0])[:, None, None, None]
-    post = PosePosterior(model.name, xs, ys, repeats, offsets, log_mass, support=prior.box)
+    post = PosePosterior(model.name, xs, ys, repeats, offsets, log_mass,
+                         support=prior.box).upsampled(config.upsample)
     post.info["repeat_log_evidence"] = (evidence - evidence.max()).tolist()
     return post
 
@@ -314,7 +320,10 @@ def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, h
     """Posterior grid steps from 1-D probes: along each axis, how far from the MAP the tempered
     log-likelihood falls by 4 (about 2.8 standard deviations for a Gaussian); the grid reaches
     1.25 times that far."""
-    dist = np.array([config.min_step, config.min_step, config.min_yaw_step]) * 2.0 ** np.arange(7)[:, None]
+    first = 2 * np.array([config.cell_step, config.cell_step, config.cell_yaw_step])
+    reach = np.array([64 * config.min_step, 64 * config.min_step, 64 * config.min_yaw_step])
+    count = int(np.ceil(np.log2(np.max(reach / first)))) + 1
+    dist = first * 2.0 ** np.arange(count)[:, None]
     poses = []
     for d in range(3):
         for sign in (-1, 1):
@@ -328,6 +337,6 @@ def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, h
         far = np.nonzero(drop[d].min(axis=0) > 4.0)[0]
         reach = dist[far[0], d] if far.size else dist[-1, d]
         steps[d] = 1.25 * reach / half
-    steps[:2] = np.maximum(steps[:2], config.min_step / 2)
-    steps[2] = min(max(steps[2], config.min_yaw_step / 2), window / (2 * half + 1))
+    steps[:2] = np.maximum(steps[:2], config.cell_step)
+    steps[2] = min(max(steps[2], config.cell_yaw_step), window / (2 * half + 1))
     return steps

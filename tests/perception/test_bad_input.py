@@ -80,6 +80,8 @@ def test_bad_configs_are_named():
         Prior(float("nan"), 0.0)
     with pytest.raises(ValueError, match="grid"):
         SearchConfig(grid=4)
+    with pytest.raises(ValueError, match="upsample"):
+        SearchConfig(upsample=0)
 
 
 def test_nan_intrinsics_and_zero_width_prior_are_named(obs):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from perception.calibration import (
-    HELD_OUT_SEED, CalibrationConfig, confidently_wrong, group_rows, summarize,
+    HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, group_rows,
+    markdown_table, summarize,
 )
 
 
@@ -42,3 +43,13 @@ def test_summary_reports_each_level(rows):
     assert scene["view"] == "scene" and inspect["view"] == "inspect"
     assert set(scene["coverage"]) == {"0.5", "0.68", "0.8", "0.9", "0.95"}
     assert scene["posteriors"] == 12 and scene["not_seen"] == 0
+    assert isinstance(scene["within_band"], bool)
+    assert "cells (a perfectly calibrated pipeline" in markdown_table([scene, inspect])
+
+
+def test_the_band_allows_what_sampling_noise_allows():
+    # how often a perfectly calibrated pipeline reads within +-5 points at all five levels
+    chances = [calibrated_pass_chance(n) for n in (0, 100, 300, 1000)]
+    assert chances[0] == 0.0 and chances == sorted(chances)
+    assert 0.4 < chances[1] < 0.65 and 0.8 < chances[2] < 0.95 and chances[3] > 0.99
+    assert calibrated_pass_chance(300) == calibrated_pass_chance(300)  # a fixed seed

@@ -145,3 +145,31 @@ def test_tempered_scales_the_evidence_and_keeps_the_support():
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="factor"):
             post.tempered(bad)
+
+
+def test_upsampled_keeps_the_scored_cells_and_resolves_a_coarse_posterior():
+    # a Gaussian scored on cells ~1.3 sigma wide (the close view's grid): too few cells to say
+    # where within them the truth lies; the spline between them makes the credible levels of the
+    # distribution's own draws uniform again
+    sigma = np.array([4e-5, 4e-5, 2e-3])
+    step = 1.3 * sigma
+    centre = np.array([0.4, -0.1, 0.0])
+    axes = [centre[d] + (np.arange(7) - 3) * step[d] for d in range(2)] + [(np.arange(7) - 3) * step[2]]
+    X, Y, A = np.meshgrid(axes[0] - 0.4 - 1.7e-5, axes[1] + 0.1, axes[2] + 7e-4, indexing="ij")
+    ll = -0.5 * ((X / sigma[0]) ** 2 + (Y / sigma[1]) ** 2 + (A / sigma[2]) ** 2)
+    coarse = PosePosterior("medium", axes[0], axes[1], np.zeros(1), axes[2], ll[None], period=np.pi / 10)
+    fine = coarse.upsampled(3)
+    assert coarse.upsampled(1) is coarse
+    assert fine.log_mass.shape == (1, 19, 19, 19)
+    np.testing.assert_allclose(fine.log_mass[0, ::3, ::3, ::3] - fine.log_mass.max(),
+                               coarse.log_mass[0] - coarse.log_mass.max(), atol=1e-9)
+    rng = np.random.default_rng(0)
+    truths = np.array([0.4 + 1.7e-5, -0.1, -7e-4]) + rng.standard_normal((3000, 3)) * sigma
+    q = np.array([0.5, 0.68, 0.8, 0.9, 0.95])
+    coverage = {name: np.mean(np.array([p.credible_level(t) for t in truths])[:, None] < q, axis=0)
+                for name, p in (("coarse", coarse), ("fine", fine))}
+    assert np.abs(coverage["fine"] - q).max() < 0.04, coverage
+    assert np.abs(coverage["fine"] - q).max() < np.abs(coverage["coarse"] - q).max(), coverage
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="factor"):
+            coarse.upsampled(bad)

@@ -74,4 +74,6 @@ def test_marked_gear_close_view_concentrates_on_the_true_repeat(marked_scene, po
     assert m[0] > 0.9, m                                  # repeat 0 is the truth
     assert effective_repeats(m) < 1.5
     assert abs(wrap(close.map_pose[2] - yaw)) < np.radians(3.0)
-    assert close.marginal_entropy("yaw") < far.marginal_entropy("yaw")
+    # the close view settles which repeat it is: its yaw spread over the turn is far smaller (the
+    # far view's core within a repeat is about as sharp, so their entropies are close)
+    assert close.std()[2] < 0.25 * far.std()[2]

@@ -101,8 +101,14 @@ def test_bad_camera_and_scenes_are_refused():
 def test_a_depth_bias_outside_the_catalogue_is_unexplained():
     log = make_perception_log({}, scenes=SCENES, seed=0, depth_bias=0.01)
     s = diagnose_perception(log).summary()
-    assert s["selected"] == []
     assert s["verdict"]["label"] == "unexplained"
+    # a catalogue effect may close part of it (the posteriors resolve the bias's sub-millimetre
+    # shifts), but none is named the cause: at most a partial one, far below the bias's size
+    assert set(s["verdict"].get("partial", [])) == {x["effect"] for x in s["selected"]}
+    assert s["verdict"]["closed"] < 0.6
+    for x in s["selected"]:
+        d = np.array([x["params"][k]["value"] for k in ("dx", "dy", "dz")])
+        assert np.linalg.norm(d) < 0.002, d
 
 
 def test_cli_perception_log_then_diagnose(tmp_path, capsys):
