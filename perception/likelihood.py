@@ -26,7 +26,7 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 
 # Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
-GEAR_TEMPERING = {"small": (1.414, 0.25), "medium": (1.275, 0.2), "large": (1.035, 0.1)}
+GEAR_TEMPERING = {"small": (1.516, 0.2), "medium": (1.320, 0.15), "large": (1.072, 0.15)}
 
 
 @dataclass
@@ -46,7 +46,7 @@ class LikelihoodConfig:
     gsd_exponent: float = 1.77          # how the tempering grows with the pixel size (calibrated)
     reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
     gear_tempering: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(GEAR_TEMPERING))
-    occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
+    occlusion_exponent: float = 0.25    # evidence of a partly hidden gear, resolved teeth (calibrated)
     noise_exponent: float = 2.0         # evidence under depth noise (calibrated)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
 
