@@ -163,14 +163,13 @@ def summarize(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> list[dict
             xy = np.array([r["xy_error_m"] for r in ok])
             std_xy = np.array([np.hypot(*r["std"][:2]) / np.sqrt(2) for r in ok])
             yaw = np.array([r["yaw_error_rad"] for r in ok])
+            coverage = {lvl: float(np.mean(lv < lvl)) if len(ok) else float("nan") for lvl in levels}
             out.append({
                 "group": group, "view": view, "posteriors": len(rs), "informative": len(ok),
                 "not_seen": sum(not r["seen"] for r in rs),
                 "uninformative": sum(r["seen"] and not r["informative"] for r in rs),
-                "coverage": {f"{lvl:g}": float(np.mean(lv < lvl)) if len(ok) else float("nan")
-                             for lvl in levels},
-                "within_band": bool(len(ok)) and all(abs(float(np.mean(lv < lvl)) - lvl) <= BAND
-                                                     for lvl in levels),
+                "coverage": {f"{lvl:g}": c for lvl, c in coverage.items()},
+                "within_band": bool(len(ok)) and all(abs(c - lvl) <= BAND for lvl, c in coverage.items()),
                 "calibrated_pass_chance": calibrated_pass_chance(len(ok), levels),
                 "confidently_wrong": sum(confidently_wrong(r) for r in ok),
                 "xy_error_mm": _percentiles(1e3 * xy), "yaw_error_deg": _percentiles(np.degrees(yaw)),

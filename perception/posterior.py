@@ -81,6 +81,16 @@ class PosePosterior:
             return (np.log(cell_overlap(self.xs, self.dx, x0, x1))[None, :, None, None]
                     + np.log(cell_overlap(self.ys, self.dy, y0, y1))[None, None, :, None])
 
+    def _evidence(self) -> np.ndarray:
+        """The log-masses without the support cut (-inf outside the support): what the image says,
+        up to a constant. The cut is geometry, not evidence: `tempered` and `upsampled` keep it
+        out of what they rescale or interpolate, and the constructor applies it again."""
+        if self.support is None:
+            return np.asarray(self.log_mass, float)
+        cut = self._support_cut()
+        inside = np.isfinite(cut)
+        return np.where(inside, self.log_mass - np.where(inside, cut, 0.0), -np.inf)
+
     @property
     def dx(self) -> float:
         """Cell size in x [m]."""
@@ -215,12 +225,8 @@ class PosePosterior:
         the rescaled posterior."""
         if not (np.isfinite(factor) and factor > 0):
             raise ValueError(f"factor = {factor}; expected a finite tempering factor > 0")
-        lm = self.log_mass
-        if self.support is not None:  # the cut to the support is geometry, not evidence: keep it
-            cut = self._support_cut()
-            lm = np.where(np.isfinite(cut), lm - np.where(np.isfinite(cut), cut, 0.0), -np.inf)
         return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets,
-                             factor * lm, self.informative, self.reason, dict(self.info),
+                             factor * self._evidence(), self.informative, self.reason, dict(self.info),
                              self.period, self.support)
 
     def upsampled(self, factor: int, order: int = 3) -> "PosePosterior":
@@ -234,10 +240,7 @@ class PosePosterior:
             raise ValueError(f"factor = {factor!r}; expected a whole number >= 1")
         if factor == 1:
             return self
-        raw = np.asarray(self.log_mass, float)
-        if self.support is not None:
-            cut = self._support_cut()
-            raw = np.where(np.isfinite(cut), raw - np.where(np.isfinite(cut), cut, 0.0), -np.inf)
+        raw = self._evidence()
         finite = np.isfinite(raw)
         raw = np.where(finite, raw, raw[finite].min())  # cells outside the support: their floor
 

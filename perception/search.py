@@ -75,8 +75,6 @@ class SearchConfig:
     min_step: float = 2.5e-4        # finest x-y step [m] of the refinement
     min_yaw_step: float = np.radians(0.25)
     grid: int = 7                   # posterior grid points per dimension (odd)
-    cell_step: float = 1.25e-4      # finest x-y step [m] of the posterior grid
-    cell_yaw_step: float = np.radians(0.125)  # ... and yaw step [rad]
     adapt: int = 2                  # posterior grid adaptations
     max_cell_mass: float = 0.5      # shrink an axis whose marginal puts more than this in one cell
     upsample: int = 2               # posterior cells per scored grid step (cubic spline between)
@@ -279,7 +277,8 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
             cut = (np.log(cell_overlap(poses[:, 0], steps[0], x0, x1))
                    + np.log(cell_overlap(poses[:, 1], steps[1], y0, y1)))
         ll = score(poses, stride).loglik.reshape(n, n, n)  # the support cut is the posterior's own
-        p = np.exp(ll + cut.reshape(n, n, n) - logsumexp(ll + cut.reshape(n, n, n)))
+        cut_ll = ll + cut.reshape(n, n, n)
+        p = np.exp(cut_ll - logsumexp(cut_ll))
         best = np.array(np.unravel_index(np.argmax(p), p.shape)) - half
         grow = np.zeros(3, bool)
         shrink = np.zeros(3, bool)
@@ -320,10 +319,7 @@ def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, h
     """Posterior grid steps from 1-D probes: along each axis, how far from the MAP the tempered
     log-likelihood falls by 4 (about 2.8 standard deviations for a Gaussian); the grid reaches
     1.25 times that far."""
-    first = 2 * np.array([config.cell_step, config.cell_step, config.cell_yaw_step])
-    reach = np.array([64 * config.min_step, 64 * config.min_step, 64 * config.min_yaw_step])
-    count = int(np.ceil(np.log2(np.max(reach / first)))) + 1
-    dist = first * 2.0 ** np.arange(count)[:, None]
+    dist = np.array([config.min_step, config.min_step, config.min_yaw_step]) * 2.0 ** np.arange(7)[:, None]
     poses = []
     for d in range(3):
         for sign in (-1, 1):
@@ -337,6 +333,6 @@ def _probe_steps(centre: np.ndarray, score, stride: int, config: SearchConfig, h
         far = np.nonzero(drop[d].min(axis=0) > 4.0)[0]
         reach = dist[far[0], d] if far.size else dist[-1, d]
         steps[d] = 1.25 * reach / half
-    steps[:2] = np.maximum(steps[:2], config.cell_step)
-    steps[2] = min(max(steps[2], config.cell_yaw_step), window / (2 * half + 1))
+    steps[:2] = np.maximum(steps[:2], config.min_step / 2)
+    steps[2] = min(max(steps[2], config.min_yaw_step / 2), window / (2 * half + 1))
     return steps
