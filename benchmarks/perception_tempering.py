@@ -5,20 +5,21 @@ A posterior's tempering exponent (perception.likelihood.LikelihoodConfig) is the
     tau = min(1, g0^2 (gsd / g0)^k / (l r_tip))
 
 times a factor per gear, A (gsd / g0)^B (`gear_tempering`), times the evidence factor set once
-the best pose is known: visible^(-gamma w) (b_d / hypot(b_d, depth noise))^eta (`evidence_factor`;
-w: how well the view resolves the teeth). This script runs the calibration pipeline (detection,
-far posterior, inspect view, close posterior) on tuning scenes, records for every posterior the
-truth's credible level with its tempering multiplied by each of a grid of factors
-(PosePosterior.tempered: rescaling the tempering moves no MAP, only the posterior), and fits
-gamma and eta (grids) and, for each, every gear's (A, B) (grids) so that the truths' levels are
-closest to uniform in every perturbation group x view cell.
+the best pose is known: visible^(-gamma w) (b_d / hypot(b_d, depth noise))^eta, times
+lamp_discount^(1 - w) where the light was fitted (`evidence_factor`; w: how well the view resolves
+the teeth). This script runs the calibration pipeline (detection, far posterior, inspect view,
+close posterior) on tuning scenes, records for every posterior the truth's credible level with its
+tempering multiplied by each of a grid of factors (PosePosterior.tempered: rescaling the tempering
+moves no MAP, only the posterior), and fits gamma, eta and the discount (grids) and, for each,
+every gear's (A, B) (grids) so that the truths' levels are closest to uniform in every
+perturbation group x view cell (150 combinations: ~9 minutes on one core).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/perception_tempering.py --scenes 30 --seed 400 \
         --workers 2 --rows runs/tempering/seed400.json
 
 prints the coverage at 50/68/80/90/95 % with the tempering the rows were made with and with the
 fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
-occlusion_exponent and noise_exponent hold). `--rows PATH` stores the rows there; existing files
+occlusion_exponent, noise_exponent and lamp_discount hold). `--rows PATH` stores the rows there; existing files
 are read back instead (nothing rendered again) and pooled, a later file's groups replacing an
 earlier one's of the same scene seed (rows made under another colour model, say). The colour
 scale's brightness exponent changes the pixels' scores, not only their weight, so it cannot be
@@ -29,6 +30,7 @@ again (docs/perception.md).
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -46,15 +48,19 @@ AMPLITUDES = np.geomspace(0.5, 2.0, 41)
 EXPONENTS = np.linspace(-0.75, 0.75, 31)
 OCCLUSION = np.linspace(0.0, 1.0, 5)
 NOISE = np.linspace(0.0, 2.0, 5)
+LAMP = np.linspace(0.5, 1.0, 6)
 
 
-def collect(scenes: int, seed: int, workers: int) -> dict:
-    """The calibration pipeline's rows on tuning scenes, with each posterior's scaled levels."""
+def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None) -> dict:
+    """The calibration pipeline's rows on tuning scenes (of `groups`, every perturbation group if
+    None), with each posterior's scaled levels."""
     if seed + scenes > HELD_OUT_SEED:
         raise InputError(f"--seed {seed} with --scenes {scenes} reaches the benchmark's scenes "
                          f"(seeds from {HELD_OUT_SEED}); tune on seeds below it")
-    result = run_calibration(CalibrationConfig(scenes=scenes, seed=seed, workers=workers,
-                                               tempering_factors=FACTORS), progress=True)
+    config = CalibrationConfig(scenes=scenes, seed=seed, workers=workers, tempering_factors=FACTORS)
+    if groups:
+        config = replace(config, groups=tuple(groups))
+    result = run_calibration(config, progress=True)
     result["config"]["tempering_factors"] = list(FACTORS)
     return result
 
@@ -87,7 +93,8 @@ class Rows:
         """Per row: the tempering `config` gives it over the one it was recorded with."""
         return np.array([config.tempering_for(r["gear"], r["gsd"])
                          * config.evidence_factor(r["gsd"], r["inlier_fraction"],
-                                                   r.get("pixel_noise", r["depth_noise"]))
+                                                   r.get("pixel_noise", r["depth_noise"]),
+                                                   r.get("light") is not None)
                          / r["tempering"] for r in self.rows])
 
 
@@ -99,33 +106,33 @@ def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
 
 
 def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
-        noise: np.ndarray = NOISE) -> LikelihoodConfig:
-    """`base` with the occlusion and noise exponents (from the grids `occlusion`, `noise`) and, for
-    each pair, every gear's (A, B) (grids AMPLITUDES x EXPONENTS): the set whose truth levels are
-    closest to uniform in every perturbation group x view cell."""
+        noise: np.ndarray = NOISE, lamp: np.ndarray = LAMP) -> LikelihoodConfig:
+    """`base` with the occlusion and noise exponents and the fitted lamp's discount (from the grids
+    `occlusion`, `noise`, `lamp`) and, for each triple, every gear's (A, B) (grids AMPLITUDES x
+    EXPONENTS): the set whose truth levels are closest to uniform in every perturbation group x
+    view cell."""
     g0 = base.reference_gsd
     views = [r["view"] for r in data.rows]
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
     gears = np.array([r["gear"] for r in data.rows])
     best = (np.inf, base)
-    for gamma in occlusion:
-        for eta in noise:
-            cfg = replace(base, gear_tempering={}, occlusion_exponent=float(gamma),
-                          noise_exponent=float(eta))
-            scale = data.scale(cfg)
-            per_gear = {}
-            for gear in np.unique(gears):
-                m = gears == gear
-                sub = [v for v, k in zip(views, m) if k]
-                ratio = (data.gsd[m] / g0)
-                options = [(cell_loss(data.levels(scale[m] * a * ratio ** b, m), sub), a, b)
-                           for a in AMPLITUDES for b in EXPONENTS]
-                _, a, b = min(options)
-                per_gear[str(gear)] = (float(a), float(b))
-            cfg = replace(cfg, gear_tempering=per_gear)
-            loss = cell_loss(data.levels(data.scale(cfg)), cells)
-            if loss < best[0]:
-                best = (loss, cfg)
+    for gamma, eta, discount in itertools.product(occlusion, noise, lamp):
+        cfg = replace(base, gear_tempering={}, occlusion_exponent=float(gamma),
+                      noise_exponent=float(eta), lamp_discount=float(discount))
+        scale = data.scale(cfg)
+        per_gear = {}
+        for gear in np.unique(gears):
+            m = gears == gear
+            sub = [v for v, k in zip(views, m) if k]
+            ratio = (data.gsd[m] / g0)
+            options = [(cell_loss(data.levels(scale[m] * a * ratio ** b, m), sub), a, b)
+                       for a in AMPLITUDES for b in EXPONENTS]
+            _, a, b = min(options)
+            per_gear[str(gear)] = (float(a), float(b))
+        cfg = replace(cfg, gear_tempering=per_gear)
+        loss = cell_loss(data.levels(data.scale(cfg)), cells)
+        if loss < best[0]:
+            best = (loss, cfg)
     return best[1]
 
 
@@ -169,6 +176,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenes", type=int, default=30)
     p.add_argument("--seed", type=int, default=400, help=f"first tuning scene seed (< {HELD_OUT_SEED})")
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--groups", nargs="+", default=None, metavar="GROUP",
+                   help="collect these perturbation groups only (default: all); pooled with --rows "
+                        "files of the same seed, they replace those groups' rows")
     p.add_argument("--rows", type=Path, nargs="+", default=None,
                    help="store the rows here (one path), or read them from existing files, pooled (a "
                         "later file's groups replace an earlier one's of the same seed)")
@@ -183,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise InputError(f"--rows: {[str(x) for x in args.rows if not x.exists()]} missing")
             if args.rows:
                 check_output_file(args.rows[0], "--rows")
-            result = collect(args.scenes, args.seed, args.workers)
+            result = collect(args.scenes, args.seed, args.workers, args.groups)
             if args.rows:
                 write_json(args.rows[0], result)
             rows, factors = fit_rows(result), np.asarray(FACTORS)
@@ -202,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     fits = {"gear_tempering": {g: [round(a, 4), round(b, 4)] for g, (a, b) in config.gear_tempering.items()},
             "occlusion_exponent": config.occlusion_exponent, "noise_exponent": config.noise_exponent,
+            "lamp_discount": config.lamp_discount,
             "posteriors": len(rows)}
     print(f"fitted: {fits}")
     if out is not None:

@@ -86,7 +86,7 @@ def confidently_wrong(row: dict) -> bool:
 
 # What each row keeps of the posterior's search info (explain a miscalibration after the fact).
 ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "inlier_fraction", "valid_fraction",
-            "depth_noise", "pixel_noise")
+            "depth_noise", "pixel_noise", "light", "edge_mass")
 
 
 def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: PosePosterior,

@@ -26,7 +26,7 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 
 # Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
-GEAR_TEMPERING = {"small": (1.516, 0.2), "medium": (1.320, 0.15), "large": (1.072, 0.15)}
+GEAR_TEMPERING = {"small": (1.516, 0.3), "medium": (1.320, 0.3), "large": (1.0, 0.45)}
 
 
 @dataclass
@@ -46,8 +46,9 @@ class LikelihoodConfig:
     gsd_exponent: float = 1.77          # how the tempering grows with the pixel size (calibrated)
     reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
     gear_tempering: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(GEAR_TEMPERING))
-    occlusion_exponent: float = 0.25    # evidence of a partly hidden gear, resolved teeth (calibrated)
-    noise_exponent: float = 2.0         # evidence under depth noise (calibrated)
+    occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
+    noise_exponent: float = 1.0         # evidence under depth noise (calibrated)
+    lamp_discount: float = 0.8          # evidence under a light fitted from the gear's shading (calibrated)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
 
     def __post_init__(self) -> None:
@@ -60,6 +61,9 @@ class LikelihoodConfig:
                 continue
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value > 0")
+        if not (np.isfinite(self.lamp_discount) and 0 < self.lamp_discount <= 1):
+            raise ValueError(f"LikelihoodConfig.lamp_discount = {self.lamp_discount}; expected a "
+                             "factor in (0, 1]")
         for name in ("occlusion_exponent", "noise_exponent", "brightness_exponent"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
@@ -93,19 +97,24 @@ class LikelihoodConfig:
         pixel = a * g0 ** 2 * (gsd / g0) ** (self.gsd_exponent + b)
         return float(min(1.0, pixel / (self.correlation_length * gear_spec(gear).tip_radius)))
 
-    def evidence_factor(self, gsd: float, visible: float, depth_noise: float) -> float:
+    def evidence_factor(self, gsd: float, visible: float, depth_noise: float,
+                        fitted_light: bool = False) -> float:
         """What the tempering is multiplied by once the best pose is known, from the view
         (`gsd` [m/pixel]), the share of the gear's predicted pixels that pose explains (`visible`,
-        in (0, 1]) and the per-pixel depth noise read off the table (`depth_noise` [m]; the
-        scorer's `pixel_noise`, which a depth bias or a camera off its pose leaves at 0):
+        in (0, 1]), the per-pixel depth noise read off the table (`depth_noise` [m]; the
+        scorer's `pixel_noise`, which a depth bias or a camera off its pose leaves at 0) and
+        whether the light was fitted from the gear's own shading (`fitted_light`):
 
-            visible^(-occlusion_exponent * w) * (b_d / hypot(b_d, depth_noise))^noise_exponent,
+            visible^(-occlusion_exponent * w) * (b_d / hypot(b_d, depth_noise))^noise_exponent
+            * lamp_discount^(1 - w) if fitted_light,
 
         w = clip((tooth pitch / gsd - 2) / 4, 0, 1) how well the view resolves the teeth (none
         below 2 pixels a tooth, fully from 6). Where the teeth are resolved, the pose's error is
         dominated by what every tooth shares (the model's small mismatch), so hiding part of the
         gear costs less evidence than its share of pixels; noisy depth costs more than the widened
-        depth scale says. Both exponents are fitted on tuning scenes (docs/perception.md)."""
+        depth scale says; a lamp read off walls the view does not resolve is itself ~10 deg off,
+        and the shading it predicts with it. All three are fitted on tuning scenes
+        (docs/perception.md)."""
         if not (np.isfinite(gsd) and gsd > 0):
             raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
         if not (np.isfinite(visible) and 0 < visible <= 1):
@@ -115,7 +124,8 @@ class LikelihoodConfig:
         resolved = float(np.clip((np.pi * GEAR_MODULE / gsd - 2.0) / 4.0, 0.0, 1.0))
         occlusion = max(visible, 0.25) ** (-self.occlusion_exponent * resolved)
         noise = (self.b_d / np.hypot(self.b_d, depth_noise)) ** self.noise_exponent
-        return float(occlusion * noise)
+        lamp = self.lamp_discount ** (1.0 - resolved) if fitted_light else 1.0
+        return float(occlusion * noise * lamp)
 
     def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
                      depth_hat: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from perception.gear_model import GearModel
-from perception.likelihood import LikelihoodConfig, table_prediction
+from perception.likelihood import LikelihoodConfig, table_albedo, table_prediction
 from perception.observation import VTK_PIXEL_OFFSET, Observation
 from perception.renderer import RayCaster, RayCasterConfig
 
@@ -92,7 +92,8 @@ class ImageScorer:
         self.roi_pixels = int(np.count_nonzero(self.roi))
         self.valid_fraction = float(valid[self.roi].mean()) if self.roi_pixels else 0.0
         self._dirs = dirs
-        self._table = (self._u[self.roi & valid], self._v[self.roi & valid], dirs[self.roi & valid])
+        table = self.roi & valid
+        self._table = _read_table(obs, self._u[table], self._v[table], dirs[table], origin)
         self._set_light(self.light)
         # Ground sampling distance at the search centre: metres of table per pixel.
         p_C = obs.X_WC.inverse().multiply(np.array([centre[0], centre[1], top]))
@@ -105,7 +106,7 @@ class ImageScorer:
         with the light's brightness, a little slower than it: part of them, quantization and
         antialiased edges, does not scale; depth residuals widen with the noise)."""
         self.light = np.asarray(light, float)
-        self.conditions = _read_conditions(self.obs, *self._table, self.origin, self.light)
+        self.conditions = self._table.conditions(self.light)
         brightness = float(np.mean(self.conditions.gain))
         self.pixels_model = replace(
             self.likelihood, b_rgb=self.likelihood.b_rgb
@@ -121,11 +122,14 @@ class ImageScorer:
 
         Under a directional white light L, a pixel of albedo a and normal n shows a * max(0, n . L);
         the bare table (n = z) fixes L_z times the light's colour, so with k = table colour / table
-        albedo, y = rgb / (a k) = n . (L / L_z): linear in the two unknowns L_x / L_z and L_y / L_z,
-        fitted (Huber-weighted) on the lit pixels whose depth the pose explains. Only the gear's
-        walls and chamfers (normals off vertical) carry the horizontal part; with fewer than
-        `min_walls` of them, or a fit that lowers the robust colour residual by less than
-        `min_gain` of the current light's, the light is kept."""
+        albedo, y = rgb / (a k) = max(0, n . (L / L_z)): in the two unknowns L_x / L_z and
+        L_y / L_z, fitted (Huber-weighted Gauss-Newton, from the current light and from lights all
+        round) on the unsaturated pixels whose depth the pose explains, the walls in their own
+        shade included (left out, the fit cannot tell which side the light is on: the scene
+        view sees the walls facing the camera only). Only the gear's walls and chamfers (normals
+        off vertical) carry the horizontal part; with fewer than `min_walls` of them, or a fit
+        that lowers the robust colour residual by less than `min_gain` of the current light's,
+        the light is kept."""
         if self.conditions.table_pixels == 0 or self.light[2] <= 0:
             return False
         ps = self.pixels(stride)
@@ -136,26 +140,24 @@ class ImageScorer:
         near = np.isfinite(depth) & (np.abs(depth - hits.depth) < 3 * self.pixels_model.b_d)
         denom = (hits.albedo * k).sum(1)
         y = ps.rgb[hits.pix].sum(1) / np.maximum(denom, 1e-6)
-        lit = near & (denom > 0.05) & (y > 0.05) & (ps.rgb[hits.pix].max(1) < 0.99)
-        n, y = hits.normal[lit].astype(float), y[lit]
+        # Dark pixels stay in: a wall in its own shade (y ~ 0) says the light is on its other side.
+        seen = near & (denom > 0.05) & (ps.rgb[hits.pix].max(1) < 0.99)
+        n, y = hits.normal[seen].astype(float), y[seen]
         walls = np.hypot(n[:, 0], n[:, 1]) > 0.5
         if np.count_nonzero(walls) < min_walls:
             return False
         m0 = self.light[:2] / self.light[2]
-        m = m0.copy()
-        for _ in range(8):  # Huber IRLS on the pixels the current estimate lights
-            use = n[:, :2] @ m + n[:, 2] > 0
-            r = y[use] - n[use, 2] - n[use, :2] @ m
-            scale = max(1.4826 * np.median(np.abs(r)), 1e-3)
-            w = np.minimum(1.0, 1.345 * scale / np.maximum(np.abs(r), 1e-12))
-            A = n[use, :2] * w[:, None]
-            m = np.linalg.lstsq(A.T @ n[use, :2] + 1e-6 * np.eye(2), A.T @ (y[use] - n[use, 2]),
-                                rcond=None)[0]
 
         def loss(mm):  # on the walls: the top faces fit any light alike
             pred = np.maximum(0.0, n[walls, :2] @ mm + n[walls, 2])
             return float(np.median(np.abs(y[walls] - pred)))
 
+        # The hinge has local optima (a wall predicted dark never pulls): start from the current
+        # light and from lights all round at a few elevations, keep the best fit.
+        starts = [m0] + [np.array([np.cos(az), np.sin(az)]) / np.tan(el)
+                         for el in np.radians([30.0, 50.0, 70.0])
+                         for az in np.radians(np.arange(0.0, 360.0, 45.0))]
+        m = min((_fit_hinge(n, y, start) for start in starts), key=loss)
         if loss(m) > (1.0 - min_gain) * loss(m0):
             return False
         light = np.append(m, 1.0)
@@ -201,14 +203,48 @@ class ImageScorer:
                       np.bincount(hits.hyp, weights=inl.astype(float), minlength=n))
 
 
-def _read_conditions(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray,
-                     origin: np.ndarray, light: np.ndarray, min_pixels: int = 200
-                     ) -> ImageConditions:
-    """Colour gain and depth spread from the pixels (u, v) that see the bare table: depth within
-    2 robust standard deviations (at least 2 mm) of the table plane's. The pixel noise is read
-    apart, from second differences along rows over the pixels within 1 cm of the region's own depth
-    offset, so that a bias or a ramp (a camera off its pose) does not count as noise."""
-    plane, shaded = table_prediction(origin, dirs, light)
+def _fit_hinge(n: np.ndarray, y: np.ndarray, m: np.ndarray, iterations: int = 12) -> np.ndarray:
+    """The light's horizontal part m = L_xy / L_z fitting y = max(0, n . (m, 1)) to shading `y` of
+    normals `n` (N, 3): Huber-weighted Gauss-Newton from `m`."""
+    m = np.asarray(m, float).copy()
+    for _ in range(iterations):
+        on = n[:, :2] @ m + n[:, 2] > 0
+        r = y - np.where(on, n[:, :2] @ m + n[:, 2], 0.0)
+        scale = max(1.4826 * np.median(np.abs(r)), 1e-3)
+        w = np.minimum(1.0, 1.345 * scale / np.maximum(np.abs(r), 1e-12)) * on
+        J = n[:, :2] * w[:, None]
+        m = m + np.linalg.lstsq(J.T @ n[:, :2] + 1e-6 * np.eye(2), J.T @ r, rcond=None)[0]
+    return m
+
+
+@dataclass
+class _TableReading:
+    """What the bare table in the region says whatever the light: the median colour of its pixels
+    (None: too few of them), the depth spread about its plane, how many pixels, the per-pixel
+    depth noise."""
+
+    colour: np.ndarray | None
+    spread: float
+    pixels: int
+    pixel_noise: float
+
+    def conditions(self, light: np.ndarray) -> ImageConditions:
+        """The image's conditions if the light arrives from `light` (world, unit): the colour gain
+        is the table's colour over its albedo shaded by that light (1 when unknown)."""
+        shade = max(0.0, float(light[2]))
+        if self.colour is None or shade <= 0:
+            return ImageConditions(np.ones(3, np.float32), self.spread, 0, self.pixel_noise)
+        gain = np.clip(self.colour / np.maximum(table_albedo() * shade, 1e-3), 0.1, 10.0)
+        return ImageConditions(gain.astype(np.float32), self.spread, self.pixels, self.pixel_noise)
+
+
+def _read_table(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray,
+                origin: np.ndarray, min_pixels: int = 200) -> _TableReading:
+    """The bare table's reading from the pixels (u, v): those with depth within 2 robust standard
+    deviations (at least 2 mm) of the table plane's. The pixel noise is read apart, from second
+    differences along rows over the pixels within 1 cm of the region's own depth offset, so that a
+    bias or a ramp (a camera off its pose) does not count as noise."""
+    plane, _ = table_prediction(origin, dirs, np.array([0.0, 0.0, 1.0]))
     resid = obs.depth[v, u] - plane
     offset = _table_offset(resid, min_pixels)
     pixel_noise = 0.0
@@ -217,15 +253,14 @@ def _read_conditions(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.nd
         pixel_noise = _row_noise(obs.depth, u[level], v[level])
     near = np.abs(resid) < 0.01
     if np.count_nonzero(near) < min_pixels:
-        return ImageConditions(np.ones(3, np.float32), 0.0, 0, pixel_noise)
+        return _TableReading(None, 0.0, 0, pixel_noise)
     centred = resid[near] - np.median(resid[near])
     spread = float(1.4826 * np.median(np.abs(centred)))
     table = near & (np.abs(resid) < max(0.002, 2 * spread))
-    if np.count_nonzero(table) < min_pixels or shaded[0].max() <= 0:
-        return ImageConditions(np.ones(3, np.float32), spread, 0, pixel_noise)
-    observed = np.median(obs.rgb[v[table], u[table]], axis=0)
-    gain = np.clip(observed / np.maximum(shaded[0], 1e-3), 0.1, 10.0).astype(np.float32)
-    return ImageConditions(gain, spread, int(np.count_nonzero(table)), pixel_noise)
+    if np.count_nonzero(table) < min_pixels:
+        return _TableReading(None, spread, 0, pixel_noise)
+    colour = np.median(obs.rgb[v[table], u[table]], axis=0)
+    return _TableReading(colour, spread, int(np.count_nonzero(table)), pixel_noise)
 
 
 def _table_offset(resid: np.ndarray, min_pixels: int, reach: float = 0.06) -> float | None:

@@ -75,8 +75,10 @@ class SearchConfig:
     min_step: float = 2.5e-4        # finest x-y step [m] of the refinement
     min_yaw_step: float = np.radians(0.25)
     grid: int = 7                   # posterior grid points per dimension (odd)
-    adapt: int = 2                  # posterior grid adaptations
-    max_cell_mass: float = 0.5      # shrink an axis whose marginal puts more than this in one cell
+    adapt: int = 4                  # posterior grids scored at most (refitted to the mass)
+    max_cell_mass: float = 0.5      # refit the grid while an axis puts more than this in one cell
+    max_edge_mass: float = 0.01     # ... or more than this in its two edge cells
+    grid_step_std: float = 1.2      # refitted grid step, in standard deviations of the mass
     upsample: int = 2               # posterior cells per scored grid step (cubic spline between)
     min_pixels: int = 25            # fewer gear pixels (at the fine stride) -> uninformative
     min_inlier_fraction: float = 0.5
@@ -88,6 +90,13 @@ class SearchConfig:
             raise ValueError(f"light_rounds = {self.light_rounds}; expected >= 0")
         if isinstance(self.upsample, bool) or not isinstance(self.upsample, int) or self.upsample < 1:
             raise ValueError(f"upsample = {self.upsample!r}; expected a whole number >= 1")
+        if isinstance(self.adapt, bool) or not isinstance(self.adapt, int) or self.adapt < 1:
+            raise ValueError(f"adapt = {self.adapt!r}; expected a whole number >= 1")
+        if not (0 < self.max_edge_mass < 0.5 and 0 < self.max_cell_mass <= 1
+                and np.isfinite(self.grid_step_std) and self.grid_step_std > 0):
+            raise ValueError(f"max_edge_mass = {self.max_edge_mass}, max_cell_mass = "
+                             f"{self.max_cell_mass}, grid_step_std = {self.grid_step_std}; expected "
+                             "0 < max_edge_mass < 0.5, 0 < max_cell_mass <= 1, grid_step_std > 0")
         if self.grid < 3 or self.grid % 2 == 0:
             raise ValueError(f"grid = {self.grid}; expected an odd number >= 3")
         if self.beam < 1 or self.coarse_pixels < 10 or self.fine_pixels < self.coarse_pixels:
@@ -198,7 +207,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
                                  period=model.period, info=info)
     # 3. Posterior grid around the MAP, its evidence weighed by what the view and the MAP say.
     factor = config.likelihood.evidence_factor(scorer.gsd, inliers / pixels,
-                                               scorer.conditions.pixel_noise)
+                                               scorer.conditions.pixel_noise, "light" in info)
     info.update(evidence_factor=factor, tempering=scorer.tempering * factor)
 
     def weighed(poses, stride):
@@ -271,6 +280,8 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
     steps = _probe_steps(centre, score, stride, config, half, window)
     steps[:2] = np.minimum(steps[:2], max_xy)
     x0, x1, y0, y1 = prior.box
+    cap = np.array([max_xy, max_xy, window / n])  # a mode's yaw window stays inside one pitch
+    offsets = np.arange(n) - half
     for attempt in range(config.adapt):
         poses = _grid(centre, steps, n)
         with np.errstate(divide="ignore"):
@@ -279,29 +290,30 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
         ll = score(poses, stride).loglik.reshape(n, n, n)  # the support cut is the posterior's own
         cut_ll = ll + cut.reshape(n, n, n)
         p = np.exp(cut_ll - logsumexp(cut_ll))
-        best = np.array(np.unravel_index(np.argmax(p), p.shape)) - half
-        grow = np.zeros(3, bool)
-        shrink = np.zeros(3, bool)
-        for d in range(3):
-            m = p.sum(axis=tuple(a for a in range(3) if a != d))
-            grow[d] = m[0] + m[-1] > 0.01
-            shrink[d] = m.max() > config.max_cell_mass
-        grow[:2] &= steps[:2] < max_xy
-        grow[2] &= steps[2] < window / n
-        shift = np.abs(best) == half
-        if attempt == config.adapt - 1 or not (grow.any() or shrink.any() or shift.any()):
+        marginals = [p.sum(axis=tuple(a for a in range(3) if a != d)) for d in range(3)]
+        edge = np.array([m[0] + m[-1] for m in marginals])
+        top = np.array([m.max() for m in marginals])
+        truncated = (edge > config.max_edge_mass) & (steps < cap)
+        if attempt == config.adapt - 1 or not (truncated.any() or (top > config.max_cell_mass).any()):
             break
-        centre = centre + np.where(shift, best * steps, 0.0)
+        # Moment-matched next grid: centred on the marginal means, steps of grid_step_std standard
+        # deviations (a third of a step at least: mass in one cell has no measured spread); at
+        # least doubled where the mass ran off an edge (its std is then underestimated).
+        mean = np.array([m @ offsets for m in marginals])
+        var = np.array([m @ offsets ** 2 for m in marginals]) - mean ** 2
+        centre = centre + mean * steps
         centre[:2] = prior.clip(centre[None])[0, :2]
-        steps = np.where(grow, steps * 2, np.where(shrink, steps / 2, steps))
-        steps[:2] = np.minimum(steps[:2], max_xy)
-        steps[2] = min(steps[2], window / n)  # a mode's yaw window stays inside one pitch
+        fitted = config.grid_step_std * np.sqrt(np.maximum(var, 1.0 / 12.0)) * steps
+        steps = np.minimum(np.where(truncated, np.maximum(fitted, 2 * steps), fitted), cap)
+    edge_mass = float(edge.max())
     offsets = (np.arange(n) - half) * steps[2]
     xs = centre[0] + (np.arange(n) - half) * steps[0]
     ys = centre[1] + (np.arange(n) - half) * steps[1]
     if model.symmetry > 1:  # yaw is a class modulo the period: one mode
-        return PosePosterior(model.name, xs, ys, centre[2:3], offsets, ll[None],
+        post = PosePosterior(model.name, xs, ys, centre[2:3], offsets, ll[None],
                              period=model.period, support=prior.box).upsampled(config.upsample)
+        post.info["edge_mass"] = edge_mass
+        return post
     # A marked gear: every tooth-pitch repeat of the MAP yaw, its yaw slice through the MAP (x, y).
     repeats = wrap(centre[2] + pitch * np.arange(teeth))
     slice_poses = np.array([[centre[0], centre[1], r + o] for r in repeats for o in offsets])
@@ -311,6 +323,7 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
     post = PosePosterior(model.name, xs, ys, repeats, offsets, log_mass,
                          support=prior.box).upsampled(config.upsample)
     post.info["repeat_log_evidence"] = (evidence - evidence.max()).tolist()
+    post.info["edge_mass"] = edge_mass
     return post
 
 

@@ -65,5 +65,17 @@ def test_evidence_factor_follows_occlusion_where_teeth_are_resolved_and_depth_no
         LikelihoodConfig(occlusion_exponent=-1.0)
 
 
+def test_a_fitted_lamp_discounts_the_evidence_where_the_teeth_are_not_resolved():
+    cfg = LikelihoodConfig(occlusion_exponent=0.0, noise_exponent=0.0, lamp_discount=0.64)
+    close, coarse = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2  # 8 and 2 pixels a tooth
+    assert cfg.evidence_factor(coarse, 1.0, 0.0, fitted_light=True) == pytest.approx(0.64)
+    assert cfg.evidence_factor(np.pi * 1e-3 / 4, 1.0, 0.0, fitted_light=True) == pytest.approx(0.8)
+    assert cfg.evidence_factor(close, 1.0, 0.0, fitted_light=True) == pytest.approx(1.0)
+    assert cfg.evidence_factor(coarse, 1.0, 0.0) == pytest.approx(1.0)  # the light assumed
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="lamp_discount"):
+            LikelihoodConfig(lamp_discount=bad)
+
+
 def test_table_colour_comes_from_its_model():
     np.testing.assert_allclose(table_albedo(), [0.62, 0.45, 0.28], atol=1e-6)

@@ -34,7 +34,7 @@ def test_pixel_noise_is_read_and_a_bias_is_not_noise(views, view):
     assert _scorer(obs, truth).conditions.pixel_noise == pytest.approx(0.0, abs=2e-5)
     noisy = apply_depth_noise(obs.depth, 0.001, np.random.default_rng(0))
     scorer = _scorer(obs, truth, noisy)
-    u, v, _ = scorer._table
+    u, v = scorer._u[scorer.roi], scorer._v[scorer.roi]  # the region's pixels (all have depth)
     sigma = 0.001 * np.median((obs.depth[v, u] / DEPTH_NOISE_REFERENCE) ** 2)
     assert scorer.conditions.pixel_noise == pytest.approx(sigma, rel=0.15)
     for bias in (-0.02, 0.01, 0.03):
