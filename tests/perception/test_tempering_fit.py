@@ -39,7 +39,8 @@ def test_fit_recovers_each_gears_factor():
                              "depth_noise": 0.0, "level": float(chi2.cdf(d2, 3)),
                              "scaled_levels": chi2.cdf(d2 * factors, 3).tolist()})
     data = mod.Rows(rows, factors)
-    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]))
+    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]),
+                     lamp=np.array([1.0]))
     for gear, k in truth.items():
         a, b = fitted.gear_tempering[gear]
         assert abs(np.log(a * k)) < 0.12, (gear, a, 1 / k)   # A ~ 1 / k, within 12 %
