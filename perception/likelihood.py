@@ -162,12 +162,20 @@ def table_albedo() -> np.ndarray:
     return np.array([float(g) for g in match.groups()], np.float32)
 
 
+def table_colour(light: np.ndarray) -> np.ndarray:
+    """The bare table's colour (r, g, b) under a white directional light from `light` (world)."""
+    return table_albedo() * max(0.0, float(light[2]))
+
+
+def table_depth(origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Depth of the table plane z = 0 along each ray (+inf for rays that never reach it)."""
+    down = dirs[:, 2] < -1e-9
+    return np.where(down, -origin[2] / np.where(down, dirs[:, 2], -1.0), np.inf).astype(np.float32)
+
+
 def table_prediction(origin: np.ndarray, dirs: np.ndarray, light: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray]:
     """What each ray sees if no gear is in its way: the table plane z = 0 (depth, shaded colour);
     depth is +inf for rays that never reach it."""
-    down = dirs[:, 2] < -1e-9
-    depth = np.where(down, -origin[2] / np.where(down, dirs[:, 2], -1.0), np.inf)
-    shade = max(0.0, float(light[2]))
-    rgb = np.broadcast_to(table_albedo() * shade, (len(dirs), 3)).astype(np.float32)
-    return depth.astype(np.float32), rgb
+    rgb = np.broadcast_to(table_colour(light), (len(dirs), 3)).astype(np.float32)
+    return table_depth(origin, dirs), rgb

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from perception.gear_model import GearModel
-from perception.likelihood import LikelihoodConfig, table_albedo, table_prediction
+from perception.likelihood import LikelihoodConfig, table_colour, table_depth, table_prediction
 from perception.observation import VTK_PIXEL_OFFSET, Observation
 from perception.renderer import RayCaster, RayCasterConfig
 
@@ -231,10 +231,10 @@ class _TableReading:
     def conditions(self, light: np.ndarray) -> ImageConditions:
         """The image's conditions if the light arrives from `light` (world, unit): the colour gain
         is the table's colour over its albedo shaded by that light (1 when unknown)."""
-        shade = max(0.0, float(light[2]))
-        if self.colour is None or shade <= 0:
+        shaded = table_colour(light)
+        if self.colour is None or shaded.max() <= 0:
             return ImageConditions(np.ones(3, np.float32), self.spread, 0, self.pixel_noise)
-        gain = np.clip(self.colour / np.maximum(table_albedo() * shade, 1e-3), 0.1, 10.0)
+        gain = np.clip(self.colour / np.maximum(shaded, 1e-3), 0.1, 10.0)
         return ImageConditions(gain.astype(np.float32), self.spread, self.pixels, self.pixel_noise)
 
 
@@ -244,8 +244,7 @@ def _read_table(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray
     deviations (at least 2 mm) of the table plane's. The pixel noise is read apart, from second
     differences along rows over the pixels within 1 cm of the region's own depth offset, so that a
     bias or a ramp (a camera off its pose) does not count as noise."""
-    plane, _ = table_prediction(origin, dirs, np.array([0.0, 0.0, 1.0]))
-    resid = obs.depth[v, u] - plane
+    resid = obs.depth[v, u] - table_depth(origin, dirs)
     offset = _table_offset(resid, min_pixels)
     pixel_noise = 0.0
     if offset is not None:

@@ -281,7 +281,7 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
     steps[:2] = np.minimum(steps[:2], max_xy)
     x0, x1, y0, y1 = prior.box
     cap = np.array([max_xy, max_xy, window / n])  # a mode's yaw window stays inside one pitch
-    offsets = np.arange(n) - half
+    unit = np.arange(n) - half  # grid points in steps from the centre
     for attempt in range(config.adapt):
         poses = _grid(centre, steps, n)
         with np.errstate(divide="ignore"):
@@ -299,16 +299,16 @@ def _posterior_grid(model: GearModel, map_pose: np.ndarray, score, stride: int,
         # Moment-matched next grid: centred on the marginal means, steps of grid_step_std standard
         # deviations (a third of a step at least: mass in one cell has no measured spread); at
         # least doubled where the mass ran off an edge (its std is then underestimated).
-        mean = np.array([m @ offsets for m in marginals])
-        var = np.array([m @ offsets ** 2 for m in marginals]) - mean ** 2
+        mean = np.array([m @ unit for m in marginals])
+        var = np.array([m @ unit ** 2 for m in marginals]) - mean ** 2
         centre = centre + mean * steps
         centre[:2] = prior.clip(centre[None])[0, :2]
         fitted = config.grid_step_std * np.sqrt(np.maximum(var, 1.0 / 12.0)) * steps
         steps = np.minimum(np.where(truncated, np.maximum(fitted, 2 * steps), fitted), cap)
     edge_mass = float(edge.max())
-    offsets = (np.arange(n) - half) * steps[2]
-    xs = centre[0] + (np.arange(n) - half) * steps[0]
-    ys = centre[1] + (np.arange(n) - half) * steps[1]
+    offsets = unit * steps[2]
+    xs = centre[0] + unit * steps[0]
+    ys = centre[1] + unit * steps[1]
     if model.symmetry > 1:  # yaw is a class modulo the period: one mode
         post = PosePosterior(model.name, xs, ys, centre[2:3], offsets, ll[None],
                              period=model.period, support=prior.box).upsampled(config.upsample)
