@@ -140,6 +140,7 @@ def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
 
             t_crop = _time(drake_crop)
             light = -camera.X_PC.rotation().matrix()[:, 2]
+            caster.render(origin, dirs[roi][:1], light, poses[:1])  # warm up: load the compiled loops
             out = None
 
             def ours_all():
@@ -182,6 +183,10 @@ def bench_posteriors(config: BenchConfig | None = None) -> dict:
     seconds, hyps, rows = [], [], []
     for gear in config.gears:
         scene = DrakeScene(SceneConfig(gears={gear: (0.42, -0.05, 0.0)}))
+        # Untimed: the compiled loops (numba; cached on disk after a machine's first run) and the
+        # gear's height map are made once per process, not per posterior.
+        camera = close_camera(0.42, -0.05)
+        estimate_pose(scene.render(camera, camera.X_PC), gear, Prior(0.42, -0.05, 0.005))
         for _ in range(config.posteriors):
             truth = np.array([0.42 + rng.uniform(-0.01, 0.01), -0.05 + rng.uniform(-0.01, 0.01),
                               rng.uniform(-np.pi, np.pi)])

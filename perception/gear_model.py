@@ -66,15 +66,6 @@ class HeightMap:
         """Highest point of the solid [m]."""
         return float(self.height.max())
 
-    def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Flat texel index of gear-frame points (x, y); points off the map go to texel 0, which
-        is always empty (the map has a one-texel empty border)."""
-        n = self.size
-        j = np.floor((x - self.x0) * (1.0 / self.texel)).astype(np.int64)
-        i = np.floor((y - self.x0) * (1.0 / self.texel)).astype(np.int64)
-        ok = (i >= 0) & (i < n) & (j >= 0) & (j < n)
-        return np.where(ok, i * n + j, 0)
-
 
 @dataclass(frozen=True)
 class GearModel:

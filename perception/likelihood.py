@@ -18,6 +18,7 @@ import re
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+import numba
 import numpy as np
 
 from assembly.gear_meshes import gearset_model_paths
@@ -127,29 +128,72 @@ class LikelihoodConfig:
         lamp = self.lamp_discount ** (1.0 - resolved) if fitted_light else 1.0
         return float(occlusion * noise * lamp)
 
+    def pixel_constants(self, scales: float = 3.0) -> tuple:
+        """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and
+        the density's log normalizers; `scales` sets the inlier test."""
+        return (np.float32(self.b_rgb), np.float32(self.b_d), float(np.log1p(-self.p_out)),
+                float(3 * np.log(2 * self.b_rgb)), float(np.log(2 * self.b_d)),
+                float(np.log(self.p_out)), float(np.log(self.depth_range)), np.float32(scales))
+
     def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
                      depth_hat: np.ndarray) -> np.ndarray:
-        """Log-likelihood of observed pixels (rgb (..., 3), depth (...)) given rendered ones; a
-        pixel without a valid depth (NaN, <= 0) is scored on its colour alone (its depth density
-        marginalized out)."""
-        b_d = self.b_d
-        has_depth = np.isfinite(depth) & (depth > 0)
-        colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
-        dist = np.where(has_depth, np.abs(np.where(has_depth, depth, 0.0) - depth_hat) / b_d
-                        + np.log(2 * b_d), 0.0)
-        log_in = np.log1p(-self.p_out) - colour - 3 * np.log(2 * self.b_rgb) - dist
-        log_out = np.log(self.p_out) - np.where(has_depth, np.log(self.depth_range), 0.0)
-        return np.logaddexp(log_in, log_out)
+        """Log-likelihood of observed pixels (rgb (..., 3), depth (...)) given rendered ones,
+        computed in float32 like the images; a pixel without a valid depth (NaN, <= 0) is scored
+        on its colour alone (its depth density marginalized out)."""
+        return self._per_pixel(rgb, depth, rgb_hat, depth_hat, 3.0)[0]
 
     def is_inlier(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
                   depth_hat: np.ndarray, scales: float = 3.0) -> np.ndarray:
         """Whether each pixel matches its rendering within `scales` times b_rgb (colour, L1) and
         b_d (depth; a pixel without depth on colour alone): what "the hypothesis explains this
         pixel" means in the sanity checks."""
-        colour = np.abs(rgb - rgb_hat).sum(-1) / self.b_rgb
-        with np.errstate(invalid="ignore"):
-            dist = np.abs(depth - depth_hat) / self.b_d
-        return (colour < scales) & ((dist < scales) | ~(np.isfinite(depth) & (depth > 0)))
+        return self._per_pixel(rgb, depth, rgb_hat, depth_hat, scales)[1]
+
+    def _per_pixel(self, rgb, depth, rgb_hat, depth_hat, scales):
+        rgb, rgb_hat = np.broadcast_arrays(np.asarray(rgb, np.float32), np.asarray(rgb_hat, np.float32))
+        depth, depth_hat = np.broadcast_arrays(np.asarray(depth, np.float32),
+                                               np.asarray(depth_hat, np.float32))
+        shape = np.broadcast_shapes(rgb.shape[:-1], depth.shape)
+        flat = [np.ascontiguousarray(np.broadcast_to(x, shape + tail).reshape((-1,) + tail))
+                for x, tail in ((rgb, (3,)), (depth, ()), (rgb_hat, (3,)), (depth_hat, ()))]
+        loglik, inlier = _pixels(*flat, self.pixel_constants(scales))
+        return loglik.reshape(shape), inlier.reshape(shape)
+
+
+@numba.njit(cache=True, inline="always")
+def pixel_terms(r, g, b, depth, r_hat, g_hat, b_hat, depth_hat, constants):
+    """(log-likelihood, inlier) of one pixel given its rendering (colours and depths float32;
+    `constants` from LikelihoodConfig.pixel_constants): the density of the module docstring, and
+    whether colour (L1) and depth (when valid) lie within `scales` of their scales. Its float32
+    and float64 steps are those numpy takes on float32 images."""
+    b_rgb, b_d, log_in0, log_rgb, log_2bd, log_out0, log_range, scales = constants
+    colour = ((abs(r - r_hat) + abs(g - g_hat)) + abs(b - b_hat)) / b_rgb
+    has_depth = np.isfinite(depth) and depth > 0
+    dist = abs(depth - depth_hat) / b_d  # NaN without depth
+    log_in = (log_in0 - np.float64(colour)) - log_rgb
+    log_out = log_out0
+    if has_depth:
+        log_in -= np.float64(dist) + log_2bd
+        log_out -= log_range
+    # log(exp(log_in) + exp(log_out)) as numpy's logaddexp takes it.
+    if log_in == log_out:
+        loglik = log_in + np.log(2.0)
+    elif log_in - log_out > 0:
+        loglik = log_in + np.log1p(np.exp(-(log_in - log_out)))
+    else:
+        loglik = log_out + np.log1p(np.exp(log_in - log_out))
+    return loglik, colour < scales and (dist < scales or not has_depth)
+
+
+@numba.njit(cache=True)
+def _pixels(rgb, depth, rgb_hat, depth_hat, constants):
+    n = depth.size
+    loglik = np.empty(n)
+    inlier = np.empty(n, np.bool_)
+    for i in range(n):
+        loglik[i], inlier[i] = pixel_terms(rgb[i, 0], rgb[i, 1], rgb[i, 2], depth[i], rgb_hat[i, 0],
+                                           rgb_hat[i, 1], rgb_hat[i, 2], depth_hat[i], constants)
+    return loglik, inlier
 
 
 @lru_cache(maxsize=None)

@@ -3,7 +3,8 @@
 For every (hypothesis, pixel) pair whose ray passes within the gear's tip radius, the ray is
 marched through the slab 0 <= z <= top of the gear (in the gear frame, where hypotheses differ
 only by a planar rotation and shift) until it first enters the solid; the entry is then refined,
-exactly for flat faces and by bisection for walls and chamfers. Colour follows Drake's
+exactly for flat faces and by bisection for walls and chamfers. The pairs are marched by one
+compiled loop (numba), no Python per pair or per step. Colour follows Drake's
 RenderEngineVtk default lighting: one directional light along the camera's optical axis, Lambert
 shading of the diffuse colour (albedo * max(0, n . -z_C)), no ambient term.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from perception.gear_model import GearModel, HeightMap
@@ -35,18 +37,16 @@ class RenderedPairs:
 @dataclass
 class RayCasterConfig:
     """march_step: horizontal distance between samples along a ray [m] (below the narrowest tooth
-    tip); refine_steps: bisection steps for wall and chamfer hits; chunk: pairs per batch."""
+    tip); refine_steps: bisection steps for wall and chamfer hits."""
 
     march_step: float = 3e-4
     refine_steps: int = 8
-    chunk: int = 400_000
 
     def __post_init__(self) -> None:
         if not 0 < self.march_step <= 1e-3:
             raise ValueError(f"march_step = {self.march_step}; expected (0, 1e-3] m")
-        if self.refine_steps < 1 or self.chunk < 1000:
-            raise ValueError(f"refine_steps = {self.refine_steps}, chunk = {self.chunk}; expected "
-                             ">= 1 and >= 1000")
+        if self.refine_steps < 1:
+            raise ValueError(f"refine_steps = {self.refine_steps}; expected >= 1")
 
 
 class RayCaster:
@@ -66,7 +66,7 @@ class RayCaster:
         flat = self.map.normal[:, :, 2] > 0.999
         # Heights of the flat faces, highest first: a ray is tested there before marching, so
         # that rays grazing a face's edge hit it even between two march samples.
-        self._levels = np.unique(self.map.height[flat])[::-1][:4]
+        self._levels = np.ascontiguousarray(np.unique(self.map.height[flat])[::-1][:4])
 
     def render(self, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray,
                poses: np.ndarray, surface: bool = False) -> RenderedPairs:
@@ -92,19 +92,16 @@ class RayCaster:
         t_bot = np.where(down, -origin[2] / np.where(down, dirs[:, 2], -1.0), np.inf)
         a = origin[:2] + t_top[:, None] * dirs[:, :2]  # where each ray enters the slab (xy)
         b = origin[:2] + np.where(down, t_bot, t_top)[:, None] * dirs[:, :2]
-        pairs_h, pairs_p = self._candidates(a, b, down, poses[:, :2])
-        out = []
-        for s in range(0, len(pairs_h), self.config.chunk):
-            h, p = pairs_h[s:s + self.config.chunk], pairs_p[s:s + self.config.chunk]
-            out.append(self._march(origin, a[p], b[p], t_top[p], t_bot[p], poses[h], light, h, p,
-                                   surface))
-        if not out:
-            empty = np.zeros(0, np.int64)
-            none3 = np.zeros((0, 3), np.float32)
-            return RenderedPairs(empty, empty, np.zeros(0, np.float32), none3,
-                                 none3 if surface else None, none3 if surface else None)
-        parts = [np.concatenate([o[k] for o in out]) for k in range(6 if surface else 4)]
-        return RenderedPairs(*parts)
+        hyp, pix = self._candidates(a, b, down, poses[:, :2])
+        m = self.map
+        count, *out = _march_pairs(
+            hyp, pix, a, b, t_top, t_bot, poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
+            np.asarray(light, float), self.config.march_step, self._h, self._n, self._wall,
+            self._albedo, self._levels, float(m.x0), 1.0 / m.texel, m.size, float(self._top),
+            (self.model.tip_radius + 2 * m.texel) ** 2, self.config.refine_steps, surface)
+        hyp, pix, depth, rgb, normal, albedo = (o[:count] for o in out)
+        return RenderedPairs(hyp, pix, depth, rgb, normal if surface else None,
+                             albedo if surface else None)
 
     def _candidates(self, a: np.ndarray, b: np.ndarray, down: np.ndarray,
                     centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -140,106 +137,6 @@ class RayCaster:
         within = np.arange(len(pair_p)) - np.repeat(np.cumsum(reps) - reps, reps)
         return order[first + within], pair_p
 
-    def _cylinder_span(self, x0, y0, dx, dy) -> tuple[np.ndarray, np.ndarray]:
-        """Chord parameters [s_in, s_out] within [0, 1] where (x0 + s dx, y0 + s dy) lies inside
-        the tip radius (s_in >= s_out: never)."""
-        r2 = (self.model.tip_radius + 2 * self.map.texel) ** 2
-        A = dx * dx + dy * dy
-        B = x0 * dx + y0 * dy
-        C = x0 * x0 + y0 * y0 - r2
-        disc = B * B - A * C
-        root = np.sqrt(np.maximum(disc, 0.0))
-        safe = np.maximum(A, 1e-30)
-        vertical = A < 1e-24
-        s_in = np.where(vertical, np.where(C <= 0, 0.0, 1.0), (-B - root) / safe)
-        s_out = np.where(vertical, np.where(C <= 0, 1.0, 0.0), (-B + root) / safe)
-        s_in = np.where(disc < 0, 1.0, np.maximum(s_in, 0.0))
-        s_out = np.where(disc < 0, 0.0, np.minimum(s_out, 1.0))
-        return s_in, s_out
-
-    def _lookup(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
-        return self.map.index(gx, gy)
-
-    def _march(self, origin, a, b, t_top, t_bot, pose, light, hyp, pix, surface=False):
-        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-        # Slab entry point and chord in the gear frame: rotate by -yaw about the gear's axis.
-        rx, ry = a[:, 0] - pose[:, 0], a[:, 1] - pose[:, 1]
-        gx0, gy0 = c * rx + s * ry, -s * rx + c * ry
-        dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-        gdx, gdy = c * dx + s * dy, -s * dx + c * dy
-        length = np.hypot(dx, dy)
-        ds = np.minimum(1.0, self.config.march_step / np.maximum(length, 1e-12))
-        top = self._top
-
-        def inside(idx_rows, sv):
-            k = self._lookup(gx0[idx_rows] + sv * gdx[idx_rows], gy0[idx_rows] + sv * gdy[idx_rows])
-            return top * (1.0 - sv) <= self._h[k], k
-
-        n = len(a)
-        s_hit = np.full(n, np.nan)
-        active = np.arange(n)
-        s_prev = np.zeros(n)
-        for level in self._levels:
-            sv = np.full(active.size, 1.0 - level / top)
-            hit, _ = inside(active, sv)
-            s_hit[active[hit]] = s_prev[active[hit]] = sv[hit]
-            active = active[~hit]
-        # March only the part of the chord inside the tip cylinder (the solid lies within it).
-        s_in, s_out = self._cylinder_span(gx0[active], gy0[active], gdx[active], gdy[active])
-        keep = s_in < s_out
-        active, s_in, s_out = active[keep], s_in[keep], s_out[keep]
-        k_step = 1
-        while active.size:
-            sv = np.minimum(s_out, s_in + k_step * ds[active])
-            hit, _ = inside(active, sv)
-            s_hit[active[hit]] = sv[hit]
-            s_prev[active[hit]] = np.maximum(sv[hit] - ds[active[hit]], s_in[hit])
-            go = ~hit & (sv < s_out)
-            active, s_in, s_out = active[go], s_in[go], s_out[go]
-            k_step += 1
-        rows = np.nonzero(np.isfinite(s_hit))[0]
-        lo = s_prev[rows]
-        hi = s_hit[rows]
-        # Flat top faces: the hit is where the ray reaches the texel's height (one lookup).
-        _, k_hi = inside(rows, hi)
-        z_face = self._h[k_hi]
-        s_face = 1.0 - z_face / top
-        ok_face = (s_face >= lo - 1e-9) & (s_face <= hi + 1e-9) & (self._n[k_hi, 2] > 0.999)
-        if np.any(ok_face):
-            _, k_face = inside(rows[ok_face], s_face[ok_face])
-            ok_face[ok_face] = self._h[k_face] == z_face[ok_face]
-        rest = ~ok_face
-        r_rows, r_lo, r_hi = rows[rest], lo[rest], hi[rest]
-        for _ in range(self.config.refine_steps):
-            mid = 0.5 * (r_lo + r_hi)
-            inn, _ = inside(r_rows, mid)
-            r_hi = np.where(inn, mid, r_hi)
-            r_lo = np.where(inn, r_lo, mid)
-        s_final = np.where(ok_face, s_face, 0.0)
-        s_final[rest] = r_hi
-        _, k_in = inside(rows, s_final)
-        z = top * (1.0 - s_final)
-        wall = self._h[k_in] - z > 1e-4
-        normal = self._n[k_in].astype(np.float64)
-        if np.any(wall):
-            s_out = s_final.copy()
-            s_out[rest] = r_lo  # just outside the wall, where its footprint gradient lives
-            _, k_out = inside(rows[wall], s_out[wall])
-            normal[wall, :2] = self._wall[k_out]
-            normal[wall, 2] = 0.0
-        # Light direction in the gear frame.
-        cr, sr = c[rows], s[rows]
-        lx, ly = cr * light[0] + sr * light[1], -sr * light[0] + cr * light[1]
-        shade = np.maximum(0.0, normal[:, 0] * lx + normal[:, 1] * ly + normal[:, 2] * light[2])
-        albedo = self._albedo[k_in]
-        rgb = (albedo * shade[:, None]).astype(np.float32)
-        depth = (t_top[rows] + s_final * (t_bot[rows] - t_top[rows])).astype(np.float32)
-        if not surface:
-            return hyp[rows], pix[rows], depth, rgb, None, None
-        world = np.column_stack([cr * normal[:, 0] - sr * normal[:, 1],
-                                 sr * normal[:, 0] + cr * normal[:, 1], normal[:, 2]])
-        return hyp[rows], pix[rows], depth, rgb, world.astype(np.float32), albedo
-
 
 def render_image(caster: RayCaster, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray,
                  pose: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -251,3 +148,154 @@ def render_image(caster: RayCaster, origin: np.ndarray, dirs: np.ndarray, light:
     depth[out.pix] = out.depth
     rgb[out.pix] = out.rgb
     return depth.reshape(shape), rgb.reshape(*shape, 3)
+
+
+@numba.njit(cache=True, inline="always")
+def _texel(x, y, x0, inv_texel, n):
+    """Flat index of the texel of the height map (n x n texels from (x0, x0), 1 / inv_texel wide)
+    under the gear-frame point (x, y); off the map: texel 0, which is always empty (the map has a
+    one-texel empty border)."""
+    j = np.int64(np.floor((x - x0) * inv_texel))
+    i = np.int64(np.floor((y - x0) * inv_texel))
+    if i < 0 or i >= n or j < 0 or j >= n:
+        return 0
+    return i * n + j
+
+
+@numba.njit(cache=True)
+def _march_pairs(hyp, pix, a, b, t_top, t_bot, poses, cos_yaw, sin_yaw, light, march_step, h,
+                 normal, wall_normal, albedo, levels, x0, inv_texel, n, top, r2, refine_steps,
+                 surface):
+    """The hits of the (hypothesis, pixel) pairs (hyp[q], pix[q]), in pair order: the ray's slab
+    chord runs from a[pix] (top of the slab, ray parameter t_top) to b[pix] (the table, t_bot); in
+    the gear frame of pose poses[hyp] it is (x + s dx, y + s dy), s in [0, 1], marched through the
+    height map `h` (flat, float32; `normal`, `wall_normal` and `albedo` per texel). Returns the
+    number of hits and, in its first rows, each hit's hypothesis, pixel, depth, shaded colour and
+    (when `surface`) world normal and albedo, as RenderedPairs holds them.
+
+    Per chord: first the flat faces' heights `levels` (so that a ray grazing a face's edge hits it
+    even between two march samples), then samples every `march_step` (horizontally) along the part
+    of the chord inside the tip cylinder (radius^2 `r2`: the solid lies within it); the entry is
+    then exact for a flat face (the ray reaches the texel's height within the last step) or
+    bisected `refine_steps` times, and a wall hit takes the wall normal of the texel just outside
+    it. The arithmetic and its float32 steps are those of the array version this replaced, so the
+    images are the same to the bit."""
+    m = hyp.size
+    one32 = np.float32(1.0)
+    top32 = np.float32(top)
+    flat32 = np.float32(0.999)
+    wall32 = np.float32(1e-4)
+    # Pass 1, per pair: the chord in the gear frame, the flat levels, the march.
+    chord = np.empty((m, 4))  # x, y, dx, dy in the gear frame
+    lo = np.empty(m)
+    hi = np.empty(m)
+    hit = np.zeros(m, np.bool_)
+    for q in range(m):
+        i, p = hyp[q], pix[q]
+        c, s = cos_yaw[i], sin_yaw[i]
+        # Rotated by -yaw about the gear's axis.
+        rx, ry = a[p, 0] - poses[i, 0], a[p, 1] - poses[i, 1]
+        x, y = c * rx + s * ry, -s * rx + c * ry
+        dx, dy = b[p, 0] - a[p, 0], b[p, 1] - a[p, 1]
+        ddx, ddy = c * dx + s * dy, -s * dx + c * dy
+        chord[q, 0], chord[q, 1], chord[q, 2], chord[q, 3] = x, y, ddx, ddy
+        ds = min(1.0, march_step / max(np.hypot(dx, dy), 1e-12))
+        for level in levels:
+            sv32 = one32 - level / top32
+            if top32 * (one32 - sv32) <= h[_texel(x + sv32 * ddx, y + sv32 * ddy, x0, inv_texel, n)]:
+                hit[q] = True
+                lo[q] = hi[q] = np.float64(sv32)
+                break
+        if hit[q]:
+            continue
+        # March only the part of the chord inside the tip cylinder (the solid lies within it).
+        qa = ddx * ddx + ddy * ddy
+        qb = x * ddx + y * ddy
+        qc = x * x + y * y - r2
+        disc = qb * qb - qa * qc
+        root = np.sqrt(max(disc, 0.0))
+        if qa < 1e-24:
+            s_in = 0.0 if qc <= 0 else 1.0
+            s_end = 1.0 if qc <= 0 else 0.0
+        else:
+            s_in = (-qb - root) / qa
+            s_end = (-qb + root) / qa
+        s_in = 1.0 if disc < 0 else max(s_in, 0.0)
+        s_end = 0.0 if disc < 0 else min(s_end, 1.0)
+        step = 1
+        while s_in < s_end:
+            sv = min(s_end, s_in + step * ds)
+            if top * (1.0 - sv) <= h[_texel(x + sv * ddx, y + sv * ddy, x0, inv_texel, n)]:
+                hit[q] = True
+                hi[q] = sv
+                lo[q] = max(sv - ds, s_in)
+                break
+            if not sv < s_end:
+                break
+            step += 1
+    # Pass 2: a flat face is hit where the ray reaches the texel's height (one lookup); the other
+    # hits (walls, chamfers) are bisected, all rows one step at a time (independent lookups).
+    s_face = np.empty(m, np.float32)
+    face = np.zeros(m, np.bool_)
+    rows = np.empty(m, np.int64)
+    n_rows = 0
+    for q in range(m):
+        if not hit[q]:
+            continue
+        x, y, ddx, ddy = chord[q, 0], chord[q, 1], chord[q, 2], chord[q, 3]
+        k = _texel(x + hi[q] * ddx, y + hi[q] * ddy, x0, inv_texel, n)
+        z_face = h[k]
+        sf = one32 - z_face / top32
+        s_face[q] = sf
+        if sf >= lo[q] - 1e-9 and sf <= hi[q] + 1e-9 and normal[k, 2] > flat32:
+            face[q] = h[_texel(x + sf * ddx, y + sf * ddy, x0, inv_texel, n)] == z_face
+        if not face[q]:
+            rows[n_rows] = q
+            n_rows += 1
+    for _ in range(refine_steps):
+        for r in range(n_rows):
+            q = rows[r]
+            mid = 0.5 * (lo[q] + hi[q])
+            inside = top * (1.0 - mid) <= h[_texel(chord[q, 0] + mid * chord[q, 2],
+                                                   chord[q, 1] + mid * chord[q, 3],
+                                                   x0, inv_texel, n)]
+            hi[q] = mid if inside else hi[q]
+            lo[q] = lo[q] if inside else mid
+    # Pass 3, per hit in pair order: normal (a wall hit takes the wall normal of the texel just
+    # outside it), Lambert shading with the light turned into the gear frame, depth.
+    count = 0
+    out_hyp = np.empty(m, np.int64)
+    out_pix = np.empty(m, np.int64)
+    out_depth = np.empty(m, np.float32)
+    out_rgb = np.empty((m, 3), np.float32)
+    k_extra = m if surface else 0
+    out_normal = np.empty((k_extra, 3), np.float32)
+    out_albedo = np.empty((k_extra, 3), np.float32)
+    for q in range(m):
+        if not hit[q]:
+            continue
+        x, y, ddx, ddy = chord[q, 0], chord[q, 1], chord[q, 2], chord[q, 3]
+        s32 = s_face[q] if face[q] else np.float32(hi[q])
+        k = _texel(x + s32 * ddx, y + s32 * ddy, x0, inv_texel, n)
+        nx, ny, nz = np.float64(normal[k, 0]), np.float64(normal[k, 1]), np.float64(normal[k, 2])
+        if h[k] - top32 * (one32 - s32) > wall32:
+            s_wall32 = s_face[q] if face[q] else np.float32(lo[q])
+            k_out = _texel(x + s_wall32 * ddx, y + s_wall32 * ddy, x0, inv_texel, n)
+            nx, ny, nz = np.float64(wall_normal[k_out, 0]), np.float64(wall_normal[k_out, 1]), 0.0
+        i, p = hyp[q], pix[q]
+        c, s = cos_yaw[i], sin_yaw[i]
+        lx, ly = c * light[0] + s * light[1], -s * light[0] + c * light[1]
+        shade = max(0.0, nx * lx + ny * ly + nz * light[2])
+        out_hyp[count] = i
+        out_pix[count] = p
+        out_depth[count] = np.float32(t_top[p] + s32 * (t_bot[p] - t_top[p]))
+        for j in range(3):
+            out_rgb[count, j] = np.float32(albedo[k, j] * shade)
+        if surface:
+            out_normal[count, 0] = np.float32(c * nx - s * ny)
+            out_normal[count, 1] = np.float32(s * nx + c * ny)
+            out_normal[count, 2] = np.float32(nz)
+            for j in range(3):
+                out_albedo[count, j] = albedo[k, j]
+        count += 1
+    return count, out_hyp, out_pix, out_depth, out_rgb, out_normal, out_albedo

@@ -16,10 +16,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from perception.gear_model import GearModel
-from perception.likelihood import LikelihoodConfig, table_colour, table_depth, table_prediction
+from perception.likelihood import (LikelihoodConfig, pixel_terms, table_colour, table_depth,
+                                   table_prediction)
 from perception.observation import VTK_PIXEL_OFFSET, Observation
 from perception.renderer import RayCaster, RayCasterConfig
 
@@ -193,14 +195,31 @@ class ImageScorer:
         poses = np.atleast_2d(np.asarray(poses, float))
         ps = self.pixels(stride)
         hits = self.caster.render(ps.origin, ps.dirs, self.light, poses)
-        lik = self.pixels_model
-        rgb_hat = self._lit(hits.rgb)
-        ll = lik.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth)
-        inl = lik.is_inlier(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth)
-        n = len(poses)
-        total = np.bincount(hits.hyp, weights=ll - ps.delta_bg[hits.pix], minlength=n)
-        return Scores(ps.weight * total, np.bincount(hits.hyp, minlength=n),
-                      np.bincount(hits.hyp, weights=inl.astype(float), minlength=n))
+        total, pixels, inliers = _score_hits(
+            hits.hyp, hits.pix, hits.rgb, hits.depth, ps.rgb, ps.depth, ps.delta_bg,
+            self.conditions.gain.astype(np.float32), self.pixels_model.pixel_constants(), len(poses))
+        return Scores(ps.weight * total, pixels, inliers)
+
+
+@numba.njit(cache=True)
+def _score_hits(hyp, pix, rgb_hit, depth_hit, rgb, depth, delta_bg, gain, constants, n):
+    """Per hypothesis: the sum over its hits of the pixel's log-likelihood minus its table term,
+    the number of hits and of inliers. A hit's colour is lit by the image's `gain` and saturates
+    at 1 like a camera (ImageScorer._lit)."""
+    total = np.zeros(n)
+    pixels = np.zeros(n, np.int64)
+    inliers = np.zeros(n)
+    one = np.float32(1.0)
+    for q in range(hyp.size):
+        i, p = hyp[q], pix[q]
+        loglik, inlier = pixel_terms(
+            rgb[p, 0], rgb[p, 1], rgb[p, 2], depth[p], min(rgb_hit[q, 0] * gain[0], one),
+            min(rgb_hit[q, 1] * gain[1], one), min(rgb_hit[q, 2] * gain[2], one), depth_hit[q],
+            constants)
+        total[i] += loglik - delta_bg[p]
+        pixels[i] += 1
+        inliers[i] += 1.0 if inlier else 0.0
+    return total, pixels, inliers
 
 
 def _fit_hinge(n: np.ndarray, y: np.ndarray, m: np.ndarray, iterations: int = 12) -> np.ndarray:
