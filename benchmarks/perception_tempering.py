@@ -49,6 +49,7 @@ EXPONENTS = np.linspace(-0.75, 0.75, 31)
 OCCLUSION = np.linspace(0.0, 1.0, 5)
 NOISE = np.linspace(0.0, 2.0, 5)
 LAMP = np.linspace(0.5, 1.0, 6)
+SHAPES = (0.9, 1.0, 1.1, 1.2, 1.3, 1.45)  # posterior shape exponents recorded per row
 
 
 def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None) -> dict:
@@ -57,11 +58,13 @@ def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None
     if seed + scenes > HELD_OUT_SEED:
         raise InputError(f"--seed {seed} with --scenes {scenes} reaches the benchmark's scenes "
                          f"(seeds from {HELD_OUT_SEED}); tune on seeds below it")
-    config = CalibrationConfig(scenes=scenes, seed=seed, workers=workers, tempering_factors=FACTORS)
+    config = CalibrationConfig(scenes=scenes, seed=seed, workers=workers, tempering_factors=FACTORS,
+                               shape_exponents=SHAPES)
     if groups:
         config = replace(config, groups=tuple(groups))
     result = run_calibration(config, progress=True)
     result["config"]["tempering_factors"] = list(FACTORS)
+    result["config"]["shape_exponents"] = list(SHAPES)
     return result
 
 

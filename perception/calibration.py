@@ -44,7 +44,8 @@ class CalibrationConfig:
     processes (one group at a time each); close_prior: (multiple of the far posterior's std, min,
     max half-width [m]) of the inspect view's prior box; tempering_factors: factors on each
     posterior's tempering at which the truth's credible level is also recorded (`scaled_levels`,
-    for fitting the tempering: benchmarks/perception_tempering.py)."""
+    for fitting the tempering: benchmarks/perception_tempering.py); shape_exponents: with them, the
+    levels at every shape exponent x tempering factor (`shaped_levels`)."""
 
     scenes: int = 34
     seed: int = HELD_OUT_SEED
@@ -54,6 +55,7 @@ class CalibrationConfig:
     close_prior: tuple[float, float, float] = (4.0, 0.005, 0.03)
     search: SearchConfig = field(default_factory=SearchConfig)
     tempering_factors: tuple[float, ...] = ()
+    shape_exponents: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         check_int(self.scenes, "scenes", minimum=1)
@@ -67,6 +69,9 @@ class CalibrationConfig:
         if not all(np.isfinite(f) and f > 0 for f in self.tempering_factors):
             raise InputError(f"tempering_factors = {list(self.tempering_factors)}; expected "
                              "finite factors > 0")
+        if not all(np.isfinite(g) and g > 0 for g in self.shape_exponents):
+            raise InputError(f"shape_exponents = {list(self.shape_exponents)}; expected finite "
+                             "exponents > 0")
 
 
 def pose_error(estimate: np.ndarray, truth: np.ndarray, period: float) -> tuple[float, float]:
@@ -86,12 +91,20 @@ def confidently_wrong(row: dict) -> bool:
 
 # What each row keeps of the posterior's search info (explain a miscalibration after the fact).
 ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "inlier_fraction", "valid_fraction",
-            "depth_noise", "pixel_noise", "light", "edge_mass")
+            "depth_noise", "pixel_noise", "light", "edge_mass", "shape")
 
 
 def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: PosePosterior,
-         prior: Prior, seconds: float, factors: tuple[float, ...] = ()) -> dict:
+         prior: Prior, seconds: float, factors: tuple[float, ...] = (),
+         shapes: tuple[float, ...] = ()) -> dict:
     period = post.period
+    extra = {}
+    if factors and post.informative:
+        extra["scaled_levels"] = [post.tempered(f).credible_level(truth) for f in factors]
+        if shapes:  # from the posterior before its shape exponent: tempered, then shaped
+            raw = post.shaped(1.0 / post.info.get("shape", 1.0))
+            extra["shaped_levels"] = [[raw.tempered(f).shaped(g).credible_level(truth)
+                                       for f in factors] for g in shapes]
     d, e = pose_error(post.map_pose, truth, period)
     err = post.map_pose - truth
     err[2] = wrap(err[2], period)
@@ -100,9 +113,7 @@ def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: 
             "level": post.credible_level(truth), "xy_error_m": d, "yaw_error_rad": e,
             "map_error": err.tolist(), "std": post.std().tolist(), "truth": truth.tolist(),
             "map": post.map_pose.tolist(), "prior_half_width": prior.half_width,
-            "seconds": seconds, **{k: post.info.get(k) for k in ROW_INFO},
-            **({"scaled_levels": [post.tempered(f).credible_level(truth) for f in factors]}
-               if factors and post.informative else {})}
+            "seconds": seconds, **{k: post.info.get(k) for k in ROW_INFO}, **extra}
 
 
 def _close_prior(far: PosePosterior, fallback: Prior, config: CalibrationConfig) -> Prior:
@@ -134,7 +145,8 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
             t0 = time.perf_counter()
             far = estimate_pose(view.obs, gear_model(gear), det.prior, config.search)
             rows.append(_row(group, "scene", scene.index, gear, truth, far, det.prior,
-                             time.perf_counter() - t0, config.tempering_factors))
+                             time.perf_counter() - t0, config.tempering_factors,
+                             config.shape_exponents))
             rows[-1]["detect_seconds"] = t_detect
             rows[-1]["hidden_fraction"] = view.hidden_fraction if view.gear == gear else None
             prior = _close_prior(far, det.prior, config)
@@ -143,7 +155,8 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
             t0 = time.perf_counter()
             post = estimate_pose(close.obs, gear_model(gear), prior, config.search)
             rows.append(_row(group, "inspect", scene.index, gear, truth, post, prior,
-                             time.perf_counter() - t0, config.tempering_factors))
+                             time.perf_counter() - t0, config.tempering_factors,
+                             config.shape_exponents))
             rows[-1]["far_std"] = far.std().tolist()
             rows[-1]["hidden_fraction"] = close.hidden_fraction
     return rows

@@ -51,6 +51,8 @@ class LikelihoodConfig:
     noise_exponent: float = 1.0         # evidence under depth noise (calibrated)
     lamp_discount: float = 0.8          # evidence under a light fitted from the gear's shading (calibrated)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
+    # the posterior's shape: its log-evidence deficit raised to this, (unresolved, resolved teeth)
+    shape_exponent: tuple[float, float] = (1.0, 1.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
@@ -69,6 +71,10 @@ class LikelihoodConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value >= 0")
+        if not (len(self.shape_exponent) == 2
+                and all(np.isfinite(e) and 0 < e <= 4 for e in self.shape_exponent)):
+            raise ValueError(f"LikelihoodConfig.shape_exponent = {self.shape_exponent}; expected "
+                             "(unresolved, resolved) exponents in (0, 4]")
         for gear, factor in self.gear_tempering.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
             if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
@@ -122,11 +128,18 @@ class LikelihoodConfig:
             raise ValueError(f"visible = {visible}; expected a share in (0, 1]")
         if not (np.isfinite(depth_noise) and depth_noise >= 0):
             raise ValueError(f"depth_noise = {depth_noise}; expected a standard deviation >= 0 [m]")
-        resolved = float(np.clip((np.pi * GEAR_MODULE / gsd - 2.0) / 4.0, 0.0, 1.0))
+        resolved = teeth_resolved(gsd)
         occlusion = max(visible, 0.25) ** (-self.occlusion_exponent * resolved)
         noise = (self.b_d / np.hypot(self.b_d, depth_noise)) ** self.noise_exponent
         lamp = self.lamp_discount ** (1.0 - resolved) if fitted_light else 1.0
         return float(occlusion * noise * lamp)
+
+    def shape_for(self, gsd: float) -> float:
+        """The posterior's shape exponent in a view of ground sampling distance `gsd` [m/pixel]:
+        shape_exponent's two values blended by how well the view resolves the teeth
+        (`teeth_resolved`)."""
+        w = teeth_resolved(gsd)
+        return float((1.0 - w) * self.shape_exponent[0] + w * self.shape_exponent[1])
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:
         """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and
@@ -158,6 +171,14 @@ class LikelihoodConfig:
                 for x, tail in ((rgb, (3,)), (depth, ()), (rgb_hat, (3,)), (depth_hat, ()))]
         loglik, inlier = _pixels(*flat, self.pixel_constants(scales))
         return loglik.reshape(shape), inlier.reshape(shape)
+
+
+def teeth_resolved(gsd: float) -> float:
+    """How well a view of ground sampling distance `gsd` [m/pixel] resolves the teeth, in [0, 1]:
+    none below 2 pixels a tooth pitch, fully from 6."""
+    if not (np.isfinite(gsd) and gsd > 0):
+        raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
+    return float(np.clip((np.pi * GEAR_MODULE / gsd - 2.0) / 4.0, 0.0, 1.0))
 
 
 @numba.njit(cache=True, inline="always")

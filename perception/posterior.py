@@ -229,6 +229,24 @@ class PosePosterior:
                              factor * self._evidence(), self.informative, self.reason, dict(self.info),
                              self.period, self.support)
 
+    def shaped(self, exponent: float) -> "PosePosterior":
+        """The posterior whose log-evidence deficit from its peak, D = max - log-evidence [nats],
+        is raised to `exponent` (> 0), on the same cells: log-evidence max - D^exponent. Above 1
+        the tails fall faster and the core (D < 1) flattens; 1 returns the posterior itself. A
+        robust pixel likelihood's deficit grows linearly, not quadratically, far from the peak, so
+        its tails are heavier than the pose errors' (docs/perception.md, Tempering)."""
+        if not (np.isfinite(exponent) and exponent > 0):
+            raise ValueError(f"exponent = {exponent}; expected a finite shape exponent > 0")
+        if exponent == 1:
+            return self
+        raw = self._evidence()
+        with np.errstate(invalid="ignore"):
+            deficit = raw.max() - raw
+            shaped = np.where(np.isfinite(raw), -deficit ** exponent, -np.inf)
+        return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets, shaped,
+                             self.informative, self.reason, dict(self.info), self.period,
+                             self.support)
+
     def upsampled(self, factor: int, order: int = 3) -> "PosePosterior":
         """The posterior on cells `factor` times finer in x, y and yaw over the same cell centres'
         span: the log-evidence between the scored cell centres by a spline of `order` (capped at

@@ -214,7 +214,9 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         scores = score(poses, stride)
         return replace(scores, loglik=factor * scores.loglik)
 
-    post = _posterior_grid(model, best, weighed, fine, config, prior)
+    shape = config.likelihood.shape_for(scorer.gsd)
+    post = _posterior_grid(model, best, weighed, fine, config, prior).shaped(shape)
+    info["shape"] = shape
     info["seconds"] = time.perf_counter() - t0
     post.info.update(info)
     return post
