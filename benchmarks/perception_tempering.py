@@ -10,16 +10,19 @@ lamp_discount^(1 - w) where the light was fitted (`evidence_factor`; w: how well
 the teeth). This script runs the calibration pipeline (detection, far posterior, inspect view,
 close posterior) on tuning scenes, records for every posterior the truth's credible level with its
 tempering multiplied by each of a grid of factors (PosePosterior.tempered: rescaling the tempering
-moves no MAP, only the posterior), and fits gamma, eta and the discount (grids) and, for each,
-every gear's (A, B) (grids) so that the truths' levels are closest to uniform in every
-perturbation group x view cell (150 combinations: ~9 minutes on one core).
+moves no MAP, only the posterior) and, since the shape exponent, at each of a grid of shape
+exponents too (PosePosterior.shaped), and fits so that the truths' levels are closest to uniform
+in every perturbation group x view cell: on rows without shaped levels, gamma, eta and the
+discount (grids; 150 combinations, ~9 minutes on one core); on rows with them, the pair of shape
+exponents (unresolved, resolved teeth; SHAPE_GRID, 144 pairs, ~10 minutes) with gamma, eta and the
+discount held at the shipped values; for each combination, every gear's (A, B) (grids).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/perception_tempering.py --scenes 30 --seed 400 \
         --workers 2 --rows runs/tempering/seed400.json
 
 prints the coverage at 50/68/80/90/95 % with the tempering the rows were made with and with the
 fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
-occlusion_exponent, noise_exponent and lamp_discount hold). `--rows PATH` stores the rows there; existing files
+occlusion_exponent, noise_exponent, lamp_discount and shape_exponent hold). `--rows PATH` stores the rows there; existing files
 are read back instead (nothing rendered again) and pooled, a later file's groups replacing an
 earlier one's of the same scene seed (rows made under another colour model, say). The colour
 scale's brightness exponent changes the pixels' scores, not only their weight, so it cannot be
@@ -50,6 +53,7 @@ OCCLUSION = np.linspace(0.0, 1.0, 5)
 NOISE = np.linspace(0.0, 2.0, 5)
 LAMP = np.linspace(0.5, 1.0, 6)
 SHAPES = (0.9, 1.0, 1.1, 1.2, 1.3, 1.45)  # posterior shape exponents recorded per row
+SHAPE_GRID = np.round(np.arange(0.9, 1.451, 0.05), 2)  # ... and searched (interpolated between)
 
 
 def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None) -> dict:
@@ -74,23 +78,36 @@ def coverage(levels: np.ndarray, nominal: np.ndarray) -> np.ndarray:
 
 
 class Rows:
-    """The informative posteriors' rows as arrays, and their truth levels at any tempering."""
+    """The informative posteriors' rows as arrays, and their truth levels at any tempering (and,
+    where the rows hold `shaped_levels` at `shapes`, at any shape exponent between those)."""
 
-    def __init__(self, rows: list[dict], factors: np.ndarray) -> None:
+    def __init__(self, rows: list[dict], factors: np.ndarray, shapes: np.ndarray | None = None) -> None:
         self.rows = rows
         self.logf = np.log(factors)
         self.table = np.array([r["scaled_levels"] for r in rows])
         self.gsd = np.array([r["gsd"] for r in rows])
+        self.shapes = None if shapes is None or not len(shapes) else np.asarray(shapes, float)
+        if self.shapes is not None:
+            self.shaped = np.array([r["shaped_levels"] for r in rows])  # (rows, shapes, factors)
 
-    def levels(self, scale: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    def levels(self, scale: np.ndarray, mask: np.ndarray | None = None,
+               shape: np.ndarray | None = None) -> np.ndarray:
         """Each row's (of `mask`'s) truth level with its tempering multiplied by scale[i]
-        (interpolated in log factor between the recorded ones, clipped to their range)."""
-        table = self.table if mask is None else self.table[mask]
+        (interpolated in log factor between the recorded ones, clipped to their range) and, when
+        `shape` is given, its shape exponent shape[i] (interpolated between the recorded ones)."""
         s = np.clip(np.log(scale), self.logf[0], self.logf[-1])
         idx = np.clip(np.searchsorted(self.logf, s) - 1, 0, len(self.logf) - 2)
         t = (s - self.logf[idx]) / (self.logf[idx + 1] - self.logf[idx])
         n = np.arange(len(s))
-        return table[n, idx] * (1 - t) + table[n, idx + 1] * t
+        if shape is None:
+            table = self.table if mask is None else self.table[mask]
+            return table[n, idx] * (1 - t) + table[n, idx + 1] * t
+        table = self.shaped if mask is None else self.shaped[mask]
+        g = np.clip(shape, self.shapes[0], self.shapes[-1])
+        j = np.clip(np.searchsorted(self.shapes, g) - 1, 0, len(self.shapes) - 2)
+        u = (g - self.shapes[j]) / (self.shapes[j + 1] - self.shapes[j])
+        at = lambda jj: table[n, jj, idx] * (1 - t) + table[n, jj, idx + 1] * t  # noqa: E731
+        return at(j) * (1 - u) + at(j + 1) * u
 
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the tempering `config` gives it over the one it was recorded with."""
@@ -99,6 +116,14 @@ class Rows:
                                                    r.get("pixel_noise", r["depth_noise"]),
                                                    r.get("light") is not None)
                          / r["tempering"] for r in self.rows])
+
+    def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
+        """Per row: the shape exponent `config` gives it (None without shaped levels)."""
+        return None if self.shapes is None else np.array([config.shape_for(g) for g in self.gsd])
+
+    def at(self, config: LikelihoodConfig) -> np.ndarray:
+        """Every row's truth level under `config`."""
+        return self.levels(self.scale(config), shape=self.shape(config))
 
 
 def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
@@ -109,31 +134,37 @@ def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
 
 
 def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
-        noise: np.ndarray = NOISE, lamp: np.ndarray = LAMP) -> LikelihoodConfig:
+        noise: np.ndarray = NOISE, lamp: np.ndarray = LAMP,
+        shapes: np.ndarray | None = None) -> LikelihoodConfig:
     """`base` with the occlusion and noise exponents and the fitted lamp's discount (from the grids
-    `occlusion`, `noise`, `lamp`) and, for each triple, every gear's (A, B) (grids AMPLITUDES x
-    EXPONENTS): the set whose truth levels are closest to uniform in every perturbation group x
-    view cell."""
+    `occlusion`, `noise`, `lamp`), the shape exponents (unresolved, resolved teeth: every pair of
+    `shapes`, where the rows have shaped levels; else base's) and, for each, every gear's (A, B)
+    (grids AMPLITUDES x EXPONENTS): the set whose truth levels are closest to uniform in every
+    perturbation group x view cell."""
     g0 = base.reference_gsd
     views = [r["view"] for r in data.rows]
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
     gears = np.array([r["gear"] for r in data.rows])
+    pairs = ([base.shape_exponent] if shapes is None or data.shapes is None
+             else list(itertools.product(shapes, shapes)))
     best = (np.inf, base)
-    for gamma, eta, discount in itertools.product(occlusion, noise, lamp):
+    for gamma, eta, discount, pair in itertools.product(occlusion, noise, lamp, pairs):
         cfg = replace(base, gear_tempering={}, occlusion_exponent=float(gamma),
-                      noise_exponent=float(eta), lamp_discount=float(discount))
-        scale = data.scale(cfg)
+                      noise_exponent=float(eta), lamp_discount=float(discount),
+                      shape_exponent=(float(pair[0]), float(pair[1])))
+        scale, shape = data.scale(cfg), data.shape(cfg)
         per_gear = {}
         for gear in np.unique(gears):
             m = gears == gear
             sub = [v for v, k in zip(views, m) if k]
             ratio = (data.gsd[m] / g0)
-            options = [(cell_loss(data.levels(scale[m] * a * ratio ** b, m), sub), a, b)
+            sh = None if shape is None else shape[m]
+            options = [(cell_loss(data.levels(scale[m] * a * ratio ** b, m, sh), sub), a, b)
                        for a in AMPLITUDES for b in EXPONENTS]
             _, a, b = min(options)
             per_gear[str(gear)] = (float(a), float(b))
         cfg = replace(cfg, gear_tempering=per_gear)
-        loss = cell_loss(data.levels(data.scale(cfg)), cells)
+        loss = cell_loss(data.at(cfg), cells)
         if loss < best[0]:
             best = (loss, cfg)
     return best[1]
@@ -152,21 +183,26 @@ def _table(data: Rows, today: np.ndarray, fitted: np.ndarray, key) -> list[str]:
     return out
 
 
-def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray]:
-    """The informative rows of every file, pooled; a later file's groups replace an earlier one's
-    of the same scene seed."""
+def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray, np.ndarray | None]:
+    """The informative rows of every file, pooled, their tempering factors and their shape
+    exponents (None unless every file has shaped levels at the same ones); a later file's groups
+    replace an earlier one's of the same scene seed."""
     rows: dict[tuple[int, str], list[dict]] = {}
     factors = None
+    shapes: list = []
     for path in paths:
         result = read_json(path, "calibration rows")
         f = np.asarray(result["config"]["tempering_factors"])
         if factors is not None and not np.allclose(f, factors):
             raise InputError(f"{path}: its tempering factors differ from the first file's")
         factors = f
+        shapes.append(tuple(result["config"].get("shape_exponents", ())))
         usable = fit_rows(result)
         for group in result["config"]["groups"]:
             rows[result["config"]["seed"], group] = [r for r in usable if r["group"] == group]
-    return [r for group in rows.values() for r in group], factors
+    same = len(set(shapes)) == 1 and shapes[0]
+    return ([r for group in rows.values() for r in group], factors,
+            np.asarray(shapes[0]) if same else None)
 
 
 def fit_rows(result: dict) -> list[dict]:
@@ -190,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         out = check_output_file(args.json, "--json") if args.json else None
         if args.rows and all(path.exists() for path in args.rows):
-            rows, factors = load_rows(args.rows)
+            rows, factors, shapes = load_rows(args.rows)
         else:
             if args.rows and len(args.rows) > 1:
                 raise InputError(f"--rows: {[str(x) for x in args.rows if not x.exists()]} missing")
@@ -199,14 +235,19 @@ def main(argv: list[str] | None = None) -> int:
             result = collect(args.scenes, args.seed, args.workers, args.groups)
             if args.rows:
                 write_json(args.rows[0], result)
-            rows, factors = fit_rows(result), np.asarray(FACTORS)
+            rows, factors, shapes = fit_rows(result), np.asarray(FACTORS), np.asarray(SHAPES)
     except (InputError, OSError, ValueError) as e:
         print(f"perception_tempering: {e}", file=sys.stderr)
         return 2
-    data = Rows(rows, factors)
+    data = Rows(rows, factors, shapes)
     today = np.array([r["level"] for r in rows])
-    config = fit(data, LikelihoodConfig())
-    fitted = data.levels(data.scale(config))
+    base = LikelihoodConfig()
+    if data.shapes is None:
+        config = fit(data, base)
+    else:  # the evidence exponents held at the shipped values, the shape exponents fitted
+        config = fit(data, base, np.array([base.occlusion_exponent]), np.array([base.noise_exponent]),
+                     np.array([base.lamp_discount]), shapes=SHAPE_GRID)
+    fitted = data.at(config)
     head = "| {} | n | today 50/68/80/90/95 | fitted |"
     lines = [head.format("gear | view"), "|---|---|---|---|---|"]
     lines += _table(data, today, fitted, lambda r: (r["gear"], r["view"]))
@@ -215,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     fits = {"gear_tempering": {g: [round(a, 4), round(b, 4)] for g, (a, b) in config.gear_tempering.items()},
             "occlusion_exponent": config.occlusion_exponent, "noise_exponent": config.noise_exponent,
-            "lamp_discount": config.lamp_discount,
+            "lamp_discount": config.lamp_discount, "shape_exponent": list(config.shape_exponent),
             "posteriors": len(rows)}
     print(f"fitted: {fits}")
     if out is not None:

@@ -49,3 +49,47 @@ def test_fit_recovers_each_gears_factor():
     cover = mod.coverage(levels, np.array([0.5, 0.9]))
     np.testing.assert_allclose(cover, [0.5, 0.9], atol=0.04)
     assert (fitted.occlusion_exponent, fitted.noise_exponent) == (0.5, 0.5)
+
+
+def _radial_levels(r_truth: np.ndarray, deficit, factors, shapes) -> np.ndarray:
+    """Truth levels (rows, shapes, factors) of an isotropic 3-D posterior whose log-evidence
+    deficit at Mahalanobis radius r is deficit(r), tempered by f and then shaped by g: the mass
+    within the truth's radius, 4 pi r^2 dr, by quadrature."""
+    r = np.linspace(1e-4, 12.0, 6000)
+    out = np.empty((len(r_truth), len(shapes), len(factors)))
+    for i, g in enumerate(shapes):
+        for j, f in enumerate(factors):
+            dens = np.exp(-(f * deficit(r)) ** g) * r ** 2
+            cdf = np.cumsum(dens) / dens.sum()
+            out[:, i, j] = np.interp(r_truth, r, cdf)
+    return out
+
+
+def test_fit_recovers_the_shape_exponent():
+    """Close views whose posterior deficit grows like r^(2/1.25) (heavier tails than the Gaussian
+    truths'), far views Gaussian: of the pairs from (1, 1.25) the fit must pick (1, 1.25) and make
+    both views' levels uniform. (Between nearer exponents 2000 truths a view barely tell.)"""
+    mod = _script()
+    rng = np.random.default_rng(1)
+    bare = LikelihoodConfig(gear_tempering={})
+    factors = np.asarray(mod.FACTORS)
+    shapes = np.asarray(mod.SHAPES)
+    rows = []
+    for view, gsd, g_true in (("scene", 2e-3, 1.0), ("inspect", 4.1e-4, 1.25)):
+        r_truth = np.sqrt(rng.chisquare(3, 2000))
+        table = _radial_levels(r_truth, lambda r, g=g_true: (r ** 2 / 2) ** (1 / g), factors, shapes)
+        for i in range(len(r_truth)):
+            rows.append({"gear": "medium", "view": view, "group": "clean", "gsd": gsd,
+                         "tempering": bare.tempering_for("medium", gsd), "inlier_fraction": 1.0,
+                         "depth_noise": 0.0, "level": float(table[i, 1, 16]),
+                         "scaled_levels": table[i, 1].tolist(), "shaped_levels": table[i].tolist()})
+    data = mod.Rows(rows, factors, shapes)
+    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]),
+                     lamp=np.array([1.0]), shapes=np.array([1.0, 1.25]))
+    far, close = fitted.shape_exponent
+    assert fitted.shape_exponent == (1.0, 1.25)
+    levels = data.at(fitted)
+    for view in ("scene", "inspect"):
+        m = np.array([r["view"] == view for r in rows])
+        np.testing.assert_allclose(mod.coverage(levels[m], np.array([0.5, 0.8, 0.95])),
+                                   [0.5, 0.8, 0.95], atol=0.05)
