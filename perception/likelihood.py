@@ -27,7 +27,7 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 
 # Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
-GEAR_TEMPERING = {"small": (1.0, 0.4), "medium": (0.933, 0.45), "large": (0.7071, 0.55)}
+GEAR_TEMPERING = {"small": (1.516, 0.3), "medium": (1.320, 0.3), "large": (1.0, 0.45)}
 
 
 @dataclass
@@ -51,8 +51,9 @@ class LikelihoodConfig:
     noise_exponent: float = 1.0         # evidence under depth noise (calibrated)
     lamp_discount: float = 0.8          # evidence under a light fitted from the gear's shading (calibrated)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
-    # the posterior's shape: its log-evidence deficit raised to this, (unresolved, resolved teeth) (calibrated)
-    shape_exponent: tuple[float, float] = (1.15, 1.35)
+    # the posterior's shape: its log-evidence deficit raised to this, (unresolved, resolved teeth);
+    # 1 = off, as shipped: the fitted pair failed on fresh scenes (docs/perception.md, Tempering)
+    shape_exponent: tuple[float, float] = (1.0, 1.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
