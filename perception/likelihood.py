@@ -164,10 +164,9 @@ class LikelihoodConfig:
         return self._per_pixel(rgb, depth, rgb_hat, depth_hat, scales)[1]
 
     def _per_pixel(self, rgb, depth, rgb_hat, depth_hat, scales):
-        rgb, rgb_hat = np.broadcast_arrays(np.asarray(rgb, np.float32), np.asarray(rgb_hat, np.float32))
-        depth, depth_hat = np.broadcast_arrays(np.asarray(depth, np.float32),
-                                               np.asarray(depth_hat, np.float32))
-        shape = np.broadcast_shapes(rgb.shape[:-1], depth.shape)
+        rgb, depth, rgb_hat, depth_hat = (np.asarray(x, np.float32)
+                                          for x in (rgb, depth, rgb_hat, depth_hat))
+        shape = np.broadcast_shapes(rgb.shape[:-1], rgb_hat.shape[:-1], depth.shape, depth_hat.shape)
         flat = [np.ascontiguousarray(np.broadcast_to(x, shape + tail).reshape((-1,) + tail))
                 for x, tail in ((rgb, (3,)), (depth, ()), (rgb_hat, (3,)), (depth_hat, ()))]
         loglik, inlier = _pixels(*flat, self.pixel_constants(scales))

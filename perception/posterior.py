@@ -225,9 +225,7 @@ class PosePosterior:
         the rescaled posterior."""
         if not (np.isfinite(factor) and factor > 0):
             raise ValueError(f"factor = {factor}; expected a finite tempering factor > 0")
-        return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets,
-                             factor * self._evidence(), self.informative, self.reason, dict(self.info),
-                             self.period, self.support)
+        return self._with_evidence(factor * self._evidence())
 
     def shaped(self, exponent: float) -> "PosePosterior":
         """The posterior whose log-evidence deficit from its peak, D = max - log-evidence [nats],
@@ -243,9 +241,14 @@ class PosePosterior:
         with np.errstate(invalid="ignore"):
             deficit = raw.max() - raw
             shaped = np.where(np.isfinite(raw), -deficit ** exponent, -np.inf)
-        return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets, shaped,
-                             self.informative, self.reason, dict(self.info), self.period,
-                             self.support)
+        return self._with_evidence(shaped)
+
+    def _with_evidence(self, log_evidence: np.ndarray) -> "PosePosterior":
+        """This posterior with another log-evidence on the same cells (the support cut applied
+        again by the constructor)."""
+        return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets,
+                             log_evidence, self.informative, self.reason, dict(self.info),
+                             self.period, self.support)
 
     def upsampled(self, factor: int, order: int = 3) -> "PosePosterior":
         """The posterior on cells `factor` times finer in x, y and yaw over the same cell centres'

@@ -185,84 +185,6 @@ def _march_pairs(hyp, pix, a, b, t_top, t_bot, poses, cos_yaw, sin_yaw, light, m
     top32 = np.float32(top)
     flat32 = np.float32(0.999)
     wall32 = np.float32(1e-4)
-    # Pass 1, per pair: the chord in the gear frame, the flat levels, the march.
-    chord = np.empty((m, 4))  # x, y, dx, dy in the gear frame
-    lo = np.empty(m)
-    hi = np.empty(m)
-    hit = np.zeros(m, np.bool_)
-    for q in range(m):
-        i, p = hyp[q], pix[q]
-        c, s = cos_yaw[i], sin_yaw[i]
-        # Rotated by -yaw about the gear's axis.
-        rx, ry = a[p, 0] - poses[i, 0], a[p, 1] - poses[i, 1]
-        x, y = c * rx + s * ry, -s * rx + c * ry
-        dx, dy = b[p, 0] - a[p, 0], b[p, 1] - a[p, 1]
-        ddx, ddy = c * dx + s * dy, -s * dx + c * dy
-        chord[q, 0], chord[q, 1], chord[q, 2], chord[q, 3] = x, y, ddx, ddy
-        ds = min(1.0, march_step / max(np.hypot(dx, dy), 1e-12))
-        for level in levels:
-            sv32 = one32 - level / top32
-            if top32 * (one32 - sv32) <= h[_texel(x + sv32 * ddx, y + sv32 * ddy, x0, inv_texel, n)]:
-                hit[q] = True
-                lo[q] = hi[q] = np.float64(sv32)
-                break
-        if hit[q]:
-            continue
-        # March only the part of the chord inside the tip cylinder (the solid lies within it).
-        qa = ddx * ddx + ddy * ddy
-        qb = x * ddx + y * ddy
-        qc = x * x + y * y - r2
-        disc = qb * qb - qa * qc
-        root = np.sqrt(max(disc, 0.0))
-        if qa < 1e-24:
-            s_in = 0.0 if qc <= 0 else 1.0
-            s_end = 1.0 if qc <= 0 else 0.0
-        else:
-            s_in = (-qb - root) / qa
-            s_end = (-qb + root) / qa
-        s_in = 1.0 if disc < 0 else max(s_in, 0.0)
-        s_end = 0.0 if disc < 0 else min(s_end, 1.0)
-        step = 1
-        while s_in < s_end:
-            sv = min(s_end, s_in + step * ds)
-            if top * (1.0 - sv) <= h[_texel(x + sv * ddx, y + sv * ddy, x0, inv_texel, n)]:
-                hit[q] = True
-                hi[q] = sv
-                lo[q] = max(sv - ds, s_in)
-                break
-            if not sv < s_end:
-                break
-            step += 1
-    # Pass 2: a flat face is hit where the ray reaches the texel's height (one lookup); the other
-    # hits (walls, chamfers) are bisected, all rows one step at a time (independent lookups).
-    s_face = np.empty(m, np.float32)
-    face = np.zeros(m, np.bool_)
-    rows = np.empty(m, np.int64)
-    n_rows = 0
-    for q in range(m):
-        if not hit[q]:
-            continue
-        x, y, ddx, ddy = chord[q, 0], chord[q, 1], chord[q, 2], chord[q, 3]
-        k = _texel(x + hi[q] * ddx, y + hi[q] * ddy, x0, inv_texel, n)
-        z_face = h[k]
-        sf = one32 - z_face / top32
-        s_face[q] = sf
-        if sf >= lo[q] - 1e-9 and sf <= hi[q] + 1e-9 and normal[k, 2] > flat32:
-            face[q] = h[_texel(x + sf * ddx, y + sf * ddy, x0, inv_texel, n)] == z_face
-        if not face[q]:
-            rows[n_rows] = q
-            n_rows += 1
-    for _ in range(refine_steps):
-        for r in range(n_rows):
-            q = rows[r]
-            mid = 0.5 * (lo[q] + hi[q])
-            inside = top * (1.0 - mid) <= h[_texel(chord[q, 0] + mid * chord[q, 2],
-                                                   chord[q, 1] + mid * chord[q, 3],
-                                                   x0, inv_texel, n)]
-            hi[q] = mid if inside else hi[q]
-            lo[q] = lo[q] if inside else mid
-    # Pass 3, per hit in pair order: normal (a wall hit takes the wall normal of the texel just
-    # outside it), Lambert shading with the light turned into the gear frame, depth.
     count = 0
     out_hyp = np.empty(m, np.int64)
     out_pix = np.empty(m, np.int64)
@@ -272,18 +194,76 @@ def _march_pairs(hyp, pix, a, b, t_top, t_bot, poses, cos_yaw, sin_yaw, light, m
     out_normal = np.empty((k_extra, 3), np.float32)
     out_albedo = np.empty((k_extra, 3), np.float32)
     for q in range(m):
-        if not hit[q]:
-            continue
-        x, y, ddx, ddy = chord[q, 0], chord[q, 1], chord[q, 2], chord[q, 3]
-        s32 = s_face[q] if face[q] else np.float32(hi[q])
+        i, p = hyp[q], pix[q]
+        c, s = cos_yaw[i], sin_yaw[i]
+        # The chord in the gear frame: rotated by -yaw about the gear's axis.
+        rx, ry = a[p, 0] - poses[i, 0], a[p, 1] - poses[i, 1]
+        x, y = c * rx + s * ry, -s * rx + c * ry
+        dx, dy = b[p, 0] - a[p, 0], b[p, 1] - a[p, 1]
+        ddx, ddy = c * dx + s * dy, -s * dx + c * dy
+        ds = min(1.0, march_step / max(np.hypot(dx, dy), 1e-12))
+        hit = False
+        lo = hi = 0.0
+        for level in levels:
+            sv32 = one32 - level / top32
+            if top32 * (one32 - sv32) <= h[_texel(x + sv32 * ddx, y + sv32 * ddy, x0, inv_texel, n)]:
+                hit = True
+                lo = hi = np.float64(sv32)
+                break
+        if not hit:
+            # March only the part of the chord inside the tip cylinder (the solid lies within it).
+            qa = ddx * ddx + ddy * ddy
+            qb = x * ddx + y * ddy
+            qc = x * x + y * y - r2
+            disc = qb * qb - qa * qc
+            root = np.sqrt(max(disc, 0.0))
+            if qa < 1e-24:
+                s_in = 0.0 if qc <= 0 else 1.0
+                s_end = 1.0 if qc <= 0 else 0.0
+            else:
+                s_in = (-qb - root) / qa
+                s_end = (-qb + root) / qa
+            s_in = 1.0 if disc < 0 else max(s_in, 0.0)
+            s_end = 0.0 if disc < 0 else min(s_end, 1.0)
+            step = 1
+            while s_in < s_end:
+                sv = min(s_end, s_in + step * ds)
+                if top * (1.0 - sv) <= h[_texel(x + sv * ddx, y + sv * ddy, x0, inv_texel, n)]:
+                    hit = True
+                    hi = sv
+                    lo = max(sv - ds, s_in)
+                    break
+                if not sv < s_end:
+                    break
+                step += 1
+            if not hit:
+                continue
+        # A flat face is hit where the ray reaches the texel's height (one lookup); other hits
+        # (walls, chamfers) are bisected.
+        k = _texel(x + hi * ddx, y + hi * ddy, x0, inv_texel, n)
+        z_face = h[k]
+        s_face = one32 - z_face / top32
+        face = False
+        if s_face >= lo - 1e-9 and s_face <= hi + 1e-9 and normal[k, 2] > flat32:
+            face = h[_texel(x + s_face * ddx, y + s_face * ddy, x0, inv_texel, n)] == z_face
+        if face:
+            s32 = s_wall32 = s_face
+        else:
+            for _ in range(refine_steps):
+                mid = 0.5 * (lo + hi)
+                if top * (1.0 - mid) <= h[_texel(x + mid * ddx, y + mid * ddy, x0, inv_texel, n)]:
+                    hi = mid
+                else:
+                    lo = mid
+            s32 = np.float32(hi)
+            s_wall32 = np.float32(lo)  # just outside the wall
+        # The normal (a wall hit takes the wall normal of the texel just outside it), Lambert
+        # shading with the light turned into the gear frame, the depth.
         k = _texel(x + s32 * ddx, y + s32 * ddy, x0, inv_texel, n)
         nx, ny, nz = np.float64(normal[k, 0]), np.float64(normal[k, 1]), np.float64(normal[k, 2])
         if h[k] - top32 * (one32 - s32) > wall32:
-            s_wall32 = s_face[q] if face[q] else np.float32(lo[q])
             k_out = _texel(x + s_wall32 * ddx, y + s_wall32 * ddy, x0, inv_texel, n)
             nx, ny, nz = np.float64(wall_normal[k_out, 0]), np.float64(wall_normal[k_out, 1]), 0.0
-        i, p = hyp[q], pix[q]
-        c, s = cos_yaw[i], sin_yaw[i]
         lx, ly = c * light[0] + s * light[1], -s * light[0] + c * light[1]
         shade = max(0.0, nx * lx + ny * ly + nz * light[2])
         out_hyp[count] = i
