@@ -10,19 +10,22 @@ lamp_discount^(1 - w) where the light was fitted (`evidence_factor`; w: how well
 the teeth). This script runs the calibration pipeline (detection, far posterior, inspect view,
 close posterior) on tuning scenes, records for every posterior the truth's credible level with its
 tempering multiplied by each of a grid of factors (PosePosterior.tempered: rescaling the tempering
-moves no MAP, only the posterior) and, since the shape exponent, at each of a grid of shape
-exponents too (PosePosterior.shaped), and fits so that the truths' levels are closest to uniform
-in every perturbation group x view cell: on rows without shaped levels, gamma, eta and the
-discount (grids; 150 combinations, ~9 minutes on one core); on rows with them, the pair of shape
-exponents (unresolved, resolved teeth; SHAPE_GRID, 144 pairs, ~10 minutes) with gamma, eta and the
-discount held at the shipped values; for each combination, every gear's (A, B) (grids).
+moves no MAP, only the posterior) and at each of a grid of shape exponents too (the posterior
+before its reshaping, PosePosterior.reshaped), and fits so that the truths' levels are closest to
+uniform in every perturbation group x view cell: on rows without shaped levels, gamma, eta and the
+discount (grids; 150 combinations, ~9 minutes on one core), for each combination every gear's
+(A, B) (grids); on rows with them, the posterior's reshaping (a factor and a shape exponent for
+unresolved and for resolved teeth, `fit_reshaping`, about a minute) with the search's tempering
+held at the shipped values. The reshaping acts once the posterior's cells are fixed, so its fit
+predicts the pipeline; a change of the search's tempering moves the cells, and its fit does not
+(docs/perception.md, Tempering, items 6 and 7).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/perception_tempering.py --scenes 30 --seed 400 \
         --workers 2 --rows runs/tempering/seed400.json
 
 prints the coverage at 50/68/80/90/95 % with the tempering the rows were made with and with the
 fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
-occlusion_exponent, noise_exponent, lamp_discount and shape_exponent hold). `--rows PATH` stores the rows there; existing files
+occlusion_exponent, noise_exponent, lamp_discount, posterior_factor and shape_exponent hold). `--rows PATH` stores the rows there; existing files
 are read back instead (nothing rendered again) and pooled, a later file's groups replacing an
 earlier one's of the same scene seed (rows made under another colour model, say). The colour
 scale's brightness exponent changes the pixels' scores, not only their weight, so it cannot be
@@ -43,7 +46,7 @@ import numpy as np
 from common.errors import InputError
 from common.files import check_output_file, read_json, write_json
 from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, run_calibration
-from perception.likelihood import LikelihoodConfig
+from perception.likelihood import LikelihoodConfig, teeth_resolved
 
 FACTORS = tuple(float(f) for f in np.geomspace(0.25, 4.0, 33))
 FIT_LEVELS = np.linspace(0.05, 0.95, 19)  # the levels whose coverage the fit matches
@@ -54,6 +57,7 @@ NOISE = np.linspace(0.0, 2.0, 5)
 LAMP = np.linspace(0.5, 1.0, 6)
 SHAPES = (0.9, 1.0, 1.1, 1.2, 1.3, 1.45)  # posterior shape exponents recorded per row
 SHAPE_GRID = np.round(np.arange(0.9, 1.451, 0.05), 2)  # ... and searched (interpolated between)
+RESHAPE_FACTORS = np.round(np.geomspace(0.5, 2.0, 25), 4)  # the reshaping's factors searched
 
 
 def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None) -> dict:
@@ -109,17 +113,25 @@ class Rows:
         at = lambda jj: table[n, jj, idx] * (1 - t) + table[n, jj, idx + 1] * t  # noqa: E731
         return at(j) * (1 - u) + at(j + 1) * u
 
-    def scale(self, config: LikelihoodConfig) -> np.ndarray:
-        """Per row: the tempering `config` gives it over the one it was recorded with."""
+    def tempering_ratio(self, config: LikelihoodConfig) -> np.ndarray:
+        """Per row: the search's tempering `config` gives it over the one it was recorded with."""
         return np.array([config.tempering_for(r["gear"], r["gsd"])
                          * config.evidence_factor(r["gsd"], r["inlier_fraction"],
                                                    r.get("pixel_noise", r["depth_noise"]),
                                                    r.get("light") is not None)
                          / r["tempering"] for r in self.rows])
 
+    def scale(self, config: LikelihoodConfig) -> np.ndarray:
+        """Per row: the factor on its recorded posterior's tempering under `config`: the search's
+        tempering ratio times the reshaping's factor (the levels are recorded before it)."""
+        factor = np.array([config.reshaping_for(g)[0] for g in self.gsd])
+        return self.tempering_ratio(config) * factor
+
     def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
         """Per row: the shape exponent `config` gives it (None without shaped levels)."""
-        return None if self.shapes is None else np.array([config.shape_for(g) for g in self.gsd])
+        if self.shapes is None:
+            return None
+        return np.array([config.reshaping_for(g)[1] for g in self.gsd])
 
     def at(self, config: LikelihoodConfig) -> np.ndarray:
         """Every row's truth level under `config`."""
@@ -134,24 +146,21 @@ def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
 
 
 def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
-        noise: np.ndarray = NOISE, lamp: np.ndarray = LAMP,
-        shapes: np.ndarray | None = None) -> LikelihoodConfig:
+        noise: np.ndarray = NOISE, lamp: np.ndarray = LAMP) -> LikelihoodConfig:
     """`base` with the occlusion and noise exponents and the fitted lamp's discount (from the grids
-    `occlusion`, `noise`, `lamp`), the shape exponents (unresolved, resolved teeth: every pair of
-    `shapes`, where the rows have shaped levels; else base's) and, for each, every gear's (A, B)
-    (grids AMPLITUDES x EXPONENTS): the set whose truth levels are closest to uniform in every
-    perturbation group x view cell."""
+    `occlusion`, `noise`, `lamp`) and, for each, every gear's (A, B) (grids AMPLITUDES x
+    EXPONENTS): the set whose truth levels are closest to uniform in every perturbation group x
+    view cell, on the levels before the reshaping (the returned config has it off: fit it
+    after, with `fit_reshaping`, on rows collected under the new tempering)."""
+    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0))
     g0 = base.reference_gsd
     views = [r["view"] for r in data.rows]
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
     gears = np.array([r["gear"] for r in data.rows])
-    pairs = ([base.shape_exponent] if shapes is None or data.shapes is None
-             else list(itertools.product(shapes, shapes)))
     best = (np.inf, base)
-    for gamma, eta, discount, pair in itertools.product(occlusion, noise, lamp, pairs):
+    for gamma, eta, discount in itertools.product(occlusion, noise, lamp):
         cfg = replace(base, gear_tempering={}, occlusion_exponent=float(gamma),
-                      noise_exponent=float(eta), lamp_discount=float(discount),
-                      shape_exponent=(float(pair[0]), float(pair[1])))
+                      noise_exponent=float(eta), lamp_discount=float(discount))
         scale, shape = data.scale(cfg), data.shape(cfg)
         per_gear = {}
         for gear in np.unique(gears):
@@ -168,6 +177,35 @@ def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
         if loss < best[0]:
             best = (loss, cfg)
     return best[1]
+
+
+def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESHAPE_FACTORS,
+                  shapes: np.ndarray = SHAPE_GRID, rounds: int = 2) -> LikelihoodConfig:
+    """`base` with the posterior's reshaping fitted, the search's tempering held: the
+    (posterior_factor, shape_exponent) pair for resolved teeth, then for unresolved ones, each
+    from the grid `factors` x `shapes`, `rounds` times in turn, whose truth levels are closest to
+    uniform in every perturbation group x view cell. The reshaping moves no cell, so the rows'
+    levels under it are the pipeline's (docs/perception.md, Tempering, item 7)."""
+    if data.shapes is None:
+        raise InputError("the rows hold no shaped levels; collect them with this script "
+                         "(every file at the same shape exponents)")
+    cells = [f"{r['group']}/{r['view']}" for r in data.rows]
+    ratio = data.tempering_ratio(base)
+    w = np.array([teeth_resolved(g) for g in data.gsd])
+    factor, shape = list(base.posterior_factor), list(base.shape_exponent)
+    for _ in range(rounds):
+        for side in (1, 0):  # resolved teeth (the close view) first
+            options = []
+            for f, g in itertools.product(factors, shapes):
+                fs, gs = list(factor), list(shape)
+                fs[side], gs[side] = float(f), float(g)
+                rows_f = fs[0] ** (1 - w) * fs[1] ** w
+                rows_g = (1 - w) * gs[0] + w * gs[1]
+                options.append((cell_loss(data.levels(ratio * rows_f, shape=rows_g), cells),
+                                float(f), float(g)))
+            _, factor[side], shape[side] = min(options)
+    return replace(base, posterior_factor=(round(factor[0], 4), round(factor[1], 4)),
+                   shape_exponent=(round(shape[0], 4), round(shape[1], 4)))
 
 
 def _table(data: Rows, today: np.ndarray, fitted: np.ndarray, key) -> list[str]:
@@ -240,15 +278,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"perception_tempering: {e}", file=sys.stderr)
         return 2
     data = Rows(rows, factors, shapes)
-    today = np.array([r["level"] for r in rows])
+    today = np.array([r["level"] for r in rows])  # the levels the rows were made with
     base = LikelihoodConfig()
     if data.shapes is None:
         config = fit(data, base)
-    else:  # the evidence exponents held at the shipped values, the shape exponents fitted
-        config = fit(data, base, np.array([base.occlusion_exponent]), np.array([base.noise_exponent]),
-                     np.array([base.lamp_discount]), shapes=SHAPE_GRID)
+    else:  # the search's tempering held at the shipped values, the reshaping fitted
+        config = fit_reshaping(data, replace(base, posterior_factor=(1.0, 1.0),
+                                             shape_exponent=(1.0, 1.0)))
     fitted = data.at(config)
-    head = "| {} | n | today 50/68/80/90/95 | fitted |"
+    head = "| {} | n | as collected 50/68/80/90/95 | fitted |"
     lines = [head.format("gear | view"), "|---|---|---|---|---|"]
     lines += _table(data, today, fitted, lambda r: (r["gear"], r["view"]))
     lines += ["", head.format("group | view"), "|---|---|---|---|---|"]
@@ -256,7 +294,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     fits = {"gear_tempering": {g: [round(a, 4), round(b, 4)] for g, (a, b) in config.gear_tempering.items()},
             "occlusion_exponent": config.occlusion_exponent, "noise_exponent": config.noise_exponent,
-            "lamp_discount": config.lamp_discount, "shape_exponent": list(config.shape_exponent),
+            "lamp_discount": config.lamp_discount, "posterior_factor": list(config.posterior_factor),
+            "shape_exponent": list(config.shape_exponent),
             "posteriors": len(rows)}
     print(f"fitted: {fits}")
     if out is not None:

@@ -45,7 +45,8 @@ class CalibrationConfig:
     max half-width [m]) of the inspect view's prior box; tempering_factors: factors on each
     posterior's tempering at which the truth's credible level is also recorded (`scaled_levels`,
     for fitting the tempering: benchmarks/perception_tempering.py); shape_exponents: with them, the
-    levels at every shape exponent x tempering factor (`shaped_levels`)."""
+    levels at every shape exponent x tempering factor (`shaped_levels`). Both are recorded on the
+    posterior before its reshaping (LikelihoodConfig.posterior_factor and shape_exponent)."""
 
     scenes: int = 34
     seed: int = HELD_OUT_SEED
@@ -91,7 +92,7 @@ def confidently_wrong(row: dict) -> bool:
 
 # What each row keeps of the posterior's search info (explain a miscalibration after the fact).
 ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "inlier_fraction", "valid_fraction",
-            "depth_noise", "pixel_noise", "light", "edge_mass", "shape")
+            "depth_noise", "pixel_noise", "light", "edge_mass", "posterior_factor", "shape")
 
 
 def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: PosePosterior,
@@ -99,12 +100,13 @@ def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: 
          shapes: tuple[float, ...] = ()) -> dict:
     period = post.period
     extra = {}
-    if factors and post.informative:
-        extra["scaled_levels"] = [post.tempered(f).credible_level(truth) for f in factors]
-        if shapes:  # from the posterior before its shape exponent: tempered, then shaped
-            raw = post.shaped(1.0 / post.info.get("shape", 1.0))
-            extra["shaped_levels"] = [[raw.tempered(f).shaped(g).credible_level(truth)
-                                       for f in factors] for g in shapes]
+    if factors and post.informative:  # from the posterior before its reshaping
+        f0, g0 = post.info.get("posterior_factor", 1.0), post.info.get("shape", 1.0)
+        raw = post.reshaped(f0 ** -g0, 1.0 / g0)
+        extra["scaled_levels"] = [raw.tempered(f).credible_level(truth) for f in factors]
+        if shapes:
+            extra["shaped_levels"] = [[raw.reshaped(f, g).credible_level(truth) for f in factors]
+                                      for g in shapes]
     d, e = pose_error(post.map_pose, truth, period)
     err = post.map_pose - truth
     err[2] = wrap(err[2], period)

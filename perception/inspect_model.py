@@ -24,12 +24,12 @@ from perception.posterior import PosePosterior
 
 # Per gear: close-view std (x [m], y [m], yaw [rad]) median over clean views, the same at the 90th
 # percentile over every perturbation group, and the fraction of close views that were informative.
-# Measured by `goflow bench calibration` on the held-out scenes of seed 9000 with the upsampled grid
-# (docs/results/perception_calibration_seed9000.json).
+# Measured by `goflow bench calibration` on the held-out scenes of seed 12000 with the reshaped
+# posteriors (`close_view_noise` of docs/results/perception_calibration_seed12000.json's rows).
 CLOSE_VIEW: dict[str, dict[str, tuple[float, ...] | float]] = {
-    "small": {"median": (2.5e-5, 2.4e-5, 2.4e-3), "p90": (3.2e-5, 3.1e-5, 3.6e-3), "informative": 1.0},
-    "medium": {"median": (3.1e-5, 3.7e-5, 1.6e-3), "p90": (4.2e-5, 4.9e-5, 2.3e-3), "informative": 1.0},
-    "large": {"median": (4.2e-5, 3.7e-5, 1.1e-3), "p90": (5.9e-5, 5.1e-5, 1.9e-3), "informative": 1.0},
+    "small": {"median": (2.1e-5, 2.0e-5, 2.3e-3), "p90": (3.0e-5, 2.8e-5, 3.5e-3), "informative": 1.0},
+    "medium": {"median": (2.8e-5, 3.3e-5, 1.6e-3), "p90": (3.9e-5, 4.8e-5, 2.4e-3), "informative": 1.0},
+    "large": {"median": (3.8e-5, 3.5e-5, 1.2e-3), "p90": (6.6e-5, 5.0e-5, 2.0e-3), "informative": 1.0},
 }
 
 
@@ -52,6 +52,25 @@ class InspectPrediction:
         return self.p_informative * gain
 
 
+def close_view_noise(rows: list[dict]) -> dict[str, dict[str, tuple[float, ...] | float]]:
+    """`CLOSE_VIEW` measured on calibration rows (`goflow bench calibration`'s JSON "rows"): per
+    gear, the median close-view std (x, y, yaw) over the informative clean views, its 90th
+    percentile over the informative views of every group, and the informative share of the close
+    views. ValueError if a gear has no informative clean close view."""
+    out: dict[str, dict[str, tuple[float, ...] | float]] = {}
+    for gear in dict.fromkeys(r["gear"] for r in rows if r["view"] == "inspect"):
+        close = [r for r in rows if r["view"] == "inspect" and r["gear"] == gear]
+        seen = [r for r in close if r.get("seen") and r.get("informative")]
+        clean = np.array([r["std"] for r in seen if r["group"] == "clean"])
+        if not len(clean):
+            raise ValueError(f"no informative clean close view of the {gear} gear in the rows")
+        every = np.array([r["std"] for r in seen])
+        out[gear] = {"median": tuple(float(f"{v:.2g}") for v in np.median(clean, axis=0)),
+                     "p90": tuple(float(f"{v:.2g}") for v in np.percentile(every, 90, axis=0)),
+                     "informative": round(len(seen) / len(close), 3)}
+    return out
+
+
 def predict_inspection(gear: str, before: PosePosterior | np.ndarray) -> InspectPrediction:
     """The predicted effect of inspect(`gear`) on a belief with standard deviations `before`
     (a PosePosterior, or (x [m], y [m], yaw [rad]) stds; an uninformative posterior's are those
@@ -70,4 +89,4 @@ def predict_inspection(gear: str, before: PosePosterior | np.ndarray) -> Inspect
                              float(close["informative"]))
 
 
-__all__ = ["CLOSE_VIEW", "InspectPrediction", "predict_inspection"]
+__all__ = ["CLOSE_VIEW", "InspectPrediction", "close_view_noise", "predict_inspection"]

@@ -28,6 +28,10 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 # Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
 GEAR_TEMPERING = {"small": (1.516, 0.3), "medium": (1.320, 0.3), "large": (1.0, 0.45)}
+# The posterior's reshaping once its cells are fixed, (unresolved, resolved teeth): fitted on the
+# tuning scenes of seeds 600 and 700 by benchmarks/perception_tempering.py --reshape.
+POSTERIOR_FACTOR = (0.8909, 0.6674)
+SHAPE_EXPONENT = (1.05, 1.4)
 
 
 @dataclass
@@ -51,9 +55,11 @@ class LikelihoodConfig:
     noise_exponent: float = 1.0         # evidence under depth noise (calibrated)
     lamp_discount: float = 0.8          # evidence under a light fitted from the gear's shading (calibrated)
     brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
-    # the posterior's shape: its log-evidence deficit raised to this, (unresolved, resolved teeth);
-    # 1 = off, as shipped: the fitted pair failed on fresh scenes (docs/perception.md, Tempering)
-    shape_exponent: tuple[float, float] = (1.0, 1.0)
+    # The reshaping, applied to the posterior once its cells are fixed (so it moves no cell): its
+    # log-evidence deficit D from the peak becomes (factor D)^exponent, (unresolved, resolved
+    # teeth) each; (1, 1) = off. Fitted on tuning scenes (docs/perception.md, Tempering, item 7).
+    posterior_factor: tuple[float, float] = POSTERIOR_FACTOR
+    shape_exponent: tuple[float, float] = SHAPE_EXPONENT
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
@@ -72,10 +78,11 @@ class LikelihoodConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value >= 0")
-        if not (len(self.shape_exponent) == 2
-                and all(np.isfinite(e) and 0 < e <= 4 for e in self.shape_exponent)):
-            raise ValueError(f"LikelihoodConfig.shape_exponent = {self.shape_exponent}; expected "
-                             "(unresolved, resolved) exponents in (0, 4]")
+        for name in ("posterior_factor", "shape_exponent"):
+            pair = getattr(self, name)
+            if not (len(pair) == 2 and all(np.isfinite(e) and 0 < e <= 4 for e in pair)):
+                raise ValueError(f"LikelihoodConfig.{name} = {pair}; expected (unresolved, "
+                                 "resolved) values in (0, 4]")
         for gear, factor in self.gear_tempering.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
             if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
@@ -135,12 +142,15 @@ class LikelihoodConfig:
         lamp = self.lamp_discount ** (1.0 - resolved) if fitted_light else 1.0
         return float(occlusion * noise * lamp)
 
-    def shape_for(self, gsd: float) -> float:
-        """The posterior's shape exponent in a view of ground sampling distance `gsd` [m/pixel]:
-        shape_exponent's two values blended by how well the view resolves the teeth
-        (`teeth_resolved`)."""
+    def reshaping_for(self, gsd: float) -> tuple[float, float]:
+        """(factor, exponent) of the posterior's reshaping in a view of ground sampling distance
+        `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's two
+        values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
+        geometrically)."""
         w = teeth_resolved(gsd)
-        return float((1.0 - w) * self.shape_exponent[0] + w * self.shape_exponent[1])
+        f0, f1 = self.posterior_factor
+        g0, g1 = self.shape_exponent
+        return float(f0 ** (1.0 - w) * f1 ** w), float((1.0 - w) * g0 + w * g1)
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:
         """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and

@@ -233,15 +233,23 @@ class PosePosterior:
         the tails fall faster and the core (D < 1) flattens; 1 returns the posterior itself. A
         robust pixel likelihood's deficit grows linearly, not quadratically, far from the peak, so
         its tails are heavier than the pose errors' (docs/perception.md, Tempering)."""
-        if not (np.isfinite(exponent) and exponent > 0):
-            raise ValueError(f"exponent = {exponent}; expected a finite shape exponent > 0")
-        if exponent == 1:
+        return self.reshaped(1.0, exponent)
+
+    def reshaped(self, factor: float, exponent: float) -> "PosePosterior":
+        """The posterior whose log-evidence deficit from its peak D becomes (factor D)^exponent,
+        on the same cells (both > 0): `tempered(factor)`, then `shaped(exponent)`; the cells and
+        the order of their densities stay, so the MAP does not move. (1, 1) returns the posterior
+        itself, and `reshaped(f ** -g, 1 / g)` undoes `reshaped(f, g)`."""
+        for name, value in (("factor", factor), ("exponent", exponent)):
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} = {value}; expected a finite reshaping {name} > 0")
+        if factor == 1 and exponent == 1:
             return self
         raw = self._evidence()
         with np.errstate(invalid="ignore"):
-            deficit = raw.max() - raw
-            shaped = np.where(np.isfinite(raw), -deficit ** exponent, -np.inf)
-        return self._with_evidence(shaped)
+            deficit = factor * (raw.max() - raw)
+            reshaped = np.where(np.isfinite(raw), -deficit ** exponent, -np.inf)
+        return self._with_evidence(reshaped)
 
     def _with_evidence(self, log_evidence: np.ndarray) -> "PosePosterior":
         """This posterior with another log-evidence on the same cells (the support cut applied

@@ -214,9 +214,10 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         scores = score(poses, stride)
         return replace(scores, loglik=factor * scores.loglik)
 
-    shape = config.likelihood.shape_for(scorer.gsd)
-    post = _posterior_grid(model, best, weighed, fine, config, prior).shaped(shape)
-    info["shape"] = shape
+    # 4. The reshaping, on the fixed cells: calibrates the posterior without moving its grid.
+    reshaping = config.likelihood.reshaping_for(scorer.gsd)
+    post = _posterior_grid(model, best, weighed, fine, config, prior).reshaped(*reshaping)
+    info.update(posterior_factor=reshaping[0], shape=reshaping[1])
     info["seconds"] = time.perf_counter() - t0
     post.info.update(info)
     return post

@@ -1,10 +1,13 @@
 """The inspect model the planner calls: an inspection narrows a wide belief to about the close
 view's measured width, barely changes a belief already narrower, and rejects bad input."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from perception.inspect_model import CLOSE_VIEW, predict_inspection
+from common.files import read_json
+from perception.inspect_model import CLOSE_VIEW, close_view_noise, predict_inspection
 from perception.posterior import uniform_posterior
 
 
@@ -28,3 +31,17 @@ def test_bad_input_is_named():
         predict_inspection("huge", [1e-3, 1e-3, 0.1])
     with pytest.raises(ValueError, match="3 standard deviations"):
         predict_inspection("small", [1e-3, -1.0, 0.1])
+
+
+def test_close_view_is_what_the_committed_benchmark_measured():
+    """CLOSE_VIEW is `close_view_noise` of the held-out benchmark run it cites, so the planner's
+    inspect model follows the posteriors as they are shipped."""
+    path = Path(__file__).resolve().parents[2] / "docs" / "results" / "perception_calibration_seed12000.json"
+    assert close_view_noise(read_json(path)["rows"]) == CLOSE_VIEW
+
+
+def test_close_view_noise_needs_a_clean_close_view():
+    rows = [{"view": "inspect", "gear": "small", "group": "dim", "seen": True, "informative": True,
+             "std": [2e-5, 2e-5, 2e-3]}]
+    with pytest.raises(ValueError, match="no informative clean close view of the small gear"):
+        close_view_noise(rows)

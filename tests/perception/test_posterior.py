@@ -147,6 +147,27 @@ def test_tempered_scales_the_evidence_and_keeps_the_support():
             post.tempered(bad)
 
 
+def test_reshaped_keeps_the_cells_and_the_order_and_is_undone_by_its_inverse():
+    post = _gaussian()
+    assert post.reshaped(1.0, 1.0) is post
+    np.testing.assert_allclose(post.reshaped(2.0, 1.0).log_mass, post.tempered(2.0).log_mass, atol=1e-12)
+    np.testing.assert_allclose(post.reshaped(1.0, 1.3).log_mass, post.shaped(1.3).log_mass, atol=1e-12)
+    f, g = 0.7, 1.4
+    out = post.reshaped(f, g)
+    np.testing.assert_array_equal(out.map_pose, post.map_pose)
+    # the densities' order is kept: the same cells rank the same
+    order = np.argsort(-post.log_mass.ravel(), kind="stable")
+    assert np.all(np.diff(out.log_mass.ravel()[order]) <= 1e-12)
+    np.testing.assert_allclose(out.reshaped(f ** -g, 1.0 / g).log_mass, post.log_mass, atol=1e-9)
+    # a Gaussian's deficit D = r^2 / 2 made (f D)^g: below 1 the core widens, above 1 the tails fall faster
+    assert np.all(post.reshaped(0.5, 1.0).std() > post.std())
+    truth = np.array([0.4 + 0.0025, -0.1, 3.1])  # 2.5 sigma out in x
+    assert post.reshaped(1.0, 1.5).credible_level(truth) > post.credible_level(truth)
+    for bad in ((0.0, 1.0), (1.0, -1.0), (float("nan"), 1.0), (1.0, float("inf"))):
+        with pytest.raises(ValueError, match="factor|exponent"):
+            post.reshaped(*bad)
+
+
 def test_upsampled_keeps_the_scored_cells_and_resolves_a_coarse_posterior():
     # a Gaussian scored on cells ~1.3 sigma wide (the close view's grid): too few cells to say
     # where within them the truth lies; the spline between them makes the credible levels of the

@@ -65,31 +65,36 @@ def _radial_levels(r_truth: np.ndarray, deficit, factors, shapes) -> np.ndarray:
     return out
 
 
-def test_fit_recovers_the_shape_exponent():
-    """Close views whose posterior deficit grows like r^(2/1.25) (heavier tails than the Gaussian
-    truths'), far views Gaussian: of the pairs from (1, 1.25) the fit must pick (1, 1.25) and make
-    both views' levels uniform. (Between nearer exponents 2000 truths a view barely tell.)"""
+def test_fit_recovers_the_reshaping():
+    """Close views whose posterior deficit is (r^2 / 2)^(1 / 1.25) / 0.84 (heavier tails and a
+    sharper core than the Gaussian truths'), far views Gaussian: the reshaping (factor D)^exponent
+    that makes them Gaussian is (0.84, 1.25) close and (1, 1) far; the fit must pick both from
+    the grids and make both views' levels uniform."""
     mod = _script()
     rng = np.random.default_rng(1)
     bare = LikelihoodConfig(gear_tempering={})
     factors = np.asarray(mod.FACTORS)
     shapes = np.asarray(mod.SHAPES)
+    f_true = float(factors[14])  # 2^-0.25, one of the recorded factors
     rows = []
-    for view, gsd, g_true in (("scene", 2e-3, 1.0), ("inspect", 4.1e-4, 1.25)):
+    for view, gsd, f, g in (("scene", 2e-3, 1.0, 1.0), ("inspect", 4.1e-4, f_true, 1.25)):
         r_truth = np.sqrt(rng.chisquare(3, 2000))
-        table = _radial_levels(r_truth, lambda r, g=g_true: (r ** 2 / 2) ** (1 / g), factors, shapes)
+        table = _radial_levels(r_truth, lambda r, f=f, g=g: (r ** 2 / 2) ** (1 / g) / f, factors, shapes)
         for i in range(len(r_truth)):
             rows.append({"gear": "medium", "view": view, "group": "clean", "gsd": gsd,
                          "tempering": bare.tempering_for("medium", gsd), "inlier_fraction": 1.0,
                          "depth_noise": 0.0, "level": float(table[i, 1, 16]),
                          "scaled_levels": table[i, 1].tolist(), "shaped_levels": table[i].tolist()})
     data = mod.Rows(rows, factors, shapes)
-    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]),
-                     lamp=np.array([1.0]), shapes=np.array([1.0, 1.25]))
-    far, close = fitted.shape_exponent
+    base = LikelihoodConfig(gear_tempering={}, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0))
+    fitted = mod.fit_reshaping(data, base, factors=factors[[12, 14, 16]], shapes=np.array([1.0, 1.25]))
     assert fitted.shape_exponent == (1.0, 1.25)
+    np.testing.assert_allclose(fitted.posterior_factor, (1.0, f_true), atol=1e-4)
     levels = data.at(fitted)
     for view in ("scene", "inspect"):
         m = np.array([r["view"] == view for r in rows])
         np.testing.assert_allclose(mod.coverage(levels[m], np.array([0.5, 0.8, 0.95])),
                                    [0.5, 0.8, 0.95], atol=0.05)
+    close = np.array([r["view"] == "inspect" for r in rows])
+    before = mod.coverage(np.array([r["level"] for r in rows])[close], np.array([0.5, 0.95]))
+    assert before[1] - 0.95 > 0.02  # the close view was miscalibrated before the fit
