@@ -104,9 +104,10 @@ def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: 
         f0, g0 = post.info.get("posterior_factor", 1.0), post.info.get("shape", 1.0)
         raw = post.reshaped(f0 ** -g0, 1.0 / g0)
         extra["scaled_levels"] = [raw.tempered(f).credible_level(truth) for f in factors]
-        if shapes:
-            extra["shaped_levels"] = [[raw.reshaped(f, g).credible_level(truth) for f in factors]
-                                      for g in shapes]
+        if shapes:  # at exponent 1 the reshaping is the tempering: its levels are already there
+            extra["shaped_levels"] = [
+                list(extra["scaled_levels"]) if g == 1
+                else [raw.reshaped(f, g).credible_level(truth) for f in factors] for g in shapes]
     d, e = pose_error(post.map_pose, truth, period)
     err = post.map_pose - truth
     err[2] = wrap(err[2], period)

@@ -53,3 +53,21 @@ def test_the_band_allows_what_sampling_noise_allows():
     assert chances[0] == 0.0 and chances == sorted(chances)
     assert 0.4 < chances[1] < 0.65 and 0.8 < chances[2] < 0.95 and chances[3] > 0.99
     assert calibrated_pass_chance(300) == calibrated_pass_chance(300)  # a fixed seed
+
+
+def test_tuning_levels_predict_the_pipelines_own():
+    """The tuning rows record levels before the reshaping; at the shipped reshaping they are the
+    row's own level (the reshaping moves no cell), so a reshaping fit predicts the pipeline. At
+    exponent 1 the shaped levels are the tempered ones."""
+    from perception.likelihood import LikelihoodConfig
+
+    shipped = LikelihoodConfig()
+    f_close, g_close = shipped.posterior_factor[1], shipped.shape_exponent[1]
+    config = CalibrationConfig(scenes=1, seed=HELD_OUT_SEED + 778, tempering_factors=(f_close, 1.0),
+                               shape_exponents=(1.0, g_close))
+    close = [r for r in group_rows("clean", config) if r["view"] == "inspect" and r["informative"]]
+    assert close
+    for r in close:
+        assert (r["posterior_factor"], r["shape"]) == (f_close, g_close)  # resolved teeth
+        assert r["shaped_levels"][0] == r["scaled_levels"]
+        assert abs(r["shaped_levels"][1][0] - r["level"]) < 1e-6
