@@ -46,7 +46,7 @@ import numpy as np
 from common.errors import InputError
 from common.files import check_output_file, read_json, write_json
 from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, run_calibration
-from perception.likelihood import LikelihoodConfig, teeth_resolved
+from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved
 
 FACTORS = tuple(float(f) for f in np.geomspace(0.25, 4.0, 33))
 FIT_LEVELS = np.linspace(0.05, 0.95, 19)  # the levels whose coverage the fit matches
@@ -199,8 +199,7 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
             for f, g in itertools.product(factors, shapes):
                 fs, gs = list(factor), list(shape)
                 fs[side], gs[side] = float(f), float(g)
-                rows_f = fs[0] ** (1 - w) * fs[1] ** w
-                rows_g = (1 - w) * gs[0] + w * gs[1]
+                rows_f, rows_g = blend_reshaping(fs, gs, w)
                 options.append((cell_loss(data.levels(ratio * rows_f, shape=rows_g), cells),
                                 float(f), float(g)))
             _, factor[side], shape[side] = min(options)

@@ -29,7 +29,8 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
 GEAR_TEMPERING = {"small": (1.516, 0.3), "medium": (1.320, 0.3), "large": (1.0, 0.45)}
 # The posterior's reshaping once its cells are fixed, (unresolved, resolved teeth): fitted on the
-# tuning scenes of seeds 600 and 700 by benchmarks/perception_tempering.py --reshape.
+# tuning scenes of seeds 600 and 700 by benchmarks/perception_tempering.py (`fit_reshaping`, on rows
+# with shaped levels).
 POSTERIOR_FACTOR = (0.8909, 0.6674)
 SHAPE_EXPONENT = (1.05, 1.4)
 
@@ -147,10 +148,9 @@ class LikelihoodConfig:
         `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's two
         values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
         geometrically)."""
-        w = teeth_resolved(gsd)
-        f0, f1 = self.posterior_factor
-        g0, g1 = self.shape_exponent
-        return float(f0 ** (1.0 - w) * f1 ** w), float((1.0 - w) * g0 + w * g1)
+        factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent,
+                                           teeth_resolved(gsd))
+        return float(factor), float(exponent)
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:
         """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and
@@ -189,6 +189,15 @@ def teeth_resolved(gsd: float) -> float:
     if not (np.isfinite(gsd) and gsd > 0):
         raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
     return float(np.clip((np.pi * GEAR_MODULE / gsd - 2.0) / 4.0, 0.0, 1.0))
+
+
+def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],
+                    resolved: float | np.ndarray) -> tuple:
+    """(factor, exponent) of the reshaping at teeth-resolution `resolved` in [0, 1] (a number or
+    an array, `teeth_resolved`): the (unresolved, resolved) factors blended geometrically, the
+    exponents linearly."""
+    (f0, f1), (g0, g1) = posterior_factor, shape_exponent
+    return f0 ** (1.0 - resolved) * f1 ** resolved, (1.0 - resolved) * g0 + resolved * g1
 
 
 @numba.njit(cache=True, inline="always")

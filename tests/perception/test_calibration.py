@@ -10,6 +10,7 @@ from perception.calibration import (
     HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, group_rows,
     markdown_table, summarize,
 )
+from perception.likelihood import LikelihoodConfig
 
 
 @pytest.fixture(scope="module")
@@ -59,8 +60,6 @@ def test_tuning_levels_predict_the_pipelines_own():
     """The tuning rows record levels before the reshaping; at the shipped reshaping they are the
     row's own level (the reshaping moves no cell), so a reshaping fit predicts the pipeline. At
     exponent 1 the shaped levels are the tempered ones."""
-    from perception.likelihood import LikelihoodConfig
-
     shipped = LikelihoodConfig()
     f_close, g_close = shipped.posterior_factor[1], shipped.shape_exponent[1]
     config = CalibrationConfig(scenes=1, seed=HELD_OUT_SEED + 778, tempering_factors=(f_close, 1.0),
