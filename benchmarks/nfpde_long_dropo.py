@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nfpde_table import RESULTS, run_one  # noqa: E402
-from common.files import read_json, write_json  # noqa: E402
+from common.files import check_output_file, read_json, write_json  # noqa: E402
 from learning.estimation.targets import TARGETS  # noqa: E402
 
 
@@ -51,9 +51,17 @@ def main() -> int:
     p.add_argument("--target", default="mixture", choices=TARGETS)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--factor", type=float, default=5.0)
+    p.add_argument("--json", type=Path, default=None,
+                   help="output file (default docs/results/<name>_long_dropo-<env>-<target>.json)")
+    p.add_argument("--reference", type=Path, default=None,
+                   help="a runs file whose NFPDE-Softmax run of the cell to time against (default the table's), "
+                        "e.g. one measured on the machine that ran the long DROPO")
+    p.add_argument("--dropo-from", type=Path, default=None,
+                   help="an earlier output of this script whose long DROPO run to reuse instead of running one")
     args = p.parse_args()
     stem = args.env.split("/")[-1].split("-v")[0].lower()
-    out_path = RESULTS / f"{args.name}_long_dropo-{stem}-{args.target}.json"
+    out_path = args.json or RESULTS / f"{args.name}_long_dropo-{stem}-{args.target}.json"
+    check_output_file(out_path)
     runs = read_json(RESULTS / f"{args.name}_runs.json", "nfpde_table runs file")["runs"]
     cell = (args.env, args.target, args.seed)
     try:
@@ -62,8 +70,22 @@ def main() -> int:
     except StopIteration:
         raise SystemExit(f"nfpde_long_dropo: {args.name}_runs.json has no nfpde-softmax and dropo runs for {cell}; "
                          f"run benchmarks/nfpde_table.py on that cell first") from None
-    budget = int(args.factor * nf["sim_budget"])
-    long = run_one(args.env, args.target, "dropo", args.seed, budget, len(nf["true_u"]), {})
+    if args.reference is not None:
+        ref = read_json(args.reference, "reference runs file")["runs"]
+        try:
+            nf = next(r for r in ref if (r["env"], r["target"], r["seed"]) == cell and r["method"] == "nfpde-softmax")
+        except StopIteration:
+            raise SystemExit(f"nfpde_long_dropo: {args.reference} has no nfpde-softmax run for {cell}") from None
+    if args.dropo_from is not None:
+        earlier = read_json(args.dropo_from, "earlier nfpde_long_dropo output")
+        if (earlier.get("env"), earlier.get("target"), earlier.get("seed")) != cell:
+            raise SystemExit(f"nfpde_long_dropo: {args.dropo_from} is for {(earlier.get('env'), earlier.get('target'), earlier.get('seed'))}, "
+                             f"not {cell}")
+        long, budget = earlier["dropo_long"], earlier["budget_dropo_long"]
+        long = {**long, "command": long.get("command", earlier.get("command"))}  # the command that ran it
+    else:
+        budget = int(args.factor * nf["sim_budget"])
+        long = run_one(args.env, args.target, "dropo", args.seed, budget, len(nf["true_u"]), {})
     levels = {"1.1 x nfpde-softmax final": round(nf["ot"] * 1.1, 4), "dropo final": round(dropo["ot"], 4),
               "0.2": 0.2}
     reach = {}
@@ -73,10 +95,12 @@ def main() -> int:
                         "dropo / nfpde-softmax": ratio(long_at, nf_at, long)}
     out = {"env": args.env, "target": args.target, "seed": args.seed, "budget_nfpde": nf["sim_budget"],
            "budget_dropo_long": budget,
-           "nfpde_softmax": {"ot": nf["ot"], "seconds_total": nf["seconds_total"]},
+           "nfpde_softmax": {"ot": nf["ot"], "seconds_total": nf["seconds_total"],
+                             "runs_file": str(args.reference or RESULTS / f"{args.name}_runs.json")},
            "dropo": {"ot": dropo["ot"], "seconds_total": dropo["seconds_total"]},
            "dropo_long": {"ot": long["ot"], "seconds_total": long["seconds_total"], "sim_calls": long["sim_calls"],
-                          "trace": long["trace"], "details": long["details"]},
+                          "trace": long["trace"], "details": long["details"],
+                          **({"command": long["command"]} if "command" in long else {})},
            "reach": reach,
            "command": "python benchmarks/nfpde_long_dropo.py " + " ".join(sys.argv[1:])}
     write_json(out_path, out)

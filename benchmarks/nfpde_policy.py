@@ -109,6 +109,7 @@ def main() -> int:
         if method not in args.train_on:
             continue
         path = est_dir / f"{stem}{args.target}-{method}.json"
+        recorded = doc["estimates"].get(method, {}).get("ot")  # the estimate the file's runs were trained on
         if path.exists():
             sampler, _ = load_estimate(path)
         else:
@@ -116,7 +117,13 @@ def main() -> int:
             save_estimate(path, sampler, method, args.env, info)
             doc["estimates"][method] = {"seconds": info["seconds"], "sim_calls": info["sim_calls"]}
         u = ds.space.normalize(sampler.sample(500, np.random.default_rng(1)))
-        doc["estimates"].setdefault(method, {})["ot"] = ot_cost(u, u_true)
+        ot = ot_cost(u, u_true)
+        if recorded is not None and any(r["train_on"] == method for r in doc["runs"]) and abs(ot - recorded) > 1e-6:
+            raise SystemExit(
+                f"nfpde_policy: the {method} estimate here ({path}) has OT {ot:.4f}, but the runs in {res_path} were "
+                f"trained on one with OT {recorded:.4f}; refusing to mix two estimates in one figure. Put that "
+                f"estimate's file back in --estimates, or start a new figure with another --out")
+        doc["estimates"].setdefault(method, {})["ot"] = ot
         samplers[method] = sampler
     done = {(r.get("algo", "ppo"), r["train_on"], r["seed"]) for r in doc["runs"]}
     for seed in range(args.first_seed, args.first_seed + args.seeds):

@@ -21,7 +21,8 @@ rows. The constrained mode estimates its feasible set F-hat = {P(success) >= lev
 classifier fitted to the rows, each weighted as a uniform design would count it
 (`learning.samplers.feasibility`; or the k-NN vote, `feasible_model="knn"`), and by default
 samples the flow truncated to F-hat with mass 1 - delta plus delta uniform on the rest of the box
-(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one. The level starts at
+(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one; `floor` > 0 draws that
+share of the mass in F-hat uniformly on F-hat, a floor under the flow's density there. The level starts at
 `feasible_level` and follows the constraint by dual ascent: each batch, before it joins the
 evidence, is a held-out test of F-hat, and the level rises while more than `leak_target` of the
 sampler's mass in F-hat fails and falls while less does.
@@ -218,6 +219,9 @@ class GoFlowConfig:
     # constrained mode: the sampler is the flow truncated to F-hat with mass 1 - delta, plus delta
     # uniform on the rest of the box (docs/learning.md#goflow-modes); False: the flow alone
     truncate: bool = True
+    # constrained mode, truncated: the share of the mass in F-hat drawn uniformly on F-hat, a floor
+    # under the flow's density there (0: the flow alone shapes it; docs/learning.md#goflow-modes)
+    floor: float = 0.0
     proposal_samples: int = 2048  # per proposal component (uniform, the flow, around successes) per update
     fit_batch: int = 512  # points resampled from the weighted proposal at each of the K steps
 
@@ -247,6 +251,7 @@ class GoFlowConfig:
         check_int(self.classifier_steps, "GoFlowConfig.classifier_steps", 1)
         if not isinstance(self.truncate, bool):
             raise InputError(f"GoFlowConfig.truncate = {self.truncate!r}; expected true or false")
+        check_number(self.floor, "GoFlowConfig.floor", 0.0, 1.0, high_open=True)
         for name in ("memory", "neighbours", "proposal_samples", "fit_batch"):
             check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
         if self.signal_range is not None:
@@ -351,7 +356,7 @@ class GoFlowSampler:
         self._classifier = self._make_classifier(self.config)
         # the truncation to F-hat (constrained mode): (log flow mass in F-hat, log box share outside
         # it), or None while the sampler is the flow alone
-        self._gate: tuple[float, float] | None = None
+        self._gate: tuple[float, float, float] | None = None
         self._level = self.config.feasible_level  # F-hat's level now (constrained mode; see GoFlowConfig)
 
     @property
@@ -487,10 +492,26 @@ class GoFlowSampler:
         if not np.ptp(self._evidence.signal) > 0:
             return
         gen = torch.Generator().manual_seed(int(self.config.seed) + _GATE_SEED)
-        accept = float(self._feasible_hat(self._draw_box(_GATE_DRAWS, gen)).double().mean())
-        outside = 1.0 - float(self._feasible_hat(_uniform_box(_GATE_DRAWS, self.space.dim, gen)).double().mean())
+        y_flow, y_uniform = self._draw_box(_GATE_DRAWS, gen), _uniform_box(_GATE_DRAWS, self.space.dim, gen)
+        in_flow, in_uniform = self._feasible_hat(y_flow), self._feasible_hat(y_uniform)
+        accept = float(in_flow.double().mean())
+        outside = 1.0 - float(in_uniform.double().mean())
         if accept >= _GATE_MIN_ACCEPT and 0.0 < outside < 1.0:
-            self._gate = (math.log(accept), math.log(outside))
+            self._gate = (math.log(accept), math.log(outside), self._log_share_in(y_flow, y_uniform, in_flow, in_uniform))
+
+    def _log_share_in(self, y_flow: torch.Tensor, y_uniform: torch.Tensor, in_flow: torch.Tensor,
+                      in_uniform: torch.Tensor) -> float:
+        """log of F-hat's share of the box, for the floor's uniform density on F-hat: both sets of the
+        gate's draws weighted as draws of their half-half mixture (uniform density / mixture density),
+        so a small F-hat that the flow fills is measured by the flow's draws, not by the few uniform
+        ones that land in it. Without a floor, log(1 - outside share), unused."""
+        if self.config.floor == 0.0:
+            return 0.0
+        y = torch.cat([y_flow, y_uniform])
+        inside = torch.cat([in_flow, in_uniform]).numpy()
+        log_u = -self.space.dim * math.log(2.0 * BOX_BOUND)
+        log_mix = np.logaddexp((self._log_q(y) - self._log_z).double().numpy(), log_u) - math.log(2.0)
+        return float(np.log(np.mean(np.where(inside, np.exp(log_u - log_mix), 0.0))))
 
     def _log_p_box(self, y: torch.Tensor) -> torch.Tensor:
         """The sampler's log density in box coordinates, normalized over the box (float64): the
@@ -499,11 +520,14 @@ class GoFlowSampler:
         lq = (self._log_q(y) - self._log_z).double()
         if self._gate is None:
             return lq
-        log_accept, log_outside = self._gate
-        delta, d = self.config.delta, self.space.dim
-        outside = math.log(delta) - log_outside - d * math.log(2.0 * BOX_BOUND)
-        return torch.where(self._feasible_hat(y), math.log1p(-delta) + lq - log_accept,
-                           torch.full_like(lq, outside))
+        log_accept, log_outside, log_share_in = self._gate
+        delta, floor, d = self.config.delta, self.config.floor, self.space.dim
+        log_box = d * math.log(2.0 * BOX_BOUND)
+        outside = math.log(delta) - log_outside - log_box
+        inside = lq - log_accept
+        if floor > 0.0:  # (1 - floor) x the flow in F-hat + floor x uniform on F-hat
+            inside = torch.logaddexp(math.log1p(-floor) + inside, torch.full_like(lq, math.log(floor) - log_share_in - log_box))
+        return torch.where(self._feasible_hat(y), math.log1p(-delta) + inside, torch.full_like(lq, outside))
 
     def _sample_box(self, n: int, gen: torch.Generator) -> torch.Tensor:
         """n draws of the sampler in box coordinates: the flow truncated to the box, or with the
@@ -512,10 +536,15 @@ class GoFlowSampler:
         if self._gate is None:
             return self._draw_box(n, gen)
         n_out = int((torch.rand(n, generator=gen, dtype=torch.float64) < self.config.delta).sum())
-        log_accept, log_outside = self._gate
-        inside = self._draw_where(lambda m: self._draw_box(m, gen), True, n - n_out, math.exp(log_accept))
+        log_accept, log_outside, log_share_in = self._gate
+        n_floor = 0
+        if self.config.floor > 0.0:
+            n_floor = int((torch.rand(n - n_out, generator=gen, dtype=torch.float64) < self.config.floor).sum())
+        inside = self._draw_where(lambda m: self._draw_box(m, gen), True, n - n_out - n_floor, math.exp(log_accept))
+        spread = self._draw_where(lambda m: _uniform_box(m, self.space.dim, gen), True, n_floor,
+                                  math.exp(log_share_in))
         rest = self._draw_where(lambda m: _uniform_box(m, self.space.dim, gen), False, n_out, math.exp(log_outside))
-        return torch.cat([inside, rest])[torch.randperm(n, generator=gen)]
+        return torch.cat([inside, spread, rest])[torch.randperm(n, generator=gen)]
 
     def _draw_where(self, draw: Callable[[int], torch.Tensor], in_hat: bool, n: int, rate: float) -> torch.Tensor:
         """n of `draw`'s points that are (in_hat) or are not in F-hat, by rejection at about `rate`."""

@@ -101,6 +101,7 @@ def test_constrained_mode_refuses_graded_signals():
     ("feasible_model", "svm", r"feasible_model = 'svm'; expected one of"), ("truncate", "yes", r"truncate = 'yes'"),
     ("classifier_steps", 0, "classifier_steps"), ("leak_target", 0.0, r"leak_target = 0\.0"),
     ("leak_target", 1.0, r"leak_target = 1\.0"), ("level_step", -0.1, r"level_step = -0\.1"),
+    ("floor", -0.1, r"floor = -0\.1"), ("floor", 1.0, r"floor = 1\.0"),
 ])
 def test_bad_settings_name_the_value(field, value, match):
     with pytest.raises(InputError, match=match):
@@ -136,13 +137,20 @@ def test_states_saved_before_the_modes_load_as_the_papers_update():
     assert GoFlowSampler.from_state_dict(state).config.mode == "paper"
 
 
-def test_the_truncated_sampler_is_a_normalized_density_with_delta_outside():
+@pytest.mark.parametrize("floor", [0.0, 0.3])
+def test_the_truncated_sampler_is_a_normalized_density_with_delta_outside(floor):
     """With the truncation, log_prob integrates to 1 over the box, the draws follow it, and the
-    mass off the feasible set is delta (0.05 here, so that it shows in 20000 draws)."""
-    s = GoFlowSampler(_unit_box(2), None, mode="constrained", delta=0.05, steps=40, proposal_samples=512, seed=0)
+    mass off the feasible set is delta (0.05 here, so that it shows in 20000 draws); with a floor,
+    the density in F-hat is at least floor x (1 - delta) x uniform on F-hat."""
+    s = GoFlowSampler(_unit_box(2), None, mode="constrained", delta=0.05, floor=floor, steps=40, proposal_samples=512,
+                      seed=0)
     _train(s, _small_disk, rounds=12, batch=256, seed=0)
     u = np.random.default_rng(1).uniform(size=(400000, 2))
-    assert abs(np.mean(np.exp(s.log_prob(u))) - 1.0) < 0.02
+    density = np.exp(s.log_prob(u))
+    assert abs(np.mean(density) - 1.0) < 0.02
+    in_hat = s._feasible_hat(torch.as_tensor(s._to_box(u), dtype=torch.float32)).numpy()
+    if floor > 0.0:
+        assert density[in_hat].min() >= 0.99 * floor * 0.95 / in_hat.mean()
     draws = s.sample(20000, np.random.default_rng(2))
     assert abs(1.0 - _small_disk(draws).mean() - 0.05) < 0.015
     # the draws' histogram follows log_prob: the share in the disk's left half against its integral
