@@ -99,6 +99,7 @@ _CHUNK = 65536  # rows per flow evaluation outside training
 _GATE_DRAWS = 16384  # fixed-seed draws behind the truncation's two shares (flow mass in F-hat, box share outside)
 _GATE_MIN_ACCEPT = 0.01  # below this flow mass in F-hat the flow is not truncated (rejection would stall)
 _GATE_SEED = 15_485_863
+_FLOOR_MIN_RATE = 1e-6  # the floor's uniform draws in F-hat: rounds sized for F-hat's own share down to this
 _MIX_ITERATIONS = 50  # EM iterations for a batch's share of the sampler's own draws
 _LEVEL_MAX_STEP = 0.25  # the most one update moves F-hat's level, in logits
 _LEVEL_LOGIT = (-6.0, 8.0)  # the range of F-hat's level under dual ascent, in logits (0.0025 to 0.9997)
@@ -542,18 +543,20 @@ class GoFlowSampler:
             n_floor = int((torch.rand(n - n_out, generator=gen, dtype=torch.float64) < self.config.floor).sum())
         inside = self._draw_where(lambda m: self._draw_box(m, gen), True, n - n_out - n_floor, math.exp(log_accept))
         spread = self._draw_where(lambda m: _uniform_box(m, self.space.dim, gen), True, n_floor,
-                                  math.exp(log_share_in))
+                                  math.exp(log_share_in), min_rate=_FLOOR_MIN_RATE)
         rest = self._draw_where(lambda m: _uniform_box(m, self.space.dim, gen), False, n_out, math.exp(log_outside))
         return torch.cat([inside, spread, rest])[torch.randperm(n, generator=gen)]
 
-    def _draw_where(self, draw: Callable[[int], torch.Tensor], in_hat: bool, n: int, rate: float) -> torch.Tensor:
-        """n of `draw`'s points that are (in_hat) or are not in F-hat, by rejection at about `rate`."""
+    def _draw_where(self, draw: Callable[[int], torch.Tensor], in_hat: bool, n: int, rate: float,
+                    min_rate: float = _GATE_MIN_ACCEPT) -> torch.Tensor:
+        """n of `draw`'s points that are (in_hat) or are not in F-hat, by rejection at about `rate`
+        (each round sized for at least `min_rate`)."""
         if n <= 0:
             return torch.zeros((0, self.space.dim))
         out: list[torch.Tensor] = []
         need = n
         for _ in range(self.config.max_redraws + 1):
-            y = draw(min(int(math.ceil(need / max(rate, _GATE_MIN_ACCEPT) * 1.2)) + 16, 1 << 22))
+            y = draw(min(int(math.ceil(need / max(rate, min_rate) * 1.2)) + 16, 1 << 22))
             out.append(y[self._feasible_hat(y) == in_hat])
             need -= len(out[-1])
             if need <= 0:
