@@ -79,8 +79,8 @@ def main() -> int:
     if args.dropo_from is not None:
         earlier = read_json(args.dropo_from, "earlier nfpde_long_dropo output")
         if (earlier.get("env"), earlier.get("target"), earlier.get("seed")) != cell:
-            raise SystemExit(f"nfpde_long_dropo: {args.dropo_from} is for {(earlier.get('env'), earlier.get('target'), earlier.get('seed'))}, "
-                             f"not {cell}")
+            found = (earlier.get("env"), earlier.get("target"), earlier.get("seed"))
+            raise SystemExit(f"nfpde_long_dropo: {args.dropo_from} is for {found}, not {cell}")
         long, budget = earlier["dropo_long"], earlier["budget_dropo_long"]
         long = {**long, "command": long.get("command", earlier.get("command"))}  # the command that ran it
     else:

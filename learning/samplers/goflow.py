@@ -356,7 +356,7 @@ class GoFlowSampler:
         self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range)
         self._classifier = self._make_classifier(self.config)
         # the truncation to F-hat (constrained mode): (log flow mass in F-hat, log box share outside
-        # it), or None while the sampler is the flow alone
+        # it, log box share inside it for the floor), or None while the sampler is the flow alone
         self._gate: tuple[float, float, float] | None = None
         self._level = self.config.feasible_level  # F-hat's level now (constrained mode; see GoFlowConfig)
 
@@ -498,7 +498,8 @@ class GoFlowSampler:
         accept = float(in_flow.double().mean())
         outside = 1.0 - float(in_uniform.double().mean())
         if accept >= _GATE_MIN_ACCEPT and 0.0 < outside < 1.0:
-            self._gate = (math.log(accept), math.log(outside), self._log_share_in(y_flow, y_uniform, in_flow, in_uniform))
+            share_in = self._log_share_in(y_flow, y_uniform, in_flow, in_uniform)
+            self._gate = (math.log(accept), math.log(outside), share_in)
 
     def _log_share_in(self, y_flow: torch.Tensor, y_uniform: torch.Tensor, in_flow: torch.Tensor,
                       in_uniform: torch.Tensor) -> float:
@@ -527,7 +528,8 @@ class GoFlowSampler:
         outside = math.log(delta) - log_outside - log_box
         inside = lq - log_accept
         if floor > 0.0:  # (1 - floor) x the flow in F-hat + floor x uniform on F-hat
-            inside = torch.logaddexp(math.log1p(-floor) + inside, torch.full_like(lq, math.log(floor) - log_share_in - log_box))
+            uniform_in = torch.full_like(lq, math.log(floor) - log_share_in - log_box)
+            inside = torch.logaddexp(math.log1p(-floor) + inside, uniform_in)
         return torch.where(self._feasible_hat(y), math.log1p(-delta) + inside, torch.full_like(lq, outside))
 
     def _sample_box(self, n: int, gen: torch.Generator) -> torch.Tensor:
