@@ -26,6 +26,16 @@ from common.files import check_output_file, read_json, write_json  # noqa: E402
 from learning.estimation.targets import TARGETS  # noqa: E402
 
 
+def cell_of(record: dict) -> tuple:
+    """The (env, target, seed) a run or an output of this script belongs to."""
+    return record.get("env"), record.get("target"), record.get("seed")
+
+
+def find_run(runs: list[dict], cell: tuple, method: str) -> dict | None:
+    """The run of `method` on `cell` in a runs file's list (None if there is none)."""
+    return next((r for r in runs if cell_of(r) == cell and r["method"] == method), None)
+
+
 def first_reach(trace: list[dict], level: float) -> dict | None:
     """The first snapshot with OT <= level (None if never)."""
     return next(({"seconds": t["seconds"], "calls": t["calls"], "ot": t["ot"]} for t in trace if t["ot"] <= level), None)
@@ -64,23 +74,18 @@ def main() -> int:
     check_output_file(out_path)
     runs = read_json(RESULTS / f"{args.name}_runs.json", "nfpde_table runs file")["runs"]
     cell = (args.env, args.target, args.seed)
-    try:
-        nf = next(r for r in runs if (r["env"], r["target"], r["seed"]) == cell and r["method"] == "nfpde-softmax")
-        dropo = next(r for r in runs if (r["env"], r["target"], r["seed"]) == cell and r["method"] == "dropo")
-    except StopIteration:
+    nf, dropo = find_run(runs, cell, "nfpde-softmax"), find_run(runs, cell, "dropo")
+    if nf is None or dropo is None:
         raise SystemExit(f"nfpde_long_dropo: {args.name}_runs.json has no nfpde-softmax and dropo runs for {cell}; "
-                         f"run benchmarks/nfpde_table.py on that cell first") from None
+                         f"run benchmarks/nfpde_table.py on that cell first")
     if args.reference is not None:
-        ref = read_json(args.reference, "reference runs file")["runs"]
-        try:
-            nf = next(r for r in ref if (r["env"], r["target"], r["seed"]) == cell and r["method"] == "nfpde-softmax")
-        except StopIteration:
-            raise SystemExit(f"nfpde_long_dropo: {args.reference} has no nfpde-softmax run for {cell}") from None
+        nf = find_run(read_json(args.reference, "reference runs file")["runs"], cell, "nfpde-softmax")
+        if nf is None:
+            raise SystemExit(f"nfpde_long_dropo: {args.reference} has no nfpde-softmax run for {cell}")
     if args.dropo_from is not None:
         earlier = read_json(args.dropo_from, "earlier nfpde_long_dropo output")
-        if (earlier.get("env"), earlier.get("target"), earlier.get("seed")) != cell:
-            found = (earlier.get("env"), earlier.get("target"), earlier.get("seed"))
-            raise SystemExit(f"nfpde_long_dropo: {args.dropo_from} is for {found}, not {cell}")
+        if cell_of(earlier) != cell:
+            raise SystemExit(f"nfpde_long_dropo: {args.dropo_from} is for {cell_of(earlier)}, not {cell}")
         long, budget = earlier["dropo_long"], earlier["budget_dropo_long"]
         long = {**long, "command": long.get("command", earlier.get("command"))}  # the command that ran it
     else:

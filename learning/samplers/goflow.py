@@ -351,6 +351,7 @@ class GoFlowSampler:
         # log Z: base mass inside [-5, 5]^d, exact and constant (the box is invariant under the flow)
         self._log_z = d * math.log(math.erf(BOX_BOUND / (self.config.base_scale * math.sqrt(2.0))))
         self._log_jac = -float(np.sum(np.log(self._half_scale)))  # log|dy/dxi|
+        self._log_box = d * math.log(2.0 * BOX_BOUND)  # log volume of the box [-5, 5]^d
         self._flow = self._build_flow()
         self._entropy_cache: float | None = None
         self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range)
@@ -466,7 +467,7 @@ class GoFlowSampler:
         inside = self._feasible_hat(y).numpy()
         if not inside.any():
             return {"heldout_in_feasible": 0.0}
-        log_ratio = self._log_p_box(y).numpy() + self.space.dim * math.log(2.0 * BOX_BOUND)  # sampler / uniform
+        log_ratio = self._log_p_box(y).numpy() + self._log_box  # sampler / uniform
         ratio = np.exp(np.minimum(log_ratio, 700.0))
         pi = 0.5
         for _ in range(_MIX_ITERATIONS):  # EM for the batch's share of sampler draws
@@ -511,7 +512,7 @@ class GoFlowSampler:
             return 0.0
         y = torch.cat([y_flow, y_uniform])
         inside = torch.cat([in_flow, in_uniform]).numpy()
-        log_u = -self.space.dim * math.log(2.0 * BOX_BOUND)
+        log_u = -self._log_box
         log_mix = np.logaddexp((self._log_q(y) - self._log_z).double().numpy(), log_u) - math.log(2.0)
         return float(np.log(np.mean(np.where(inside, np.exp(log_u - log_mix), 0.0))))
 
@@ -523,8 +524,7 @@ class GoFlowSampler:
         if self._gate is None:
             return lq
         log_accept, log_outside, log_share_in = self._gate
-        delta, floor, d = self.config.delta, self.config.floor, self.space.dim
-        log_box = d * math.log(2.0 * BOX_BOUND)
+        delta, floor, log_box = self.config.delta, self.config.floor, self._log_box
         outside = math.log(delta) - log_outside - log_box
         inside = lq - log_accept
         if floor > 0.0:  # (1 - floor) x the flow in F-hat + floor x uniform on F-hat
@@ -643,7 +643,6 @@ class GoFlowSampler:
         """
         cfg, d = self.config, self.space.dim
         n = cfg.proposal_samples
-        log_vol = d * math.log(2.0 * BOX_BOUND)
         y_u = _uniform_box(n, d, gen)
         y_q = self._draw_box(n, gen)
         parts, n_total = [y_u, y_q], 2 * n
@@ -657,7 +656,7 @@ class GoFlowSampler:
             n_total += n
         y = torch.cat(parts)
         lq = self._log_q(y) - self._log_z  # the pre-update flow's density in box coordinates
-        terms = [torch.full((len(y),), math.log(n / n_total) - log_vol), math.log(n / n_total) + lq]
+        terms = [torch.full((len(y),), math.log(n / n_total) - self._log_box), math.log(n / n_total) + lq]
         if len(centres):
             sq = torch.cdist(y.double(), centres.double()).pow(2)
             log_k = torch.logsumexp(-0.5 * sq / h**2, dim=1) - math.log(len(centres)) - d * math.log(h * math.sqrt(2 * math.pi))
