@@ -378,6 +378,9 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--confirm-variant", choices=VARIANTS, default=None,
                    help="train (stage 4), refit: run every cell and draw that succeeded again in this env variant; "
                         "it stays feasible only if it succeeds there too (default: the skill's own variant alone)")
+    p.add_argument("--feasible-from", type=Path, default=None,
+                   help="refit: a skill file with the same policy whose measured feasible set to use where --path "
+                        "holds none (only a confirming variant it lacks is run)")
     p.add_argument("--runs", type=Path, default=RUNS_SKILL_DIR,
                    help="train: the folder of the training run <runs>/<skill>-<gear>/ (resumable)")
     p.add_argument("--run", type=Path, help="export: the `goflow train` run folder to package")
@@ -399,6 +402,8 @@ def _cmd_skill(args: argparse.Namespace) -> int:
     args.gear = gears[0]
     if args.action == "train" and (len(gears) > 1 or args.ray or args.workers != 1):
         return _skill_train_grid(args, gears)
+    if args.feasible_from and args.action != "refit":
+        raise InputError(f"--feasible-from {args.feasible_from} is for refit, not {args.action}")
     if args.action == "show":
         if args.out:
             raise InputError("show reads --path (default: the shipped file); --out is what train and export write")
@@ -415,7 +420,7 @@ def _cmd_skill(args: argparse.Namespace) -> int:
         with _resumable(lambda: f"{folder} keeps the measurement's finished jobs and the last update"):
             skill = refit_skill(args.path or skill_path(args.skill, args.gear), out, _grid_config(args),
                                 refit=_refit_config(args), folder=folder, backend=backend,
-                                command=args.provenance, progress=True)
+                                command=args.provenance, progress=True, feasible_from=args.feasible_from)
     else:
         recipe = _skill_recipe(args)
         with _resumable(lambda: _checkpoint_kept(skill_run_folder(args.skill, args.gear, args.runs))):

@@ -191,6 +191,14 @@ class FeasibleSet:
                              coarse + coarse_cell * (rng.random(coarse.shape) - 0.5)])
         return xi, self.contains(xi)
 
+    def plan(self) -> GridPlan:
+        """The grid this set was measured on."""
+        return GridPlan(self.space, self.fine_low, self.fine_high, self.fine_cells, self.coarse_cells)
+
+    def returns(self) -> NDArray[np.float64]:
+        """The returns at `plan().points()`, in order (the inverse of `GridPlan.feasible_set`)."""
+        return np.concatenate([self.fine_returns, self.coarse_returns[self.plan().coarse_run]])
+
     def contains(self, xi: ArrayLike) -> NDArray[np.bool_]:
         """Whether each point (n, d) lies in the measured feasible set."""
         x = np.atleast_2d(np.asarray(xi, np.float64))

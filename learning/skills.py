@@ -34,11 +34,11 @@ from assembly.gearset import GEARS
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from common.checks import check_int
-from common.errors import FileFormatError
+from common.errors import FileFormatError, InputError
 from common.files import check_output_file, load_tensors, run_folder_lock, save_tensors
 from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, protocol_sampler_kwargs, train
-from learning.feasible_grid import FeasibleGridConfig, FeasibleSet, FlowRefitConfig, flow_report, refit_flow
+from learning.feasible_grid import FeasibleGridConfig, FeasibleSet, FlowRefitConfig, GridPlan, flow_report, refit_flow
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import make_sampler
 
@@ -534,25 +534,35 @@ def _checkpointed_returns(path: Path, variant: str, xi: NDArray[np.float64], key
 
 def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
                          backend: Backend | None = None, progress: bool = False,
-                         checkpoint: str | os.PathLike[str] | None = None) -> FeasibleSet:
+                         checkpoint: str | os.PathLike[str] | None = None,
+                         known: FeasibleSet | None = None) -> FeasibleSet:
     """Where the deterministic policy of the skill file at `path` succeeds: one episode at the
     centre of each cell of `grid` (learning.feasible_grid), in the grid's variant (default the
     skill's own), in jobs of `PART` cells on `backend` (default: this process); with
     `grid.confirm_variant`, the cells that succeeded are run again there and keep the lower
     return. With `checkpoint`, each finished job is saved there (the confirming episodes beside
-    it, "<stem>-<variant>.pt"), and a later call for the same file and grid resumes from them."""
+    it, "<stem>-<variant>.pt"), and a later call for the same file and grid resumes from them.
+    `known` is a measurement of this same policy in the first of those variants (or more of
+    them, in order): its cells and returns are kept and only the variants it lacks are run;
+    InputError if its variants are not the start of the grid's."""
     path = Path(path).resolve()
     skill = Skill.load(path)
     variants = _variants(skill, grid)
-    plan = grid.plan(skill.space, _flow_median(skill))
     backend = backend or InlineBackend()
     sha = hashlib.sha256(path.read_bytes()).hexdigest()
     checkpoint = None if checkpoint is None else Path(checkpoint)
+    if known is not None:
+        done = tuple(known.variant.split("+"))
+        if done != variants[:len(done)]:
+            raise InputError(f"a measurement in {known.variant!r} cannot start one in {'+'.join(variants)!r}")
+        plan, returns = known.plan(), known.returns()
+    else:
+        done, plan = variants[:1], grid.plan(skill.space, _flow_median(skill))
+        returns = _checkpointed_returns(path, variants[0], plan.points(),
+                                        {"skill_sha256": sha, "grid": [*plan.key(), variants[0], PART]},
+                                        checkpoint, backend, progress, "feasible set")
     xi = plan.points()
-    returns = _checkpointed_returns(path, variants[0], xi, {"skill_sha256": sha, "grid": [*plan.key(), variants[0],
-                                                                                         PART]},
-                                    checkpoint, backend, progress, "feasible set")
-    for variant in variants[1:]:
+    for variant in variants[len(done):]:
         good = np.flatnonzero(returns >= skill.success_threshold)
         again = _checkpointed_returns(
             path, variant, xi[good],
@@ -563,25 +573,51 @@ def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig 
     return plan.feasible_set(returns, skill.success_threshold, "+".join(variants))
 
 
+def _same_policy(a: Skill, b: Skill) -> bool:
+    """Whether two skills run the same deterministic policy in the same environment and box (so a
+    feasible set measured with one holds for the other)."""
+    if (a.env_id, a.env_kwargs, a.space.to_dict(), a.success_threshold) != \
+            (b.env_id, b.env_kwargs, b.space.to_dict(), b.success_threshold):
+        return False
+    for mine, theirs in ((a.agent.actor.state_dict(), b.agent.actor.state_dict()),
+                         (a.agent.obs_rms.state_dict(), b.agent.obs_rms.state_dict())):
+        if mine.keys() != theirs.keys() or not all(
+                torch.equal(torch.as_tensor(mine[k]), torch.as_tensor(theirs[k])) for k in mine):
+            return False
+    return True
+
+
 def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
                 refit: FlowRefitConfig | None = None, folder: str | os.PathLike[str] | None = None,
-                backend: Backend | None = None, command: str = "", progress: bool = False) -> Skill:
+                backend: Backend | None = None, command: str = "", progress: bool = False,
+                feasible_from: str | os.PathLike[str] | None = None) -> Skill:
     """The frozen-policy refit of a skill file's flow (stage 4 of `train_skill`): measure where
-    its policy succeeds on `grid` (unless the file already holds a measurement with the grid's
-    cells), refit the flow to that set in GoFlow's constrained mode
+    its policy succeeds on `grid`, refit the flow to that set in GoFlow's constrained mode
     (`learning.feasible_grid.refit_flow`), and write the skill with the new flow and the
-    measurement to `out` (checked first). With `folder`, the measurement and the refit checkpoint
-    there (locked) and resume."""
+    measurement to `out` (checked first). A measurement already made with the grid's cells is
+    used instead of running it again, and only the confirming variant it lacks is run: the file's
+    own, or else the one in `feasible_from`, a skill file with the same policy (InputError if its
+    policy, environment or box differ, or it holds none). With `folder`, the measurement and the
+    refit checkpoint there (locked) and resume."""
     refit = refit or FlowRefitConfig()
     out = check_output_file(out, "skill file")
     path = Path(path).resolve()
     skill = Skill.load(path)
+    known = None
+    if feasible_from is not None:
+        other = Skill.load(feasible_from)
+        if other.feasible is None:
+            raise InputError(f"feasible_from = {str(feasible_from)!r} holds no measured feasible set")
+        if not _same_policy(skill, other):
+            raise InputError(f"feasible_from = {str(feasible_from)!r}: its policy, environment or box differ from "
+                             f"{str(path)!r}'s; a measured feasible set holds only for the policy that ran it")
+        known = other.feasible
     backend = backend or InlineBackend()
     if folder is None:
-        return _refit_skill(skill, path, out, grid, refit, None, backend, command, progress)
+        return _refit_skill(skill, path, out, grid, refit, None, backend, command, progress, known)
     Path(folder).mkdir(parents=True, exist_ok=True)
     with run_folder_lock(folder):
-        return _refit_skill(skill, path, out, grid, refit, Path(folder), backend, command, progress)
+        return _refit_skill(skill, path, out, grid, refit, Path(folder), backend, command, progress, known)
 
 
 def _refit_checkpoint(folder: Path | None, path: Path, feasible: FeasibleSet) -> Path | None:
@@ -592,16 +628,27 @@ def _refit_checkpoint(folder: Path | None, path: Path, feasible: FeasibleSet) ->
     return folder / f"refit-{hashlib.sha256(path.read_bytes()).hexdigest()[:16]}-{feasible.variant}.pt"
 
 
+def _usable(feasible: FeasibleSet | None, plan: GridPlan, variants: tuple[str, ...]) -> int:
+    """How many of `variants` (in order) a stored measurement covers on a grid with `plan`'s cells
+    and fine width (0: none; its fine region may lie elsewhere, around the flow it was made for)."""
+    if feasible is None or (feasible.fine_cells, feasible.coarse_cells) != (plan.fine_cells, plan.coarse_cells) \
+            or not np.allclose(feasible.fine_high - feasible.fine_low, plan.high - plan.low):
+        return 0
+    done = tuple(feasible.variant.split("+"))
+    return len(done) if done == variants[:len(done)] else 0
+
+
 def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, refit: FlowRefitConfig,
-                 folder: Path | None, backend: Backend, command: str, progress: bool) -> Skill:
+                 folder: Path | None, backend: Backend, command: str, progress: bool,
+                 known: FeasibleSet | None) -> Skill:
     variants = _variants(skill, grid)
     plan = grid.plan(skill.space, _flow_median(skill))
-    feasible = skill.feasible  # the file's own policy measured: kept when it was on a grid of the same cells
-    if feasible is None or feasible.variant != "+".join(variants) or (feasible.fine_cells, feasible.coarse_cells) != (
-            plan.fine_cells, plan.coarse_cells) or not np.allclose(feasible.fine_high - feasible.fine_low,
-                                                                   plan.high - plan.low):
+    # the file's own measurement first, then the one handed in: whichever covers more variants
+    feasible = max((skill.feasible, known), key=lambda f: _usable(f, plan, variants))
+    if _usable(feasible, plan, variants) < len(variants):
         feasible = measure_feasible_set(path, grid, backend, progress,
-                                        folder / "feasible.pt" if folder is not None else None)
+                                        folder / "feasible.pt" if folder is not None else None,
+                                        feasible if _usable(feasible, plan, variants) else None)
     before = flow_report(skill.sampler, feasible)
 
     def evaluate(xi: NDArray[np.float64], update: int) -> NDArray[np.float64]:

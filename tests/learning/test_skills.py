@@ -234,3 +234,31 @@ def test_a_confirming_variant_keeps_only_cells_that_succeed_in_both(tmp_path):
     again = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
                                  backend=NoEpisodes(), checkpoint=tmp_path / "feasible.pt")
     np.testing.assert_array_equal(again.fine_returns, both.fine_returns)
+    # a measurement already made in the fast variant is kept: only the Panda episodes run
+    class PandaOnly(InlineBackend):
+        def run(self, jobs, board):
+            assert all(job.args[1] == "panda" for job in jobs), "a known fast measurement was run again"
+            return super().run(jobs, board)
+
+    confirmed = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
+                                     backend=PandaOnly(), known=fast)
+    assert confirmed.variant == "fast+panda"
+    np.testing.assert_array_equal(confirmed.fine_returns, both.fine_returns)
+    with pytest.raises(ValueError, match="a measurement in 'fast\\+panda' cannot start one in 'fast'"):
+        measure_feasible_set(path, grid, known=both)
+
+
+def test_a_refit_takes_a_measurement_only_from_the_same_policy(tiny_skill, tmp_path):
+    """refit_skill(feasible_from=...) refuses a file that holds no measurement, and one whose
+    policy differs (a feasible set holds only for the policy that ran it), before any episode."""
+    from learning.skills import refit_skill
+
+    _, _, tiny = tiny_skill
+    with pytest.raises(ValueError, match="its policy, environment or box differ"):
+        refit_skill(skill_path("insert", "small"), tmp_path / "out.pt", feasible_from=tiny)
+    bare = Skill.load(tiny)
+    bare.feasible = None
+    bare.save(tmp_path / "bare.pt")
+    with pytest.raises(ValueError, match="holds no measured feasible set"):
+        refit_skill(tiny, tmp_path / "out.pt", feasible_from=tmp_path / "bare.pt")
+    assert not (tmp_path / "out.pt").exists()
