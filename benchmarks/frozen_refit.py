@@ -49,13 +49,15 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=20)
     parser.add_argument("--episodes", type=int, default=256)
     parser.add_argument("--steps", type=int, default=FlowRefitConfig.steps)
+    parser.add_argument("--classifier-steps", type=int, default=FlowRefitConfig.classifier_steps)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     if args.cells < 1 or args.repeats < 1:
         raise SystemExit(f"--cells and --repeats must be >= 1, got {args.cells} and {args.repeats}")
     if not 0.0 < args.level <= 1.0:
         raise SystemExit(f"--level must lie in (0, 1], got {args.level}")
-    refit = FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, steps=args.steps)
+    refit = FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, steps=args.steps,
+                            classifier_steps=args.classifier_steps)
     torch.set_num_threads(1)
     rows = []
     print(f"{'run':48} {'F_pi':>6} {'F':>6} {'mass F_pi before/after':>23} {'cover F_pi':>11} "

@@ -300,6 +300,10 @@ class FlowRefitConfig:
     # Adam steps per update (GoFlowConfig.steps): a flow trained narrow in some direction (the grasp
     # yaw) needs several hundred to spread over a set that is wide in it
     steps: int = 1000
+    # Adam steps of the success classifier behind F-hat per update (GoFlowConfig.classifier_steps; its
+    # first fit takes ten times as many): a set of 0.16-0.4 % of the box needs about ten times
+    # GoFlow's default before the classifier's even-odds contour holds most of it (docs/skills.md)
+    classifier_steps: int = 1000
     seed: int = 0  # the draws' generator
 
     def __post_init__(self) -> None:
@@ -307,15 +311,18 @@ class FlowRefitConfig:
         check_int(self.episodes, "FlowRefitConfig.episodes", 1)
         check_number(self.delta, "FlowRefitConfig.delta", 0.0, 1.0, low_open=True, high_open=True)
         check_int(self.steps, "FlowRefitConfig.steps", 1)
+        check_int(self.classifier_steps, "FlowRefitConfig.classifier_steps", 1)
         check_int(self.seed, "FlowRefitConfig.seed", 0)
 
     def to_dict(self) -> dict[str, Any]:
         return config_to_dict(self)
 
 
-def constrained_copy(sampler: GoFlowSampler, delta: float, steps: int | None = None) -> GoFlowSampler:
+def constrained_copy(sampler: GoFlowSampler, delta: float, steps: int | None = None,
+                     classifier_steps: int | None = None) -> GoFlowSampler:
     """A GoFlow sampler with `sampler`'s flow (same architecture and weights) in constrained mode,
-    with no evidence yet (and `steps` Adam steps per update, default `sampler`'s)."""
+    with no evidence yet (and `steps` Adam steps of the flow and `classifier_steps` of its success
+    classifier per update, defaults `sampler`'s and GoFlow's)."""
     if not isinstance(sampler, GoFlowSampler):
         raise InputError(f"the refit needs a GoFlow flow, not {type(sampler).__name__}")
     state = sampler.state_dict()
@@ -327,6 +334,8 @@ def constrained_copy(sampler: GoFlowSampler, delta: float, steps: int | None = N
                                                 "level_step")}}
     if steps is not None:
         config["steps"] = int(steps)
+    if classifier_steps is not None:
+        config["classifier_steps"] = int(classifier_steps)
     new = GoFlowSampler(sampler.space, sampler.success_threshold, config)
     state.pop("feasible_level", None)  # F-hat's level starts again at the config's
     new.load_state_dict({**state, "config": config, "n_updates": 0, "evidence": {}})
@@ -350,7 +359,7 @@ def refit_flow(sampler: GoFlowSampler, feasible: FeasibleSet, evaluate: Evaluate
     flow is small; more threads only contend with the episodes' simulators)."""
     torch.set_num_threads(1)
     config = config or FlowRefitConfig()
-    new = constrained_copy(sampler, config.delta, config.steps)
+    new = constrained_copy(sampler, config.delta, config.steps, config.classifier_steps)
     records: list[dict[str, float]] = []
     if checkpoint is not None and Path(checkpoint).is_file():
         saved = load_tensors(checkpoint, "flow refit checkpoint")

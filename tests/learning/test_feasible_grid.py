@@ -88,7 +88,7 @@ def test_bad_grid_and_refit_settings_name_the_value():
         FeasibleGridConfig(fine_width=-0.1).plan(SPACE, np.zeros(2))
     with pytest.raises(InputError, match="centre"):
         FeasibleGridConfig(centre=(0.0, np.nan)).plan(SPACE, np.zeros(2))
-    for bad in ({"delta": 0.0}, {"delta": 1.0}, {"rounds": -1}, {"episodes": 0}):
+    for bad in ({"delta": 0.0}, {"delta": 1.0}, {"rounds": -1}, {"episodes": 0}, {"classifier_steps": 0}):
         with pytest.raises(InputError, match=next(iter(bad))):
             FlowRefitConfig(**bad)
 
@@ -105,7 +105,7 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
         calls.append(update)
         return np.where(disk(xi), 1.0, 0.0)
 
-    config = FlowRefitConfig(rounds=3, episodes=64, steps=60)
+    config = FlowRefitConfig(rounds=3, episodes=64, steps=60, classifier_steps=100)
     new, records = refit_flow(flow, fs, evaluate, config, checkpoint=tmp_path / "refit.pt")
     assert flow.config.mode == "paper" and new.config.mode == "constrained"
     assert [r["update"] for r in records] == [0, 1, 2, 3] and calls == [1, 2, 3]
@@ -116,7 +116,7 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
     x = np.random.default_rng(3).uniform(-1, 1, (100, 2))
     np.testing.assert_allclose(again.log_prob(x), new.log_prob(x))
     with pytest.raises(InputError, match="holds a refit"):
-        refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60), checkpoint=tmp_path / "refit.pt")
+        refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60, classifier_steps=100), checkpoint=tmp_path / "refit.pt")
 
 
 def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
@@ -137,7 +137,7 @@ def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
     script = Path(__file__).parents[2] / "benchmarks" / "frozen_refit.py"
     out = tmp_path / "refit.json"
     proc = subprocess.run([sys.executable, str(script), "--runs", str(run), "--cells", "10", "--repeats", "2",
-                           "--rounds", "1", "--episodes", "16", "--steps", "5", "--json", str(out)],
+                           "--rounds", "1", "--episodes", "16", "--steps", "5", "--classifier-steps", "5", "--json", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     row = json.loads(out.read_text())["rows"][0]

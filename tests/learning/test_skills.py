@@ -26,7 +26,7 @@ def tiny_skill(tmp_path_factory):
                          fit_rounds=2, fit_episodes=4,
                          grid=FeasibleGridConfig(fine_width=(0.01, 0.01, 0.786), fine_cells=(2, 2, 1),
                                                  coarse_cells=(2, 2, 1)),
-                         refit=FlowRefitConfig(rounds=1, episodes=4, steps=5),
+                         refit=FlowRefitConfig(rounds=1, episodes=4, steps=5, classifier_steps=5),
                          sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
                                          "report_samples": 256},
                          ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
