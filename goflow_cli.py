@@ -375,6 +375,8 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     _add_field(p, FlowRefitConfig, "episodes", "--refit-episodes", doc="train (stage 4), refit: episodes per update")
     _add_field(p, FlowRefitConfig, "delta", doc="train (stage 4), refit: the flow's mass allowed outside the "
                                                 "feasible set")
+    _add_field(p, FlowRefitConfig, "classifier_steps", doc="train (stage 4), refit: Adam steps of the success "
+                                                           "classifier per update")
     p.add_argument("--confirm-variant", choices=VARIANTS, default=None,
                    help="train (stage 4), refit: run every cell and draw that succeeded again in this env variant; "
                         "it stays feasible only if it succeeds there too (default: the skill's own variant alone)")
@@ -431,7 +433,8 @@ def _cmd_skill(args: argparse.Namespace) -> int:
 
 def _refit_config(args: argparse.Namespace) -> Any:
     from learning.feasible_grid import FlowRefitConfig
-    return FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, delta=args.delta)
+    return FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, delta=args.delta,
+                           classifier_steps=args.classifier_steps)
 
 
 def _grid_config(args: argparse.Namespace) -> Any:
