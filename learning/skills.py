@@ -517,6 +517,13 @@ def _variants(skill: Skill, grid: FeasibleGridConfig) -> tuple[str, ...]:
     return (first,) if grid.confirm_variant in (None, first) else (first, grid.confirm_variant)
 
 
+def _covered(variant: str, variants: tuple[str, ...]) -> int:
+    """How many of `variants` a measurement made in `variant` ("fast", "fast+panda") covers: the
+    length of its chain when that chain starts `variants`, else 0."""
+    done = tuple(variant.split("+"))
+    return len(done) if done == variants[:len(done)] else 0
+
+
 def _checkpointed_returns(path: Path, variant: str, xi: NDArray[np.float64], key: dict[str, Any],
                           checkpoint: Path | None, backend: Backend, progress: bool, desc: str) -> NDArray[np.float64]:
     """`_returns` whose finished jobs are saved in `checkpoint` under `key` and reused from it."""
@@ -552,17 +559,17 @@ def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig 
     sha = hashlib.sha256(path.read_bytes()).hexdigest()
     checkpoint = None if checkpoint is None else Path(checkpoint)
     if known is not None:
-        done = tuple(known.variant.split("+"))
-        if done != variants[:len(done)]:
+        done = _covered(known.variant, variants)
+        if not done:
             raise InputError(f"a measurement in {known.variant!r} cannot start one in {'+'.join(variants)!r}")
         plan, returns = known.plan(), known.returns()
     else:
-        done, plan = variants[:1], grid.plan(skill.space, _flow_median(skill))
+        done, plan = 1, grid.plan(skill.space, _flow_median(skill))
         returns = _checkpointed_returns(path, variants[0], plan.points(),
                                         {"skill_sha256": sha, "grid": [*plan.key(), variants[0], PART]},
                                         checkpoint, backend, progress, "feasible set")
     xi = plan.points()
-    for variant in variants[len(done):]:
+    for variant in variants[done:]:
         good = np.flatnonzero(returns >= skill.success_threshold)
         again = _checkpointed_returns(
             path, variant, xi[good],
@@ -634,8 +641,7 @@ def _usable(feasible: FeasibleSet | None, plan: GridPlan, variants: tuple[str, .
     if feasible is None or (feasible.fine_cells, feasible.coarse_cells) != (plan.fine_cells, plan.coarse_cells) \
             or not np.allclose(feasible.fine_high - feasible.fine_low, plan.high - plan.low):
         return 0
-    done = tuple(feasible.variant.split("+"))
-    return len(done) if done == variants[:len(done)] else 0
+    return _covered(feasible.variant, variants)
 
 
 def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, refit: FlowRefitConfig,
@@ -644,11 +650,11 @@ def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, 
     variants = _variants(skill, grid)
     plan = grid.plan(skill.space, _flow_median(skill))
     # the file's own measurement first, then the one handed in: whichever covers more variants
-    feasible = max((skill.feasible, known), key=lambda f: _usable(f, plan, variants))
-    if _usable(feasible, plan, variants) < len(variants):
+    covered, feasible = max(((_usable(f, plan, variants), f) for f in (skill.feasible, known)), key=lambda c: c[0])
+    if covered < len(variants):
         feasible = measure_feasible_set(path, grid, backend, progress,
                                         folder / "feasible.pt" if folder is not None else None,
-                                        feasible if _usable(feasible, plan, variants) else None)
+                                        feasible if covered else None)
     before = flow_report(skill.sampler, feasible)
 
     def evaluate(xi: NDArray[np.float64], update: int) -> NDArray[np.float64]:

@@ -116,7 +116,8 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
     x = np.random.default_rng(3).uniform(-1, 1, (100, 2))
     np.testing.assert_allclose(again.log_prob(x), new.log_prob(x))
     with pytest.raises(InputError, match="holds a refit"):
-        refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60, classifier_steps=100), checkpoint=tmp_path / "refit.pt")
+        refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60, classifier_steps=100),
+                   checkpoint=tmp_path / "refit.pt")
 
 
 def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
@@ -137,7 +138,8 @@ def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
     script = Path(__file__).parents[2] / "benchmarks" / "frozen_refit.py"
     out = tmp_path / "refit.json"
     proc = subprocess.run([sys.executable, str(script), "--runs", str(run), "--cells", "10", "--repeats", "2",
-                           "--rounds", "1", "--episodes", "16", "--steps", "5", "--classifier-steps", "5", "--json", str(out)],
+                           "--rounds", "1", "--episodes", "16", "--steps", "5", "--classifier-steps", "5",
+                           "--json", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     row = json.loads(out.read_text())["rows"][0]
