@@ -304,6 +304,10 @@ class FlowRefitConfig:
     # first fit takes ten times as many): a set of 0.16-0.4 % of the box needs about ten times
     # GoFlow's default before the classifier's even-odds contour holds most of it (docs/skills.md)
     classifier_steps: int = 1000
+    # GoFlowConfig.floor, the share of the mass in F-hat drawn uniformly on it. 0 here, not GoFlow's
+    # 0.2: on the medium gear's set it raised the mass and lowered the coverage as the level rose
+    # (0.995 / 0.846 against 0.986 / 0.871 after 20 rounds, docs/skills.md), and the shipped files have none
+    floor: float = 0.0
     seed: int = 0  # the draws' generator
 
     def __post_init__(self) -> None:
@@ -312,33 +316,31 @@ class FlowRefitConfig:
         check_number(self.delta, "FlowRefitConfig.delta", 0.0, 1.0, low_open=True, high_open=True)
         check_int(self.steps, "FlowRefitConfig.steps", 1)
         check_int(self.classifier_steps, "FlowRefitConfig.classifier_steps", 1)
+        check_number(self.floor, "FlowRefitConfig.floor", 0.0, 1.0, high_open=True)
         check_int(self.seed, "FlowRefitConfig.seed", 0)
 
     def to_dict(self) -> dict[str, Any]:
         return config_to_dict(self)
 
 
-def constrained_copy(sampler: GoFlowSampler, delta: float, steps: int | None = None,
-                     classifier_steps: int | None = None) -> GoFlowSampler:
+def constrained_copy(sampler: GoFlowSampler, config: FlowRefitConfig) -> GoFlowSampler:
     """A GoFlow sampler with `sampler`'s flow (same architecture and weights) in constrained mode,
-    with no evidence yet (and `steps` Adam steps of the flow and `classifier_steps` of its success
-    classifier per update, defaults `sampler`'s and GoFlow's)."""
+    with no evidence yet: GoFlow's constrained defaults, with the refit's delta, floor and the
+    flow's and classifier's steps per update from `config`."""
     if not isinstance(sampler, GoFlowSampler):
         raise InputError(f"the refit needs a GoFlow flow, not {type(sampler).__name__}")
     state = sampler.state_dict()
     # the constrained mode's own estimate of the feasible set and its truncation, whatever the
     # source flow was saved with (a flow saved before they existed loads with the k-NN vote)
     fresh = GoFlowConfig()
-    config = {**state["config"], "mode": "constrained", "delta": float(delta), "beta": 0.0,
-              **{k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level", "leak_target",
-                                                "level_step")}}
-    if steps is not None:
-        config["steps"] = int(steps)
-    if classifier_steps is not None:
-        config["classifier_steps"] = int(classifier_steps)
-    new = GoFlowSampler(sampler.space, sampler.success_threshold, config)
+    settings = {k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level", "leak_target",
+                                                 "level_step")}
+    config_dict = {**state["config"], **settings, "mode": "constrained", "beta": 0.0, "delta": float(config.delta),
+                   "floor": float(config.floor), "steps": int(config.steps),
+                   "classifier_steps": int(config.classifier_steps)}
+    new = GoFlowSampler(sampler.space, sampler.success_threshold, config_dict)
     state.pop("feasible_level", None)  # F-hat's level starts again at the config's
-    new.load_state_dict({**state, "config": config, "n_updates": 0, "evidence": {}})
+    new.load_state_dict({**state, "config": config_dict, "n_updates": 0, "evidence": {}})
     return new
 
 
@@ -359,13 +361,14 @@ def refit_flow(sampler: GoFlowSampler, feasible: FeasibleSet, evaluate: Evaluate
     flow is small; more threads only contend with the episodes' simulators)."""
     torch.set_num_threads(1)
     config = config or FlowRefitConfig()
-    new = constrained_copy(sampler, config.delta, config.steps, config.classifier_steps)
+    new = constrained_copy(sampler, config)
     records: list[dict[str, float]] = []
     if checkpoint is not None and Path(checkpoint).is_file():
         saved = load_tensors(checkpoint, "flow refit checkpoint")
         if not isinstance(saved, dict) or saved.get("format") != _REFIT_FORMAT:
             raise FileFormatError(f"{checkpoint}: not a flow refit checkpoint")
-        if saved.get("config") != config.to_dict():
+        saved_config = saved.get("config")
+        if not isinstance(saved_config, dict) or {"floor": 0.0, **saved_config} != config.to_dict():  # no floor: 0
             raise InputError(f"{checkpoint} holds a refit with {saved.get('config')}, not {config.to_dict()}; "
                              "remove it or choose another folder")
         new.load_state_dict(saved["sampler"])

@@ -21,8 +21,8 @@ rows. The constrained mode estimates its feasible set F-hat = {P(success) >= lev
 classifier fitted to the rows, each weighted as a uniform design would count it
 (`learning.samplers.feasibility`; or the k-NN vote, `feasible_model="knn"`), and by default
 samples the flow truncated to F-hat with mass 1 - delta plus delta uniform on the rest of the box
-(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one; `floor` > 0 draws that
-share of the mass in F-hat uniformly on F-hat, a floor under the flow's density there. The level starts at
+(`truncate`): the sampler's edge is then F-hat's, not the flow's rounded one; `floor` (0.2) draws
+that share of the mass in F-hat uniformly on F-hat, a floor under the flow's density there. The level starts at
 `feasible_level` and follows the constraint by dual ascent: each batch, before it joins the
 evidence, is a held-out test of F-hat, and the level rises while more than `leak_target` of the
 sampler's mass in F-hat fails and falls while less does.
@@ -222,7 +222,7 @@ class GoFlowConfig:
     truncate: bool = True
     # constrained mode, truncated: the share of the mass in F-hat drawn uniformly on F-hat, a floor
     # under the flow's density there (0: the flow alone shapes it; docs/learning.md#goflow-modes)
-    floor: float = 0.0
+    floor: float = 0.2
     proposal_samples: int = 2048  # per proposal component (uniform, the flow, around successes) per update
     fit_batch: int = 512  # points resampled from the weighted proposal at each of the K steps
 
@@ -319,6 +319,8 @@ def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
         config.setdefault("feasible_level", 0.8)  # the k-NN vote's level of that time
     if "level_step" not in config:
         config["level_step"] = 0.0  # saved before the level followed the constraint: a fixed level made it
+    if "floor" not in config:
+        config["floor"] = 0.0  # saved before the floor existed: the flow alone shaped the mass in F-hat
     return config
 
 

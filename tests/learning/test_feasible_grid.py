@@ -88,7 +88,8 @@ def test_bad_grid_and_refit_settings_name_the_value():
         FeasibleGridConfig(fine_width=-0.1).plan(SPACE, np.zeros(2))
     with pytest.raises(InputError, match="centre"):
         FeasibleGridConfig(centre=(0.0, np.nan)).plan(SPACE, np.zeros(2))
-    for bad in ({"delta": 0.0}, {"delta": 1.0}, {"rounds": -1}, {"episodes": 0}, {"classifier_steps": 0}):
+    for bad in ({"delta": 0.0}, {"delta": 1.0}, {"rounds": -1}, {"episodes": 0}, {"classifier_steps": 0},
+                {"floor": 1.0}, {"floor": -0.1}):
         with pytest.raises(InputError, match=next(iter(bad))):
             FlowRefitConfig(**bad)
 
@@ -108,6 +109,7 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
     config = FlowRefitConfig(rounds=3, episodes=64, steps=60, classifier_steps=100)
     new, records = refit_flow(flow, fs, evaluate, config, checkpoint=tmp_path / "refit.pt")
     assert flow.config.mode == "paper" and new.config.mode == "constrained"
+    assert new.config.floor == 0.0 and flow.config.floor == 0.2  # the refit's floor, not GoFlow's default
     assert [r["update"] for r in records] == [0, 1, 2, 3] and calls == [1, 2, 3]
     assert records[-1]["mass_on"] > 0.95 and records[-1]["coverage10"] > 0.9, records[-1]
     assert records[-1]["success_on_draws"] > 0.9

@@ -137,6 +137,16 @@ def test_states_saved_before_the_modes_load_as_the_papers_update():
     assert GoFlowSampler.from_state_dict(state).config.mode == "paper"
 
 
+def test_states_saved_before_the_floor_load_without_one():
+    """The floor's default (0.2) applies to new samplers; a state saved before the floor existed
+    was shaped by the flow alone and loads so."""
+    a = GoFlowSampler(_unit_box(2), None, mode="constrained", steps=2, proposal_samples=128, fit_batch=64)
+    assert a.config.floor == 0.2
+    state = json.loads(json.dumps(a.state_dict()))
+    del state["config"]["floor"]
+    assert GoFlowSampler.from_state_dict(state).config.floor == 0.0
+
+
 @pytest.mark.parametrize("floor", [0.0, 0.3])
 def test_the_truncated_sampler_is_a_normalized_density_with_delta_outside(floor):
     """With the truncation, log_prob integrates to 1 over the box, the draws follow it, and the
