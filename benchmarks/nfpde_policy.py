@@ -112,7 +112,11 @@ def main() -> int:
         recorded = doc["estimates"].get(method, {}).get("ot")  # the estimate the file's runs were trained on
         fitted = None
         if path.exists():
-            sampler, _ = load_estimate(path)
+            sampler, saved = load_estimate(path)
+            info = saved.get("info", {})  # what fitting it cost, for a results file that lost it
+            for key in ("seconds", "sim_calls"):
+                if key in info:
+                    doc["estimates"].setdefault(method, {}).setdefault(key, info[key])
         else:
             sampler, fitted, _ = estimate(ds, EstimateConfig(method=method, seed=0, sim_budget=args.budget))
         u = ds.space.normalize(sampler.sample(500, np.random.default_rng(1)))
@@ -137,14 +141,15 @@ def main() -> int:
                 config = TransferConfig(**{**vars(base), "seed": seed, "algo": algo})
                 res = train_and_evaluate(samplers[name], true_sampler, config)
                 run = {"algo": algo, "train_on": name, "seed": seed, "target": args.target, **res}
-                doc["runs"], doc["commands"] = merge_with_file(res_path, doc["runs"] + [run],
-                                                               doc.get("commands", []) + [command])
+                doc["runs"].append(run)
+                doc.setdefault("commands", []).append(command)
+                merge_with_file(res_path, doc)
                 write_json(res_path, doc)  # atomic: an interrupted run keeps every finished one
                 print(f"{algo} on {name:<14} seed {seed}: return on the truth {res['final_mean_return']:.1f}, "
                       f"success {res['final_success']:.2f} ({res['seconds']:.0f} s)", flush=True)
 
     doc.pop("command", None)
-    doc["runs"], doc["commands"] = merge_with_file(res_path, doc["runs"], doc.get("commands", []))
+    merge_with_file(res_path, doc)
     doc["summary"] = summarize(doc["runs"])
     write_json(res_path, doc)
     plot(doc["runs"], out / f"nfpde-policy-{stem}{args.target}.png", f"{args.env}, {args.target} target")
@@ -154,16 +159,20 @@ def main() -> int:
     return 0
 
 
-def merge_with_file(path: Path, runs: list[dict], commands: list[str]) -> tuple[list[dict], list[str]]:
-    """`runs` and `commands` joined with those another process has written to `path` since: one
-    run per algo, sampler and seed, each command once in order (an older file's "command" first),
-    so that processes sharing a results file keep each other's runs."""
+def merge_with_file(path: Path, doc: dict) -> None:
+    """Join into `doc` what another process has written to `path` since it was read: one run per
+    algo, sampler and seed, each command once in order (an older file's "command" first), and each
+    estimate's record, so that processes sharing a results file (one per sampler, say) keep each
+    other's runs and estimates. `doc`'s own entries win."""
     old = json.loads(path.read_text()) if path.exists() else {}
     key = lambda r: (r.get("algo", "ppo"), r["train_on"], r["seed"])  # noqa: E731
-    merged = {key(r): r for r in old.get("runs", [])}
-    merged.update({key(r): r for r in runs})
-    seen = ([old["command"]] if "command" in old else []) + old.get("commands", []) + commands
-    return list(merged.values()), list(dict.fromkeys(seen))
+    runs = {key(r): r for r in old.get("runs", [])}
+    runs.update({key(r): r for r in doc.get("runs", [])})
+    seen = ([old["command"]] if "command" in old else []) + old.get("commands", []) + doc.get("commands", [])
+    estimates = {m: dict(e) for m, e in old.get("estimates", {}).items()}
+    for method, record in doc.get("estimates", {}).items():
+        estimates.setdefault(method, {}).update(record)
+    doc.update(runs=list(runs.values()), commands=list(dict.fromkeys(seen)), estimates=estimates)
 
 
 def _groups(runs: list[dict]) -> dict[tuple[str, str], list[dict]]:
