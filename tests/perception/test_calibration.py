@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from perception.calibration import (
-    HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, group_rows,
+    HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, coverage_se, group_rows,
     markdown_table, summarize,
 )
 from perception.likelihood import LikelihoodConfig
@@ -54,6 +54,20 @@ def test_the_band_allows_what_sampling_noise_allows():
     assert chances[0] == 0.0 and chances == sorted(chances)
     assert 0.4 < chances[1] < 0.65 and 0.8 < chances[2] < 0.95 and chances[3] > 0.99
     assert calibrated_pass_chance(300) == calibrated_pass_chance(300)  # a fixed seed
+
+
+def test_the_scene_bootstrap_sees_gears_that_err_together():
+    """Three gears a scene: independent truth levels give the binomial standard error; levels
+    shared by a scene's gears give sqrt(3) times it (the scene, not the gear, is the sample)."""
+    rng = np.random.default_rng(3)
+    u = rng.random(600)
+    alone = [{"scene": i // 3, "level": float(v)} for i, v in enumerate(u)]
+    together = [{"scene": i // 3, "level": float(u[i // 3])} for i in range(600)]
+    binomial = np.sqrt(0.5 * 0.5 / 600)
+    assert abs(coverage_se(alone)[0.5] / binomial - 1) < 0.15
+    assert abs(coverage_se(together)[0.5] / binomial - np.sqrt(3)) < 0.3
+    assert coverage_se(alone) == coverage_se(alone)  # a fixed seed
+    assert np.isnan(coverage_se([])[0.5])
 
 
 def test_tuning_levels_predict_the_pipelines_own():
