@@ -50,7 +50,7 @@ from common.config import config_to_dict
 from common.errors import FileFormatError, InputError
 from common.files import load_tensors, save_tensors
 from learning.feasible_sets import coverage, mass_on
-from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
+from learning.samplers.goflow import GoFlowConfig, GoFlowSampler, classifier_width
 
 __all__ = ["FeasibleGridConfig", "GridPlan", "FeasibleSet", "FlowRefitConfig", "flow_report", "constrained_copy",
            "refit_flow"]
@@ -334,12 +334,16 @@ def constrained_copy(sampler: GoFlowSampler, config: FlowRefitConfig) -> GoFlowS
     # source flow was saved with (a flow saved before they existed loads with the k-NN vote)
     fresh = GoFlowConfig()
     settings = {k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level", "leak_target",
-                                                 "level_step")}
+                                                 "level_step", "classifier_hidden")}
     config_dict = {**state["config"], **settings, "mode": "constrained", "beta": 0.0, "delta": float(config.delta),
                    "floor": float(config.floor), "steps": int(config.steps),
                    "classifier_steps": int(config.classifier_steps)}
     new = GoFlowSampler(sampler.space, sampler.success_threshold, config_dict)
     state.pop("feasible_level", None)  # F-hat's level starts again at the config's
+    dim = sampler.space.dim
+    saved_layers = state["config"].get("classifier_hidden", (64, 64)) or classifier_width(dim)
+    if tuple(saved_layers) != tuple(config_dict["classifier_hidden"] or classifier_width(dim)):
+        state.pop("classifier", None)  # a classifier of other layers: the refit fits its own from the grid
     new.load_state_dict({**state, "config": config_dict, "n_updates": 0, "evidence": {}})
     return new
 

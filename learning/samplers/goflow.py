@@ -85,7 +85,7 @@ from common.config import config_to_dict, config_with_overrides
 from learning.samplers.evidence import Evidence
 from learning.samplers.feasibility import SuccessClassifier
 
-__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "GoFlowSampler", "standardize_returns", "update_diagnostics"]
+__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "GoFlowSampler", "classifier_width", "standardize_returns", "update_diagnostics"]
 
 #: What an update optimizes (GoFlowConfig.mode).
 MODES: tuple[str, ...] = ("entropy", "constrained", "paper")
@@ -217,6 +217,9 @@ class GoFlowConfig:
     # k-nearest-neighbour vote) or "classifier" (an MLP fitted to the rows, learning.samplers.feasibility)
     feasible_model: str = "classifier"
     classifier_steps: int = 100  # Adam steps of the classifier per update (it continues from the last fit)
+    # the classifier's layer sizes; None: `classifier_width(d)`, (64, 64) up to 4 parameters and
+    # (128, 128) from 5 (measured on the 6-D ellipsoid, docs/learning.md#goflow-modes)
+    classifier_hidden: tuple[int, ...] | None = None
     # constrained mode: the sampler is the flow truncated to F-hat with mass 1 - delta, plus delta
     # uniform on the rest of the box (docs/learning.md#goflow-modes); False: the flow alone
     truncate: bool = True
@@ -250,6 +253,14 @@ class GoFlowConfig:
         check_number(self.level_step, "GoFlowConfig.level_step", 0.0)
         check_choice(self.feasible_model, FEASIBLE_MODELS, "GoFlowConfig.feasible_model")
         check_int(self.classifier_steps, "GoFlowConfig.classifier_steps", 1)
+        if self.classifier_hidden is not None:
+            sizes = tuple(self.classifier_hidden) if isinstance(self.classifier_hidden, (list, tuple)) else ()
+            if not sizes:
+                raise InputError(f"GoFlowConfig.classifier_hidden = {self.classifier_hidden!r}; expected a non-empty "
+                                 "list of layer sizes or None")
+            for h in sizes:
+                check_int(h, "GoFlowConfig.classifier_hidden entry", 1)
+            object.__setattr__(self, "classifier_hidden", sizes)
         if not isinstance(self.truncate, bool):
             raise InputError(f"GoFlowConfig.truncate = {self.truncate!r}; expected true or false")
         check_number(self.floor, "GoFlowConfig.floor", 0.0, 1.0, high_open=True)
@@ -276,6 +287,12 @@ class GoFlowConfig:
 
     # fields that define the flow's parameter shapes and density (must match to load a state)
     ARCHITECTURE = ("transforms", "hidden_features", "bins", "base_scale")
+
+
+def classifier_width(dim: int) -> tuple[int, int]:
+    """The constrained mode's default success-classifier layers for `dim` parameters: (64, 64) up
+    to 4, (128, 128) from 5 (the 6-D ellipsoid's recall needs the wider one; docs/learning.md)."""
+    return (64, 64) if dim <= 4 else (128, 128)
 
 
 def _uniform_box(n: int, d: int, gen: torch.Generator) -> torch.Tensor:
@@ -321,6 +338,8 @@ def _config_of(state: Mapping[str, Any]) -> dict[str, Any]:
         config["level_step"] = 0.0  # saved before the level followed the constraint: a fixed level made it
     if "floor" not in config:
         config["floor"] = 0.0  # saved before the floor existed: the flow alone shaped the mass in F-hat
+    if "classifier_hidden" not in config:
+        config["classifier_hidden"] = (64, 64)  # saved before the width followed the dimension
     return config
 
 
@@ -401,7 +420,8 @@ class GoFlowSampler:
         """The success classifier behind F-hat (constrained mode with feasible_model "classifier")."""
         if config.mode != "constrained" or config.feasible_model != "classifier":
             return None
-        return SuccessClassifier(self.space.dim, (64, 64), config.seed)
+        hidden = config.classifier_hidden or classifier_width(self.space.dim)
+        return SuccessClassifier(self.space.dim, hidden, config.seed)
 
     # -- coordinates -----------------------------------------------------------------------------
 

@@ -8,7 +8,8 @@ import pytest
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR
 from common.errors import InputError
-from learning.feasible_grid import FeasibleGridConfig, FeasibleSet, FlowRefitConfig, flow_report, refit_flow
+from learning.feasible_grid import (FeasibleGridConfig, FeasibleSet, FlowRefitConfig, constrained_copy, flow_report,
+                                   refit_flow)
 from learning.samplers.goflow import GoFlowSampler
 
 SPACE = ParamSpace((Param("x", -1.0, 1.0, "m"), Param("y", -1.0, 1.0, "m")))
@@ -120,6 +121,24 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
     with pytest.raises(InputError, match="holds a refit"):
         refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60, classifier_steps=100),
                    checkpoint=tmp_path / "refit.pt")
+
+
+def test_the_refit_keeps_a_classifier_of_its_own_layers_only():
+    """A refit's copy continues from the source's classifier when the layers agree and fits its
+    own when they do not (a 6-D flow saved before the width followed the dimension)."""
+    space = ParamSpace(tuple(Param(f"p{i}", 0.0, 1.0, "1") for i in range(6)))
+    kw = dict(mode="constrained", steps=2, proposal_samples=128, fit_batch=64, classifier_steps=3)
+    rng = np.random.default_rng(0)
+    xi = rng.uniform(size=(128, 6))
+    u = rng.uniform(size=(50, 6))
+    for layers, kept in (((128, 128), True), ((64, 64), False)):
+        source = GoFlowSampler(space, None, classifier_hidden=layers, **kw)
+        source.update(xi, (np.linalg.norm(xi - 0.5, axis=1) < 0.5).astype(float))
+        copy = constrained_copy(source, FlowRefitConfig(steps=2, classifier_steps=3))
+        assert copy._classifier.hidden == (128, 128)
+        assert copy._classifier.fitted == kept
+        if kept:
+            np.testing.assert_array_equal(copy._classifier.probability(u), source._classifier.probability(u))
 
 
 def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):

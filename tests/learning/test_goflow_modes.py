@@ -147,6 +147,26 @@ def test_states_saved_before_the_floor_load_without_one():
     assert GoFlowSampler.from_state_dict(state).config.floor == 0.0
 
 
+def test_the_classifier_widens_with_the_dimension_and_old_states_keep_their_width():
+    """The success classifier is (64, 64) up to 4 parameters and (128, 128) from 5, unless the
+    config names its layers; a 6-D state saved before the width followed the dimension was made by
+    (64, 64) and reloads so, with its fitted probabilities unchanged."""
+    kw = dict(mode="constrained", steps=2, proposal_samples=128, fit_batch=64, classifier_steps=5)
+    assert GoFlowSampler(_unit_box(4), None, **kw)._classifier.hidden == (64, 64)
+    assert GoFlowSampler(_unit_box(6), None, **kw)._classifier.hidden == (128, 128)
+    assert GoFlowSampler(_unit_box(6), None, classifier_hidden=[32], **kw)._classifier.hidden == (32,)
+    old = GoFlowSampler(_unit_box(6), None, classifier_hidden=(64, 64), **kw)
+    _train(old, lambda xi: (np.linalg.norm(xi - 0.5, axis=1) < 0.4).astype(float), rounds=1, batch=128, seed=0)
+    state = json.loads(json.dumps(old.state_dict()))
+    del state["config"]["classifier_hidden"]
+    loaded = GoFlowSampler.from_state_dict(state)
+    assert loaded._classifier.hidden == (64, 64)
+    u = np.random.default_rng(3).uniform(size=(100, 6))
+    np.testing.assert_array_equal(loaded._classifier.probability(u), old._classifier.probability(u))
+    with pytest.raises(InputError, match="classifier_hidden"):
+        GoFlowConfig(classifier_hidden=[])
+
+
 @pytest.mark.parametrize("floor", [0.0, 0.3])
 def test_the_truncated_sampler_is_a_normalized_density_with_delta_outside(floor):
     """With the truncation, log_prob integrates to 1 over the box, the draws follow it, and the
