@@ -55,7 +55,10 @@ class LikelihoodConfig:
     occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
     noise_exponent: float = 1.0         # evidence under depth noise (calibrated)
     lamp_discount: float = 0.8          # evidence under a light fitted from the gear's shading (calibrated)
-    brightness_exponent: float = 0.75   # how the colour scale follows the light's brightness (calibrated)
+    brightness_exponent: float = 0.75   # how the colour scale follows a dimmer light (calibrated)
+    # how it follows a brighter one, (unresolved, resolved teeth) blended by `teeth_resolved`: the
+    # scene view's colour residuals grow faster with it than the close view's (calibrated, docs)
+    bright_exponent: tuple[float, float] = (1.0, 0.75)
     # The reshaping, applied to the posterior once its cells are fixed (so it moves no cell): its
     # log-evidence deficit D from the peak becomes (factor D)^exponent, (unresolved, resolved
     # teeth) each; (1, 1) = off. Fitted on tuning scenes (docs/perception.md, Tempering, item 7).
@@ -79,6 +82,9 @@ class LikelihoodConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value >= 0")
+        if not (len(self.bright_exponent) == 2 and all(np.isfinite(e) and e >= 0 for e in self.bright_exponent)):
+            raise ValueError(f"LikelihoodConfig.bright_exponent = {self.bright_exponent}; expected "
+                             "(unresolved, resolved) values >= 0")
         for name in ("posterior_factor", "shape_exponent"):
             pair = getattr(self, name)
             if not (len(pair) == 2 and all(np.isfinite(e) and 0 < e <= 4 for e in pair)):
@@ -142,6 +148,22 @@ class LikelihoodConfig:
         noise = (self.b_d / np.hypot(self.b_d, depth_noise)) ** self.noise_exponent
         lamp = self.lamp_discount ** (1.0 - resolved) if fitted_light else 1.0
         return float(occlusion * noise * lamp)
+
+    def colour_scale_for(self, brightness: float, gsd: float) -> float:
+        """b_rgb under a light of `brightness` (the mean colour gain read off the table; clipped to
+        [0.25, 4]) in a view of ground sampling distance `gsd` [m/pixel]: b_rgb brightness^e, e =
+        `brightness_exponent` for a dimmer light and `bright_exponent` blended by how well the
+        view resolves the teeth (`teeth_resolved`) for a brighter one. Part of a colour residual
+        (8-bit steps, antialiased edges) does not scale with the light, so e < 1."""
+        if not np.isfinite(brightness):
+            raise ValueError(f"brightness = {brightness}; expected a finite colour gain")
+        g = float(np.clip(brightness, 0.25, 4.0))
+        if g <= 1.0:
+            e = self.brightness_exponent
+        else:
+            w = teeth_resolved(gsd)
+            e = (1.0 - w) * self.bright_exponent[0] + w * self.bright_exponent[1]
+        return float(self.b_rgb * g ** e)
 
     def reshaping_for(self, gsd: float) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping in a view of ground sampling distance

@@ -96,23 +96,23 @@ class ImageScorer:
         self._dirs = dirs
         table = self.roi & valid
         self._table = _read_table(obs, self._u[table], self._v[table], dirs[table], origin)
-        self._set_light(self.light)
         # Ground sampling distance at the search centre: metres of table per pixel.
         p_C = obs.X_WC.inverse().multiply(np.array([centre[0], centre[1], top]))
         self.gsd = float(max(p_C[2], 1e-3) / obs.intrinsics.fx)
+        self._set_light(self.light)
         self.tempering = self.likelihood.tempering_for(model.name, self.gsd)
 
     def _set_light(self, light: np.ndarray) -> None:
         """Assume the light arrives from direction `light` (world, unit): read the image's
         conditions off the bare table under it and set the pixel model (colour differences grow
         with the light's brightness, a little slower than it: part of them, quantization and
-        antialiased edges, does not scale; depth residuals widen with the noise)."""
+        antialiased edges, does not scale, `LikelihoodConfig.colour_scale_for`; depth residuals
+        widen with the noise)."""
         self.light = np.asarray(light, float)
         self.conditions = self._table.conditions(self.light)
         brightness = float(np.mean(self.conditions.gain))
         self.pixels_model = replace(
-            self.likelihood, b_rgb=self.likelihood.b_rgb
-            * float(np.clip(brightness, 0.25, 4.0)) ** self.likelihood.brightness_exponent,
+            self.likelihood, b_rgb=self.likelihood.colour_scale_for(brightness, self.gsd),
             b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
         self._sets = {}
 

@@ -77,6 +77,25 @@ def test_a_fitted_lamp_discounts_the_evidence_where_the_teeth_are_not_resolved()
             LikelihoodConfig(lamp_discount=bad)
 
 
+def test_the_colour_scale_follows_the_light_by_view():
+    """A dimmer light narrows b_rgb by brightness^brightness_exponent in every view; a brighter one
+    widens it by brightness^e, e blended from (unresolved, resolved teeth) by the view."""
+    cfg = LikelihoodConfig(b_rgb=0.1, brightness_exponent=0.5, bright_exponent=(1.0, 0.5))
+    close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
+    assert cfg.colour_scale_for(1.0, coarse) == pytest.approx(0.1)
+    assert cfg.colour_scale_for(0.25, coarse) == pytest.approx(0.05)
+    assert cfg.colour_scale_for(0.25, close) == pytest.approx(0.05)
+    assert cfg.colour_scale_for(4.0, coarse) == pytest.approx(0.4)
+    assert cfg.colour_scale_for(4.0, close) == pytest.approx(0.2)
+    assert cfg.colour_scale_for(4.0, half) == pytest.approx(0.1 * 4.0 ** 0.75)
+    assert cfg.colour_scale_for(9.0, coarse) == pytest.approx(0.4)  # the gain is clipped to [0.25, 4]
+    with pytest.raises(ValueError, match="brightness"):
+        cfg.colour_scale_for(float("nan"), close)
+    for bad in ((1.0,), (-0.1, 0.75), (float("inf"), 0.75)):
+        with pytest.raises(ValueError, match="bright_exponent"):
+            LikelihoodConfig(bright_exponent=bad)
+
+
 def test_table_colour_comes_from_its_model():
     np.testing.assert_allclose(table_albedo(), [0.62, 0.45, 0.28], atol=1e-6)
 
