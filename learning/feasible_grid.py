@@ -50,7 +50,7 @@ from common.config import config_to_dict
 from common.errors import FileFormatError, InputError
 from common.files import load_tensors, save_tensors
 from learning.feasible_sets import coverage, mass_on
-from learning.samplers.goflow import GoFlowConfig, GoFlowSampler, classifier_width
+from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
 
 __all__ = ["FeasibleGridConfig", "GridPlan", "FeasibleSet", "FlowRefitConfig", "flow_report", "constrained_copy",
            "refit_flow"]
@@ -341,8 +341,7 @@ def constrained_copy(sampler: GoFlowSampler, config: FlowRefitConfig) -> GoFlowS
     new = GoFlowSampler(sampler.space, sampler.success_threshold, config_dict)
     state.pop("feasible_level", None)  # F-hat's level starts again at the config's
     dim = sampler.space.dim
-    saved_layers = state["config"].get("classifier_hidden", (64, 64)) or classifier_width(dim)
-    if tuple(saved_layers) != tuple(config_dict["classifier_hidden"] or classifier_width(dim)):
+    if sampler.config.classifier_layers(dim) != new.config.classifier_layers(dim):
         state.pop("classifier", None)  # a classifier of other layers: the refit fits its own from the grid
     new.load_state_dict({**state, "config": config_dict, "n_updates": 0, "evidence": {}})
     return new

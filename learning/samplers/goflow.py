@@ -85,7 +85,8 @@ from common.config import config_to_dict, config_with_overrides
 from learning.samplers.evidence import Evidence
 from learning.samplers.feasibility import SuccessClassifier
 
-__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "GoFlowSampler", "classifier_width", "standardize_returns", "update_diagnostics"]
+__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "GoFlowSampler", "classifier_width", "standardize_returns",
+           "update_diagnostics"]
 
 #: What an update optimizes (GoFlowConfig.mode).
 MODES: tuple[str, ...] = ("entropy", "constrained", "paper")
@@ -230,18 +231,13 @@ class GoFlowConfig:
     fit_batch: int = 512  # points resampled from the weighted proposal at each of the K steps
 
     def __post_init__(self) -> None:
-        hidden = tuple(self.hidden_features)
-        object.__setattr__(self, "hidden_features", hidden)
+        object.__setattr__(self, "hidden_features", _layer_sizes(self.hidden_features, "GoFlowConfig.hidden_features"))
         for name in ("alpha", "beta"):
             object.__setattr__(self, name, check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0))
         for name in ("transforms", "bins", "steps", "entropy_samples", "kl_samples", "kl_pool", "report_samples",
                      "max_redraws"):
             check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
         check_int(self.bins, "GoFlowConfig.bins", 2)
-        if not hidden:
-            raise InputError("GoFlowConfig.hidden_features = (); expected at least one layer size")
-        for h in hidden:
-            check_int(h, "GoFlowConfig.hidden_features entry", 1)
         for name in ("base_scale", "lr", "grad_clip"):
             check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0, low_open=True)
         check_int(self.seed, "GoFlowConfig.seed", 0)
@@ -254,13 +250,8 @@ class GoFlowConfig:
         check_choice(self.feasible_model, FEASIBLE_MODELS, "GoFlowConfig.feasible_model")
         check_int(self.classifier_steps, "GoFlowConfig.classifier_steps", 1)
         if self.classifier_hidden is not None:
-            sizes = tuple(self.classifier_hidden) if isinstance(self.classifier_hidden, (list, tuple)) else ()
-            if not sizes:
-                raise InputError(f"GoFlowConfig.classifier_hidden = {self.classifier_hidden!r}; expected a non-empty "
-                                 "list of layer sizes or None")
-            for h in sizes:
-                check_int(h, "GoFlowConfig.classifier_hidden entry", 1)
-            object.__setattr__(self, "classifier_hidden", sizes)
+            object.__setattr__(self, "classifier_hidden",
+                               _layer_sizes(self.classifier_hidden, "GoFlowConfig.classifier_hidden"))
         if not isinstance(self.truncate, bool):
             raise InputError(f"GoFlowConfig.truncate = {self.truncate!r}; expected true or false")
         check_number(self.floor, "GoFlowConfig.floor", 0.0, 1.0, high_open=True)
@@ -285,8 +276,23 @@ class GoFlowConfig:
         """Inverse of `to_dict` (unknown keys raise UnknownOptionError, a ValueError)."""
         return config_with_overrides(cls, d)
 
+    def classifier_layers(self, dim: int) -> tuple[int, ...]:
+        """The success classifier's layer sizes on `dim` parameters: `classifier_hidden`, or
+        `classifier_width(dim)` where it is None."""
+        return self.classifier_hidden or classifier_width(dim)
+
     # fields that define the flow's parameter shapes and density (must match to load a state)
     ARCHITECTURE = ("transforms", "hidden_features", "bins", "base_scale")
+
+
+def _layer_sizes(value: Any, name: str) -> tuple[int, ...]:
+    """`value` as a tuple of layer sizes (integers >= 1, at least one), or InputError naming `name`."""
+    sizes = tuple(value) if isinstance(value, (list, tuple)) else ()
+    if not sizes:
+        raise InputError(f"{name} = {value!r}; expected a non-empty list of layer sizes")
+    for h in sizes:
+        check_int(h, f"{name} entry", 1)
+    return sizes
 
 
 def classifier_width(dim: int) -> tuple[int, int]:
@@ -420,8 +426,7 @@ class GoFlowSampler:
         """The success classifier behind F-hat (constrained mode with feasible_model "classifier")."""
         if config.mode != "constrained" or config.feasible_model != "classifier":
             return None
-        hidden = config.classifier_hidden or classifier_width(self.space.dim)
-        return SuccessClassifier(self.space.dim, hidden, config.seed)
+        return SuccessClassifier(self.space.dim, config.classifier_layers(self.space.dim), config.seed)
 
     # -- coordinates -----------------------------------------------------------------------------
 
