@@ -27,7 +27,9 @@ prints the coverage at 50/68/80/90/95 % with the tempering the rows were made wi
 fitted one, per gear x view and per group x view, and the fitted values (what GEAR_TEMPERING,
 occlusion_exponent, noise_exponent, lamp_discount, posterior_factor and shape_exponent hold). `--rows PATH` stores the rows there; existing files
 are read back instead (nothing rendered again) and pooled, a later file's groups replacing an
-earlier one's of the same scene seed (rows made under another colour model, say). The colour
+earlier one's of the same scene seed (rows made under another colour model, say). `--likelihood
+KEY=VALUE ...` collects and fits under other LikelihoodConfig values than the shipped ones (give
+the same when reading the rows back), e.g. `colour_scale_factor=[1,2]` (Tempering, item 8). The colour
 scale's brightness exponent changes the pixels' scores, not only their weight, so it cannot be
 fitted this way: it was chosen from the dim and bright groups and checked by collecting them
 again (docs/perception.md).
@@ -43,10 +45,12 @@ from pathlib import Path
 
 import numpy as np
 
+from common.config import config_to_dict, config_with_overrides, key_values
 from common.errors import InputError
 from common.files import check_output_file, read_json, write_json
 from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, run_calibration
 from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved
+from perception.search import SearchConfig
 
 FACTORS = tuple(float(f) for f in np.geomspace(0.25, 4.0, 33))
 FIT_LEVELS = np.linspace(0.05, 0.95, 19)  # the levels whose coverage the fit matches
@@ -60,19 +64,22 @@ SHAPE_GRID = np.round(np.arange(0.9, 1.451, 0.05), 2)  # ... and searched (inter
 RESHAPE_FACTORS = np.round(np.geomspace(0.5, 2.0, 25), 4)  # the reshaping's factors searched
 
 
-def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None) -> dict:
+def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None,
+            likelihood: LikelihoodConfig | None = None) -> dict:
     """The calibration pipeline's rows on tuning scenes (of `groups`, every perturbation group if
-    None), with each posterior's scaled levels."""
+    None), with each posterior's scaled levels, under `likelihood` (the shipped one if None)."""
     if seed + scenes > HELD_OUT_SEED:
         raise InputError(f"--seed {seed} with --scenes {scenes} reaches the benchmark's scenes "
                          f"(seeds from {HELD_OUT_SEED}); tune on seeds below it")
     config = CalibrationConfig(scenes=scenes, seed=seed, workers=workers, tempering_factors=FACTORS,
-                               shape_exponents=SHAPES)
+                               shape_exponents=SHAPES,
+                               search=SearchConfig(likelihood=likelihood or LikelihoodConfig()))
     if groups:
         config = replace(config, groups=tuple(groups))
     result = run_calibration(config, progress=True)
     result["config"]["tempering_factors"] = list(FACTORS)
     result["config"]["shape_exponents"] = list(SHAPES)
+    result["config"]["likelihood"] = config_to_dict(config.search.likelihood)
     return result
 
 
@@ -259,9 +266,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="store the rows here (one path), or read them from existing files, pooled (a "
                         "later file's groups replace an earlier one's of the same seed)")
     p.add_argument("--json", type=Path, default=None, help="write the fit and the tables here")
+    p.add_argument("--likelihood", nargs="+", default=None, metavar="KEY=VALUE",
+                   help="LikelihoodConfig fields to collect and fit under instead of the shipped "
+                        "ones, e.g. colour_scale_factor=[1,2]")
     args = p.parse_args(argv)
     try:
         out = check_output_file(args.json, "--json") if args.json else None
+        base = config_with_overrides(LikelihoodConfig, key_values(args.likelihood, "--likelihood"),
+                                     owner="--likelihood")
         if args.rows and all(path.exists() for path in args.rows):
             rows, factors, shapes = load_rows(args.rows)
         else:
@@ -269,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise InputError(f"--rows: {[str(x) for x in args.rows if not x.exists()]} missing")
             if args.rows:
                 check_output_file(args.rows[0], "--rows")
-            result = collect(args.scenes, args.seed, args.workers, args.groups)
+            result = collect(args.scenes, args.seed, args.workers, args.groups, base)
             if args.rows:
                 write_json(args.rows[0], result)
             rows, factors, shapes = fit_rows(result), np.asarray(FACTORS), np.asarray(SHAPES)
@@ -278,7 +290,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     data = Rows(rows, factors, shapes)
     today = np.array([r["level"] for r in rows])  # the levels the rows were made with
-    base = LikelihoodConfig()
     if data.shapes is None:
         config = fit(data, base)
     else:  # the search's tempering held at the shipped values, the reshaping fitted

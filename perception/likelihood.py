@@ -28,11 +28,15 @@ from assembly.gearset import GEAR_MODULE, gear_spec
 # Per gear, the factor A (gsd / g0)^B on the shared tempering law, as (A, B): fitted on tuning
 # scenes by benchmarks/perception_tempering.py (docs/perception.md, Tempering).
 GEAR_TEMPERING = {"small": (1.516, 0.3), "medium": (1.320, 0.3), "large": (1.0, 0.45)}
-# The posterior's reshaping once its cells are fixed, (unresolved, resolved teeth): fitted on the
-# tuning scenes of seeds 600 and 700 by benchmarks/perception_tempering.py (`fit_reshaping`, on rows
-# with shaped levels).
-POSTERIOR_FACTOR = (0.8909, 0.6674)
-SHAPE_EXPONENT = (1.05, 1.4)
+# The posterior's reshaping once its cells are fixed, (unresolved, resolved teeth): fitted by
+# benchmarks/perception_tempering.py (`fit_reshaping`, on rows with shaped levels), on the tuning
+# scenes of seeds 600 and 700, again on seed 5000's with COLOUR_SCALE_FACTOR (the resolved factor
+# and the unresolved exponent moved).
+POSTERIOR_FACTOR = (0.8909, 0.8909)
+SHAPE_EXPONENT = (1.1, 1.4)
+# b_rgb's factor, (unresolved, resolved teeth): chosen on tuning scenes (docs/perception.md,
+# Tempering, item 8).
+COLOUR_SCALE_FACTOR = (1.0, 2.0)
 
 
 @dataclass
@@ -59,6 +63,11 @@ class LikelihoodConfig:
     # how it follows a brighter one, (unresolved, resolved teeth) blended by `teeth_resolved`: the
     # scene view's colour residuals grow faster with it than the close view's (calibrated, docs)
     bright_exponent: tuple[float, float] = (1.0, 0.75)
+    # b_rgb's factor by view, (unresolved, resolved teeth) blended geometrically by
+    # `teeth_resolved`: where the teeth are resolved, the gear's pose is carried by its depth
+    # edges as much as by its colour, and a colour scale that ignores this lets a change of light
+    # (which moves the colour contrast, not the pose's error) move the posterior's width
+    colour_scale_factor: tuple[float, float] = COLOUR_SCALE_FACTOR
     # The reshaping, applied to the posterior once its cells are fixed (so it moves no cell): its
     # log-evidence deficit D from the peak becomes (factor D)^exponent, (unresolved, resolved
     # teeth) each; (1, 1) = off. Fitted on tuning scenes (docs/perception.md, Tempering, item 7).
@@ -85,7 +94,7 @@ class LikelihoodConfig:
         if not (len(self.bright_exponent) == 2 and all(np.isfinite(e) and e >= 0 for e in self.bright_exponent)):
             raise ValueError(f"LikelihoodConfig.bright_exponent = {self.bright_exponent}; expected "
                              "(unresolved, resolved) values >= 0")
-        for name in ("posterior_factor", "shape_exponent"):
+        for name in ("posterior_factor", "shape_exponent", "colour_scale_factor"):
             pair = getattr(self, name)
             if not (len(pair) == 2 and all(np.isfinite(e) and 0 < e <= 4 for e in pair)):
                 raise ValueError(f"LikelihoodConfig.{name} = {pair}; expected (unresolved, "
@@ -151,19 +160,21 @@ class LikelihoodConfig:
 
     def colour_scale_for(self, brightness: float, gsd: float) -> float:
         """b_rgb under a light of `brightness` (the mean colour gain read off the table; clipped to
-        [0.25, 4]) in a view of ground sampling distance `gsd` [m/pixel]: b_rgb brightness^e, e =
+        [0.25, 4]) in a view of ground sampling distance `gsd` [m/pixel]: f b_rgb brightness^e, e =
         `brightness_exponent` for a dimmer light and `bright_exponent` blended by how well the
-        view resolves the teeth (`teeth_resolved`) for a brighter one. Part of a colour residual
-        (8-bit steps, antialiased edges) does not scale with the light, so e < 1."""
+        view resolves the teeth (`teeth_resolved`) for a brighter one, f = `colour_scale_factor`
+        blended geometrically by the same. Part of a colour residual (8-bit steps, antialiased
+        edges) does not scale with the light, so e < 1."""
         if not np.isfinite(brightness):
             raise ValueError(f"brightness = {brightness}; expected a finite colour gain")
         g = float(np.clip(brightness, 0.25, 4.0))
+        w = teeth_resolved(gsd)
         if g <= 1.0:
             e = self.brightness_exponent
         else:
-            w = teeth_resolved(gsd)
             e = (1.0 - w) * self.bright_exponent[0] + w * self.bright_exponent[1]
-        return float(self.b_rgb * g ** e)
+        f0, f1 = self.colour_scale_factor
+        return float(f0 ** (1.0 - w) * f1 ** w * self.b_rgb * g ** e)
 
     def reshaping_for(self, gsd: float) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping in a view of ground sampling distance

@@ -80,7 +80,8 @@ def test_a_fitted_lamp_discounts_the_evidence_where_the_teeth_are_not_resolved()
 def test_the_colour_scale_follows_the_light_by_view():
     """A dimmer light narrows b_rgb by brightness^brightness_exponent in every view; a brighter one
     widens it by brightness^e, e blended from (unresolved, resolved teeth) by the view."""
-    cfg = LikelihoodConfig(b_rgb=0.1, brightness_exponent=0.5, bright_exponent=(1.0, 0.5))
+    cfg = LikelihoodConfig(b_rgb=0.1, brightness_exponent=0.5, bright_exponent=(1.0, 0.5),
+                           colour_scale_factor=(1.0, 1.0))
     close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
     assert cfg.colour_scale_for(1.0, coarse) == pytest.approx(0.1)
     assert cfg.colour_scale_for(0.25, coarse) == pytest.approx(0.05)
@@ -94,6 +95,15 @@ def test_the_colour_scale_follows_the_light_by_view():
     for bad in ((1.0,), (-0.1, 0.75), (float("inf"), 0.75)):
         with pytest.raises(ValueError, match="bright_exponent"):
             LikelihoodConfig(bright_exponent=bad)
+    # the factor by view: its resolved value where the teeth are resolved, geometric in between
+    wide = LikelihoodConfig(b_rgb=0.1, brightness_exponent=0.5, colour_scale_factor=(1.0, 4.0))
+    assert wide.colour_scale_for(1.0, coarse) == pytest.approx(0.1)
+    assert wide.colour_scale_for(1.0, close) == pytest.approx(0.4)
+    assert wide.colour_scale_for(1.0, half) == pytest.approx(0.2)
+    assert wide.colour_scale_for(0.25, close) == pytest.approx(0.2)
+    for bad in ((1.0,), (0.0, 1.0), (1.0, float("nan"))):
+        with pytest.raises(ValueError, match="colour_scale_factor"):
+            LikelihoodConfig(colour_scale_factor=bad)
 
 
 def test_table_colour_comes_from_its_model():

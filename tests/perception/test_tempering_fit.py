@@ -98,3 +98,15 @@ def test_fit_recovers_the_reshaping():
     close = np.array([r["view"] == "inspect" for r in rows])
     before = mod.coverage(np.array([r["level"] for r in rows])[close], np.array([0.5, 0.95]))
     assert before[1] - 0.95 > 0.02  # the close view was miscalibrated before the fit
+
+
+def test_the_likelihood_flag_refuses_an_unknown_field_or_a_bad_value(tmp_path, capsys):
+    """`--likelihood KEY=VALUE` names the bad key or value in one line and exits 2, before any
+    scene is rendered."""
+    mod = _script()
+    rows = tmp_path / "rows.json"
+    assert mod.main(["--likelihood", "colour_scale=[1,2]", "--rows", str(rows)]) == 2
+    assert "colour_scale" in capsys.readouterr().err
+    assert mod.main(["--likelihood", "colour_scale_factor=[1,9]", "--rows", str(rows)]) == 2
+    assert "colour_scale_factor = [1, 9]" in capsys.readouterr().err
+    assert not rows.exists()
