@@ -169,12 +169,8 @@ class LikelihoodConfig:
             raise ValueError(f"brightness = {brightness}; expected a finite colour gain")
         g = float(np.clip(brightness, 0.25, 4.0))
         w = teeth_resolved(gsd)
-        if g <= 1.0:
-            e = self.brightness_exponent
-        else:
-            e = (1.0 - w) * self.bright_exponent[0] + w * self.bright_exponent[1]
-        f0, f1 = self.colour_scale_factor
-        return float(f0 ** (1.0 - w) * f1 ** w * self.b_rgb * g ** e)
+        e = self.brightness_exponent if g <= 1.0 else by_view(self.bright_exponent, w)
+        return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g ** e)
 
     def reshaping_for(self, gsd: float) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping in a view of ground sampling distance
@@ -224,13 +220,22 @@ def teeth_resolved(gsd: float) -> float:
     return float(np.clip((np.pi * GEAR_MODULE / gsd - 2.0) / 4.0, 0.0, 1.0))
 
 
+def by_view(pair: tuple[float, float], resolved: float | np.ndarray, geometric: bool = False):
+    """An (unresolved, resolved teeth) pair's value at teeth-resolution `resolved` in [0, 1] (a
+    number or an array, `teeth_resolved`): blended geometrically (factors) or linearly
+    (exponents)."""
+    a, b = pair
+    if geometric:
+        return a ** (1.0 - resolved) * b ** resolved
+    return (1.0 - resolved) * a + resolved * b
+
+
 def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],
                     resolved: float | np.ndarray) -> tuple:
     """(factor, exponent) of the reshaping at teeth-resolution `resolved` in [0, 1] (a number or
     an array, `teeth_resolved`): the (unresolved, resolved) factors blended geometrically, the
     exponents linearly."""
-    (f0, f1), (g0, g1) = posterior_factor, shape_exponent
-    return f0 ** (1.0 - resolved) * f1 ** resolved, (1.0 - resolved) * g0 + resolved * g1
+    return by_view(posterior_factor, resolved, geometric=True), by_view(shape_exponent, resolved)
 
 
 @numba.njit(cache=True, inline="always")
