@@ -131,14 +131,14 @@ class Rows:
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the factor on its recorded posterior's tempering under `config`: the search's
         tempering ratio times the reshaping's factor (the levels are recorded before it)."""
-        factor = np.array([config.reshaping_for(g)[0] for g in self.gsd])
+        factor = np.array([config.reshaping_for(r["gsd"], r["gear"])[0] for r in self.rows])
         return self.tempering_ratio(config) * factor
 
     def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
         """Per row: the shape exponent `config` gives it (None without shaped levels)."""
         if self.shapes is None:
             return None
-        return np.array([config.reshaping_for(g)[1] for g in self.gsd])
+        return np.array([config.reshaping_for(r["gsd"], r["gear"])[1] for r in self.rows])
 
     def at(self, config: LikelihoodConfig) -> np.ndarray:
         """Every row's truth level under `config`."""
@@ -159,7 +159,7 @@ def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
     EXPONENTS): the set whose truth levels are closest to uniform in every perturbation group x
     view cell, on the levels before the reshaping (the returned config has it off: fit it
     after, with `fit_reshaping`, on rows collected under the new tempering)."""
-    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0))
+    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0), far_reshaping={})
     g0 = base.reference_gsd
     views = [r["view"] for r in data.rows]
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
@@ -191,13 +191,16 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
     """`base` with the posterior's reshaping fitted, the search's tempering held: the
     (posterior_factor, shape_exponent) pair for resolved teeth, then for unresolved ones, each
     from the grid `factors` x `shapes`, `rounds` times in turn, whose truth levels are closest to
-    uniform in every perturbation group x view cell. The reshaping moves no cell, so the rows'
-    levels under it are the pipeline's (docs/perception.md, Tempering, item 7)."""
+    uniform in every perturbation group x view cell, `base`'s far-view factor per gear held
+    (`far_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
+    pipeline's (docs/perception.md, Tempering, item 7)."""
     if data.shapes is None:
         raise InputError("the rows hold no shaped levels; collect them with this script "
                          "(every file at the same shape exponents)")
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
-    ratio = data.tempering_ratio(base)
+    far = np.array([base.reshaping_for(r["gsd"], r["gear"])[0] / base.reshaping_for(r["gsd"])[0]
+                    for r in data.rows])
+    ratio = data.tempering_ratio(base) * far
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)
     for _ in range(rounds):

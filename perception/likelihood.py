@@ -37,6 +37,11 @@ SHAPE_EXPONENT = (1.1, 1.4)
 # b_rgb's factor, (unresolved, resolved teeth): chosen on tuning scenes (docs/perception.md,
 # Tempering, item 8).
 COLOUR_SCALE_FACTOR = (1.0, 2.0)
+# Per gear, (a, c) of the far view's reshaping factor (a (gsd / FAR_REFERENCE_GSD)^c)^(1 - w), w =
+# `teeth_resolved`: the small gear's far-view errors grow faster with the distance than its
+# posterior's width (docs/perception.md, Tempering, item 9); the gears not named keep 1.
+FAR_RESHAPING = {"small": (0.9, -2.1)}
+FAR_REFERENCE_GSD = 1.2e-3  # [m/pixel] the scene view's typical gsd, where a alone applies
 
 
 @dataclass
@@ -73,12 +78,16 @@ class LikelihoodConfig:
     # teeth) each; (1, 1) = off. Fitted on tuning scenes (docs/perception.md, Tempering, item 7).
     posterior_factor: tuple[float, float] = POSTERIOR_FACTOR
     shape_exponent: tuple[float, float] = SHAPE_EXPONENT
+    # per gear, (a, c) of a further factor on the reshaping where the teeth are not resolved,
+    # following the gsd within the far view (reshaping_for; docs/perception.md, Tempering, item 9)
+    far_reshaping: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(FAR_RESHAPING))
+    far_reference_gsd: float = FAR_REFERENCE_GSD
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
             raise ValueError(f"p_out = {self.p_out}; expected a probability in (0, 1)")
         for name in ("b_rgb", "b_d", "depth_range", "tempering", "correlation_length",
-                     "gsd_exponent", "reference_gsd"):
+                     "gsd_exponent", "reference_gsd", "far_reference_gsd"):
             value = getattr(self, name)
             if name == "tempering" and value is None:
                 continue
@@ -99,6 +108,12 @@ class LikelihoodConfig:
             if not (len(pair) == 2 and all(np.isfinite(e) and 0 < e <= 4 for e in pair)):
                 raise ValueError(f"LikelihoodConfig.{name} = {pair}; expected (unresolved, "
                                  "resolved) values in (0, 4]")
+        for gear, pair in self.far_reshaping.items():
+            gear_spec(gear)  # a known gear, or ValueError naming the valid ones
+            if not (len(pair) == 2 and np.isfinite(pair[0]) and 0 < pair[0] <= 4 and np.isfinite(pair[1])
+                    and abs(pair[1]) <= 8):
+                raise ValueError(f"LikelihoodConfig.far_reshaping[{gear!r}] = {pair}; expected (a in (0, 4], "
+                                 "c in [-8, 8]) of the far view's factor (a (gsd / far_reference_gsd)^c)^(1 - w)")
         for gear, factor in self.gear_tempering.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
             if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
@@ -172,13 +187,17 @@ class LikelihoodConfig:
         e = self.brightness_exponent if g <= 1.0 else by_view(self.bright_exponent, w)
         return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g ** e)
 
-    def reshaping_for(self, gsd: float) -> tuple[float, float]:
-        """(factor, exponent) of the posterior's reshaping in a view of ground sampling distance
-        `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's two
-        values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
-        geometrically)."""
-        factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent,
-                                           teeth_resolved(gsd))
+    def reshaping_for(self, gsd: float, gear: str | None = None) -> tuple[float, float]:
+        """(factor, exponent) of the posterior's reshaping for `gear` in a view of ground sampling
+        distance `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's
+        two values blended by how well the view resolves the teeth (w = `teeth_resolved`; the
+        factor geometrically), the factor times (a (gsd / far_reference_gsd)^c)^(1 - w) with (a, c)
+        = far_reshaping[gear] (1 for a gear it does not name, and for gear None)."""
+        w = teeth_resolved(gsd)
+        factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent, w)
+        if gear is not None and gear in self.far_reshaping:
+            a, c = self.far_reshaping[gear]
+            factor = factor * by_view((a * (gsd / self.far_reference_gsd) ** c, 1.0), w, geometric=True)
         return float(factor), float(exponent)
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:

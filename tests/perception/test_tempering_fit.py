@@ -1,30 +1,17 @@
 """The tempering fit (benchmarks/perception_tempering.py) on rows whose miscalibration is known."""
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 
 from perception.likelihood import LikelihoodConfig
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "perception_tempering.py"
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("perception_tempering", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_fit_recovers_each_gears_factor():
+def test_fit_recovers_each_gears_factor(benchmark_script):
     """Each gear's posteriors too sharp or too wide by a known factor on its tempering: the truths'
     squared Mahalanobis distances are chi2_3 times it, so multiplying the tempering by its inverse
     makes the levels uniform; the fit must find that factor per gear and leave the exponents."""
-    mod = _script()
+    mod = benchmark_script("perception_tempering")
     rng = np.random.default_rng(0)
     bare = LikelihoodConfig(gear_tempering={})
     truth = {"small": 1.0, "medium": 1.5, "large": 0.7}  # > 1: over-confident
@@ -65,12 +52,12 @@ def _radial_levels(r_truth: np.ndarray, deficit, factors, shapes) -> np.ndarray:
     return out
 
 
-def test_fit_recovers_the_reshaping():
+def test_fit_recovers_the_reshaping(benchmark_script):
     """Close views whose posterior deficit is (r^2 / 2)^(1 / 1.25) / 0.84 (heavier tails and a
     sharper core than the Gaussian truths'), far views Gaussian: the reshaping (factor D)^exponent
     that makes them Gaussian is (0.84, 1.25) close and (1, 1) far; the fit must pick both from
     the grids and make both views' levels uniform."""
-    mod = _script()
+    mod = benchmark_script("perception_tempering")
     rng = np.random.default_rng(1)
     bare = LikelihoodConfig(gear_tempering={})
     factors = np.asarray(mod.FACTORS)
@@ -100,10 +87,10 @@ def test_fit_recovers_the_reshaping():
     assert before[1] - 0.95 > 0.02  # the close view was miscalibrated before the fit
 
 
-def test_the_likelihood_flag_refuses_an_unknown_field_or_a_bad_value(tmp_path, capsys):
+def test_the_likelihood_flag_refuses_an_unknown_field_or_a_bad_value(tmp_path, capsys, benchmark_script):
     """`--likelihood KEY=VALUE` names the bad key or value in one line and exits 2, before any
     scene is rendered."""
-    mod = _script()
+    mod = benchmark_script("perception_tempering")
     rows = tmp_path / "rows.json"
     assert mod.main(["--likelihood", "colour_scale=[1,2]", "--rows", str(rows)]) == 2
     assert "colour_scale" in capsys.readouterr().err

@@ -1,22 +1,11 @@
 """benchmarks/nfpde_policy.py's results file, shared by processes that train on different
 estimates (one per sampler, run side by side): each keeps the others' runs and estimates."""
 
-import importlib.util
 import json
-from pathlib import Path
-
-ROOT = Path(__file__).parents[3]
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("nfpde_policy", ROOT / "benchmarks" / "nfpde_policy.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_processes_sharing_a_results_file_keep_each_others_runs_and_estimates(tmp_path):
-    merge = _script().merge_with_file
+def test_processes_sharing_a_results_file_keep_each_others_runs_and_estimates(tmp_path, benchmark_script):
+    merge = benchmark_script("nfpde_policy").merge_with_file
     path = tmp_path / "nfpde_policy-humanoid-mixture5.json"
     run = lambda name, seed: {"algo": "sac", "train_on": name, "seed": seed, "final_mean_return": 1.0}  # noqa: E731
     # the DROPO process wrote first; the NFPDE process read the file before that

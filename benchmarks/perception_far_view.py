@@ -1,0 +1,155 @@
+"""Fit the far view's reshaping per gear against its gsd (`LikelihoodConfig.far_reshaping`) from
+calibration results.
+
+Within the scene view a gear's distance from the camera changes its gsd by about 1.8x, and a
+posterior's width may follow the gsd more slowly than its errors do (the small gear's:
+docs/perception.md, Tempering, item 9). This script reads `goflow bench calibration` results
+(their rows: each posterior's truth level, gsd, gear and reshaping exponent), and fits for each
+gear the factor (a (gsd / g_far)^c)^(1 - w) on the scene view's reshaping (w = `teeth_resolved`,
+g_far = `far_reference_gsd`) whose truth levels are closest to uniform in every perturbation
+group and in each fifth of the gear's gsd range, on top of the reshaping the rows were made with.
+
+A factor f on the reshaping multiplies the truth's deficit D before the shape exponent g, so its
+level moves as that of a Gaussian truth in 3 dimensions would: level' = F(f^g F^-1(level)), F the
+chi-square distribution function with 3 degrees of freedom. Checked against the exact levels that
+`perception_tempering.py` records on tuning rows (docs/perception.md, Tempering, item 9).
+
+    .venv/bin/python benchmarks/perception_far_view.py \
+        --results docs/results/perception_calibration_seed1{5,6,7,8,9}000.json \
+        docs/results/perception_calibration_seed2{0,1}000.json --json runs/far_view_fit.json
+
+prints, per gear, the fitted (a, c) and the coverage at 50 and 90 % in each fifth of its gsd range
+before and after. Rows made with another `far_reshaping` than none are fitted on top of it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from common.errors import InputError
+from common.files import check_output_file, read_json, write_json
+from perception.likelihood import FAR_REFERENCE_GSD, teeth_resolved
+
+FIT_LEVELS = np.linspace(0.05, 0.95, 19)
+SLOPES = np.round(np.linspace(-4.0, 2.0, 61), 2)
+AMPLITUDES = np.round(np.geomspace(0.5, 2.0, 41), 4)
+BINS = 5  # parts of each gear's gsd range, each a cell of the fit and of the table
+
+
+def scene_rows(paths: list[Path]) -> list[dict]:
+    """The informative scene-view rows of calibration results, pooled (InputError if a file is
+    not one or holds none)."""
+    rows: list[dict] = []
+    for path in paths:
+        result = read_json(path, "calibration result")
+        if not isinstance(result, dict) or not isinstance(result.get("rows"), list):
+            raise InputError(f"{path}: not a calibration result (no 'rows' list)")
+        rows += [r for r in result["rows"] if r.get("view") == "scene" and r.get("informative")
+                 and all(k in r for k in ("level", "gsd", "gear", "shape", "group"))]
+    if not rows:
+        raise InputError(f"{[str(p) for p in paths]}: no informative scene-view rows with levels")
+    return rows
+
+
+def moved_levels(levels: np.ndarray, shape: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """The truth levels after multiplying each posterior's reshaping factor by `factor` (its
+    deficit scaled before the shape exponent `shape`), read as a 3-D Gaussian truth's."""
+    q = chi2.ppf(np.clip(levels, 1e-12, 1 - 1e-12), 3)
+    return chi2.cdf(factor ** shape * q, 3)
+
+
+def far_factor(gsd: np.ndarray, a: float, c: float, reference: float = FAR_REFERENCE_GSD) -> np.ndarray:
+    """(a (gsd / reference)^c)^(1 - w), w = teeth_resolved(gsd), per row."""
+    unresolved = 1.0 - np.array([teeth_resolved(g) for g in gsd])
+    return np.exp(unresolved * (np.log(a) + c * np.log(gsd / reference)))
+
+
+def _coverage(levels: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+    return (levels[:, None] < nominal[None, :]).mean(axis=0)
+
+
+def _cells(rows: list[dict]) -> list[np.ndarray]:
+    """Masks of the fit's cells: every group, and every fifth of the rows' gsd range."""
+    groups = np.array([r["group"] for r in rows])
+    gsd = np.array([r["gsd"] for r in rows])
+    edges = np.quantile(gsd, np.linspace(0.0, 1.0, BINS + 1))
+    bins = np.clip(np.searchsorted(edges, gsd, side="right") - 1, 0, BINS - 1)
+    return [groups == g for g in np.unique(groups)] + [bins == b for b in range(BINS)]
+
+
+def fit_gear(rows: list[dict]) -> tuple[float, float]:
+    """(a, c) whose moved levels are closest to uniform in every cell of `_cells` (the gsd cells
+    counted twice)."""
+    levels = np.array([r["level"] for r in rows])
+    shape = np.array([r["shape"] for r in rows])
+    gsd = np.array([r["gsd"] for r in rows])
+    q = chi2.ppf(np.clip(levels, 1e-12, 1 - 1e-12), 3)
+    # log of the factor's two terms per row, and each level's moved value is F(f^g q):
+    # compare f^g q with the chi-square quantiles of FIT_LEVELS instead of evaluating F
+    unresolved = 1.0 - np.array([teeth_resolved(g) for g in gsd])
+    log_q, log_ratio = np.log(q), np.log(gsd / FAR_REFERENCE_GSD)
+    thresholds = np.log(chi2.ppf(FIT_LEVELS, 3))
+    cells = [m for m in _cells(rows) if m.any()]
+    weights = np.array([1.0] * (len(cells) - BINS) + [2.0] * BINS)[-len(cells):]
+    member = np.array(cells, dtype=float)  # (cells, rows)
+    sizes = member.sum(axis=1)
+    best = (np.inf, 1.0, 0.0)
+    for c in SLOPES:
+        for a in AMPLITUDES:
+            moved = log_q + shape * unresolved * (np.log(a) + c * log_ratio)  # log(f^g q)
+            below = (moved[:, None] < thresholds[None, :]).astype(float)  # (rows, levels)
+            cover = member @ below / sizes[:, None]
+            loss = float((weights[:, None] * (cover - FIT_LEVELS) ** 2).sum())
+            if loss < best[0]:
+                best = (loss, float(a), float(c))
+    return best[1], best[2]
+
+
+def report(rows: list[dict], a: float, c: float) -> list[str]:
+    """Markdown rows: coverage at 50 and 90 % per fifth of the gsd range, before and after."""
+    levels = np.array([r["level"] for r in rows])
+    gsd = np.array([r["gsd"] for r in rows])
+    moved = moved_levels(levels, np.array([r["shape"] for r in rows]), far_factor(gsd, a, c))
+    edges = np.quantile(gsd, np.linspace(0.0, 1.0, BINS + 1))
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (gsd >= lo) & (gsd <= hi)
+        before, after = _coverage(levels[m], np.array([0.5, 0.9])), _coverage(moved[m], np.array([0.5, 0.9]))
+        out.append(f"| {rows[0]['gear']} | {1e3 * lo:.2f}-{1e3 * hi:.2f} | {m.sum()} | "
+                   f"{100 * before[0]:.0f} / {100 * before[1]:.0f} | {100 * after[0]:.0f} / {100 * after[1]:.0f} |")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--results", type=Path, nargs="+", required=True,
+                   help="goflow bench calibration results (JSON), pooled")
+    p.add_argument("--json", type=Path, default=None, help="write the fit and the table here")
+    args = p.parse_args(argv)
+    try:
+        out = check_output_file(args.json, "--json") if args.json else None
+        rows = scene_rows(args.results)
+    except (InputError, OSError, ValueError) as e:
+        print(f"perception_far_view: {e}", file=sys.stderr)
+        return 2
+    fits, lines = {}, ["| gear | gsd [mm] | n | before, % at 50 / 90 | after |", "|---|---|---|---|---|"]
+    for gear in sorted({r["gear"] for r in rows}):
+        sub = [r for r in rows if r["gear"] == gear]
+        a, c = fit_gear(sub)
+        fits[gear] = [a, c]
+        lines += report(sub, a, c)
+    print("\n".join(lines))
+    print(f"far_reshaping (a, c) on top of the rows' own: {fits}")
+    if out is not None:
+        write_json(out, {"far_reshaping": fits, "reference_gsd": FAR_REFERENCE_GSD, "posteriors": len(rows),
+                         "results": [str(x) for x in args.results], "table": lines})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
