@@ -91,7 +91,7 @@ def confidently_wrong(row: dict) -> bool:
 
 
 # What each row keeps of the posterior's search info (explain a miscalibration after the fact).
-ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "inlier_fraction", "valid_fraction",
+ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "stride", "inlier_fraction", "valid_fraction",
             "depth_noise", "pixel_noise", "light", "edge_mass", "posterior_factor", "shape")
 
 
