@@ -31,11 +31,15 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from common.errors import InputError
-from common.files import check_output_file, read_json, write_json
-from perception.likelihood import FAR_REFERENCE_GSD, teeth_resolved
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))  # perception_tempering, also when not run as a script
 
-FIT_LEVELS = np.linspace(0.05, 0.95, 19)
+from common.errors import InputError  # noqa: E402
+from common.files import check_output_file, read_json, write_json  # noqa: E402
+from perception.likelihood import FAR_REFERENCE_GSD, far_factor, teeth_resolved  # noqa: E402
+from perception_tempering import FIT_LEVELS, coverage  # noqa: E402
+
 SLOPES = np.round(np.linspace(-4.0, 2.0, 61), 2)
 AMPLITUDES = np.round(np.geomspace(0.5, 2.0, 41), 4)
 BINS = 5  # parts of each gear's gsd range, each a cell of the fit and of the table
@@ -63,14 +67,9 @@ def moved_levels(levels: np.ndarray, shape: np.ndarray, factor: np.ndarray) -> n
     return chi2.cdf(factor ** shape * q, 3)
 
 
-def far_factor(gsd: np.ndarray, a: float, c: float, reference: float = FAR_REFERENCE_GSD) -> np.ndarray:
-    """(a (gsd / reference)^c)^(1 - w), w = teeth_resolved(gsd), per row."""
-    unresolved = 1.0 - np.array([teeth_resolved(g) for g in gsd])
-    return np.exp(unresolved * (np.log(a) + c * np.log(gsd / reference)))
-
-
-def _coverage(levels: np.ndarray, nominal: np.ndarray) -> np.ndarray:
-    return (levels[:, None] < nominal[None, :]).mean(axis=0)
+def far_factors(gsd: np.ndarray, a: float, c: float) -> np.ndarray:
+    """`perception.likelihood.far_factor` of (a, c) at each row's gsd."""
+    return np.array([far_factor(g, a, c) for g in gsd])
 
 
 def _cells(rows: list[dict]) -> list[np.ndarray]:
@@ -89,8 +88,9 @@ def fit_gear(rows: list[dict]) -> tuple[float, float]:
     shape = np.array([r["shape"] for r in rows])
     gsd = np.array([r["gsd"] for r in rows])
     q = chi2.ppf(np.clip(levels, 1e-12, 1 - 1e-12), 3)
-    # log of the factor's two terms per row, and each level's moved value is F(f^g q):
-    # compare f^g q with the chi-square quantiles of FIT_LEVELS instead of evaluating F
+    # `far_factor` in logs, log f = (1 - w) (log a + c log(gsd / g_far)), and each level's moved
+    # value is F(f^g q): compare f^g q with the chi-square quantiles of FIT_LEVELS instead of
+    # evaluating F, over the grid of (a, c)
     unresolved = 1.0 - np.array([teeth_resolved(g) for g in gsd])
     log_q, log_ratio = np.log(q), np.log(gsd / FAR_REFERENCE_GSD)
     thresholds = np.log(chi2.ppf(FIT_LEVELS, 3))
@@ -114,12 +114,12 @@ def report(rows: list[dict], a: float, c: float) -> list[str]:
     """Markdown rows: coverage at 50 and 90 % per fifth of the gsd range, before and after."""
     levels = np.array([r["level"] for r in rows])
     gsd = np.array([r["gsd"] for r in rows])
-    moved = moved_levels(levels, np.array([r["shape"] for r in rows]), far_factor(gsd, a, c))
+    moved = moved_levels(levels, np.array([r["shape"] for r in rows]), far_factors(gsd, a, c))
     edges = np.quantile(gsd, np.linspace(0.0, 1.0, BINS + 1))
     out = []
     for lo, hi in zip(edges[:-1], edges[1:]):
         m = (gsd >= lo) & (gsd <= hi)
-        before, after = _coverage(levels[m], np.array([0.5, 0.9])), _coverage(moved[m], np.array([0.5, 0.9]))
+        before, after = coverage(levels[m], np.array([0.5, 0.9])), coverage(moved[m], np.array([0.5, 0.9]))
         out.append(f"| {rows[0]['gear']} | {1e3 * lo:.2f}-{1e3 * hi:.2f} | {m.sum()} | "
                    f"{100 * before[0]:.0f} / {100 * before[1]:.0f} | {100 * after[0]:.0f} / {100 * after[1]:.0f} |")
     return out

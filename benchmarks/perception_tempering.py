@@ -198,8 +198,7 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
         raise InputError("the rows hold no shaped levels; collect them with this script "
                          "(every file at the same shape exponents)")
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
-    far = np.array([base.reshaping_for(r["gsd"], r["gear"])[0] / base.reshaping_for(r["gsd"])[0]
-                    for r in data.rows])
+    far = np.array([base.far_factor_for(r["gsd"], r["gear"]) for r in data.rows])
     ratio = data.tempering_ratio(base) * far
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)

@@ -190,15 +190,18 @@ class LikelihoodConfig:
     def reshaping_for(self, gsd: float, gear: str | None = None) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping for `gear` in a view of ground sampling
         distance `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's
-        two values blended by how well the view resolves the teeth (w = `teeth_resolved`; the
-        factor geometrically), the factor times (a (gsd / far_reference_gsd)^c)^(1 - w) with (a, c)
-        = far_reshaping[gear] (1 for a gear it does not name, and for gear None)."""
-        w = teeth_resolved(gsd)
-        factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent, w)
-        if gear is not None and gear in self.far_reshaping:
-            a, c = self.far_reshaping[gear]
-            factor = factor * by_view((a * (gsd / self.far_reference_gsd) ** c, 1.0), w, geometric=True)
-        return float(factor), float(exponent)
+        two values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
+        geometrically), the factor times `far_factor_for(gsd, gear)`."""
+        factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent, teeth_resolved(gsd))
+        return float(factor * self.far_factor_for(gsd, gear)), float(exponent)
+
+    def far_factor_for(self, gsd: float, gear: str | None) -> float:
+        """The far view's factor on `gear`'s reshaping at `gsd` [m/pixel]: `far_factor` with (a, c)
+        = far_reshaping[gear], 1 for a gear it does not name and for gear None."""
+        if gear is None or gear not in self.far_reshaping:
+            return 1.0
+        a, c = self.far_reshaping[gear]
+        return far_factor(gsd, a, c, self.far_reference_gsd)
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:
         """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and
@@ -247,6 +250,12 @@ def by_view(pair: tuple[float, float], resolved: float | np.ndarray, geometric: 
     if geometric:
         return a ** (1.0 - resolved) * b ** resolved
     return (1.0 - resolved) * a + resolved * b
+
+
+def far_factor(gsd: float, a: float, c: float, reference: float = FAR_REFERENCE_GSD) -> float:
+    """(a (gsd / reference)^c)^(1 - w), w = `teeth_resolved(gsd)`: a factor following the gsd
+    within the far view, 1 where the teeth are resolved (LikelihoodConfig.far_reshaping)."""
+    return float(by_view((a * (gsd / reference) ** c, 1.0), teeth_resolved(gsd), geometric=True))
 
 
 def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],

@@ -11,7 +11,7 @@ def _rows(mod, gear: str, a: float, c: float, n: int, rng: np.random.Generator) 
     """Scene rows whose posteriors are too wide by the inverse of the far factor (a, c): the truth's
     squared Mahalanobis distance is chi2_3 / factor, so the fit's factor makes them uniform."""
     gsd = rng.uniform(0.85e-3, 1.5e-3, n)
-    factor = mod.far_factor(gsd, a, c)
+    factor = mod.far_factors(gsd, a, c)
     d2 = rng.chisquare(3, n) / factor
     return [{"view": "scene", "informative": True, "gear": gear, "group": ("clean", "dim")[i % 2],
              "gsd": float(g), "shape": 1.0, "level": float(chi2.cdf(d, 3))}
@@ -32,7 +32,7 @@ def test_the_fit_finds_each_gears_slope_and_amplitude(tmp_path, benchmark_script
     # the moved levels of the fitted factor are uniform again in the nearest and farthest fifths
     gsd = np.array([r["gsd"] for r in rows[:4000]])
     moved = mod.moved_levels(np.array([r["level"] for r in rows[:4000]]), np.ones(4000),
-                             mod.far_factor(gsd, *small))
+                             mod.far_factors(gsd, *small))
     for m in (gsd < np.quantile(gsd, 0.2), gsd > np.quantile(gsd, 0.8)):
         assert abs(np.mean(moved[m] < 0.5) - 0.5) < 0.06
 
