@@ -38,7 +38,8 @@ real draws, atoms included.
 Each run writes <out>/<layout>/<method>/<protocol>/seed<k>.json atomically and is skipped when
 present with the same settings: rounds, batch, draws and the sampler's resolved config, `--sampler`
 included (a stored run with other settings is refused, never reused; rerun the command to resume;
-Ctrl-C loses only the runs in progress; a changed sampler default reruns a run, a changed sampler
+Ctrl-C loses at most `--checkpoint-every` rounds of each run in progress, which resumes from its
+checkpoint; a changed sampler default reruns a run, a changed sampler
 *code* does not: delete the folder then). 2-D runs keep the final log density on a 64 x 64 grid for
 the density figure. The summary (mean and standard error over seeds per layout x method x protocol
 and round) goes to `--json` (default <out>/summary.json); `--plot PNG` draws mass and coverage
@@ -188,6 +189,13 @@ def resolved_config(task: Task) -> dict[str, Any]:
                                                                                      task.seed, task.overrides))))
 
 
+def default_config(task: Task) -> dict[str, Any]:
+    """`task`'s sampler config with every field at its default, as JSON data."""
+    from common.config import config_to_dict
+    from learning.samplers.registry import sampler_config as registered_config
+    return to_plain(config_to_dict(registered_config(METHODS[task.method].sampler, None)))
+
+
 def _signal(layout: Layout, method: Method, xi: np.ndarray) -> np.ndarray:
     if method.signal == "success":
         return layout.contains(xi).astype(np.float64)
@@ -225,9 +233,36 @@ def density_grid(sampler: Any, grid: int = GRID) -> list[list[float]]:
     return np.round(lp, 4).tolist()
 
 
-def run_task(task: Task) -> dict[str, Any]:
+def partial_path(task: Task, out: Path) -> Path:
+    """Where `task`'s checkpoint goes while it runs (removed once its JSON is written)."""
+    return task.path(out).with_name(f"checkpoint-seed{task.seed}.json")
+
+
+def _check_settings(path: Path, record: dict[str, Any], task: Task) -> None:
+    """InputError naming each difference if `record` (read from `path`) has other settings than
+    `task`. A config field the record lacks (one added to the sampler after it was written) reads
+    as the field's default: fields are added with defaults that keep the earlier behaviour."""
+    want = task.settings()
+    have = {k: record.get(k) for k in want}
+    if isinstance(have["config"], dict):
+        have["config"] = {**default_config(task), **have["config"]}
+    if have == want:
+        return
+    diff = [f"{k} {have[k]!r} (want {want[k]!r})" for k in ("rounds", "batch", "draws") if have[k] != want[k]]
+    if have["config"] != want["config"]:
+        old, new = have["config"] or {}, want["config"]
+        diff += [f"config.{k} {old.get(k, 'absent')!r} (want {new.get(k, 'absent')!r})"
+                 for k in sorted({*old, *new}) if old.get(k, diff) != new.get(k, diff)]
+    raise InputError(f"{path} holds a run with other settings: {', '.join(diff)}; delete it or choose another --out")
+
+
+def run_task(task: Task, out: Path | None = None, checkpoint_every: int = 0) -> dict[str, Any]:
     """Run `task` and return its record (the run's JSON): settings, the measured rows, every
-    update's seconds and, on a 2-D layout, the final log density on the grid."""
+    update's seconds and, on a 2-D layout, the final log density on the grid.
+
+    With `out` and `checkpoint_every` > 0 the run's state (sampler, batch and torch generators,
+    rows so far) is written to `partial_path` every `checkpoint_every` rounds, and a run that finds
+    one there resumes from it: the rows are those of an uninterrupted run."""
     import torch
     from learning.samplers.registry import make_sampler
     torch.set_num_threads(1)
@@ -239,8 +274,26 @@ def run_task(task: Task) -> dict[str, Any]:
     batch_rng = np.random.default_rng([task.seed, 0])
     inside = layout.sample_inside(task.draws, np.random.default_rng([task.seed, 2]))
     plan = schedule(task.rounds)
-    rows, seconds = [], []
-    for k in range(task.rounds + 1):
+    rows: list[dict[str, Any]] = []
+    seconds: list[float] = []
+    start, wall_before = 0, 0.0
+    partial = partial_path(task, out) if out is not None and checkpoint_every > 0 else None
+    if partial is not None and partial.exists():
+        state = read_json(partial, "sampler_quality checkpoint")
+        _check_settings(partial, state, task)
+        try:
+            sampler.load_state_dict(state["sampler"])
+            batch_rng.bit_generator.state = state["batch_rng"]
+            torch.set_rng_state(torch.tensor(state["torch_rng"], dtype=torch.uint8))
+            start, rows, seconds, wall_before = int(state["round"]), state["rows"], state["update_s"], state["wall_s"]
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise InputError(f"{partial}: not a checkpoint of this run ({exc!r}); delete it to start over") from exc
+    for k in range(start, task.rounds + 1):
+        if partial is not None and k > start and k % checkpoint_every == 0 and k < task.rounds:
+            write_json(partial, to_strict_json({
+                "benchmark": NAME, **task.settings(), "round": k, "rows": rows, "update_s": seconds,
+                "wall_s": wall_before + time.perf_counter() - t_start, "sampler": sampler.state_dict(),
+                "batch_rng": batch_rng.bit_generator.state, "torch_rng": torch.get_rng_state().tolist()}))
         if k in plan:
             row = {"round": k, **measure(sampler, layout, method, inside, task.draws,
                                          np.random.default_rng([task.seed, 1, k]))}
@@ -261,24 +314,26 @@ def run_task(task: Task) -> dict[str, Any]:
               "objective": list(method.objective), "signal": method.signal, "rows": rows,
               "update_s": [round(s, 5) for s in seconds],
               "update_s_median": float(np.median(seconds)) if seconds else None,
-              "wall_s": time.perf_counter() - t_start}
+              "wall_s": wall_before + time.perf_counter() - t_start}
     if layout.dim == 2:
         record["density"] = {"grid": GRID, "log_prob": density_grid(sampler)}
     return to_strict_json(record)  # as stored: a non-finite number is null (see INFINITE)
 
 
-def run_and_save(task: Task, out: Path) -> dict[str, Any]:
-    """Run `task` and write its JSON atomically under `out`; return its record."""
-    record = run_task(task)
+def run_and_save(task: Task, out: Path, checkpoint_every: int = 0) -> dict[str, Any]:
+    """Run `task` (resuming from its checkpoint, see `run_task`) and write its JSON atomically
+    under `out`; return its record."""
+    record = run_task(task, out, checkpoint_every)
     write_json(task.path(out), record)
+    partial_path(task, out).unlink(missing_ok=True)
     return record
 
 
-def run_job(task: Task, out: Path) -> dict[str, Any]:
+def run_job(task: Task, out: Path, checkpoint_every: int = 0) -> dict[str, Any]:
     """`run_and_save` on one torch thread (the grid's job: one CPU each)."""
     import torch
     torch.set_num_threads(1)
-    return run_and_save(task, out)
+    return run_and_save(task, out, checkpoint_every)
 
 
 # -- the plan -----------------------------------------------------------------------------------
@@ -378,16 +433,7 @@ def stored(task: Task, out: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     record = read_json(path, "sampler_quality run")
-    want = task.settings()
-    have = {k: record.get(k) for k in want}
-    if have != want:
-        diff = [f"{k} {have[k]!r} (want {want[k]!r})" for k in ("rounds", "batch", "draws") if have[k] != want[k]]
-        if have["config"] != want["config"]:
-            old, new = have["config"] or {}, want["config"]
-            diff += [f"config.{k} {old.get(k)!r} (want {new.get(k)!r})" for k in sorted({*old, *new})
-                     if old.get(k) != new.get(k)]
-        diff = ", ".join(diff)
-        raise InputError(f"{path} holds a run with other settings: {diff}; delete it or choose another --out")
+    _check_settings(path, record, task)
     return record
 
 
@@ -558,6 +604,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=256, help="points per update")
     p.add_argument("--draws", type=int, default=4096, help="draws per measurement (mass, KL) and points on F (coverage)")
     p.add_argument("--workers", type=int, default=1, help="processes (one torch thread each)")
+    p.add_argument("--checkpoint-every", type=int, default=50, metavar="ROUNDS",
+                   help="write each run's state every ROUNDS rounds, and resume a run from it (0: never)")
     p.add_argument("--sampler", action="append", metavar="KEY=VALUE",
                    help="a GoFlowConfig field for the goflow-* methods, e.g. leak_target=0.008 (repeatable; value "
                         "as JSON, else a string); refused with any non-goflow method, and for seed, mode (and alpha "
@@ -580,6 +628,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = make_parser().parse_args(argv)
         tasks = plan(args)
+        every = check_int(args.checkpoint_every, "--checkpoint-every", 0)
         out = check_output_dir(args.out, "--out")
         summary_path = check_output_file(args.json or out / "summary.json", "--json")
         if args.plot is not None:
@@ -594,7 +643,9 @@ def main(argv: list[str] | None = None) -> int:
             if not tasks:
                 raise InputError(f"--existing: no stored run of this grid in {out}")
         skipped = len(done)
-        print(f"{NAME}: {len(tasks)} runs, {skipped} already in {out}, {len(todo)} to run, {args.workers} worker(s)")
+        resuming = sum(partial_path(t, out).exists() for t in todo) if every else 0
+        print(f"{NAME}: {len(tasks)} runs, {skipped} already in {out}, {len(todo)} to run ({resuming} from a "
+              f"checkpoint), {args.workers} worker(s)")
         for task in todo:  # sampler configs are checked before any run starts
             resolved_config(task)
 
@@ -605,7 +656,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{record['update_s_median']:.4f} s, final mass {record['rows'][-1]['mass']:.3f}, "
                   f"cov10 {record['rows'][-1]['cov10']:.3f}", flush=True)
 
-        jobs = [Job(f"{t.layout}/{t.method}/{t.protocol}/seed{t.seed}", run_job, (t, out)) for t in todo]
+        jobs = [Job(f"{t.layout}/{t.method}/{t.protocol}/seed{t.seed}", run_job, (t, out, every)) for t in todo]
         run_grid(jobs, make_backend(args.ray, args.workers, inline=True), progress=False, desc=NAME,
                  on_result=lambda _, record: report(record))
 
