@@ -131,14 +131,14 @@ class Rows:
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the factor on its recorded posterior's tempering under `config`: the search's
         tempering ratio times the reshaping's factor (the levels are recorded before it)."""
-        factor = np.array([config.reshaping_for(r["gsd"], r["gear"])[0] for r in self.rows])
+        factor = np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"])[0] for r in self.rows])
         return self.tempering_ratio(config) * factor
 
     def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
         """Per row: the shape exponent `config` gives it (None without shaped levels)."""
         if self.shapes is None:
             return None
-        return np.array([config.reshaping_for(r["gsd"], r["gear"])[1] for r in self.rows])
+        return np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"])[1] for r in self.rows])
 
     def at(self, config: LikelihoodConfig) -> np.ndarray:
         """Every row's truth level under `config`."""
@@ -198,7 +198,7 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
         raise InputError("the rows hold no shaped levels; collect them with this script "
                          "(every file at the same shape exponents)")
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
-    far = np.array([base.far_factor_for(r["gsd"], r["gear"]) for r in data.rows])
+    far = np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"]) for r in data.rows])
     ratio = data.tempering_ratio(base) * far
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)

@@ -37,11 +37,13 @@ SHAPE_EXPONENT = (1.1, 1.4)
 # b_rgb's factor, (unresolved, resolved teeth): chosen on tuning scenes (docs/perception.md,
 # Tempering, item 8).
 COLOUR_SCALE_FACTOR = (1.0, 2.0)
-# Per gear, (a, c) of the far view's reshaping factor (a (gsd / FAR_REFERENCE_GSD)^c)^(1 - w), w =
-# `teeth_resolved`: the small gear's far-view errors grow faster with the distance than its
-# posterior's width (docs/perception.md, Tempering, item 9); the gears not named keep 1.
-FAR_RESHAPING = {"small": (0.9, -2.1)}
-FAR_REFERENCE_GSD = 1.2e-3  # [m/pixel] the scene view's typical gsd, where a alone applies
+# Per gear, (a, b) of the far view's reshaping factor (a (n / FAR_REFERENCE_PIXELS)^b)^(1 - w), n the
+# gear's sampled pixels at the MAP, w = `teeth_resolved`: where the teeth are not resolved the
+# sampled pixels err about independently, so a far view's evidence grows with their number, which
+# the tempering law (outline-bound evidence) and the stride's weighting leave out (docs/perception.md,
+# Tempering, item 9); fitted by benchmarks/perception_far_view.py. The gears not named keep 1.
+FAR_RESHAPING = {"small": (1.4641, 1.1), "medium": (1.0353, 0.8), "large": (1.0353, 0.9)}
+FAR_REFERENCE_PIXELS = 600.0  # sampled pixels at which a alone applies (SearchConfig.fine_pixels)
 
 
 @dataclass
@@ -78,16 +80,16 @@ class LikelihoodConfig:
     # teeth) each; (1, 1) = off. Fitted on tuning scenes (docs/perception.md, Tempering, item 7).
     posterior_factor: tuple[float, float] = POSTERIOR_FACTOR
     shape_exponent: tuple[float, float] = SHAPE_EXPONENT
-    # per gear, (a, c) of a further factor on the reshaping where the teeth are not resolved,
-    # following the gsd within the far view (reshaping_for; docs/perception.md, Tempering, item 9)
+    # per gear, (a, b) of a further factor on the reshaping where the teeth are not resolved,
+    # following the gear's sampled pixel count (reshaping_for; docs/perception.md, Tempering, item 9)
     far_reshaping: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(FAR_RESHAPING))
-    far_reference_gsd: float = FAR_REFERENCE_GSD
+    far_reference_pixels: float = FAR_REFERENCE_PIXELS
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
             raise ValueError(f"p_out = {self.p_out}; expected a probability in (0, 1)")
         for name in ("b_rgb", "b_d", "depth_range", "tempering", "correlation_length",
-                     "gsd_exponent", "reference_gsd", "far_reference_gsd"):
+                     "gsd_exponent", "reference_gsd", "far_reference_pixels"):
             value = getattr(self, name)
             if name == "tempering" and value is None:
                 continue
@@ -113,7 +115,7 @@ class LikelihoodConfig:
             if not (len(pair) == 2 and np.isfinite(pair[0]) and 0 < pair[0] <= 4 and np.isfinite(pair[1])
                     and abs(pair[1]) <= 8):
                 raise ValueError(f"LikelihoodConfig.far_reshaping[{gear!r}] = {pair}; expected (a in (0, 4], "
-                                 "c in [-8, 8]) of the far view's factor (a (gsd / far_reference_gsd)^c)^(1 - w)")
+                                 "b in [-8, 8]) of the far view's factor (a (pixels / far_reference_pixels)^b)^(1 - w)")
         for gear, factor in self.gear_tempering.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
             if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
@@ -187,21 +189,26 @@ class LikelihoodConfig:
         e = self.brightness_exponent if g <= 1.0 else by_view(self.bright_exponent, w)
         return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g ** e)
 
-    def reshaping_for(self, gsd: float, gear: str | None = None) -> tuple[float, float]:
+    def reshaping_for(self, gsd: float, gear: str | None = None,
+                      pixels: float | None = None) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping for `gear` in a view of ground sampling
         distance `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's
         two values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
-        geometrically), the factor times `far_factor_for(gsd, gear)`."""
+        geometrically), the factor times `far_factor_for(gsd, gear, pixels)`."""
         factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent, teeth_resolved(gsd))
-        return float(factor * self.far_factor_for(gsd, gear)), float(exponent)
+        return float(factor * self.far_factor_for(gsd, gear, pixels)), float(exponent)
 
-    def far_factor_for(self, gsd: float, gear: str | None) -> float:
-        """The far view's factor on `gear`'s reshaping at `gsd` [m/pixel]: `far_factor` with (a, c)
-        = far_reshaping[gear], 1 for a gear it does not name and for gear None."""
+    def far_factor_for(self, gsd: float, gear: str | None, pixels: float | None = None) -> float:
+        """The far view's factor on `gear`'s reshaping at `gsd` [m/pixel] with `pixels` of the gear
+        sampled at its MAP: `far_factor` with (a, b) = far_reshaping[gear]; 1 for a gear it does
+        not name and for gear None. ValueError if it names the gear and `pixels` is not a count > 0."""
         if gear is None or gear not in self.far_reshaping:
             return 1.0
-        a, c = self.far_reshaping[gear]
-        return far_factor(gsd, a, c, self.far_reference_gsd)
+        if pixels is None or not (np.isfinite(pixels) and pixels > 0):
+            raise ValueError(f"pixels = {pixels}; expected the {gear} gear's sampled pixel count (> 0) "
+                             "for its far-view reshaping")
+        a, b = self.far_reshaping[gear]
+        return far_factor(gsd, pixels, a, b, self.far_reference_pixels)
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:
         """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and
@@ -252,10 +259,10 @@ def by_view(pair: tuple[float, float], resolved: float | np.ndarray, geometric: 
     return (1.0 - resolved) * a + resolved * b
 
 
-def far_factor(gsd: float, a: float, c: float, reference: float = FAR_REFERENCE_GSD) -> float:
-    """(a (gsd / reference)^c)^(1 - w), w = `teeth_resolved(gsd)`: a factor following the gsd
-    within the far view, 1 where the teeth are resolved (LikelihoodConfig.far_reshaping)."""
-    return float(by_view((a * (gsd / reference) ** c, 1.0), teeth_resolved(gsd), geometric=True))
+def far_factor(gsd: float, pixels: float, a: float, b: float, reference: float = FAR_REFERENCE_PIXELS) -> float:
+    """(a (pixels / reference)^b)^(1 - w), w = `teeth_resolved(gsd)`: a factor following a gear's
+    sampled pixel count in the far view, 1 where the teeth are resolved (LikelihoodConfig.far_reshaping)."""
+    return float(by_view((a * (pixels / reference) ** b, 1.0), teeth_resolved(gsd), geometric=True))
 
 
 def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],

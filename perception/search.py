@@ -215,7 +215,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         return replace(scores, loglik=factor * scores.loglik)
 
     # 4. The reshaping, on the fixed cells: calibrates the posterior without moving its grid.
-    reshaping = config.likelihood.reshaping_for(scorer.gsd, model.name)
+    reshaping = config.likelihood.reshaping_for(scorer.gsd, model.name, pixels)
     post = _posterior_grid(model, best, weighed, fine, config, prior).reshaped(*reshaping)
     info.update(posterior_factor=reshaping[0], shape=reshaping[1])
     info["seconds"] = time.perf_counter() - t0

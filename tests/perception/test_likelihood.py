@@ -106,29 +106,31 @@ def test_the_colour_scale_follows_the_light_by_view():
             LikelihoodConfig(colour_scale_factor=bad)
 
 
-def test_the_far_reshaping_follows_the_gsd_of_the_gears_it_names_where_teeth_are_not_resolved():
-    """reshaping_for(gsd, gear) multiplies the view's factor by (a (gsd / g_far)^c)^(1 - w) for a
-    gear in far_reshaping; the close view (teeth resolved), other gears and gear None keep it."""
+def test_the_far_reshaping_follows_the_sampled_pixels_of_the_gears_it_names_where_teeth_are_not_resolved():
+    """reshaping_for(gsd, gear, pixels) multiplies the view's factor by (a (pixels / n_far)^b)^(1 - w)
+    for a gear in far_reshaping; the close view (teeth resolved), other gears and gear None keep it."""
     cfg = LikelihoodConfig(posterior_factor=(0.8, 1.0), shape_exponent=(1.1, 1.4),
-                           far_reshaping={"small": (0.9, -2.0)}, far_reference_gsd=1.2e-3)
+                           far_reshaping={"small": (0.9, 1.0)}, far_reference_pixels=600.0)
     close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
-    assert cfg.reshaping_for(close, "small") == pytest.approx((1.0, 1.4))
+    assert cfg.reshaping_for(close, "small", 300) == pytest.approx((1.0, 1.4))
     assert cfg.reshaping_for(close) == pytest.approx((1.0, 1.4))
     assert cfg.reshaping_for(coarse, "medium") == pytest.approx((0.8, 1.1))
     assert cfg.reshaping_for(coarse) == pytest.approx((0.8, 1.1))
-    far = 0.9 * (coarse / 1.2e-3) ** -2.0
-    assert cfg.reshaping_for(coarse, "small") == pytest.approx((0.8 * far, 1.1))
-    mid = 0.9 * (half / 1.2e-3) ** -2.0  # w = 0.5: half the far factor's logarithm
-    assert cfg.reshaping_for(half, "small")[0] == pytest.approx(np.sqrt(0.8) * np.sqrt(mid))
-    # a more distant small gear gets a smaller factor (a wider posterior) than a nearer one
-    assert cfg.reshaping_for(1.4e-3, "small")[0] < cfg.reshaping_for(1.0e-3, "small")[0]
+    far = 0.9 * (300 / 600) ** 1.0
+    assert cfg.reshaping_for(coarse, "small", 300) == pytest.approx((0.8 * far, 1.1))
+    assert cfg.reshaping_for(half, "small", 300)[0] == pytest.approx(np.sqrt(0.8) * np.sqrt(far))  # w = 0.5
+    # fewer sampled pixels of the same gear at the same gsd: a smaller factor, a wider posterior
+    assert cfg.reshaping_for(coarse, "small", 450)[0] < cfg.reshaping_for(coarse, "small", 700)[0]
+    for bad in (None, 0, float("nan")):
+        with pytest.raises(ValueError, match="sampled pixel count"):
+            cfg.reshaping_for(coarse, "small", bad)
     with pytest.raises(ValueError, match="unknown gear 'huge'"):
         LikelihoodConfig(far_reshaping={"huge": (1.0, 0.0)})
     for bad in ((0.0, 1.0), (1.0, float("nan")), (1.0,), (5.0, 0.0)):
         with pytest.raises(ValueError, match=r"far_reshaping\['small'\]"):
             LikelihoodConfig(far_reshaping={"small": bad})
-    with pytest.raises(ValueError, match="far_reference_gsd"):
-        LikelihoodConfig(far_reference_gsd=0.0)
+    with pytest.raises(ValueError, match="far_reference_pixels"):
+        LikelihoodConfig(far_reference_pixels=0.0)
 
 
 def test_table_colour_comes_from_its_model():

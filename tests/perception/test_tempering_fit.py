@@ -21,7 +21,7 @@ def test_fit_recovers_each_gears_factor(benchmark_script):
         for view, gsd in (("scene", 1.2e-3), ("inspect", 4.1e-4)):
             m2 = k * rng.chisquare(3, 1000)
             for i, d2 in enumerate(m2):
-                rows.append({"gear": gear, "view": view, "group": "clean", "gsd": gsd,
+                rows.append({"gear": gear, "view": view, "group": "clean", "gsd": gsd, "pixels": 600,
                              "tempering": bare.tempering_for(gear, gsd), "inlier_fraction": 1.0,
                              "depth_noise": 0.0, "level": float(chi2.cdf(d2, 3)),
                              "scaled_levels": chi2.cdf(d2 * factors, 3).tolist()})
@@ -68,12 +68,13 @@ def test_fit_recovers_the_reshaping(benchmark_script):
         r_truth = np.sqrt(rng.chisquare(3, 2000))
         table = _radial_levels(r_truth, lambda r, f=f, g=g: (r ** 2 / 2) ** (1 / g) / f, factors, shapes)
         for i in range(len(r_truth)):
-            rows.append({"gear": "medium", "view": view, "group": "clean", "gsd": gsd,
+            rows.append({"gear": "medium", "view": view, "group": "clean", "gsd": gsd, "pixels": 600,
                          "tempering": bare.tempering_for("medium", gsd), "inlier_fraction": 1.0,
                          "depth_noise": 0.0, "level": float(table[i, 1, 16]),
                          "scaled_levels": table[i, 1].tolist(), "shaped_levels": table[i].tolist()})
     data = mod.Rows(rows, factors, shapes)
-    base = LikelihoodConfig(gear_tempering={}, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0))
+    base = LikelihoodConfig(gear_tempering={}, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0),
+                            far_reshaping={})
     fitted = mod.fit_reshaping(data, base, factors=factors[[12, 14, 16]], shapes=np.array([1.0, 1.25]))
     assert fitted.shape_exponent == (1.0, 1.25)
     np.testing.assert_allclose(fitted.posterior_factor, (1.0, f_true), atol=1e-4)
