@@ -182,18 +182,20 @@ def resolved_config(task: Task) -> dict[str, Any]:
     """Every field of `task`'s sampler config as JSON data (`sampler_config` validated by the
     sampler's config dataclass, defaults filled in): a stored run is reused only while this is
     unchanged, so a changed default reruns it. A bad option is an InputError before any run."""
-    from common.config import config_to_dict
-    from learning.samplers.registry import sampler_config as registered_config
     method = METHODS[task.method]
-    return to_plain(config_to_dict(registered_config(method.sampler, sampler_config(method, task.protocol,
-                                                                                     task.seed, task.overrides))))
+    return _config_data(method.sampler, sampler_config(method, task.protocol, task.seed, task.overrides))
 
 
 def default_config(task: Task) -> dict[str, Any]:
     """`task`'s sampler config with every field at its default, as JSON data."""
+    return _config_data(METHODS[task.method].sampler, None)
+
+
+def _config_data(sampler: str, options: dict[str, Any] | None) -> dict[str, Any]:
+    """The registered config of `sampler` with `options` (None: its defaults), as JSON data."""
     from common.config import config_to_dict
     from learning.samplers.registry import sampler_config as registered_config
-    return to_plain(config_to_dict(registered_config(METHODS[task.method].sampler, None)))
+    return to_plain(config_to_dict(registered_config(sampler, options)))
 
 
 def _signal(layout: Layout, method: Method, xi: np.ndarray) -> np.ndarray:
@@ -238,6 +240,16 @@ def partial_path(task: Task, out: Path) -> Path:
     return task.path(out).with_name(f"checkpoint-seed{task.seed}.json")
 
 
+def checkpoint(task: Task, out: Path) -> dict[str, Any] | None:
+    """`task`'s checkpoint under `out`, None if there is none; InputError if it has other settings."""
+    path = partial_path(task, out)
+    if not path.exists():
+        return None
+    state = read_json(path, "sampler_quality checkpoint")
+    _check_settings(path, state, task)
+    return state
+
+
 def _check_settings(path: Path, record: dict[str, Any], task: Task) -> None:
     """InputError naming each difference if `record` (read from `path`) has other settings than
     `task`. A config field the record lacks (one added to the sampler after it was written) reads
@@ -250,9 +262,9 @@ def _check_settings(path: Path, record: dict[str, Any], task: Task) -> None:
         return
     diff = [f"{k} {have[k]!r} (want {want[k]!r})" for k in ("rounds", "batch", "draws") if have[k] != want[k]]
     if have["config"] != want["config"]:
-        old, new = have["config"] or {}, want["config"]
-        diff += [f"config.{k} {old.get(k, 'absent')!r} (want {new.get(k, 'absent')!r})"
-                 for k in sorted({*old, *new}) if old.get(k, diff) != new.get(k, diff)]
+        old, new, absent = have["config"] or {}, want["config"], "absent"
+        diff += [f"config.{k} {old.get(k, absent)!r} (want {new.get(k, absent)!r})"
+                 for k in sorted({*old, *new}) if k not in old or k not in new or old[k] != new[k]]
     raise InputError(f"{path} holds a run with other settings: {', '.join(diff)}; delete it or choose another --out")
 
 
@@ -278,9 +290,8 @@ def run_task(task: Task, out: Path | None = None, checkpoint_every: int = 0) -> 
     seconds: list[float] = []
     start, wall_before = 0, 0.0
     partial = partial_path(task, out) if out is not None and checkpoint_every > 0 else None
-    if partial is not None and partial.exists():
-        state = read_json(partial, "sampler_quality checkpoint")
-        _check_settings(partial, state, task)
+    state = checkpoint(task, out) if partial is not None else None
+    if state is not None:
         try:
             sampler.load_state_dict(state["sampler"])
             batch_rng.bit_generator.state = state["batch_rng"]
@@ -643,7 +654,8 @@ def main(argv: list[str] | None = None) -> int:
             if not tasks:
                 raise InputError(f"--existing: no stored run of this grid in {out}")
         skipped = len(done)
-        resuming = sum(partial_path(t, out).exists() for t in todo) if every else 0
+        # checkpoints with other settings are refused before any run starts
+        resuming = sum(checkpoint(t, out) is not None for t in todo) if every else 0
         print(f"{NAME}: {len(tasks)} runs, {skipped} already in {out}, {len(todo)} to run ({resuming} from a "
               f"checkpoint), {args.workers} worker(s)")
         for task in todo:  # sampler configs are checked before any run starts
