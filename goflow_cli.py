@@ -20,7 +20,7 @@ from typing import Any
 
 from common.config import key_values, parse_value
 from common.errors import GoflowError, InputError, OutputPathError
-from common.files import check_output_file, write_atomic, write_json
+from common.files import check_output_file, read_json, write_atomic, write_json
 
 __all__ = ["main", "make_parser"]
 
@@ -281,7 +281,8 @@ def _experiment_flags(p: argparse.ArgumentParser) -> None:
     _env_flags(p, ExperimentConfig)
     _budget_flags(p, ExperimentConfig)
     _add_field(p, ExperimentConfig, "sampler_signal", choices=SAMPLER_SIGNALS)
-    _add_field(p, ExperimentConfig, "seeds", doc="seeds per method (0, 1, ...)")
+    _add_field(p, ExperimentConfig, "seeds", doc="seeds per method (first-seed, first-seed + 1, ...)")
+    _add_field(p, ExperimentConfig, "first_seed", doc="the first seed (earlier ones ran elsewhere)")
     _add_field(p, ExperimentConfig, "workers", doc="parallel processes")
     _ray_flag(p)
     _add_field(p, ExperimentConfig, "out")
@@ -293,7 +294,8 @@ def _experiment_config(args: argparse.Namespace, methods: Iterable[str],
                        sampler_kwargs: dict[str, dict[str, Any]] | None = None) -> Any:
     from learning.experiment import ExperimentConfig
     return ExperimentConfig(env=args.env, env_kwargs=key_values(args.env_kwarg, "--env-kwarg"),
-                            methods=tuple(methods), seeds=args.seeds, total_steps=args.total_steps,
+                            methods=tuple(methods), seeds=args.seeds, first_seed=args.first_seed,
+                            total_steps=args.total_steps,
                             iterations_per_round=args.iterations_per_round, eval_episodes=args.eval_episodes,
                             ppo=_ppo_config(args), sampler_kwargs=sampler_kwargs or {}, workers=args.workers,
                             ray=args.ray, sampler_signal=args.sampler_signal, out=args.out, results=args.results,
@@ -531,6 +533,8 @@ def _bench_flags(p: argparse.ArgumentParser) -> None:
                    help="calibration: processes (default 1)")
     p.add_argument("--plot", metavar="PATH", type=Path,
                    help="calibration: write the reliability plot (PNG)")
+    p.add_argument("--pool", nargs="+", metavar="RESULT", type=Path, default=None,
+                   help="calibration: judge these results (JSON, from --json) pooled, running nothing")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -558,6 +562,8 @@ def _bench_calibration(args: argparse.Namespace) -> int:
     from perception.scenes import PERTURBATIONS
     overrides = {k: getattr(args, k) for k in ("scenes", "workers", "seed")
                  if getattr(args, k) is not None}
+    if args.pool:
+        return _pool_calibration(args, overrides)
     if args.groups:
         unknown = [g for g in args.groups if g not in PERTURBATIONS]
         if unknown:
@@ -571,6 +577,23 @@ def _bench_calibration(args: argparse.Namespace) -> int:
     print(markdown_table(result["summary"]))
     if json_path:
         write_json(json_path, result)
+    if plot_path:
+        reliability_plot(result, plot_path)
+    return 0
+
+
+def _pool_calibration(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
+    """`goflow bench calibration --pool`: stored results judged together."""
+    from perception.calibration import markdown_table, pool_results, reliability_plot
+    given = [f"--{k}" for k in overrides] + (["--groups"] if args.groups else [])
+    if given:
+        raise InputError(f"{' '.join(given)} with --pool: pooling runs nothing; expected only --json and --plot")
+    json_path = check_output_file(args.json, "--json") if args.json else None
+    plot_path = check_output_file(args.plot, "--plot") if args.plot else None
+    result = pool_results([read_json(path, "calibration result") for path in args.pool])
+    print(markdown_table(result["summary"]))
+    if json_path:
+        write_json(json_path, {**result, "results": [str(p) for p in args.pool]})
     if plot_path:
         reliability_plot(result, plot_path)
     return 0

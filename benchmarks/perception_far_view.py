@@ -141,12 +141,18 @@ def report(rows: list[dict], a: float, b: float) -> list[str]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def fit_parser(doc: str) -> argparse.ArgumentParser:
+    """The command line of a fit from calibration results: --results (pooled) and --json; the
+    description is `doc`'s first line."""
+    p = argparse.ArgumentParser(description=doc.splitlines()[0])
     p.add_argument("--results", type=Path, nargs="+", required=True,
                    help="goflow bench calibration results (JSON), pooled")
     p.add_argument("--json", type=Path, default=None, help="write the fit and the table here")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = fit_parser(__doc__).parse_args(argv)
     try:
         out = check_output_file(args.json, "--json") if args.json else None
         rows = scene_rows(args.results)

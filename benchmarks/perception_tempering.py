@@ -48,7 +48,7 @@ import numpy as np
 from common.config import config_to_dict, config_with_overrides, key_values
 from common.errors import InputError
 from common.files import check_output_file, read_json, write_json
-from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, run_calibration
+from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, row_brightness, run_calibration
 from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved
 from perception.search import SearchConfig
 
@@ -81,6 +81,13 @@ def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None
     result["config"]["shape_exponents"] = list(SHAPES)
     result["config"]["likelihood"] = config_to_dict(config.search.likelihood)
     return result
+
+
+def _brightness(row: dict) -> float:
+    """The row's light gain for its reshaping (`row_brightness`; the nominal 1 where it is not
+    known: an oblique row made before it was recorded)."""
+    g = row_brightness(row)
+    return 1.0 if g is None else g
 
 
 def coverage(levels: np.ndarray, nominal: np.ndarray) -> np.ndarray:
@@ -131,14 +138,14 @@ class Rows:
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the factor on its recorded posterior's tempering under `config`: the search's
         tempering ratio times the reshaping's factor (the levels are recorded before it)."""
-        factor = np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"])[0] for r in self.rows])
+        factor = np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], _brightness(r))[0] for r in self.rows])
         return self.tempering_ratio(config) * factor
 
     def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
         """Per row: the shape exponent `config` gives it (None without shaped levels)."""
         if self.shapes is None:
             return None
-        return np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"])[1] for r in self.rows])
+        return np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], _brightness(r))[1] for r in self.rows])
 
     def at(self, config: LikelihoodConfig) -> np.ndarray:
         """Every row's truth level under `config`."""
@@ -159,7 +166,8 @@ def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
     EXPONENTS): the set whose truth levels are closest to uniform in every perturbation group x
     view cell, on the levels before the reshaping (the returned config has it off: fit it
     after, with `fit_reshaping`, on rows collected under the new tempering)."""
-    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0), far_reshaping={})
+    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0), far_reshaping={},
+                   close_reshaping={})
     g0 = base.reference_gsd
     views = [r["view"] for r in data.rows]
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
@@ -191,15 +199,16 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
     """`base` with the posterior's reshaping fitted, the search's tempering held: the
     (posterior_factor, shape_exponent) pair for resolved teeth, then for unresolved ones, each
     from the grid `factors` x `shapes`, `rounds` times in turn, whose truth levels are closest to
-    uniform in every perturbation group x view cell, `base`'s far-view factor per gear held
-    (`far_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
+    uniform in every perturbation group x view cell, `base`'s far- and close-view factors per gear
+    held (`far_reshaping`, `close_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
     pipeline's (docs/perception.md, Tempering, item 7)."""
     if data.shapes is None:
         raise InputError("the rows hold no shaped levels; collect them with this script "
                          "(every file at the same shape exponents)")
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
-    far = np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"]) for r in data.rows])
-    ratio = data.tempering_ratio(base) * far
+    held = np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
+                     * base.close_factor_for(r["gsd"], r["gear"], _brightness(r)) for r in data.rows])
+    ratio = data.tempering_ratio(base) * held
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)
     for _ in range(rounds):

@@ -430,7 +430,8 @@ class ExperimentConfig:
     env: str = "goflow/Toy2D-v0"  # environment id
     env_kwargs: dict[str, Any] = field(default_factory=dict)  # the environment's config fields
     methods: tuple[str, ...] = METHODS  # samplers compared
-    seeds: int = 5  # runs per method, seeds 0 .. seeds - 1
+    seeds: int = 5  # runs per method, seeds first_seed .. first_seed + seeds - 1
+    first_seed: int = 0  # the first of them (add seeds to a grid whose earlier seeds ran elsewhere)
     total_steps: int = 200_000  # training environment steps per run
     iterations_per_round: int = 2  # PPO iterations between validations
     eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
@@ -455,6 +456,8 @@ class ExperimentConfig:
             raise ValueError(f"sampler options for {extra}, which are not among the methods {list(self.methods)}")
         if self.seeds < 1 or self.workers < 1:
             raise ValueError(f"seeds = {self.seeds}, workers = {self.workers}; expected >= 1")
+        if self.first_seed < 0:
+            raise ValueError(f"first_seed = {self.first_seed}; expected a seed >= 0")
         if self.ray is not None:
             parse_ray_address(self.ray, "ExperimentConfig.ray")
         self.out, self.results = Path(self.out), Path(self.results)
@@ -474,7 +477,7 @@ class ExperimentConfig:
                             eval_episodes=self.eval_episodes, ppo=self.ppo,
                             sampler_signal="return" if m in THRESHOLD_METHODS else self.sampler_signal,
                             out=self.out / self.stem() / m / f"seed{s}")
-                for m in self.methods for s in range(self.seeds)]
+                for m in self.methods for s in range(self.first_seed, self.first_seed + self.seeds)]
 
 
 def _mean_se(runs: list[dict], column: int, n: int) -> tuple[np.ndarray, np.ndarray]:

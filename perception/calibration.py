@@ -92,7 +92,20 @@ def confidently_wrong(row: dict) -> bool:
 
 # What each row keeps of the posterior's search info (explain a miscalibration after the fact).
 ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "stride", "inlier_fraction", "valid_fraction",
-            "depth_noise", "pixel_noise", "light", "edge_mass", "posterior_factor", "shape")
+            "depth_noise", "pixel_noise", "brightness", "light", "edge_mass", "posterior_factor", "shape")
+
+
+def row_brightness(row: dict) -> float | None:
+    """The light's colour gain the scorer read for a result row: its recorded `brightness`, or for
+    a row made before that was recorded, its group's headlight intensity (the scorer reads it to
+    within 0.003 under Drake's headlight); None for a group whose light arrives from elsewhere
+    (the oblique light: its gain varies with the view) or that is not a known perturbation."""
+    if row.get("brightness") is not None:
+        return float(row["brightness"])
+    perturbation = PERTURBATIONS.get(row.get("group"))
+    if perturbation is None or perturbation.lighting.elevation_deg is not None:
+        return None
+    return float(perturbation.lighting.intensity)
 
 
 def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: PosePosterior,
@@ -264,6 +277,33 @@ def run_calibration(config: CalibrationConfig | None = None, progress: bool = Fa
             "summary": summarize(rows, config.levels), "rows": rows}
 
 
+def pool_results(results: list[dict]) -> dict:
+    """Calibration results of several scene sets (each {"config", "rows"}, as `run_calibration`
+    writes them) as one: their rows together, each scene named by its set's seed so that the
+    scene bootstrap keeps a set's scenes apart, and the summary of the whole. The sets must share
+    their levels; their groups may differ (a group's cell pools the sets that have it).
+    InputError naming the first result that is not one or whose levels differ."""
+    if not results:
+        raise InputError("no calibration results to pool; expected at least one")
+    rows: list[dict] = []
+    levels = None
+    seeds = []
+    for k, result in enumerate(results):
+        config = result.get("config") if isinstance(result, dict) else None
+        if not isinstance(config, dict) or not isinstance(result.get("rows"), list) or "levels" not in config:
+            raise InputError(f"result {k}: not a calibration result (expected 'config' with 'levels' and 'rows')")
+        mine = tuple(float(x) for x in config["levels"])
+        if levels is not None and mine != levels:
+            raise InputError(f"result {k}: levels {list(mine)}; expected those of the first, {list(levels)}")
+        levels = mine
+        seeds.append(config.get("seed"))
+        rows += [{**r, "scene": f"{config.get('seed', k)}/{r['scene']}"} for r in result["rows"]]
+    groups = list(dict.fromkeys(g for r in results for g in r["config"].get("groups", [])))
+    return {"config": {"scenes": sum(r["config"].get("scenes", 0) for r in results), "seeds": seeds,
+                       "groups": groups, "levels": list(levels)},
+            "summary": summarize(rows, levels), "rows": rows}
+
+
 def reliability_plot(result: dict, path: str | Path):
     """Observed against nominal coverage, one line per perturbation group (error bars: one scene
     bootstrap standard error, where the summary has it), a panel per view, with the +-5 point
@@ -322,4 +362,5 @@ def markdown_table(summary: list[dict]) -> str:
 
 
 __all__ = ["BAND", "CalibrationConfig", "HELD_OUT_SEED", "LEVELS", "calibrated_pass_chance", "confidently_wrong", "coverage_se", "group_rows",
-           "markdown_table", "pose_error", "reliability_plot", "run_calibration", "summarize"]
+           "markdown_table", "pool_results", "pose_error", "reliability_plot", "row_brightness", "run_calibration",
+           "summarize"]

@@ -44,6 +44,12 @@ COLOUR_SCALE_FACTOR = (1.0, 2.0)
 # Tempering, item 9); fitted by benchmarks/perception_far_view.py. The gears not named keep 1.
 FAR_RESHAPING = {"small": (1.4641, 1.1), "medium": (1.0353, 0.8), "large": (1.0353, 0.9)}
 FAR_REFERENCE_PIXELS = 600.0  # sampled pixels at which a alone applies (SearchConfig.fine_pixels)
+# Per gear, (a, c_dim, c_bright) of the close view's reshaping factor (a g^c)^w, g the light's
+# colour gain read off the table (c_dim below 1, c_bright above), w = `teeth_resolved`: the gears'
+# colours answer the light differently, which one colour scale exponent for every gear leaves out
+# (docs/perception.md, Tempering, item 10); fitted by benchmarks/perception_close_view.py. The
+# gears not named keep 1.
+CLOSE_RESHAPING = {"small": (1.0, 0.05, 0.1), "medium": (1.0718, 0.25, -0.05), "large": (1.0534, -0.05, 0.25)}
 
 
 @dataclass
@@ -84,6 +90,9 @@ class LikelihoodConfig:
     # following the gear's sampled pixel count (reshaping_for; docs/perception.md, Tempering, item 9)
     far_reshaping: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(FAR_RESHAPING))
     far_reference_pixels: float = FAR_REFERENCE_PIXELS
+    # per gear, (a, c_dim, c_bright) of a further factor on the reshaping where the teeth are
+    # resolved, following the light's brightness (reshaping_for; Tempering, item 10)
+    close_reshaping: dict[str, tuple[float, float, float]] = field(default_factory=lambda: dict(CLOSE_RESHAPING))
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
@@ -116,6 +125,12 @@ class LikelihoodConfig:
                     and abs(pair[1]) <= 8):
                 raise ValueError(f"LikelihoodConfig.far_reshaping[{gear!r}] = {pair}; expected (a in (0, 4], "
                                  "b in [-8, 8]) of the far view's factor (a (pixels / far_reference_pixels)^b)^(1 - w)")
+        for gear, triple in self.close_reshaping.items():
+            gear_spec(gear)  # a known gear, or ValueError naming the valid ones
+            if not (len(triple) == 3 and np.isfinite(triple[0]) and 0 < triple[0] <= 4
+                    and all(np.isfinite(c) and abs(c) <= 8 for c in triple[1:])):
+                raise ValueError(f"LikelihoodConfig.close_reshaping[{gear!r}] = {triple}; expected (a in (0, 4], "
+                                 "c_dim and c_bright in [-8, 8]) of the close view's factor (a brightness^c)^w")
         for gear, factor in self.gear_tempering.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
             if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
@@ -189,14 +204,28 @@ class LikelihoodConfig:
         e = self.brightness_exponent if g <= 1.0 else by_view(self.bright_exponent, w)
         return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g ** e)
 
-    def reshaping_for(self, gsd: float, gear: str | None = None,
-                      pixels: float | None = None) -> tuple[float, float]:
+    def reshaping_for(self, gsd: float, gear: str | None = None, pixels: float | None = None,
+                      brightness: float = 1.0) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping for `gear` in a view of ground sampling
         distance `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's
         two values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
-        geometrically), the factor times `far_factor_for(gsd, gear, pixels)`."""
+        geometrically), the factor times `far_factor_for(gsd, gear, pixels)` and
+        `close_factor_for(gsd, gear, brightness)`."""
         factor, exponent = blend_reshaping(self.posterior_factor, self.shape_exponent, teeth_resolved(gsd))
-        return float(factor * self.far_factor_for(gsd, gear, pixels)), float(exponent)
+        factor *= self.far_factor_for(gsd, gear, pixels) * self.close_factor_for(gsd, gear, brightness)
+        return float(factor), float(exponent)
+
+    def close_factor_for(self, gsd: float, gear: str | None, brightness: float = 1.0) -> float:
+        """The close view's factor on `gear`'s reshaping at `gsd` [m/pixel] under a light of
+        `brightness` (the colour gain read off the table): `close_factor` with
+        close_reshaping[gear]; 1 for a gear it does not name and for gear None. ValueError if it
+        names the gear and `brightness` is not a finite gain > 0."""
+        if gear is None or gear not in self.close_reshaping:
+            return 1.0
+        if not (np.isfinite(brightness) and brightness > 0):
+            raise ValueError(f"brightness = {brightness}; expected the light's colour gain (> 0) "
+                             f"for the {gear} gear's close-view reshaping")
+        return close_factor(gsd, brightness, *self.close_reshaping[gear])
 
     def far_factor_for(self, gsd: float, gear: str | None, pixels: float | None = None) -> float:
         """The far view's factor on `gear`'s reshaping at `gsd` [m/pixel] with `pixels` of the gear
@@ -263,6 +292,14 @@ def far_factor(gsd: float, pixels: float, a: float, b: float, reference: float =
     """(a (pixels / reference)^b)^(1 - w), w = `teeth_resolved(gsd)`: a factor following a gear's
     sampled pixel count in the far view, 1 where the teeth are resolved (LikelihoodConfig.far_reshaping)."""
     return float(by_view((a * (pixels / reference) ** b, 1.0), teeth_resolved(gsd), geometric=True))
+
+
+def close_factor(gsd: float, brightness: float, a: float, c_dim: float, c_bright: float) -> float:
+    """(a g^c)^w, g = `brightness` clipped to [0.25, 4] like the colour scale's, c = c_dim below 1
+    and c_bright above, w = `teeth_resolved(gsd)`: a factor following the light in the close view,
+    1 where the teeth are not resolved (LikelihoodConfig.close_reshaping)."""
+    g = float(np.clip(brightness, 0.25, 4.0))
+    return float(by_view((1.0, a * g ** (c_dim if g < 1.0 else c_bright)), teeth_resolved(gsd), geometric=True))
 
 
 def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],

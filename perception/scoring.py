@@ -110,9 +110,9 @@ class ImageScorer:
         widen with the noise)."""
         self.light = np.asarray(light, float)
         self.conditions = self._table.conditions(self.light)
-        brightness = float(np.mean(self.conditions.gain))
+        self.brightness = float(np.mean(self.conditions.gain))  # the light's colour gain, mean of r, g, b
         self.pixels_model = replace(
-            self.likelihood, b_rgb=self.likelihood.colour_scale_for(brightness, self.gsd),
+            self.likelihood, b_rgb=self.likelihood.colour_scale_for(self.brightness, self.gsd),
             b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
         self._sets = {}
 

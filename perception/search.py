@@ -191,7 +191,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
     pixels, inliers = int(check.pixels[0]), float(check.inliers[0])
     info.update(pixels=pixels, inlier_fraction=inliers / max(pixels, 1), stride=fine,
                 search_hypotheses=info["hypotheses"], gsd=scorer.gsd, tempering=scorer.tempering,
-                depth_noise=scorer.conditions.depth_noise,
+                depth_noise=scorer.conditions.depth_noise, brightness=scorer.brightness,
                 pixel_noise=scorer.conditions.pixel_noise, valid_fraction=scorer.valid_fraction)
     reason = ""
     if pixels < config.min_pixels:
@@ -215,7 +215,7 @@ def estimate_pose(obs: Observation, gear: str | GearModel, prior: Prior,
         return replace(scores, loglik=factor * scores.loglik)
 
     # 4. The reshaping, on the fixed cells: calibrates the posterior without moving its grid.
-    reshaping = config.likelihood.reshaping_for(scorer.gsd, model.name, pixels)
+    reshaping = config.likelihood.reshaping_for(scorer.gsd, model.name, pixels, scorer.brightness)
     post = _posterior_grid(model, best, weighed, fine, config, prior).reshaped(*reshaping)
     info.update(posterior_factor=reshaping[0], shape=reshaping[1])
     info["seconds"] = time.perf_counter() - t0

@@ -126,6 +126,14 @@ def test_experiment_sampler_signal_reaches_the_methods_that_can_use_it():
         "goflow": "success", "lsdr": "success", "adr": "return", "doraemon": "return"}
 
 
+def test_first_seed_adds_later_seeds_to_a_grid_in_their_own_folders():
+    runs = ExperimentConfig(methods=("fulldr",), seeds=2, first_seed=3, name="grid").runs()
+    assert [r.seed for r in runs] == [3, 4]
+    assert [r.out.name for r in runs] == ["seed3", "seed4"]
+    with pytest.raises(ValueError, match="first_seed = -1"):
+        ExperimentConfig(first_seed=-1)
+
+
 def test_checkpoint_of_another_param_space_is_refused(tmp_path):
     train(_config("fulldr", tmp_path, rounds=1), progress=False)
     other = _config("fulldr", tmp_path, rounds=2)

@@ -3,14 +3,21 @@ scene camera -> global detection -> far posterior -> inspect view -> close poste
 posterior's truth levels are uniform on (0, 1); a handful of scenes cannot pin the coverage curve
 (that is `goflow bench calibration`), but it catches a posterior that is far off."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from common.errors import InputError
 from perception.calibration import (
     HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, coverage_se, group_rows,
-    markdown_table, summarize,
+    markdown_table, pool_results, row_brightness, summarize,
 )
 from perception.likelihood import LikelihoodConfig
+from perception.search import SearchConfig
 
 
 @pytest.fixture(scope="module")
@@ -74,13 +81,58 @@ def test_tuning_levels_predict_the_pipelines_own():
     """The tuning rows record levels before the reshaping; at the shipped reshaping they are the
     row's own level (the reshaping moves no cell), so a reshaping fit predicts the pipeline. At
     exponent 1 the shaped levels are the tempered ones."""
-    shipped = LikelihoodConfig()
+    shipped = LikelihoodConfig(close_reshaping={})  # the reshaping shared by every gear and light
     f_close, g_close = shipped.posterior_factor[1], shipped.shape_exponent[1]
     config = CalibrationConfig(scenes=1, seed=HELD_OUT_SEED + 778, tempering_factors=(f_close, 1.0),
-                               shape_exponents=(1.0, g_close))
+                               shape_exponents=(1.0, g_close), search=SearchConfig(likelihood=shipped))
     close = [r for r in group_rows("clean", config) if r["view"] == "inspect" and r["informative"]]
     assert close
     for r in close:
         assert (r["posterior_factor"], r["shape"]) == (f_close, g_close)  # resolved teeth
+        assert abs(r["brightness"] - 1.0) < 0.01  # the headlight's gain, recorded for the close-view fit
         assert r["shaped_levels"][0] == r["scaled_levels"]
         assert abs(r["shaped_levels"][1][0] - r["level"]) < 1e-6
+
+
+def test_a_rows_brightness_is_recorded_or_its_groups_headlight():
+    """Rows made before `brightness` was recorded read their group's headlight intensity; a light
+    from elsewhere (oblique) or an unknown group gives None."""
+    assert row_brightness({"group": "oblique", "brightness": 0.705}) == 0.705
+    assert row_brightness({"group": "dim"}) == 0.5
+    assert row_brightness({"group": "bright"}) == 1.6
+    assert row_brightness({"group": "dropout_3"}) == 1.0
+    assert row_brightness({"group": "oblique"}) is None
+    assert row_brightness({"group": "sunset"}) is None
+
+
+def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_path):
+    """Two sets judged together: every cell counts both sets' posteriors, the scene bootstrap sees
+    2 x 4 scenes (a set's scene 0 is not the other's), and the command writes what it printed."""
+    first = {"config": {"scenes": 4, "seed": 1, "groups": ["clean"], "levels": [0.5, 0.68, 0.8, 0.9, 0.95]},
+             "rows": rows}
+    second = {**first, "config": {**first["config"], "seed": 2}}
+    pooled = pool_results([first, second])
+    scene, inspect = pooled["summary"]
+    assert scene["posteriors"] == 24 and inspect["posteriors"] == 24
+    assert pooled["config"]["seeds"] == [1, 2] and pooled["config"]["scenes"] == 8
+    assert len({r["scene"] for r in pooled["rows"]}) == 8
+    assert scene["coverage"] == summarize(rows)[0]["coverage"]  # the same rows twice: the same coverage
+    with pytest.raises(InputError, match="result 1: levels"):
+        pool_results([first, {**second, "config": {**second["config"], "levels": [0.5]}}])
+    with pytest.raises(InputError, match="result 0: not a calibration result"):
+        pool_results([{"rows": []}])
+    paths = []
+    for k, result in enumerate((first, second)):
+        paths.append(tmp_path / f"set{k}.json")
+        paths[-1].write_text(json.dumps(result))
+    goflow = str(Path(sys.executable).parent / "goflow")
+    out = tmp_path / "pooled.json"
+    proc = subprocess.run([goflow, "bench", "calibration", "--pool", *map(str, paths), "--json", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "| clean | scene | 24 |" in proc.stdout
+    assert json.loads(out.read_text())["results"] == [str(p) for p in paths]
+    proc = subprocess.run([goflow, "bench", "calibration", "--pool", str(paths[0]), "--seed", "3"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.strip().endswith("expected only --json and --plot")
+    assert len(proc.stderr.strip().splitlines()) == 1

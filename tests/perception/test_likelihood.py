@@ -110,7 +110,8 @@ def test_the_far_reshaping_follows_the_sampled_pixels_of_the_gears_it_names_wher
     """reshaping_for(gsd, gear, pixels) multiplies the view's factor by (a (pixels / n_far)^b)^(1 - w)
     for a gear in far_reshaping; the close view (teeth resolved), other gears and gear None keep it."""
     cfg = LikelihoodConfig(posterior_factor=(0.8, 1.0), shape_exponent=(1.1, 1.4),
-                           far_reshaping={"small": (0.9, 1.0)}, far_reference_pixels=600.0)
+                           far_reshaping={"small": (0.9, 1.0)}, far_reference_pixels=600.0,
+                           close_reshaping={})
     close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
     assert cfg.reshaping_for(close, "small", 300) == pytest.approx((1.0, 1.4))
     assert cfg.reshaping_for(close) == pytest.approx((1.0, 1.4))
@@ -183,3 +184,28 @@ def test_a_hypothesis_scores_its_pixels_against_the_bare_table(plain_scene, clos
     np.testing.assert_allclose(scores.loglik, expected, rtol=1e-9)
     np.testing.assert_array_equal(scores.pixels, np.bincount(hits.hyp, minlength=3))
     assert scores.loglik[0] > scores.loglik[2]  # the truth explains its pixels better than 2 mm off
+
+
+def test_the_close_reshaping_follows_the_light_for_the_gears_it_names_where_teeth_are_resolved():
+    """reshaping_for(gsd, gear, pixels, brightness) multiplies the view's factor by (a g^c)^w for a
+    gear in close_reshaping, c = c_dim below g = 1 and c_bright above; the far view (teeth not
+    resolved), other gears and gear None keep it."""
+    cfg = LikelihoodConfig(posterior_factor=(0.8, 1.0), shape_exponent=(1.1, 1.4), far_reshaping={},
+                           close_reshaping={"large": (1.1, 0.5, -1.0)})
+    close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
+    assert cfg.reshaping_for(close, "large") == pytest.approx((1.1, 1.4))
+    assert cfg.reshaping_for(close, "large", brightness=0.5) == pytest.approx((1.1 * 0.5 ** 0.5, 1.4))
+    assert cfg.reshaping_for(close, "large", brightness=1.6) == pytest.approx((1.1 / 1.6, 1.4))
+    assert cfg.reshaping_for(close, "large", brightness=100.0)[0] == pytest.approx(1.1 / 4.0)  # clipped like the colour scale
+    assert cfg.reshaping_for(half, "large", brightness=1.6)[0] == pytest.approx(np.sqrt(0.8) * np.sqrt(1.1 / 1.6))
+    assert cfg.reshaping_for(coarse, "large", brightness=1.6) == pytest.approx((0.8, 1.1))
+    assert cfg.reshaping_for(close, "medium", brightness=1.6) == pytest.approx((1.0, 1.4))
+    assert cfg.reshaping_for(close, None, brightness=1.6) == pytest.approx((1.0, 1.4))
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="colour gain"):
+            cfg.reshaping_for(close, "large", brightness=bad)
+    with pytest.raises(ValueError, match="unknown gear 'huge'"):
+        LikelihoodConfig(close_reshaping={"huge": (1.0, 0.0, 0.0)})
+    for bad in ((0.0, 0.0, 0.0), (1.0, float("nan"), 0.0), (1.0, 0.0), (1.0, 0.0, 9.0)):
+        with pytest.raises(ValueError, match=r"close_reshaping\['large'\]"):
+            LikelihoodConfig(close_reshaping={"large": bad})

@@ -74,7 +74,7 @@ def test_fit_recovers_the_reshaping(benchmark_script):
                          "scaled_levels": table[i, 1].tolist(), "shaped_levels": table[i].tolist()})
     data = mod.Rows(rows, factors, shapes)
     base = LikelihoodConfig(gear_tempering={}, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0),
-                            far_reshaping={})
+                            far_reshaping={}, close_reshaping={})
     fitted = mod.fit_reshaping(data, base, factors=factors[[12, 14, 16]], shapes=np.array([1.0, 1.25]))
     assert fitted.shape_exponent == (1.0, 1.25)
     np.testing.assert_allclose(fitted.posterior_factor, (1.0, f_true), atol=1e-4)
