@@ -534,7 +534,8 @@ def _bench_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="PATH", type=Path,
                    help="calibration: write the reliability plot (PNG)")
     p.add_argument("--pool", nargs="+", metavar="RESULT", type=Path, default=None,
-                   help="calibration: judge these results (JSON, from --json) pooled, running nothing")
+                   help="calibration: judge these results (JSON, from --json) pooled, running nothing; "
+                        "--json then writes the pooled summary and the files' names")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -593,7 +594,9 @@ def _pool_calibration(args: argparse.Namespace, overrides: dict[str, Any]) -> in
     result = pool_results([read_json(path, "calibration result") for path in args.pool])
     print(markdown_table(result["summary"]))
     if json_path:
-        write_json(json_path, {**result, "results": [str(p) for p in args.pool]})
+        # the rows stay in the pooled files: the JSON holds what was judged and from which files
+        write_json(json_path, {"config": result["config"], "summary": result["summary"],
+                               "results": [str(p) for p in args.pool]})
     if plot_path:
         reliability_plot(result, plot_path)
     return 0

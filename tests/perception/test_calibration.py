@@ -131,7 +131,9 @@ def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "| clean | scene | 24 |" in proc.stdout
-    assert json.loads(out.read_text())["results"] == [str(p) for p in paths]
+    written = json.loads(out.read_text())
+    assert written["results"] == [str(p) for p in paths] and "rows" not in written
+    assert written["summary"][0]["posteriors"] == 24
     proc = subprocess.run([goflow, "bench", "calibration", "--pool", str(paths[0]), "--seed", "3"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and proc.stderr.strip().endswith("expected only --json and --plot")
