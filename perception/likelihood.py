@@ -49,6 +49,7 @@ FAR_REFERENCE_PIXELS = 600.0  # sampled pixels at which a alone applies (SearchC
 # colours answer the light differently, which one colour scale exponent for every gear leaves out
 # (docs/perception.md, Tempering, item 10); fitted by benchmarks/perception_close_view.py. The
 # gears not named keep 1.
+GAIN_RANGE = (0.25, 4.0)  # the colour gains the light laws (colour scale, close_reshaping) follow
 CLOSE_RESHAPING = {"small": (1.0, 0.05, 0.1), "medium": (1.0718, 0.25, -0.05), "large": (1.0534, -0.05, 0.25)}
 
 
@@ -191,15 +192,15 @@ class LikelihoodConfig:
         return float(occlusion * noise * lamp)
 
     def colour_scale_for(self, brightness: float, gsd: float) -> float:
-        """b_rgb under a light of `brightness` (the mean colour gain read off the table; clipped to
-        [0.25, 4]) in a view of ground sampling distance `gsd` [m/pixel]: f b_rgb brightness^e, e =
+        """b_rgb under a light of `brightness` (the mean colour gain read off the table; clipped by
+        `light_gain`) in a view of ground sampling distance `gsd` [m/pixel]: f b_rgb brightness^e, e =
         `brightness_exponent` for a dimmer light and `bright_exponent` blended by how well the
         view resolves the teeth (`teeth_resolved`) for a brighter one, f = `colour_scale_factor`
         blended geometrically by the same. Part of a colour residual (8-bit steps, antialiased
         edges) does not scale with the light, so e < 1."""
         if not np.isfinite(brightness):
             raise ValueError(f"brightness = {brightness}; expected a finite colour gain")
-        g = float(np.clip(brightness, 0.25, 4.0))
+        g = light_gain(brightness)
         w = teeth_resolved(gsd)
         e = self.brightness_exponent if g <= 1.0 else by_view(self.bright_exponent, w)
         return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g ** e)
@@ -295,11 +296,17 @@ def far_factor(gsd: float, pixels: float, a: float, b: float, reference: float =
 
 
 def close_factor(gsd: float, brightness: float, a: float, c_dim: float, c_bright: float) -> float:
-    """(a g^c)^w, g = `brightness` clipped to [0.25, 4] like the colour scale's, c = c_dim below 1
+    """(a g^c)^w, g = `light_gain(brightness)` as for the colour scale, c = c_dim below 1
     and c_bright above, w = `teeth_resolved(gsd)`: a factor following the light in the close view,
     1 where the teeth are not resolved (LikelihoodConfig.close_reshaping)."""
-    g = float(np.clip(brightness, 0.25, 4.0))
+    g = light_gain(brightness)
     return float(by_view((1.0, a * g ** (c_dim if g < 1.0 else c_bright)), teeth_resolved(gsd), geometric=True))
+
+
+def light_gain(brightness: float) -> float:
+    """The colour gain the light laws use: `brightness` (the mean gain read off the table) clipped
+    to GAIN_RANGE, so a saturated or nearly black table cannot drive them without bound."""
+    return float(np.clip(brightness, *GAIN_RANGE))
 
 
 def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],
