@@ -40,10 +40,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from common.errors import InputError  # noqa: E402
-from common.files import check_output_file, read_json, write_json  # noqa: E402
+from common.files import check_output_file, write_json  # noqa: E402
 from perception.calibration import LEVELS, row_brightness  # noqa: E402
 from perception.likelihood import close_factor  # noqa: E402
-from perception_far_view import fit_parser, moved_levels  # noqa: E402
+from perception_far_view import fit_parser, moved_levels, result_rows  # noqa: E402
 from perception_tempering import FIT_LEVELS, coverage  # noqa: E402
 
 AMPLITUDES = np.round(np.geomspace(0.5, 2.0, 81), 4)
@@ -54,18 +54,13 @@ NOMINAL = 0.02  # |g - 1| within which a light counts as the nominal one (fits a
 def close_rows(paths: list[Path]) -> list[dict]:
     """The informative close-view rows of calibration results with a brightness (recorded, or
     their group's), pooled; InputError if a file is not one or holds none."""
-    rows: list[dict] = []
-    for path in paths:
-        result = read_json(path, "calibration result")
-        if not isinstance(result, dict) or not isinstance(result.get("rows"), list):
-            raise InputError(f"{path}: not a calibration result (no 'rows' list)")
-        for r in result["rows"]:
-            if not (r.get("view") == "inspect" and r.get("informative")
-                    and all(k in r for k in ("level", "gsd", "gear", "shape", "group"))):
-                continue
+    rows = []
+    for r in result_rows(paths):
+        if r.get("view") == "inspect" and r.get("informative") and all(
+                k in r for k in ("level", "gsd", "gear", "shape", "group")):
             g = row_brightness(r)
             if g is not None:
-                rows.append({**r, "brightness": float(g)})
+                rows.append({**r, "brightness": g})
     if not rows:
         raise InputError(f"{[str(p) for p in paths]}: no informative close-view rows with a brightness")
     return rows

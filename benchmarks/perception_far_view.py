@@ -52,16 +52,23 @@ AMPLITUDES = np.round(np.geomspace(0.5, 2.0, 41), 4)
 BINS = 5  # parts of each gear's pixel counts (and gsd range), each a cell of the fit (and of the table)
 
 
-def scene_rows(paths: list[Path]) -> list[dict]:
-    """The informative scene-view rows of calibration results, pooled (InputError if a file is
-    not one or holds none)."""
+def result_rows(paths: list[Path]) -> list[dict]:
+    """Every row of the calibration results at `paths`, pooled (InputError naming a file that is
+    not one)."""
     rows: list[dict] = []
     for path in paths:
         result = read_json(path, "calibration result")
         if not isinstance(result, dict) or not isinstance(result.get("rows"), list):
             raise InputError(f"{path}: not a calibration result (no 'rows' list)")
-        rows += [r for r in result["rows"] if r.get("view") == "scene" and r.get("informative")
-                 and all(k in r for k in ("level", "gsd", "pixels", "gear", "shape", "group"))]
+        rows += result["rows"]
+    return rows
+
+
+def scene_rows(paths: list[Path]) -> list[dict]:
+    """The informative scene-view rows of calibration results, pooled (InputError if a file is
+    not one or holds none)."""
+    rows = [r for r in result_rows(paths) if r.get("view") == "scene" and r.get("informative")
+            and all(k in r for k in ("level", "gsd", "pixels", "gear", "shape", "group"))]
     if not rows:
         raise InputError(f"{[str(p) for p in paths]}: no informative scene-view rows with levels")
     return rows

@@ -83,13 +83,6 @@ def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None
     return result
 
 
-def _brightness(row: dict) -> float:
-    """The row's light gain for its reshaping (`row_brightness`; the nominal 1 where it is not
-    known: an oblique row made before it was recorded)."""
-    g = row_brightness(row)
-    return 1.0 if g is None else g
-
-
 def coverage(levels: np.ndarray, nominal: np.ndarray) -> np.ndarray:
     """Observed coverage at each nominal level."""
     return (levels[:, None] < nominal[None, :]).mean(axis=0)
@@ -138,14 +131,17 @@ class Rows:
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the factor on its recorded posterior's tempering under `config`: the search's
         tempering ratio times the reshaping's factor (the levels are recorded before it)."""
-        factor = np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], _brightness(r))[0] for r in self.rows])
+        # an oblique row made before the brightness was recorded: the nominal light's
+        factor = np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], row_brightness(r, 1.0))[0]
+                           for r in self.rows])
         return self.tempering_ratio(config) * factor
 
     def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
         """Per row: the shape exponent `config` gives it (None without shaped levels)."""
         if self.shapes is None:
             return None
-        return np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], _brightness(r))[1] for r in self.rows])
+        return np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], row_brightness(r, 1.0))[1]
+                         for r in self.rows])
 
     def at(self, config: LikelihoodConfig) -> np.ndarray:
         """Every row's truth level under `config`."""
@@ -207,7 +203,7 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
                          "(every file at the same shape exponents)")
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
     held = np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
-                     * base.close_factor_for(r["gsd"], r["gear"], _brightness(r)) for r in data.rows])
+                     * base.close_factor_for(r["gsd"], r["gear"], row_brightness(r, 1.0)) for r in data.rows])
     ratio = data.tempering_ratio(base) * held
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)

@@ -95,16 +95,16 @@ ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "stride", "inlier_f
             "depth_noise", "pixel_noise", "brightness", "light", "edge_mass", "posterior_factor", "shape")
 
 
-def row_brightness(row: dict) -> float | None:
+def row_brightness(row: dict, default: float | None = None) -> float | None:
     """The light's colour gain the scorer read for a result row: its recorded `brightness`, or for
     a row made before that was recorded, its group's headlight intensity (the scorer reads it to
-    within 0.003 under Drake's headlight); None for a group whose light arrives from elsewhere
+    within 0.003 under Drake's headlight); `default` for a group whose light arrives from elsewhere
     (the oblique light: its gain varies with the view) or that is not a known perturbation."""
     if row.get("brightness") is not None:
         return float(row["brightness"])
     perturbation = PERTURBATIONS.get(row.get("group"))
     if perturbation is None or perturbation.lighting.elevation_deg is not None:
-        return None
+        return default
     return float(perturbation.lighting.intensity)
 
 

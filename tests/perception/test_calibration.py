@@ -103,6 +103,7 @@ def test_a_rows_brightness_is_recorded_or_its_groups_headlight():
     assert row_brightness({"group": "dropout_3"}) == 1.0
     assert row_brightness({"group": "oblique"}) is None
     assert row_brightness({"group": "sunset"}) is None
+    assert row_brightness({"group": "oblique"}, 1.0) == 1.0  # the nominal light where it is not known
 
 
 def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_path):
