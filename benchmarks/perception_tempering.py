@@ -59,8 +59,8 @@ EXPONENTS = np.linspace(-0.75, 0.75, 31)
 OCCLUSION = np.linspace(0.0, 1.0, 5)
 NOISE = np.linspace(0.0, 2.0, 5)
 LAMP = np.linspace(0.5, 1.0, 6)
-SHAPES = (0.9, 1.0, 1.1, 1.2, 1.3, 1.45)  # posterior shape exponents recorded per row
-SHAPE_GRID = np.round(np.arange(0.9, 1.451, 0.05), 2)  # ... and searched (interpolated between)
+SHAPES = (0.9, 1.0, 1.1, 1.2, 1.25, 1.3, 1.35, 1.4, 1.45, 1.5, 1.6)  # posterior shape exponents recorded per row
+SHAPE_GRID = np.round(np.arange(0.9, 1.601, 0.05), 2)  # ... and searched (interpolated between)
 RESHAPE_FACTORS = np.round(np.geomspace(0.5, 2.0, 25), 4)  # the reshaping's factors searched
 
 
@@ -191,10 +191,12 @@ def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
 
 
 def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESHAPE_FACTORS,
-                  shapes: np.ndarray = SHAPE_GRID, rounds: int = 2) -> LikelihoodConfig:
+                  shapes: np.ndarray = SHAPE_GRID, rounds: int = 2,
+                  sides: tuple[int, ...] = (1, 0)) -> LikelihoodConfig:
     """`base` with the posterior's reshaping fitted, the search's tempering held: the
-    (posterior_factor, shape_exponent) pair for resolved teeth, then for unresolved ones, each
-    from the grid `factors` x `shapes`, `rounds` times in turn, whose truth levels are closest to
+    (posterior_factor, shape_exponent) pair of each of `sides` (1: resolved teeth, 0: unresolved;
+    the other side keeps `base`'s), each from the grid `factors` x `shapes`, `rounds` times in
+    turn, whose truth levels are closest to
     uniform in every perturbation group x view cell, `base`'s far- and close-view factors per gear
     held (`far_reshaping`, `close_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
     pipeline's (docs/perception.md, Tempering, item 7)."""
@@ -208,7 +210,7 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)
     for _ in range(rounds):
-        for side in (1, 0):  # resolved teeth (the close view) first
+        for side in sides:
             options = []
             for f, g in itertools.product(factors, shapes):
                 fs, gs = list(factor), list(shape)
@@ -273,6 +275,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="store the rows here (one path), or read them from existing files, pooled (a "
                         "later file's groups replace an earlier one's of the same seed)")
     p.add_argument("--json", type=Path, default=None, help="write the fit and the tables here")
+    p.add_argument("--resolved-only", action="store_true",
+                   help="on rows with shaped levels, fit the reshaping where the teeth are resolved "
+                        "(the close view) only, the other side held at the shipped values")
     p.add_argument("--likelihood", nargs="+", default=None, metavar="KEY=VALUE",
                    help="LikelihoodConfig fields to collect and fit under instead of the shipped "
                         "ones, e.g. colour_scale_factor=[1,2]")
@@ -300,8 +305,11 @@ def main(argv: list[str] | None = None) -> int:
     if data.shapes is None:
         config = fit(data, base)
     else:  # the search's tempering held at the shipped values, the reshaping fitted
-        config = fit_reshaping(data, replace(base, posterior_factor=(1.0, 1.0),
-                                             shape_exponent=(1.0, 1.0)))
+        if args.resolved_only:
+            config = fit_reshaping(data, base, sides=(1,), rounds=1)
+        else:
+            config = fit_reshaping(data, replace(base, posterior_factor=(1.0, 1.0),
+                                                 shape_exponent=(1.0, 1.0)))
     fitted = data.at(config)
     head = "| {} | n | as collected 50/68/80/90/95 | fitted |"
     lines = [head.format("gear | view"), "|---|---|---|---|---|"]

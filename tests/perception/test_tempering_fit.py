@@ -1,6 +1,8 @@
 """The tempering fit (benchmarks/perception_tempering.py) on rows whose miscalibration is known."""
 
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -83,6 +85,10 @@ def test_fit_recovers_the_reshaping(benchmark_script):
         m = np.array([r["view"] == view for r in rows])
         np.testing.assert_allclose(mod.coverage(levels[m], np.array([0.5, 0.8, 0.95])),
                                    [0.5, 0.8, 0.95], atol=0.05)
+    held = mod.fit_reshaping(data, replace(base, posterior_factor=(0.9, 1.0), shape_exponent=(1.1, 1.0)),
+                             factors=factors[[12, 14, 16]], shapes=np.array([1.0, 1.25]), sides=(1,))
+    assert (held.posterior_factor[0], held.shape_exponent[0]) == (0.9, 1.1)  # the far side held
+    assert held.shape_exponent[1] == 1.25
     close = np.array([r["view"] == "inspect" for r in rows])
     before = mod.coverage(np.array([r["level"] for r in rows])[close], np.array([0.5, 0.95]))
     assert before[1] - 0.95 > 0.02  # the close view was miscalibrated before the fit
