@@ -32,7 +32,9 @@ KEY=VALUE ...` collects and fits under other LikelihoodConfig values than the sh
 the same when reading the rows back), e.g. `colour_scale_factor=[1,2]` (Tempering, item 8). The colour
 scale's brightness exponent changes the pixels' scores, not only their weight, so it cannot be
 fitted this way: it was chosen from the dim and bright groups and checked by collecting them
-again (docs/perception.md).
+again (docs/perception.md). `--resolved-only` fits the resolved side of the reshaping alone, the
+unresolved one held at the shipped values (Tempering, item 11; `perception_reshaping.py` fits
+either side from calibration results and these rows together).
 """
 
 from __future__ import annotations
@@ -196,9 +198,8 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
     """`base` with the posterior's reshaping fitted, the search's tempering held: the
     (posterior_factor, shape_exponent) pair of each of `sides` (1: resolved teeth, 0: unresolved;
     the other side keeps `base`'s), each from the grid `factors` x `shapes`, `rounds` times in
-    turn, whose truth levels are closest to
-    uniform in every perturbation group x view cell, `base`'s far- and close-view factors per gear
-    held (`far_reshaping`, `close_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
+    turn, whose truth levels are closest to uniform in every perturbation group x view cell,
+    `base`'s far- and close-view factors per gear held (`far_reshaping`, `close_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
     pipeline's (docs/perception.md, Tempering, item 7)."""
     if data.shapes is None:
         raise InputError("the rows hold no shaped levels; collect them with this script "
