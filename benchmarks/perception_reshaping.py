@@ -39,10 +39,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from common.errors import InputError  # noqa: E402
 from common.files import check_output_file, write_json  # noqa: E402
-from perception.calibration import LEVELS, row_brightness  # noqa: E402
+from perception.calibration import LEVELS  # noqa: E402
 from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved  # noqa: E402
 from perception_far_view import fit_parser, result_rows  # noqa: E402
-from perception_tempering import Rows, cell_loss, coverage, load_rows  # noqa: E402
+from perception_tempering import Rows, cell_loss, coverage, held_factors, load_rows  # noqa: E402
 
 SIDES = {"unresolved": 0, "resolved": 1}  # index into the (unresolved, resolved) pairs
 FACTORS = np.round(np.geomspace(0.5, 2.0, 49), 4)  # the side's factor searched (1 included)
@@ -91,9 +91,7 @@ class Reading:
                                      np.array([r["posterior_factor"] for r in rows], float),
                                      np.array([r["shape"] for r in rows], float))
         self.resolved = np.array([teeth_resolved(r["gsd"]) for r in rows])
-        self.held = np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
-                              * base.close_factor_for(r["gsd"], r["gear"], row_brightness(r, 1.0))
-                              for r in rows])
+        self.held = held_factors(rows, base)
         self.cells = [f"{r['group']}/{r['view']}" for r in rows]
 
     def at(self, side: int = 1, factor: float | None = None, exponent: float | None = None) -> np.ndarray:
@@ -117,6 +115,8 @@ class Exact:
         self.data, self.base = Rows(rows, factors, shapes), base
         self.rows = rows
         self.cells = [f"{r['group']}/{r['view']}" for r in rows]
+        self.resolved = np.array([teeth_resolved(r["gsd"]) for r in rows])
+        self.held = self.data.tempering_ratio(base) * held_factors(rows, base)  # computed once
 
     def at(self, side: int = 1, factor: float | None = None, exponent: float | None = None) -> np.ndarray:
         """Every row's exact truth level with side `side`'s pair (`base`'s if None), interpolated
@@ -124,7 +124,8 @@ class Exact:
         cfg = with_pair(self.base, side,
                         self.base.posterior_factor[side] if factor is None else factor,
                         self.base.shape_exponent[side] if exponent is None else exponent)
-        return self.data.at(cfg)
+        f1, g1 = blend_reshaping(cfg.posterior_factor, cfg.shape_exponent, self.resolved)
+        return self.data.levels(f1 * self.held, shape=g1)
 
 
 def fit_pair(data: Reading | Exact, side: int, factors: np.ndarray = FACTORS,

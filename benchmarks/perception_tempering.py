@@ -192,6 +192,13 @@ def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
     return best[1]
 
 
+def held_factors(rows: list[dict], base: LikelihoodConfig) -> np.ndarray:
+    """Per row: `base`'s per-gear far- and close-view factors on its reshaping (held by the fits
+    of the shared pairs)."""
+    return np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
+                     * base.close_factor_for(r["gsd"], r["gear"], row_brightness(r, 1.0)) for r in rows])
+
+
 def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESHAPE_FACTORS,
                   shapes: np.ndarray = SHAPE_GRID, rounds: int = 2,
                   sides: tuple[int, ...] = (1, 0)) -> LikelihoodConfig:
@@ -205,9 +212,7 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
         raise InputError("the rows hold no shaped levels; collect them with this script "
                          "(every file at the same shape exponents)")
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
-    held = np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
-                     * base.close_factor_for(r["gsd"], r["gear"], row_brightness(r, 1.0)) for r in data.rows])
-    ratio = data.tempering_ratio(base) * held
+    ratio = data.tempering_ratio(base) * held_factors(data.rows, base)
     w = np.array([teeth_resolved(g) for g in data.gsd])
     factor, shape = list(base.posterior_factor), list(base.shape_exponent)
     for _ in range(rounds):
