@@ -585,7 +585,7 @@ def _bench_calibration(args: argparse.Namespace) -> int:
 
 def _pool_calibration(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
     """`goflow bench calibration --pool`: stored results judged together."""
-    from perception.calibration import markdown_table, pool_results, reliability_plot
+    from perception.calibration import markdown_table, pool_results, reliability_plot, sets_text
     given = [f"--{k}" for k in overrides] + (["--groups"] if args.groups else [])
     if given:
         raise InputError(f"{' '.join(given)} with --pool: pooling runs nothing; expected only --json and --plot")
@@ -593,10 +593,11 @@ def _pool_calibration(args: argparse.Namespace, overrides: dict[str, Any]) -> in
     plot_path = check_output_file(args.plot, "--plot") if args.plot else None
     result = pool_results([read_json(path, "calibration result") for path in args.pool])
     print(markdown_table(result["summary"]))
+    print(sets_text(result["sets"]))
     if json_path:
         # the rows stay in the pooled files: the JSON holds what was judged and from which files
         write_json(json_path, {"config": result["config"], "summary": result["summary"],
-                               "results": [str(p) for p in args.pool]})
+                               "sets": result["sets"], "results": [str(p) for p in args.pool]})
     if plot_path:
         reliability_plot(result, plot_path)
     return 0

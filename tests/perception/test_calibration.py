@@ -14,7 +14,7 @@ import pytest
 from common.errors import InputError
 from perception.calibration import (
     HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, coverage_se, group_rows,
-    markdown_table, pool_results, row_brightness, summarize,
+    markdown_table, pool_results, resampled_set_count, row_brightness, sets_text, summarize,
 )
 from perception.likelihood import LikelihoodConfig
 from perception.search import SearchConfig
@@ -135,7 +135,53 @@ def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_
     written = json.loads(out.read_text())
     assert written["results"] == [str(p) for p in paths] and "rows" not in written
     assert written["summary"][0]["posteriors"] == 24
+    assert [s["seed"] for s in written["sets"]["each"]] == [1, 2] and written["sets"]["scenes"] == 4
+    assert "Each set alone" in proc.stdout and "resampled from the pooled scenes" in proc.stdout
     proc = subprocess.run([goflow, "bench", "calibration", "--pool", str(paths[0]), "--seed", "3"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and proc.stderr.strip().endswith("expected only --json and --plot")
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def _synthetic_rows(scenes: int, offsets: dict[str, float], seed: int = 0) -> list[dict]:
+    """Two groups x two views x three gears a scene, truth levels uniform but for a cell's offset
+    (its levels shifted and clipped): a pipeline whose truth is known."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for scene in range(scenes):
+        for group in ("clean", "dim"):
+            for view in ("scene", "inspect"):
+                for gear in ("small", "medium", "large"):
+                    level = float(np.clip(rng.random() + offsets.get(f"{group}/{view}", 0.0), 0, 1))
+                    rows.append({"group": group, "view": view, "scene": scene, "gear": gear,
+                                 "seen": True, "informative": True, "level": level,
+                                 "xy_error_m": 1e-4, "yaw_error_rad": 1e-3, "map_error": [1e-4, 0.0, 1e-3],
+                                 "std": [1e-4, 1e-4, 1e-3], "seconds": 0.1})
+    return rows
+
+
+def test_resampled_sets_read_what_a_calibrated_pipeline_reads_and_less_with_an_offset_cell():
+    """Sets resampled from many calibrated scenes pass about as often as `calibrated_pass_chance`
+    says; a cell 6 points sharp costs about that cell; sets of more scenes pass more often."""
+    calibrated = _synthetic_rows(3000, {})
+    expected = 4 * calibrated_pass_chance(450)
+    assert abs(resampled_set_count(calibrated, 150, draws=400) - expected) < 0.15
+    sharp = _synthetic_rows(3000, {"clean/scene": 0.06})
+    fewer = resampled_set_count(sharp, 150, draws=400)
+    assert expected - 1.0 < fewer < expected - 0.3
+    # with more scenes a set reads the calibrated cells in band and the sharp one out of it
+    assert 3.7 < resampled_set_count(calibrated, 600, draws=200) <= 4.0
+    assert 2.6 < resampled_set_count(sharp, 600, draws=200) < 3.5
+    assert resampled_set_count(calibrated, 150, draws=100) == resampled_set_count(calibrated, 150, draws=100)
+    assert np.isnan(resampled_set_count([], 150))
+
+
+def test_pooled_sets_report_each_set_and_the_resampled_mean():
+    first = {"config": {"scenes": 50, "seed": 7, "groups": ["clean", "dim"], "levels": [0.5, 0.68, 0.8, 0.9, 0.95]},
+             "rows": _synthetic_rows(50, {}, seed=1)}
+    second = {"config": {**first["config"], "seed": 8}, "rows": _synthetic_rows(50, {}, seed=2)}
+    sets = pool_results([first, second])["sets"]
+    assert [s["seed"] for s in sets["each"]] == [7, 8] and sets["scenes"] == 50
+    assert all(s["cells"] == 4 and 0 <= s["within_band"] <= 4 for s in sets["each"])
+    assert 0 <= sets["resampled_within_band"] <= 4
+    assert sets_text(sets).startswith("Each set alone, within +-5") and "7: " in sets_text(sets)
