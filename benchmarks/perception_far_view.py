@@ -53,14 +53,15 @@ BINS = 5  # parts of each gear's pixel counts (and gsd range), each a cell of th
 
 
 def result_rows(paths: list[Path]) -> list[dict]:
-    """Every row of the calibration results at `paths`, pooled (InputError naming a file that is
-    not one)."""
+    """Every row of the calibration results at `paths`, pooled, each scene named by its file's
+    place in `paths` ("k/scene": two sets' scene 0 are two scenes) (InputError naming a file that
+    is not one)."""
     rows: list[dict] = []
-    for path in paths:
+    for k, path in enumerate(paths):
         result = read_json(path, "calibration result")
         if not isinstance(result, dict) or not isinstance(result.get("rows"), list):
             raise InputError(f"{path}: not a calibration result (no 'rows' list)")
-        rows += result["rows"]
+        rows += [{**r, "scene": f"{k}/{r.get('scene')}"} for r in result["rows"]]
     return rows
 
 

@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from common.errors import InputError  # noqa: E402
 from common.files import check_output_file, write_json  # noqa: E402
-from perception.calibration import LEVELS  # noqa: E402
+from perception.calibration import LEVELS, resampled_set_count  # noqa: E402
 from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved  # noqa: E402
 from perception_far_view import fit_parser, result_rows  # noqa: E402
 from perception_tempering import Rows, cell_loss, coverage, held_factors, load_rows  # noqa: E402
@@ -156,8 +156,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="the reshaping pair to fit (default: resolved, the close view's)")
     p.add_argument("--tuning-rows", type=Path, nargs="+", default=None,
                    help="perception_tempering.py rows with shaped levels (exact), pooled")
+    p.add_argument("--sets", type=int, nargs="+", default=[],
+                   help="also the mean cells within +-5 of sets of these many scenes resampled from "
+                        "the calibration results, under the shipped pairs (e.g. 150 300 600)")
     args = p.parse_args(argv)
     side = SIDES[args.side]
+    if any(n < 1 for n in args.sets):
+        print(f"perception_reshaping: --sets {args.sets}: expected scene counts >= 1", file=sys.stderr)
+        return 2
     base = LikelihoodConfig()
     try:
         out = check_output_file(args.json, "--json") if args.json else None
@@ -180,10 +186,17 @@ def main(argv: list[str] | None = None) -> int:
     summary = {name: {"posterior_factor": f, "shape_exponent": e, "loss": round(loss, 5)}
                for name, (loss, f, e) in fits.items()}
     print(f"{args.side} reshaping (factor, shape exponent): shipped {shipped}, fits {summary}")
+    read = sources["calibration results (read)"]
+    resampled = {n: resampled_set_count([{**r, "level": float(x)} for r, x in zip(read.rows, read.at(side))], n)
+                 for n in args.sets}
+    if resampled:
+        print("cells within +-5 of sets resampled from the calibration results, shipped pairs: "
+              + ", ".join(f"{n} scenes {c:.1f}" for n, c in resampled.items()))
     if out is not None:
         write_json(out, {"side": args.side, "shipped": list(shipped), "fits": summary,
                          "results": [str(x) for x in args.results],
-                         "tuning_rows": [str(x) for x in args.tuning_rows or []], "table": lines})
+                         "tuning_rows": [str(x) for x in args.tuning_rows or []], "table": lines,
+                         "resampled_sets": {str(n): c for n, c in resampled.items()}})
     return 0
 
 

@@ -17,7 +17,7 @@ def _rows(factor: float, exponent: float, n: int, rng: np.random.Generator) -> l
     u = rng.gamma(1.5 / exponent, size=n)
     deficit = u ** (1 / exponent) / factor
     groups = ("clean", "dropout_3", "dim")
-    return [{"view": "inspect", "informative": True, "gear": "small", "group": groups[i % 3],
+    return [{"view": "inspect", "informative": True, "seen": True, "scene": i // 3, "gear": "small", "group": groups[i % 3],
              "gsd": CLOSE_GSD, "pixels": 3000, "posterior_factor": 1.0, "shape": 1.0,
              "brightness": 1.0, "level": float(gammainc(1.5, d))} for i, d in enumerate(deficit)]
 
@@ -64,3 +64,21 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, benchmark_script):
     assert "no shaped levels" in capsys.readouterr().err
     assert mod.main(["--results", str(good), "--json", str(good / "fit.json")]) == 2  # a file in the way
     assert "is a file" in capsys.readouterr().err
+    assert mod.main(["--results", str(good), "--sets", "0"]) == 2
+    assert "--sets [0]: expected scene counts >= 1" in capsys.readouterr().err
+
+
+def test_sets_resampled_from_the_results_are_counted(tmp_path, capsys, benchmark_script):
+    """--sets: the mean cells within +-5 of sets of that many scenes drawn from the results' scenes,
+    two files' scenes kept apart."""
+    mod = benchmark_script("perception_reshaping")
+    paths = []
+    for k in range(2):
+        paths.append(tmp_path / f"set{k}.json")
+        paths[-1].write_text(json.dumps({"rows": _rows(1.0, 1.25, 600, np.random.default_rng(k))}))
+    assert len({r["scene"] for r in mod.shape_rows(paths)}) == 400  # 200 scenes a file
+    out = tmp_path / "fit.json"
+    assert mod.main(["--results", *map(str, paths), "--sets", "50", "400", "--json", str(out)]) == 0
+    assert "cells within +-5 of sets resampled" in capsys.readouterr().out
+    counts = json.loads(out.read_text())["resampled_sets"]
+    assert set(counts) == {"50", "400"} and all(0 <= c <= 3 for c in counts.values())
