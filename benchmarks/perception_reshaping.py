@@ -186,9 +186,11 @@ def main(argv: list[str] | None = None) -> int:
     summary = {name: {"posterior_factor": f, "shape_exponent": e, "loss": round(loss, 5)}
                for name, (loss, f, e) in fits.items()}
     print(f"{args.side} reshaping (factor, shape exponent): shipped {shipped}, fits {summary}")
-    read = sources["calibration results (read)"]
-    resampled = {n: resampled_set_count([{**r, "level": float(x)} for r, x in zip(read.rows, read.at(side))], n)
-                 for n in args.sets}
+    resampled = {}
+    if args.sets:
+        read = sources["calibration results (read)"]
+        shipped_rows = [{**r, "level": float(x)} for r, x in zip(read.rows, read.at(side))]  # once for every size
+        resampled = {n: resampled_set_count(shipped_rows, n) for n in args.sets}
     if resampled:
         print("cells within +-5 of sets resampled from the calibration results, shipped pairs: "
               + ", ".join(f"{n} scenes {c:.1f}" for n, c in resampled.items()))
