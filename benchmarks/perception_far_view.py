@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))  # perception_tempering, also when 
 
 from common.errors import InputError  # noqa: E402
 from common.files import check_output_file, read_json, write_json  # noqa: E402
+from perception.calibration import named_by_set  # noqa: E402
 from perception.likelihood import FAR_REFERENCE_PIXELS, far_factor, teeth_resolved  # noqa: E402
 from perception_tempering import FIT_LEVELS, coverage  # noqa: E402
 
@@ -61,7 +62,7 @@ def result_rows(paths: list[Path]) -> list[dict]:
         result = read_json(path, "calibration result")
         if not isinstance(result, dict) or not isinstance(result.get("rows"), list):
             raise InputError(f"{path}: not a calibration result (no 'rows' list)")
-        rows += [{**r, "scene": f"{k}/{r.get('scene')}"} for r in result["rows"]]
+        rows += named_by_set(result["rows"], k)
     return rows
 
 

@@ -210,6 +210,22 @@ def summarize(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> list[dict
     return out
 
 
+def scene_hits(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> tuple[np.ndarray, np.ndarray]:
+    """Per scene and group x view cell of `rows` (each with "scene" and "level"; "group" and
+    "view" where they have them), in order of first appearance: (hits, counts), hits[s, c, k]
+    the truths of scene s and cell c whose level is below levels[k], counts[s, c] the rows.
+    Whole-scene bootstraps resample their first axis."""
+    scene_ids = {s: i for i, s in enumerate(dict.fromkeys(r["scene"] for r in rows))}
+    cell_ids = {c: i for i, c in enumerate(dict.fromkeys((r.get("group"), r.get("view")) for r in rows))}
+    index = (np.array([scene_ids[r["scene"]] for r in rows], int),
+             np.array([cell_ids[(r.get("group"), r.get("view"))] for r in rows], int))
+    hits = np.zeros((len(scene_ids), len(cell_ids), len(levels)))
+    np.add.at(hits, index, np.array([r["level"] for r in rows])[:, None] < np.asarray(levels, float))
+    counts = np.zeros((len(scene_ids), len(cell_ids)))
+    np.add.at(counts, index, 1.0)
+    return hits, counts
+
+
 def coverage_se(rows: list[dict], levels: tuple[float, ...] = LEVELS, draws: int = 2000,
                 seed: int = 0) -> dict[float, float]:
     """Standard error of the observed coverage at each level in `levels`, from a bootstrap over
@@ -218,13 +234,9 @@ def coverage_se(rows: list[dict], levels: tuple[float, ...] = LEVELS, draws: int
     on another scene set of the same size. NaN for no rows; a fixed seed."""
     if not rows:
         return {lvl: float("nan") for lvl in levels}
-    scenes = {s: i for i, s in enumerate(dict.fromkeys(r["scene"] for r in rows))}
-    index = np.array([scenes[r["scene"]] for r in rows])
-    below = np.array([[r["level"] < lvl for lvl in levels] for r in rows], float)
-    hits = np.zeros((len(scenes), len(levels)))
-    np.add.at(hits, index, below)
-    counts = np.bincount(index, minlength=len(scenes)).astype(float)
-    picks = np.random.default_rng(seed).integers(0, len(scenes), (draws, len(scenes)))
+    hits, counts = scene_hits(rows, levels)
+    hits, counts = hits.sum(axis=1), counts.sum(axis=1)  # the rows as one cell
+    picks = np.random.default_rng(seed).integers(0, len(counts), (draws, len(counts)))
     coverage = hits[picks].sum(axis=1) / counts[picks].sum(axis=1)[:, None]
     return {lvl: float(se) for lvl, se in zip(levels, coverage.std(axis=0))}
 
@@ -260,19 +272,12 @@ def resampled_set_count(rows: list[dict], scenes: int, levels: tuple[float, ...]
     ok = [r for r in rows if r.get("seen") and r.get("informative")]
     if not ok or scenes < 1:
         return float("nan")
-    scene_ids = {s: i for i, s in enumerate(dict.fromkeys(r["scene"] for r in ok))}
-    cell_ids = {c: i for i, c in enumerate(dict.fromkeys((r["group"], r["view"]) for r in ok))}
-    s_idx = np.array([scene_ids[r["scene"]] for r in ok])
-    c_idx = np.array([cell_ids[(r["group"], r["view"])] for r in ok])
+    hits, counts = scene_hits(ok, levels)
     nominal = np.asarray(levels, float)
-    hits = np.zeros((len(scene_ids), len(cell_ids), len(levels)))
-    np.add.at(hits, (s_idx, c_idx), np.array([r["level"] for r in ok])[:, None] < nominal)
-    counts = np.zeros((len(scene_ids), len(cell_ids)))
-    np.add.at(counts, (s_idx, c_idx), 1.0)
     rng = np.random.default_rng(seed)
     passed = 0.0
     for start in range(0, draws, 100):
-        picks = rng.integers(0, len(scene_ids), (min(100, draws - start), scenes))
+        picks = rng.integers(0, len(counts), (min(100, draws - start), scenes))
         n = counts[picks].sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             coverage = hits[picks].sum(axis=1) / n[..., None]
@@ -310,6 +315,12 @@ def run_calibration(config: CalibrationConfig | None = None, progress: bool = Fa
             "summary": summarize(rows, config.levels), "rows": rows}
 
 
+def named_by_set(rows: list[dict], name: object) -> list[dict]:
+    """Copies of a set's `rows` with each scene named "name/scene", so that two sets' scene 0
+    stay two scenes when their rows are pooled."""
+    return [{**r, "scene": f"{name}/{r.get('scene')}"} for r in rows]
+
+
 def pool_results(results: list[dict]) -> dict:
     """Calibration results of several scene sets (each {"config", "rows"}, as `run_calibration`
     writes them) as one: their rows together, each scene named by its set's seed so that the
@@ -330,7 +341,7 @@ def pool_results(results: list[dict]) -> dict:
             raise InputError(f"result {k}: levels {list(mine)}; expected those of the first, {list(levels)}")
         levels = mine
         seeds.append(config.get("seed"))
-        rows += [{**r, "scene": f"{config.get('seed', k)}/{r['scene']}"} for r in result["rows"]]
+        rows += named_by_set(result["rows"], config.get("seed", k))
     groups = list(dict.fromkeys(g for r in results for g in r["config"].get("groups", [])))
     sets = []
     for k, result in enumerate(results):
