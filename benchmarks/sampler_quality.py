@@ -69,7 +69,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.checks import check_int  # noqa: E402
+from common.checks import InputErrorParser, check_int  # noqa: E402
 from common.errors import GoflowError, InputError  # noqa: E402
 from common.files import check_output_dir, check_output_file, read_json, to_strict_json, write_json  # noqa: E402
 from learning.execution import Job, add_ray_flag, make_backend, run_grid  # noqa: E402
@@ -599,14 +599,9 @@ def plot_densities(records: list[dict[str, Any]], path: Path,
 # -- command line -------------------------------------------------------------------------------
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, as every other input error
-        raise InputError(message)
-
-
 def make_parser() -> argparse.ArgumentParser:
     """The benchmark's flags."""
-    p = _Parser(prog="benchmarks/sampler_quality.py", description=__doc__.splitlines()[0])
+    p = InputErrorParser(prog="benchmarks/sampler_quality.py", description=__doc__.splitlines()[0])
     p.add_argument("--layouts", nargs="+", default=["all"], help=f"'all' or some of {list(LAYOUTS)}")
     p.add_argument("--methods", nargs="+", default=["all"], help=f"'all', {list(GROUPS)} or some of {list(METHODS)}")
     p.add_argument("--protocols", nargs="+", default=["all"], help=f"'all' or some of {list(PROTOCOLS)}")

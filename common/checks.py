@@ -4,6 +4,7 @@ with a message of the form "NAME = VALUE; expected ...".
 
 from __future__ import annotations
 
+import argparse
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -13,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from common.errors import InputError
 
-__all__ = ["check_int", "check_number", "check_choice", "check_finite_array"]
+__all__ = ["check_int", "check_number", "check_choice", "check_finite_array", "InputErrorParser"]
 
 
 def check_int(value: Any, name: str, minimum: int | None = None) -> int:
@@ -78,3 +79,11 @@ def check_finite_array(value: ArrayLike, name: str, shape: Sequence[int | None] 
                              f"{i} = {arr.ravel()[i]:g}); expected values in [{low if low is not None else '-inf'}, "
                              f"{high if high is not None else 'inf'}]")
     return arr
+
+
+class InputErrorParser(argparse.ArgumentParser):
+    """An ArgumentParser whose bad flags raise InputError (one line, caught with every other input
+    error) instead of printing the usage and exiting."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(message)

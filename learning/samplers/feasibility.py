@@ -26,10 +26,13 @@ import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from common.errors import InputError
+from learning.samplers.evidence import Evidence
 
 __all__ = ["SuccessClassifier"]
 
 _CHUNK = 65536
+FIT_LR = 3e-3  # Adam's learning rate in every fit
+FIRST_FIT_FACTOR = 10  # the first fit starts from scratch: this many times the steps of one that continues
 AVERAGE_DECAY = 0.99  # per step: the average spans about the last 100 steps, one GoFlow update's fit
 
 
@@ -101,6 +104,14 @@ class SuccessClassifier:
                 for avg, p in zip(self._average.parameters(), self._net.parameters()):
                     avg.lerp_(p, 1.0 - AVERAGE_DECAY)
         return float(loss.detach())
+
+    def fit_evidence(self, evidence: Evidence, *, steps: int, batch: int, gen: torch.Generator) -> float | None:
+        """One sampler update's fit to every row of `evidence` (0/1 scaled signals), each weighted
+        as a uniform design would count it (`Evidence.design_weights`): `steps` Adam steps at
+        `FIT_LR`, `FIRST_FIT_FACTOR` times as many while nothing is fitted yet. Returns `fit`'s loss."""
+        steps = steps * (1 if self.fitted else FIRST_FIT_FACTOR)
+        return self.fit(evidence.xi, evidence.scaled_signal(), evidence.design_weights(), steps=steps, batch=batch,
+                        lr=FIT_LR, gen=gen)
 
     def probability(self, xi_unit: NDArray[np.float64] | torch.Tensor) -> NDArray[np.float64]:
         """P(success) at points of the unit box, shape (n,) (zeros before the first fit)."""

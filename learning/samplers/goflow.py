@@ -782,11 +782,8 @@ class GoFlowSampler:
         self._evidence.add((xi_arr - self._low) / self._width, ret)
         gen = self._update_generator()
         if self._classifier is not None:
-            ev = self._evidence
-            # the first fit starts from scratch: ten times the steps of one that continues
-            steps = cfg.classifier_steps * (1 if self._classifier.fitted else 10)
-            loss = self._classifier.fit(ev.xi, ev.scaled_signal(), ev.design_weights(), steps=steps,
-                                        batch=cfg.fit_batch, lr=3e-3, gen=gen)
+            loss = self._classifier.fit_evidence(self._evidence, steps=cfg.classifier_steps, batch=cfg.fit_batch,
+                                                 gen=gen)
             info_classifier = {"classifier_loss": math.nan if loss is None else loss}
         else:
             info_classifier = {}

@@ -283,3 +283,40 @@ def test_benchmark_sampler_flag_reaches_the_goflow_config_and_the_stored_setting
                                                     "draws")])
     assert task.settings()["config"]["leak_target"] == 0.008 and plain.settings()["config"]["leak_target"] == 0.004
     assert task.settings() != plain.settings()
+
+
+# -- the classifier frontier (benchmarks/classifier_frontier.py) ------------------------------------
+
+
+def _frontier():
+    path = ROOT / "benchmarks" / "classifier_frontier.py"
+    spec = importlib.util.spec_from_file_location("classifier_frontier", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_frontier_reads_an_exact_estimate_as_meeting_both_targets_and_a_loose_one_as_not():
+    frontier, layout = _frontier(), LAYOUTS["small"]
+    rng = np.random.default_rng(0)
+    u, inside = rng.random((200_000, 2)), layout.sample_inside(20_000, rng)
+    in_f = layout.contains(u)
+    exact = frontier.read_levels(in_f.astype(float), in_f, np.ones(len(inside)), [0.5], layout.share, 0.002)[0]
+    assert exact["mass"] == pytest.approx(0.998) and exact["cov10"] == 1.0 and exact["recall"] == 1.0
+    assert frontier.meets(exact)
+    # F-hat twice F's area around it: every point of F covered, half the mass outside
+    margin = layout.margin(u)
+    loose_p = (margin >= np.quantile(margin, 1.0 - 2.0 * layout.share)).astype(float)
+    loose = frontier.read_levels(loose_p, in_f, np.ones(len(inside)), [0.5], layout.share, 0.002)[0]
+    assert loose["cov10"] == 1.0 and loose["mass"] == pytest.approx(0.5, abs=0.02) and not frontier.meets(loose)
+    # an empty F-hat: the flow alone, uniform on the box, covers none of a 5 % set at the 10 % level
+    empty = frontier.read_levels(np.zeros(len(u)), in_f, np.zeros(len(inside)), [0.5], layout.share, 0.002)[0]
+    assert empty["mass"] == pytest.approx(layout.share) and empty["cov10"] == 0.0
+
+
+def test_frontier_bad_input_is_one_line():
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "classifier_frontier.py"), "--levels", "1.5"],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--levels entry = 1.5" in lines[0] and lines[0].startswith("classifier_frontier: ")
