@@ -21,8 +21,9 @@ SCRIPT = ROOT / "benchmarks" / "sampler_quality.py"
 DELTA = 0.005
 
 
-def _benchmark():
-    spec = importlib.util.spec_from_file_location("sampler_quality", SCRIPT)
+def _benchmark(script: Path = SCRIPT):
+    """A benchmarks/ script as a module (default sampler_quality.py)."""
+    spec = importlib.util.spec_from_file_location(script.stem, script)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
@@ -288,16 +289,11 @@ def test_benchmark_sampler_flag_reaches_the_goflow_config_and_the_stored_setting
 # -- the classifier frontier (benchmarks/classifier_frontier.py) ------------------------------------
 
 
-def _frontier():
-    path = ROOT / "benchmarks" / "classifier_frontier.py"
-    spec = importlib.util.spec_from_file_location("classifier_frontier", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+FRONTIER = ROOT / "benchmarks" / "classifier_frontier.py"
 
 
 def test_frontier_reads_an_exact_estimate_as_meeting_both_targets_and_a_loose_one_as_not():
-    frontier, layout = _frontier(), LAYOUTS["small"]
+    frontier, layout = _benchmark(FRONTIER), LAYOUTS["small"]
     rng = np.random.default_rng(0)
     u, inside = rng.random((200_000, 2)), layout.sample_inside(20_000, rng)
     in_f = layout.contains(u)
@@ -315,7 +311,7 @@ def test_frontier_reads_an_exact_estimate_as_meeting_both_targets_and_a_loose_on
 
 
 def test_frontier_bad_input_is_one_line():
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "classifier_frontier.py"), "--levels", "1.5"],
+    proc = subprocess.run([sys.executable, str(FRONTIER), "--levels", "1.5"],
                           capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
