@@ -2,12 +2,13 @@
 and coverage of the ideal sampler on F-hat at each level, against rounds and `memory`.
 
     .venv/bin/python benchmarks/classifier_frontier.py --layouts tiny --seeds 0 1 2 --rounds 100 200 300 \\
-        --memory 16384 131072 [--levels 0.3 0.5 0.6 0.7 0.8 0.9] [--json PATH]
+        --memory 16384 131072 [--boundary-memory 0 16384] [--levels 0.3 0.5 0.6 0.7 0.8 0.9] [--json PATH]
 
-Each (layout, seed, memory) feeds uniform batches of `--batch` points with their 0/1 success to an
-`Evidence` of `memory` rows and fits GoFlow's success classifier to it after every batch, exactly
-as the constrained mode's update does (`SuccessClassifier.fit_evidence`, GoFlowConfig's steps,
-minibatch and layers); no flow is trained. At each round of `--rounds` the estimate F-hat =
+Each (layout, seed, memory, boundary memory) feeds uniform batches of `--batch` points with their
+0/1 success to an `Evidence` of a window of `memory` rows and up to `boundary memory` older rows on
+the class boundary (GoFlowConfig.boundary_memory), and fits GoFlow's success classifier to it
+after every batch, exactly as the constrained mode's update does (`SuccessClassifier.fit_evidence`,
+GoFlowConfig's steps, minibatch and layers); no flow is trained. At each round of `--rounds` the estimate F-hat =
 {P >= level} is read at every level of `--levels` as the sampler the constrained mode aims at,
 (1 - delta) x uniform on F-hat + delta x uniform on the rest of the box, on `--points` uniform
 points and as many points uniform on F:
@@ -68,11 +69,11 @@ def read_levels(p_hat: np.ndarray, in_f: np.ndarray, p_inside: np.ndarray, level
 
 
 def run(layout: Layout, seed: int, memory: int, rounds: Sequence[int], levels: Sequence[float], batch: int,
-        points: int) -> list[dict[str, Any]]:
-    """The frontier of one (layout, seed, memory) at each round of `rounds` (ascending)."""
+        points: int, boundary_memory: int = 0) -> list[dict[str, Any]]:
+    """The frontier of one (layout, seed, memory, boundary_memory) at each round of `rounds` (ascending)."""
     cfg = GoFlowConfig(mode="constrained")
     d = layout.dim
-    evidence = Evidence(d, memory, cfg.neighbours, (0.0, 1.0))
+    evidence = Evidence(d, memory, cfg.neighbours, (0.0, 1.0), boundary_memory)
     classifier = SuccessClassifier(d, cfg.classifier_layers(d), seed)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng([seed, 1])
@@ -88,7 +89,8 @@ def run(layout: Layout, seed: int, memory: int, rounds: Sequence[int], levels: S
             classifier.fit_evidence(evidence, steps=cfg.classifier_steps, batch=cfg.fit_batch, gen=gen)
         if r in rounds:
             p_hat, p_inside = classifier.probability(u), classifier.probability(inside)
-            out.append({"layout": layout.name, "seed": seed, "memory": memory, "round": r, "rows": len(evidence),
+            out.append({"layout": layout.name, "seed": seed, "memory": memory, "boundary_memory": boundary_memory,
+                        "round": r, "rows": len(evidence), "kept": evidence.kept,
                         "successes": int(evidence.signal.sum()),
                         "levels": read_levels(p_hat, in_f, p_inside, levels, layout.share, cfg.delta)})
     return out
@@ -99,14 +101,15 @@ def meets(level_row: dict[str, float]) -> bool:
 
 
 def table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
-    """Markdown: per (layout, memory, round), the mean over seeds of mass / cov10 at each level and
-    the seeds that have a level meeting both targets."""
-    groups: dict[tuple[str, int, int], list[dict[str, Any]]] = {}
+    """Markdown: per (layout, memory, boundary memory, round), the mean over seeds of mass / cov10 at
+    each level and the seeds that have a level meeting both targets."""
+    groups: dict[tuple[str, int, int, int], list[dict[str, Any]]] = {}
     for rec in records:
-        groups.setdefault((rec["layout"], rec["memory"], rec["round"]), []).append(rec)
-    head = "| layout | memory | round | successes | " + " | ".join(f"{lv:g}" for lv in levels) + " | seeds meeting both |"
-    lines = [head, "|" + "---|" * (len(levels) + 5)]
-    for (name, memory, r), recs in groups.items():
+        groups.setdefault((rec["layout"], rec["memory"], rec.get("boundary_memory", 0), rec["round"]), []).append(rec)
+    head = ("| layout | memory | boundary | round | successes | " + " | ".join(f"{lv:g}" for lv in levels)
+            + " | seeds meeting both |")
+    lines = [head, "|" + "---|" * (len(levels) + 6)]
+    for (name, memory, boundary, r), recs in groups.items():
         cells = []
         for i in range(len(levels)):
             mass = np.mean([rec["levels"][i]["mass"] for rec in recs])
@@ -114,7 +117,7 @@ def table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
             cells.append(f"{mass:.3f} / {cov:.3f}")
         good = sum(any(meets(lv) for lv in rec["levels"]) for rec in recs)
         successes = np.mean([rec["successes"] for rec in recs])
-        lines.append(f"| {name} | {memory} | {r} | {successes:.0f} | " + " | ".join(cells)
+        lines.append(f"| {name} | {memory} | {boundary} | {r} | {successes:.0f} | " + " | ".join(cells)
                      + f" | {good} of {len(recs)} |")
     return "\n".join(lines)
 
@@ -127,6 +130,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--rounds", nargs="+", type=int, default=[100, 200, 300],
                    help="rounds at which F-hat is read")
     p.add_argument("--memory", nargs="+", type=int, default=[GoFlowConfig.memory], help="Evidence rows kept")
+    p.add_argument("--boundary-memory", nargs="+", type=int, default=[GoFlowConfig.boundary_memory],
+                   help="boundary rows kept beyond the window (0: none)")
     p.add_argument("--levels", nargs="+", type=float, default=[0.3, 0.5, 0.6, 0.7, 0.8, 0.9])
     p.add_argument("--batch", type=int, default=256, help="uniform points per round")
     p.add_argument("--points", type=int, default=1_000_000, help="uniform points of the box, and points on F")
@@ -145,6 +150,8 @@ def main(argv: list[str] | None = None) -> int:
             check_int(r, "--rounds entry", 1)
         for m in args.memory:
             check_int(m, "--memory entry", 1)
+        for m in args.boundary_memory:
+            check_int(m, "--boundary-memory entry", 0)
         for s in args.seeds:
             check_int(s, "--seeds entry", 0)
         for lv in args.levels:
@@ -158,10 +165,11 @@ def main(argv: list[str] | None = None) -> int:
         records = []
         for name in args.layouts:
             for memory in args.memory:
-                for seed in args.seeds:
-                    records += run(LAYOUTS[name], seed, memory, rounds, levels, args.batch, args.points)
-                    print(f"{NAME}: {name} memory {memory} seed {seed} done", flush=True)
-        records.sort(key=lambda rec: (rec["layout"], rec["memory"], rec["round"], rec["seed"]))
+                for boundary in args.boundary_memory:
+                    for seed in args.seeds:
+                        records += run(LAYOUTS[name], seed, memory, rounds, levels, args.batch, args.points, boundary)
+                        print(f"{NAME}: {name} memory {memory} boundary {boundary} seed {seed} done", flush=True)
+        records.sort(key=lambda rec: (rec["layout"], rec["memory"], rec["boundary_memory"], rec["round"], rec["seed"]))
         print(table(records, levels))
         if args.json is not None:
             write_json(args.json, {"benchmark": NAME, "command": "benchmarks/classifier_frontier.py " +

@@ -203,6 +203,10 @@ class GoFlowConfig:
     delta: float = 0.002  # constrained mode: the mass allowed outside the feasible set, in (0, 1)
     signal_range: tuple[float, float] | None = None  # (lo, hi) scaled onto [0, 1]; None: the range seen so far
     memory: int = 16384  # evaluated rows kept as evidence (entropy and constrained modes)
+    # rows kept beyond `memory` because they lay on the edge between the classes (scaled signal >= 0.5
+    # or not) when they left the window: a row of the other class among their `neighbours` nearest
+    # (Evidence; docs/learning.md, "Boundary rows"); 0: none
+    boundary_memory: int = 0
     neighbours: int = 5  # k of the nearest-neighbour signal estimate
     outside_weight: float = 1.0  # constrained mode: weight of the flow's excess density outside the feasible set
     # constrained mode: estimated success probability from which a point counts as feasible (the
@@ -257,6 +261,7 @@ class GoFlowConfig:
         check_number(self.floor, "GoFlowConfig.floor", 0.0, 1.0, high_open=True)
         for name in ("memory", "neighbours", "proposal_samples", "fit_batch"):
             check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
+        check_int(self.boundary_memory, "GoFlowConfig.boundary_memory", 0)
         if self.signal_range is not None:
             pair = tuple(self.signal_range)
             if len(pair) != 2:
@@ -381,7 +386,8 @@ class GoFlowSampler:
         self._log_box = d * math.log(2.0 * BOX_BOUND)  # log volume of the box [-5, 5]^d
         self._flow = self._build_flow()
         self._entropy_cache: float | None = None
-        self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range)
+        self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range,
+                                  self.config.boundary_memory)
         self._classifier = self._make_classifier(self.config)
         # the truncation to F-hat (constrained mode): (log flow mass in F-hat, log box share outside
         # it, log box share inside it for the floor), or None while the sampler is the flow alone
@@ -903,7 +909,8 @@ class GoFlowSampler:
             self._flow.load_state_dict(tensors)
         except RuntimeError as exc:
             raise ValueError(f"load_state_dict: flow tensors do not fit this architecture: {exc}") from exc
-        evidence = Evidence(self.space.dim, config.memory, config.neighbours, config.signal_range)
+        evidence = Evidence(self.space.dim, config.memory, config.neighbours, config.signal_range,
+                            config.boundary_memory)
         evidence.load_state_dict(state.get("evidence", {}))
         classifier = self._make_classifier(config)
         if classifier is not None and "classifier" in state:

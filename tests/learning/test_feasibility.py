@@ -88,3 +88,50 @@ def test_the_boundary_is_read_from_the_averaged_parameters_and_old_states_load()
     last.load_state_dict({**state, "average": state["params"]})
     np.testing.assert_array_equal(old.probability(x), last.probability(x))
     assert not np.array_equal(old.probability(x), c.probability(x))
+
+
+def _disk(x: np.ndarray, radius: float = 0.05) -> np.ndarray:
+    return (np.linalg.norm(x - 0.5, axis=1) <= radius).astype(float)
+
+
+def test_the_window_alone_keeps_the_newest_rows():
+    rng = np.random.default_rng(4)
+    batches = [rng.uniform(size=(300, 2)) for _ in range(5)]
+    ev = Evidence(2, 1000, 5)
+    for x in batches:
+        ev.add(x, _disk(x))
+    newest = np.concatenate(batches)[-1000:]
+    assert ev.kept == 0 and np.array_equal(ev.xi, newest) and np.array_equal(ev.signal, _disk(newest))
+
+
+def test_rows_on_the_class_boundary_are_kept_beyond_the_window():
+    """Uniform batches over a small disk: the window holds the newest rows, and the rows that left
+    it with a row of the other class among their nearest stay (every one of them near the disk's
+    edge, up to `boundary` of them), so the evidence holds more of the disk's points than the
+    window alone; a state round trip keeps the split, and an old state (window only) loads."""
+    rng = np.random.default_rng(5)
+    window, edge = Evidence(2, 2000, 5), Evidence(2, 2000, 5, boundary=400)
+    batches = [rng.uniform(size=(500, 2)) for _ in range(40)]
+    for x in batches:
+        window.add(x, _disk(x))
+        edge.add(x, _disk(x))
+    assert 0 < edge.kept <= 400 and len(edge) == 2000 + edge.kept
+    assert np.array_equal(edge.xi[edge.kept:], window.xi)  # the same window
+    kept = edge.xi[:edge.kept]
+    assert np.abs(np.linalg.norm(kept - 0.5, axis=1) - 0.05).max() < 0.06  # on the edge, not far from it
+    assert edge.signal.sum() > window.signal.sum() + 10 and (1 - edge.signal).sum() > (1 - window.signal).sum()
+    some = Evidence(2, 2000, 5, boundary=10)
+    for x in batches:
+        some.add(x, _disk(x))
+    assert some.kept == 10 and len(some) == 2010 and np.array_equal(some.xi[10:], window.xi)  # capped
+
+    state = json.loads(json.dumps(edge.state_dict()))
+    again = Evidence(2, 2000, 5, boundary=400)
+    again.load_state_dict(state)
+    assert again.kept == edge.kept and np.array_equal(again.xi, edge.xi)
+    old = Evidence(2, 2000, 5, boundary=400)
+    old.load_state_dict({"xi": state["xi"][edge.kept:], "signal": state["signal"][edge.kept:]})
+    assert old.kept == 0 and np.array_equal(old.xi, window.xi)
+    for bad in (-1, len(state["signal"]) + 1, 1.5):
+        with pytest.raises(InputError, match="evidence state: kept"):
+            Evidence(2, 2000, 5, boundary=400).load_state_dict({**state, "kept": bad})

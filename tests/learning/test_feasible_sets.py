@@ -310,9 +310,10 @@ def test_frontier_reads_an_exact_estimate_as_meeting_both_targets_and_a_loose_on
     assert empty["mass"] == pytest.approx(layout.share) and empty["cov10"] == 0.0
 
 
-def test_frontier_bad_input_is_one_line():
-    proc = subprocess.run([sys.executable, str(FRONTIER), "--levels", "1.5"],
-                          capture_output=True, text=True, cwd=ROOT)
+@pytest.mark.parametrize("args, named", [(["--levels", "1.5"], "--levels entry = 1.5"),
+                                         (["--boundary-memory", "-1"], "--boundary-memory entry = -1")])
+def test_frontier_bad_input_is_one_line(args, named):
+    proc = subprocess.run([sys.executable, str(FRONTIER), *args], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--levels entry = 1.5" in lines[0] and lines[0].startswith("classifier_frontier: ")
+    assert len(lines) == 1 and named in lines[0] and lines[0].startswith("classifier_frontier: ")

@@ -114,15 +114,18 @@ def test_constrained_mode_refuses_graded_signals():
     ("classifier_steps", 0, "classifier_steps"), ("leak_target", 0.0, r"leak_target = 0\.0"),
     ("leak_target", 1.0, r"leak_target = 1\.0"), ("level_step", -0.1, r"level_step = -0\.1"),
     ("floor", -0.1, r"floor = -0\.1"), ("floor", 1.0, r"floor = 1\.0"),
+    ("boundary_memory", -1, r"boundary_memory = -1"), ("boundary_memory", 2.5, r"boundary_memory = 2\.5"),
 ])
 def test_bad_settings_name_the_value(field, value, match):
     with pytest.raises(InputError, match=match):
         GoFlowConfig(**{field: value})
 
 
-@pytest.mark.parametrize("mode", ["entropy", "constrained"])
-def test_reloaded_sampler_samples_and_updates_the_same(mode):
-    small = dict(mode=mode, steps=10, proposal_samples=256, fit_batch=128, beta=0.0)
+@pytest.mark.parametrize("mode, memory", [("entropy", {}), ("constrained", {}),
+                                          ("constrained", {"memory": 96, "boundary_memory": 64})],
+                         ids=["entropy", "constrained", "constrained-boundary-rows"])
+def test_reloaded_sampler_samples_and_updates_the_same(mode, memory):
+    small = dict(mode=mode, steps=10, proposal_samples=256, fit_batch=128, beta=0.0, **memory)
     a = GoFlowSampler(_unit_box(2), None, **small)
     _train(a, _disks, rounds=3, batch=64, seed=3)
     b = GoFlowSampler.from_state_dict(json.loads(json.dumps(a.state_dict())))
