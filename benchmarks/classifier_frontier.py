@@ -8,10 +8,10 @@ Each (layout, seed, memory, boundary memory) feeds uniform batches of `--batch` 
 0/1 success to an `Evidence` of a window of `memory` rows and up to `boundary memory` older rows on
 the class boundary (GoFlowConfig.boundary_memory), and fits GoFlow's success classifier to it
 after every batch, exactly as the constrained mode's update does (`SuccessClassifier.fit_evidence`,
-GoFlowConfig's steps, minibatch and layers); no flow is trained. At each round of `--rounds` the estimate F-hat =
-{P >= level} is read at every level of `--levels` as the sampler the constrained mode aims at,
-(1 - delta) x uniform on F-hat + delta x uniform on the rest of the box, on `--points` uniform
-points and as many points uniform on F:
+GoFlowConfig's steps, minibatch and layers); no flow is trained. At each round of `--rounds` the
+estimate F-hat = {P >= level} is read at every level of `--levels` as the sampler the constrained
+mode aims at, (1 - delta) x uniform on F-hat + delta x uniform on the rest of the box, on
+`--points` uniform points and as many points uniform on F:
 - mass: that sampler's mass on F;
 - cov10: the share of F where its density exceeds 10 % of the uniform-on-F density;
 - recall: the share of F inside F-hat.

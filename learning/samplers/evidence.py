@@ -8,9 +8,9 @@ rows of every batch and estimates the signal at any point as the mean over its k
 lay on the edge between the two classes when they left the window (a row of the other class among
 their k nearest), so that the edge of a small set sharpens as rows accumulate without keeping
 every row (measured in docs/learning.md, "Boundary rows"). A nearest-neighbour mean is a
-regression of the signal on xi, so it does not depend on where the rows came from: the estimate is the same whichever batch
-protocol produced them, and it only sharpens as rows accumulate. Signals are scaled to [0, 1] by
-a fixed range or, by default, by the range seen so far.
+regression of the signal on xi, so it does not depend on where the rows came from: the estimate
+is the same whichever batch protocol produced them, and it only sharpens as rows accumulate.
+Signals are scaled to [0, 1] by a fixed range or, by default, by the range seen so far.
 
 The rows are plain float64 arrays; `state_dict` is JSON-serializable so a resumed run continues
 from exactly the same evidence.
@@ -69,14 +69,12 @@ class Evidence:
         else:
             kept = np.arange(self.kept)
             old = np.arange(self.kept, self.kept + leaving)
-            if self.boundary > 0:
+            if self.boundary > 0:  # else `kept` is empty: no row is ever kept beyond the window
                 feasible = self._scaled(signal)[0] >= 0.5
                 _, idx = cKDTree(xi).query(xi[old], k=min(self.neighbours + 1, len(signal)))
                 idx = np.asarray(idx).reshape(leaving, -1)
                 on_edge = (feasible[idx] != feasible[old][:, None]).any(axis=1)
                 kept = np.concatenate([kept, old[on_edge]])[-self.boundary:]
-            else:
-                kept = kept[:0]
             rows = np.concatenate([kept, np.arange(self.kept + leaving, len(signal))])
             self.xi, self.signal, self.kept = xi[rows], signal[rows], len(kept)
         self._tree = None
