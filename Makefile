@@ -18,9 +18,10 @@ demo: $(STAMP)
 	$(BIN)/goflow demo
 
 # The test files run in parallel, one process per core (at most 4: each holds Drake and torch),
-# each file whole on one worker.
+# each file whole on one worker, in the order tests/conftest.py sets (the long files first), and
+# one math thread per worker (torch's and BLAS's default of one per core would oversubscribe).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
 # Regenerate every committed model file (bit-identical for the same code).
 models: $(STAMP)

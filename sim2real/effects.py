@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -317,31 +318,44 @@ def mesh_motor_acceleration(command: Array, q: Array, dq: Array, dt: float, widt
     logged link motion q, dq (T, 7), linear within a sample. The joints are independent given
     the link's motion. Returns (B, T, 7): the mean acceleration over each sample's period
     (the last is 0)."""
-    T = command.shape[0]
     half = 0.5 * np.asarray(widths, dtype=np.float64)
-    theta = q[0] + np.asarray(starts, dtype=np.float64) * half
-    omega = np.broadcast_to(dq[0], half.shape).copy()
-    out = np.zeros((half.shape[0], T, command.shape[1]))
-    h = dt / substeps
-    J = motor_inertia
-    stiff = J + h * h * BACKLASH_STIFFNESS
-    for k in range(T - 1):
-        w0 = omega
-        c = command[k]
-        for i in range(substeps):
-            f0, f1 = i / substeps, (i + 1) / substeps
-            q_end = q[k] + f1 * (q[k + 1] - q[k])
-            v_end = dq[k] + f1 * (dq[k + 1] - dq[k])
-            d = BACKLASH_DAMPING * (np.abs(theta - q[k] - f0 * (q[k + 1] - q[k])) > half)  # engaged at the start
-            free = omega + h * c / J
-            delta = theta + h * free - q_end
-            side = np.sign(delta)
-            engaged = (J * omega + h * c - h * BACKLASH_STIFFNESS * (theta - q_end - side * half) + h * d * v_end) \
-                / (stiff + h * d)
-            omega = np.where(np.abs(delta) > half, engaged, free)
-            theta = theta + h * omega
-        out[:, k] = (omega - w0) / dt
+    starts = np.ascontiguousarray(np.broadcast_to(np.asarray(starts, dtype=np.float64), half.shape))
+    out = np.zeros((half.shape[0], command.shape[0], command.shape[1]))
+    _mesh_loop(np.ascontiguousarray(command, dtype=np.float64), np.ascontiguousarray(q, dtype=np.float64),
+               np.ascontiguousarray(dq, dtype=np.float64), float(dt), np.ascontiguousarray(half), starts,
+               np.ascontiguousarray(np.broadcast_to(np.asarray(motor_inertia, dtype=np.float64), command.shape[1:])),
+               int(substeps), BACKLASH_STIFFNESS, BACKLASH_DAMPING, out)
     return out
+
+
+@numba.njit(cache=True)
+def _mesh_loop(command: Array, q: Array, dq: Array, dt: float, half: Array, starts: Array, J: Array,
+               substeps: int, stiffness: float, damping: float, out: Array) -> None:
+    """`mesh_motor_acceleration`'s integration, one (row, joint) at a time, into `out` (B, T, 7)."""
+    h = dt / substeps
+    for b in range(out.shape[0]):
+        for j in range(out.shape[2]):
+            theta = q[0, j] + starts[b, j] * half[b, j]
+            omega = dq[0, j]
+            stiff = J[j] + h * h * stiffness
+            for k in range(out.shape[1] - 1):
+                w0 = omega
+                c = command[k, j]
+                for i in range(substeps):
+                    f0, f1 = i / substeps, (i + 1) / substeps
+                    q_end = q[k, j] + f1 * (q[k + 1, j] - q[k, j])
+                    v_end = dq[k, j] + f1 * (dq[k + 1, j] - dq[k, j])
+                    d = damping if abs(theta - q[k, j] - f0 * (q[k + 1, j] - q[k, j])) > half[b, j] else 0.0
+                    free = omega + h * c / J[j]
+                    delta = theta + h * free - q_end
+                    if abs(delta) > half[b, j]:  # engaged at the end: the mesh spring-damper acts
+                        side = 1.0 if delta > 0 else -1.0
+                        omega = (J[j] * omega + h * c - h * stiffness * (theta - q_end - side * half[b, j])
+                                 + h * d * v_end) / (stiff + h * d)
+                    else:
+                        omega = free
+                    theta = theta + h * omega
+                out[b, k, j] = (omega - w0) / dt
 
 
 _MESH_BYTES = 2 ** 28  # the size of one array of the mesh search's predictions (a few are held at once)

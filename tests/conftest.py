@@ -1,7 +1,9 @@
-"""What the tests share: loading a benchmark script (benchmarks/<name>.py) as a module."""
+"""What the tests share: loading a benchmark script (benchmarks/<name>.py) as a module, and the
+order in which `make test` hands the test files to its workers."""
 
 import importlib.util
 import sys
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -24,3 +26,13 @@ def benchmark_script() -> Callable[[str], ModuleType]:
         return module
 
     return load
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Files with the most `slow` tests first, then files with the most tests (stable otherwise).
+
+    `make test` gives whole files to its workers (`--dist loadfile --no-loadscope-reorder`), in
+    this order: the long files start at once instead of running alone at the end of the run."""
+    slow = Counter(item.path for item in items if item.get_closest_marker("slow"))
+    count = Counter(item.path for item in items)
+    items.sort(key=lambda item: (-slow[item.path], -count[item.path]))

@@ -262,15 +262,6 @@ def test_demo_refuses_a_read_only_folder_at_once(tmp_path):
         locked.chmod(0o700)
 
 
-@pytest.mark.slow
-def test_demo_writes_summary_json_and_recording_into_missing_folders(tmp_path):
-    record, summary = tmp_path / "rec" / "missing" / "r.html", tmp_path / "json" / "missing" / "s.json"
-    proc = _run("demo", "--scripted", "--quiet", "--record", str(record), "--json", str(summary))
-    assert proc.returncode == 0, proc.stderr
-    assert set(json.loads(summary.read_text())["gears"]) == {"large", "medium", "small"}
-    assert record.stat().st_size > 0 and f"recording: {record}" in proc.stdout
-
-
 def test_json_and_out_paths_are_refused_before_the_work(tmp_path):
     blocked = _under_a_file(tmp_path)
     for command, args in [("evaluate", ["--gear", "small", "--episodes", "1", "--json", str(blocked / "e.json")]),

@@ -17,14 +17,18 @@ GOFLOW = Path(sys.executable).parent / "goflow"
 
 @pytest.fixture(scope="module")
 def demo_summary(tmp_path_factory):
-    """`goflow demo --scripted --json PATH`, run as a user would."""
-    out = tmp_path_factory.mktemp("demo") / "summary.json"
-    proc = subprocess.run([str(GOFLOW), "demo", "--scripted", "--quiet", "--json", str(out)],
+    """`goflow demo --scripted --record HTML --json PATH`, run as a user would, into folders that
+    do not exist yet (the one demo run of the suite: the tests below read it)."""
+    root = tmp_path_factory.mktemp("demo")
+    out, record = root / "json" / "missing" / "summary.json", root / "rec" / "missing" / "r.html"
+    proc = subprocess.run([str(GOFLOW), "demo", "--scripted", "--quiet", "--record", str(record), "--json", str(out)],
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert record.stat().st_size > 0 and f"recording: {record}" in proc.stdout
     return json.loads(out.read_text()), proc.stdout
 
 
+@pytest.mark.slow
 def test_demo_json_schema(demo_summary):
     summary, _ = demo_summary
     assert set(summary) == {"gears", "sim_time_s", "wall_time_s"}

@@ -128,6 +128,7 @@ def ray_backend():
         yield backend
 
 
+@pytest.mark.slow
 def test_an_experiment_gives_the_same_json_on_the_pool_and_on_ray(ray_backend, tmp_path):
     pool = run_experiment(ExperimentConfig(**GRID, workers=2, out=tmp_path / "pool", results=tmp_path / "pool-results"),
                           progress=False)

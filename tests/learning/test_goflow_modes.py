@@ -67,6 +67,7 @@ def _small_disk(xi: np.ndarray) -> np.ndarray:
     return (np.linalg.norm(xi - [0.65, 0.3], axis=1) <= math.sqrt(0.05 / math.pi)).astype(float)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("protocol", ["uniform", "own"])
 def test_constrained_mode_concentrates_on_and_covers_the_feasible_set(protocol):
     """A small off-centre disk after 30 rounds: issue 21's targets (mass >= 0.99, coverage >= 0.95)

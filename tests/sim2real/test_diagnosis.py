@@ -164,6 +164,7 @@ def test_the_mesh_search_holds_its_memory_budget(monkeypatch):
     np.testing.assert_allclose(chunked.offset["cmd"], whole.offset["cmd"], atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect", sorted(MAGNITUDES))
 def test_leave_one_effect_out_names_the_effect(effect):
     """The small-size leave-one-effect-out: each catalogue effect at its larger magnitude, the
