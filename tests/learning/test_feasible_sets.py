@@ -231,27 +231,27 @@ def test_benchmark_run_interrupted_resumes_from_its_checkpoint_to_the_same_rows(
                                                                                   monkeypatch):
     from learning.samplers.registry import make_sampler
     bench = _benchmark()
-    task = bench.Task("small", method, protocol, seed=1, rounds=8, batch=32, draws=256)
+    task = bench.Task("small", method, protocol, seed=1, rounds=6, batch=32, draws=256)
     straight = bench.run_task(task)
     cls = type(make_sampler(bench.METHODS[method].sampler, bench.LAYOUTS["small"].space, bench.J_T, {}))
     update, calls = cls.update, []
 
-    def interrupted(self, *args, **kwargs):  # Ctrl-C during the 6th update
+    def interrupted(self, *args, **kwargs):  # Ctrl-C during the 5th update
         calls.append(1)
-        if len(calls) == 6:
+        if len(calls) == 5:
             raise KeyboardInterrupt
         return update(self, *args, **kwargs)
 
     monkeypatch.setattr(cls, "update", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        bench.run_and_save(task, tmp_path, checkpoint_every=4)
+        bench.run_and_save(task, tmp_path, checkpoint_every=3)
     monkeypatch.setattr(cls, "update", update)
     checkpoint = bench.partial_path(task, tmp_path)
-    assert json.loads(checkpoint.read_text())["round"] == 4 and not task.path(tmp_path).exists()
-    resumed = bench.run_and_save(task, tmp_path, checkpoint_every=4)
+    assert json.loads(checkpoint.read_text())["round"] == 3 and not task.path(tmp_path).exists()
+    resumed = bench.run_and_save(task, tmp_path, checkpoint_every=3)
     strip = lambda rec: [{k: v for k, v in row.items() if k != "update_s"} for row in rec["rows"]]  # noqa: E731
     assert strip(resumed) == strip(straight) and resumed["density"] == straight["density"]
-    assert len(resumed["update_s"]) == 8 and not checkpoint.exists() and task.path(tmp_path).exists()
+    assert len(resumed["update_s"]) == 6 and not checkpoint.exists() and task.path(tmp_path).exists()
     # a stored run without a config field added since (at its default) is still this run
     stored = json.loads(task.path(tmp_path).read_text())
     defaults = bench.default_config(task)
@@ -260,10 +260,10 @@ def test_benchmark_run_interrupted_resumes_from_its_checkpoint_to_the_same_rows(
     task.path(tmp_path).write_text(json.dumps(stored))
     assert bench.stored(task, tmp_path)["rows"] == resumed["rows"]
     # a checkpoint of other settings is refused, naming the difference
-    other = bench.Task("small", method, protocol, seed=1, rounds=9, batch=32, draws=256)
+    other = bench.Task("small", method, protocol, seed=1, rounds=7, batch=32, draws=256)
     bench.partial_path(other, tmp_path).write_text(checkpoint.parent.joinpath("seed1.json").read_text())
-    with pytest.raises(InputError, match="rounds 8 \\(want 9\\)"):
-        bench.run_task(other, tmp_path, checkpoint_every=4)
+    with pytest.raises(InputError, match="rounds 6 \\(want 7\\)"):
+        bench.run_task(other, tmp_path, checkpoint_every=3)
 
 
 def test_benchmark_sampler_flag_reaches_the_goflow_config_and_the_stored_settings():
