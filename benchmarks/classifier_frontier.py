@@ -1,8 +1,10 @@
 """What the constrained mode's feasible-set estimate allows on uniform batches (issue 21): the mass
-and coverage of the ideal sampler on F-hat at each level, against rounds and `memory`.
+and coverage of the ideal sampler on F-hat at each level, against rounds and `memory`; and the
+same for the skills' measured feasible sets, fitted from their grids as the skill refit does.
 
     .venv/bin/python benchmarks/classifier_frontier.py --layouts tiny --seeds 0 1 2 --rounds 100 200 300 \\
         --memory 16384 131072 [--boundary-memory 0 16384] [--levels 0.3 0.5 0.6 0.7 0.8 0.9] [--json PATH]
+    .venv/bin/python benchmarks/classifier_frontier.py --skills small medium large --per-cell 1 10 --seeds 0
 
 Each (layout, seed, memory, boundary memory) feeds uniform batches of `--batch` points with their
 0/1 success to an `Evidence` of a window of `memory` rows and up to `boundary memory` older rows on
@@ -18,6 +20,13 @@ mode aims at, (1 - delta) x uniform on F-hat + delta x uniform on the rest of th
 A level where mass >= 0.99 and cov10 >= 0.95 exists only if the classifier separates F well
 enough; where none does, no choice of the level (the dual ascent's job) and no flow can meet both
 targets from these rows. The table prints the mean over seeds and how many seeds have such a level.
+
+With `--skills`, the rows are a shipped skill's measured feasible set (`Skill.feasible`, the
+union of the grid cells where its frozen policy succeeded): `--per-cell` points uniform in each
+cell with the cell's label (the refit's first update uses one; more are free, the label is the
+cell's), fitted once from scratch with the refit's classifier steps (`FlowRefitConfig`, ten times
+them for a first fit). F-hat is read against the measured set on points drawn half in the grid's
+fine region and half on the box, weighted back to uniform on the box.
 """
 
 from __future__ import annotations
@@ -34,32 +43,37 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from assembly.gearset import GEARS  # noqa: E402
 from common.checks import InputErrorParser, check_int, check_number  # noqa: E402
 from common.errors import GoflowError, InputError  # noqa: E402
 from common.files import check_output_file, write_json  # noqa: E402
+from learning.feasible_grid import FeasibleSet, FlowRefitConfig  # noqa: E402
 from learning.feasible_sets import LAYOUTS, Layout  # noqa: E402
 from learning.samplers.evidence import Evidence  # noqa: E402
 from learning.samplers.feasibility import SuccessClassifier  # noqa: E402
 from learning.samplers.goflow import GoFlowConfig  # noqa: E402
+from learning.skills import load_skill  # noqa: E402
 
 NAME = "classifier_frontier"
 TARGET_MASS, TARGET_COVERAGE, COVERAGE_LEVEL = 0.99, 0.95, 0.1
 
 
 def read_levels(p_hat: np.ndarray, in_f: np.ndarray, p_inside: np.ndarray, levels: Sequence[float],
-                share: float, delta: float) -> list[dict[str, float]]:
+                share: float, delta: float, weights: np.ndarray | None = None) -> list[dict[str, float]]:
     """Mass, cov10 and recall of (1 - delta) U(F-hat) + delta U(rest) for F-hat = {P >= level}:
-    `p_hat` and `in_f` at uniform points of the box, `p_inside` at points uniform on F."""
+    `p_hat` and `in_f` at points of the box, uniform or with importance `weights` to uniform,
+    `p_inside` at points uniform on F."""
+    w = np.ones(len(p_hat)) if weights is None else np.asarray(weights, np.float64)
     rows = []
     for level in levels:
         hat = p_hat >= level
-        share_hat = float(hat.mean())
+        share_hat = float(w[hat].sum() / w.sum())
         if share_hat == 0.0:
             # no F-hat: the constrained mode samples the flow alone, uniform at first
             rows.append({"level": level, "share": 0.0, "mass": share, "cov10": 0.0, "recall": 0.0})
             continue
-        rest = float(in_f[~hat].mean()) if (~hat).any() else 0.0
-        mass = (1.0 - delta) * float(in_f[hat].mean()) + delta * rest
+        rest = float(np.average(in_f[~hat], weights=w[~hat])) if (~hat).any() else 0.0
+        mass = (1.0 - delta) * float(np.average(in_f[hat], weights=w[hat])) + delta * rest
         covered_inside = (1.0 - delta) / share_hat > COVERAGE_LEVEL / share
         covered_outside = share_hat < 1.0 and delta / (1.0 - share_hat) > COVERAGE_LEVEL / share
         in_hat = p_inside >= level
@@ -96,6 +110,45 @@ def run(layout: Layout, seed: int, memory: int, rounds: Sequence[int], levels: S
     return out
 
 
+def grid_rows(feasible: FeasibleSet, per_cell: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """`per_cell` points uniform in each measured cell, unit-box coordinates, and their 0/1 labels
+    (the first pass with seed 0 is the refit's first update: `FeasibleSet.points`)."""
+    space = feasible.space
+    xs, labels = zip(*(feasible.points(np.random.default_rng([seed, k])) for k in range(per_cell)))
+    return (np.concatenate(xs) - space.low) / (space.high - space.low), np.concatenate(labels).astype(np.float64)
+
+
+def run_skill(gear: str, seed: int, per_cell: int, levels: Sequence[float], points: int) -> dict[str, Any]:
+    """The frontier of the shipped insert skill's measured feasible set for `gear`, fitted once from
+    `per_cell` labelled points per cell (module docstring)."""
+    feasible = load_skill("insert", gear=gear).feasible
+    if feasible is None:
+        raise InputError(f"--skills: the shipped {gear} skill has no measured feasible set; "
+                         f"expected one (goflow skill refit --gear {gear})")
+    cfg, refit = GoFlowConfig(mode="constrained"), FlowRefitConfig()
+    space, d = feasible.space, feasible.space.dim
+    xi, success = grid_rows(feasible, per_cell, seed)
+    evidence = Evidence(d, len(xi), cfg.neighbours, (0.0, 1.0))
+    evidence.add(xi, success)
+    classifier = SuccessClassifier(d, cfg.classifier_layers(d), seed)
+    classifier.fit_evidence(evidence, steps=refit.classifier_steps, batch=cfg.fit_batch,
+                            gen=torch.Generator().manual_seed(seed))
+    check = np.random.default_rng([seed, 2])
+    width = space.high - space.low
+    fine_low, fine_high = (feasible.fine_low - space.low) / width, (feasible.fine_high - space.low) / width
+    half = points // 2
+    u = np.concatenate([fine_low + (fine_high - fine_low) * check.random((half, d)), check.random((points - half, d))])
+    fine_share = float(np.prod(fine_high - fine_low))
+    in_fine = np.all((u >= fine_low) & (u <= fine_high), axis=1)
+    weights = 1.0 / (0.5 * in_fine / fine_share + 0.5)  # uniform on the box over the half-and-half proposal
+    inside, share = feasible.sample_box(points, check)
+    in_f = feasible.contains(space.low + width * u)
+    p_hat, p_inside = classifier.probability(u), classifier.probability((inside - space.low) / width)
+    return {"layout": f"{gear} gear", "seed": seed, "per_cell": per_cell, "rows": len(xi),
+            "successes": int(success.sum()), "share": share,
+            "levels": read_levels(p_hat, in_f, p_inside, levels, share, refit.delta, weights)}
+
+
 def meets(level_row: dict[str, float]) -> bool:
     return level_row["mass"] >= TARGET_MASS and level_row["cov10"] >= TARGET_COVERAGE
 
@@ -122,10 +175,32 @@ def table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
     return "\n".join(lines)
 
 
+def skill_table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
+    """Markdown: per (skill, points per cell), the mean over seeds of mass / cov10 / recall at each
+    level and the seeds that have a level meeting both targets."""
+    groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for rec in records:
+        groups.setdefault((rec["layout"], rec["per_cell"]), []).append(rec)
+    head = "| measured set | share | points per cell | rows | " + " | ".join(f"{lv:g}" for lv in levels) + \
+        " | seeds meeting both |"
+    lines = [head, "|" + "---|" * (len(levels) + 5)]
+    for (name, per_cell), recs in groups.items():
+        cells = [" / ".join(f"{np.mean([rec['levels'][i][k] for rec in recs]):.3f}" for k in ("mass", "cov10", "recall"))
+                 for i in range(len(levels))]
+        good = sum(any(meets(lv) for lv in rec["levels"]) for rec in recs)
+        lines.append(f"| {name} | {recs[0]['share']:.4%} | {per_cell} | {recs[0]['rows']} | " + " | ".join(cells)
+                     + f" | {good} of {len(recs)} |")
+    return "\n".join(lines)
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The benchmark's flags."""
     p = InputErrorParser(prog="benchmarks/classifier_frontier.py", description=__doc__.splitlines()[0])
-    p.add_argument("--layouts", nargs="+", default=["tiny"], help=f"some of {list(LAYOUTS)}")
+    p.add_argument("--layouts", nargs="+", default=None,
+                   help=f"some of {list(LAYOUTS)} (default: tiny, or none with --skills)")
+    p.add_argument("--skills", nargs="+", default=[], help=f"shipped insert skills' measured sets: some of {list(GEARS)}")
+    p.add_argument("--per-cell", nargs="+", type=int, default=[1],
+                   help="with --skills: labelled points drawn in each measured cell")
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--rounds", nargs="+", type=int, default=[100, 200, 300],
                    help="rounds at which F-hat is read")
@@ -143,6 +218,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; 0 on success, 2 with one line on stderr for bad input."""
     try:
         args = make_parser().parse_args(argv)
+        if args.layouts is None:
+            args.layouts = [] if args.skills else ["tiny"]
+        for gear in args.skills:
+            if gear not in GEARS:
+                raise InputError(f"--skills: {gear!r} is not a gear; expected some of {list(GEARS)}")
+        for k in args.per_cell:
+            check_int(k, "--per-cell entry", 1)
         for name in args.layouts:
             if name not in LAYOUTS:
                 raise InputError(f"--layouts: {name!r} is not a layout; expected some of {list(LAYOUTS)}")
@@ -170,12 +252,23 @@ def main(argv: list[str] | None = None) -> int:
                         records += run(LAYOUTS[name], seed, memory, rounds, levels, args.batch, args.points, boundary)
                         print(f"{NAME}: {name} memory {memory} boundary {boundary} seed {seed} done", flush=True)
         records.sort(key=lambda rec: (rec["layout"], rec["memory"], rec["boundary_memory"], rec["round"], rec["seed"]))
-        print(table(records, levels))
+        skill_records = []
+        for gear in args.skills:
+            for per_cell in args.per_cell:
+                for seed in args.seeds:
+                    skill_records.append(run_skill(gear, seed, per_cell, levels, args.points))
+                    print(f"{NAME}: {gear} gear, {per_cell} per cell, seed {seed} done", flush=True)
+        if records:
+            print(table(records, levels))
+        if skill_records:
+            print("mass / cov10 / recall at each level:")
+            print(skill_table(skill_records, levels))
         if args.json is not None:
             write_json(args.json, {"benchmark": NAME, "command": "benchmarks/classifier_frontier.py " +
                                    " ".join(argv if argv is not None else sys.argv[1:]),
                                    "targets": {"mass": TARGET_MASS, "cov10": TARGET_COVERAGE},
-                                   "batch": args.batch, "points": args.points, "records": records})
+                                   "batch": args.batch, "points": args.points, "records": records,
+                                   "skill_records": skill_records})
             print(f"{NAME}: -> {args.json}")
         return 0
     except GoflowError as exc:

@@ -312,8 +312,41 @@ def test_frontier_reads_an_exact_estimate_as_meeting_both_targets_and_a_loose_on
     assert empty["mass"] == pytest.approx(layout.share) and empty["cov10"] == 0.0
 
 
+def test_frontier_weights_read_a_stratified_sample_as_the_uniform_one():
+    frontier, layout = _benchmark(FRONTIER), LAYOUTS["small"]
+    rng = np.random.default_rng(1)
+    u, inside = rng.random((400_000, 2)), layout.sample_inside(20_000, rng)
+    p_hat = layout.contains(u).astype(float) * 0.9 + 0.05 * (layout.margin(u) > -0.02)
+    plain = frontier.read_levels(p_hat, layout.contains(u), np.ones(len(inside)), [0.5, 0.9],
+                                 layout.share, 0.002)
+    # a quarter of the points in the left half of the box, weighted back to uniform
+    more = rng.random((800_000, 2))
+    left = more[:, 0] < 0.5
+    strat = np.concatenate([more[left][:100_000], more[~left][:300_000]])
+    weights = np.where(strat[:, 0] < 0.5, 0.5 / 0.25, 0.5 / 0.75)
+    p_strat = layout.contains(strat).astype(float) * 0.9 + 0.05 * (layout.margin(strat) > -0.02)
+    weighted = frontier.read_levels(p_strat, layout.contains(strat), np.ones(len(inside)), [0.5, 0.9], layout.share,
+                                    0.002, weights)
+    for a, b in zip(plain, weighted):
+        assert a["share"] == pytest.approx(b["share"], rel=0.05) and a["mass"] == pytest.approx(b["mass"], abs=0.01)
+
+
+def test_frontier_grid_rows_carry_their_cells_labels():
+    frontier = _benchmark(FRONTIER)
+    from learning.skills import load_skill
+    feasible = load_skill("insert", gear="small").feasible
+    xi, success = frontier.grid_rows(feasible, 2, 0)
+    n = len(feasible.points(np.random.default_rng([0, 0]))[0])
+    assert xi.shape == (2 * n, 3) and np.all((xi >= 0) & (xi <= 1))
+    space = feasible.space
+    assert np.array_equal(success.astype(bool), feasible.contains(space.low + (space.high - space.low) * xi))
+    assert int(success.sum()) > 0
+
+
 @pytest.mark.parametrize("args, named", [(["--levels", "1.5"], "--levels entry = 1.5"),
-                                         (["--boundary-memory", "-1"], "--boundary-memory entry = -1")])
+                                         (["--boundary-memory", "-1"], "--boundary-memory entry = -1"),
+                                         (["--skills", "tiny"], "--skills: 'tiny'"),
+                                         (["--skills", "small", "--per-cell", "0"], "--per-cell entry = 0")])
 def test_frontier_bad_input_is_one_line(args, named):
     proc = subprocess.run([sys.executable, str(FRONTIER), *args], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 2
