@@ -171,3 +171,28 @@ def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
     bad = subprocess.run([sys.executable, str(script), "--runs", str(run), "--level", "1.5"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and "--level must lie in (0, 1], got 1.5" in bad.stderr
+
+
+def test_skill_feasible_mc_benchmark_measures_a_shipped_flow_and_resumes(tmp_path):
+    """benchmarks/skill_feasible_mc.py at a tiny size on the shipped small gear: the episodes'
+    mass and coverage beside the grid's, every part saved, and a second call runs no episode."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).parents[2] / "benchmarks" / "skill_feasible_mc.py"
+    args = [sys.executable, str(script), "--gear", "small", "--draws", "2", "--uniform", "3", "--part", "2",
+            "--out", str(tmp_path / "parts")]
+    first = subprocess.run([*args, "--json", str(tmp_path / "row.json")], capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr
+    row = json.loads((tmp_path / "row.json").read_text())
+    assert row["variants"] == "fast+panda" and row["draws"] == 2 and row["uniform"] == 3
+    assert 0.0 <= row["episodes"]["mass_on"] <= 1.0 and row["grid"]["share"] == pytest.approx(0.0038, abs=0.0005)
+    assert "skill_feasible_mc: small draws2 fast rows 0-2 of 2" in first.stdout
+    again = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and " rows " not in again.stdout  # every part read back, no episode run
+    for bad, named in ((["--gear", "tiny"], "--gear 'tiny'"), (["--gear", "small", "--uniform", "0"], "--uniform = 0")):
+        proc = subprocess.run([sys.executable, str(script), *bad], capture_output=True, text=True, timeout=120)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and named in lines[0]
