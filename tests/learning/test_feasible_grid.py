@@ -173,6 +173,7 @@ def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
     assert bad.returncode != 0 and "--level must lie in (0, 1], got 1.5" in bad.stderr
 
 
+@pytest.mark.slow
 def test_skill_feasible_mc_benchmark_measures_a_shipped_flow_and_resumes(tmp_path):
     """benchmarks/skill_feasible_mc.py at a tiny size on the shipped small gear: the episodes'
     mass and coverage beside the grid's, every part saved, and a second call runs no episode."""
