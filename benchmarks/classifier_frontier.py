@@ -118,13 +118,19 @@ def grid_rows(feasible: FeasibleSet, per_cell: int, seed: int) -> tuple[np.ndarr
     return (np.concatenate(xs) - space.low) / (space.high - space.low), np.concatenate(labels).astype(np.float64)
 
 
-def run_skill(gear: str, seed: int, per_cell: int, levels: Sequence[float], points: int) -> dict[str, Any]:
-    """The frontier of the shipped insert skill's measured feasible set for `gear`, fitted once from
-    `per_cell` labelled points per cell (module docstring)."""
+def skill_feasible_set(gear: str) -> FeasibleSet:
+    """The measured feasible set of the shipped insert skill for `gear` (InputError without one)."""
     feasible = load_skill("insert", gear=gear).feasible
     if feasible is None:
         raise InputError(f"--skills: the shipped {gear} skill has no measured feasible set; "
                          f"expected one (goflow skill refit --gear {gear})")
+    return feasible
+
+
+def run_skill(gear: str, feasible: FeasibleSet, seed: int, per_cell: int, levels: Sequence[float],
+              points: int) -> dict[str, Any]:
+    """The frontier of `gear`'s measured feasible set, fitted once from `per_cell` labelled points
+    per cell (module docstring)."""
     cfg, refit = GoFlowConfig(mode="constrained"), FlowRefitConfig()
     space, d = feasible.space, feasible.space.dim
     xi, success = grid_rows(feasible, per_cell, seed)
@@ -254,9 +260,10 @@ def main(argv: list[str] | None = None) -> int:
         records.sort(key=lambda rec: (rec["layout"], rec["memory"], rec["boundary_memory"], rec["round"], rec["seed"]))
         skill_records = []
         for gear in args.skills:
+            feasible = skill_feasible_set(gear)
             for per_cell in args.per_cell:
                 for seed in args.seeds:
-                    skill_records.append(run_skill(gear, seed, per_cell, levels, args.points))
+                    skill_records.append(run_skill(gear, feasible, seed, per_cell, levels, args.points))
                     print(f"{NAME}: {gear} gear, {per_cell} per cell, seed {seed} done", flush=True)
         if records:
             print(table(records, levels))
