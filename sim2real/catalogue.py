@@ -109,6 +109,33 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            "tau_cmd = ... + kp_scale Kp (q_cmd - q) + kd_scale Kd (dq_cmd - dq)",
            (Param("kp_scale", "1", 0.3, 3.0, 1.0, _J, "stiffness gain ratio"),
             Param("kd_scale", "1", 0.3, 3.0, 1.0, _J, "damping gain ratio"))),
+    Effect("link_inertia", "dynamics",
+           "the links' inertial parameters other than the model's (mass, centre of mass, rotational "
+           "inertia of links 1..7); made as per-link changes, fitted as the identifiable base-parameter "
+           "corrections (sim2real/inertia.py)",
+           (Param("mass_scale", "1", 0.5, 1.5, 1.0, _J, "link mass ratio (the rotational inertia about the "
+                  "centre of mass scales with it)"),
+            Param("com_shift", "m", -0.05, 0.05, 0.0, _J, "centre-of-mass shift along the link frame's z axis"),
+            Param("inertia_scale", "1", 0.5, 1.5, 1.0, _J, "ratio of the rotational inertia about the centre "
+                  "of mass (on top of mass_scale)"),
+            Param("base", "kg, kg m, kg m^2", -20.0, 20.0, 0.0, False,
+                  "the fitted base-parameter corrections (fit output only; make-log takes the three above)"))),
+    Effect("torque_scale", "sensing",
+           "a scale error of the joint torque sensor, tau_measured = k tau",
+           (Param("k", "1", 0.8, 1.2, 1.0, _J, "sensor scale"),)),
+    Effect("torque_delay", "sensing",
+           "the logged torque lags the logged state, tau_measured(t) = tau(t - d) (one delay for all joints, "
+           "as a logger produces)",
+           (Param("d", "s", 0.0, 0.02, 0.0, False, "torque delay"),)),
+    Effect("joint_inertia", "dynamics",
+           "an acceleration-proportional link-side torque the model lacks, tau = dJ ddq (behind the "
+           "link-side sensor, unlike rotor_inertia)",
+           (Param("dJ", "kg m^2", -0.5, 0.5, 0.0, _J, "link-side joint inertia error"),)),
+    Effect("backlash_motor", "sensing",
+           "gear backlash seen through a motor-side position encoder (meta position_side \"motor\"): the "
+           "logged position is the motor's, which moves across the dead band b against the link's at "
+           "torque reversals (the backlash effect's two-mass transmission)",
+           (Param("b", "rad", 0.0, 0.02, 0.0, False, "dead band width (motor side, reflected)"),)),
     Effect("shaft_friction", "contact",
            "friction between a gear's bore and its shaft other than the model's",
            (Param("mu", "1", 0.05, 1.5, 0.0, False, "Coulomb friction coefficient (0: nominal)"),)),

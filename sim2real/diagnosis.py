@@ -28,7 +28,9 @@ from numpy.typing import NDArray
 from common.checks import check_int, check_number
 from common.errors import InputError
 from sim2real.arm import END_EFFECTORS, ArmModel
+from sim2real.band import Band, BandConfig, band_candidate, band_floor, band_pool, choose_band
 from sim2real.catalogue import CATALOGUE
+from sim2real.clean import CleanConfig, clean
 from sim2real.effects import Candidate, candidates
 from sim2real.fitting import Design, Model, bootstrap_mean
 from sim2real.structure import hat_basis, structure_gains, trend_basis
@@ -57,7 +59,11 @@ class DiagnosisConfig:
     although the selection closes `explained` of it; structure_rest: the same, as a share of
     what the selection leaves above the level of a log with no gap (a large effect outside the
     catalogue that several catalogue effects mimic leaves a small share of its excess, but most
-    of what is left is structure); seed: of the bootstrap."""
+    of what is left is structure); floor_tolerance: the excess over the noise floor [noise
+    variances] within the floor's own uncertainty (a floor read 10 % low in standard deviation
+    reads a log with no gap 0.23 high): an excess whose interval's lower end is below it is not a
+    gap by itself; seed: of the bootstrap; replay, clean, band: the stages' settings (band None:
+    every sample, the fast-part/variogram floor of the version before the band).""" 
 
     blocks: int = 20
     folds: int = 5
@@ -69,8 +75,11 @@ class DiagnosisConfig:
     explained: float = 0.6
     structure: float = 0.05
     structure_rest: float = 0.25
+    floor_tolerance: float = 0.25
     seed: int = 0
     replay: ReplayConfig = dataclasses.field(default_factory=ReplayConfig)
+    clean: CleanConfig = dataclasses.field(default_factory=CleanConfig)
+    band: BandConfig | None = dataclasses.field(default_factory=BandConfig)
 
     def __post_init__(self) -> None:
         check_int(self.blocks, "DiagnosisConfig.blocks", 4)
@@ -83,6 +92,7 @@ class DiagnosisConfig:
         check_number(self.explained, "DiagnosisConfig.explained", 0.0, 1.0)
         check_number(self.structure, "DiagnosisConfig.structure", 0.0, 1.0)
         check_number(self.structure_rest, "DiagnosisConfig.structure_rest", 0.0, 1.0)
+        check_number(self.floor_tolerance, "DiagnosisConfig.floor_tolerance", 0.0, 100.0)
         for name in self.effects or ():
             if name not in CATALOGUE:
                 raise InputError(f"DiagnosisConfig.effects has {name!r}; expected names from {sorted(CATALOGUE)}")
@@ -195,6 +205,7 @@ class Evidence:
     floor: dict[str, Array] = dataclasses.field(default_factory=dict)
     reach: int | None = None
     structure: dict[str, Array] = dataclasses.field(default_factory=dict)
+    preprocessing: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 #: The least noise floor per arm channel: a torque resolution of 1e-3 N m (a channel the model
@@ -236,10 +247,13 @@ def _where(ev: Evidence, design: Design, floor: Array) -> dict[str, Any]:
     channels = []
     for ci, c in enumerate(design.channels):
         for j in range(7):
-            channels.append({"channel": c, "joint": j + 1, "column": ev.labels[c][j], "rms": float(base["rms"][ci, j]),
-                             "floor": float(floor[ci, j]), "ratio": float(base["ratio"][ci, j]),
-                             "excess_share": float(share[ci, j])})
-    channels.sort(key=lambda r: -r["excess_share"])
+            rms, fl = float(base["rms"][ci, j]), float(floor[ci, j])
+            channels.append({"channel": c, "joint": j + 1, "column": ev.labels[c][j], "rms": rms, "floor": fl,
+                             "ratio": float(base["ratio"][ci, j]), "excess_share": float(share[ci, j]),
+                             "excess_rms": float(np.sqrt(max(rms ** 2 - fl ** 2, 0.0)))})
+    # ranked by the excess in the channel's own unit (N m): the joint with the largest torque error
+    # first, whatever its noise (a quiet wrist joint's small error is a large ratio, not a large torque)
+    channels.sort(key=lambda r: -r["excess_rms"])
     phases = {}
     for k, name in enumerate(PHASES):
         m = (ev.phase == k) & valid
@@ -402,8 +416,8 @@ def _audit_verdict(change: str, after: float, before: float) -> str:
     return "the log fits the alternative better" if better else "the model's choice is supported"
 
 
-def _arm_audit(rep: Replay, design: Design, folds, base_sse: Array, excess0: float, n_rows: Array
-               ) -> list[dict[str, Any]]:
+def _arm_audit(rep: Replay, band: Band | None, design: Design, folds, base_sse: Array, excess0: float,
+               n_rows: Array) -> list[dict[str, Any]]:
     terms = rep.terms
     items = [("without the joint damping", -terms.damping, ("tau", "cmd"))]
     if rep.rotor_in_tau:
@@ -424,7 +438,10 @@ def _arm_audit(rep: Replay, design: Design, folds, base_sse: Array, excess0: flo
     for label, torque, chans in items:
         if not np.any(torque) or not any(ch in rep.residual for ch in chans):
             continue
-        s = _score(design, [_term_candidate(rep, label, torque, chans)], folds)
+        cand = _term_candidate(rep, label, torque, chans)
+        if band is not None:
+            cand = band_candidate(cand, band, {})
+        s = _score(design, [cand], folds)
         e = s.sse.sum() / n_rows.sum()
         out.append({"change": label, "heldout_before": base, "heldout_after": float(e),
                     "closed": float((base - e) / max(excess0, 1e-12)),
@@ -485,6 +502,75 @@ def _how_far(ev: Evidence, design: Design, floor: Array, pred: Array, level: flo
 # The diagnosis
 # --------------------------------------------------------------------------------------------
 
+def _excess_interval(before: Array, after: Array, n_rows: Array, level: float, n_boot: int,
+                     rng: np.random.Generator) -> dict[str, float | None]:
+    """The held-out excess over the level of a log with no gap, before and after the selection,
+    and the fraction closed, each with its 95 % Bayesian block-bootstrap interval (noise variances)."""
+    rows = np.maximum(n_rows, 1)
+    w = rng.dirichlet(np.ones(len(before)), size=n_boot) * rows[None]
+    w /= w.sum(axis=1, keepdims=True)
+    eb = (w @ (before / rows)) - level
+    ea = (w @ (after / rows)) - level
+    closed = (eb - ea) / np.maximum(eb, 1e-12)
+    q = lambda x: [float(v) for v in np.quantile(x, [0.025, 0.975])]  # noqa: E731
+    before_v = float(before.sum() / n_rows.sum() - level)
+    after_v = float(after.sum() / n_rows.sum() - level)
+    return {"before": before_v, "before_interval": q(eb), "after": after_v, "after_interval": q(ea),
+            "closed": float((before_v - after_v) / before_v) if before_v > 0 else None,
+            "closed_interval": q(closed) if before_v > 0 else None}
+
+
+def _verdict(c: DiagnosisConfig, chosen: list[Candidate], structure: list[dict[str, Any]],
+             excess: dict[str, Any], e0: float, e_final: float, level: float) -> dict[str, Any]:
+    """The verdict from the selection, the structure left and the held-out excess's interval.
+
+    - "no gap": nothing selected, no structure left, and the excess's lower end within the floor's
+      own uncertainty (`DiagnosisConfig.floor_tolerance` noise variances);
+    - "explained": effects selected, closing at least `explained` of the excess (or a faint gap
+      whose excess is within the floor's uncertainty), and no structure left;
+    - "unexplained": structure left that the selection does not explain (a generic function of the
+      velocity or of time predicts the rest on held-out data), or an excess well above the floor
+      that nothing closes.
+    """
+    left = [st for st in structure if st["left"]]
+    excess0 = max(e0 - level, 0.0)
+    closed = min((e0 - e_final) / max(excess0, 1e-12), 1.0)
+    significant = excess["before_interval"][0] > c.floor_tolerance
+    where_left = (" in " + " and in ".join(f"{st['basis']} ({100 * min(st['share'], 9.99):.0f} % of the excess, "
+                                           f"{100 * min(st['share_rest'], 1.0):.0f} % of what is left)"
+                                           for st in left) if left else "")
+    lo, hi = excess["before_interval"]
+    if not chosen and not left and not significant:
+        return {"label": "no gap", "closed": 0.0,
+                "text": f"no catalogue effect lowers the held-out residual significantly and nothing generic predicts "
+                        f"it; its excess over the noise floor, {e0 - level:.2f} noise variances (95 %: {lo:.2f} to "
+                        f"{hi:.2f}), is within the floor's uncertainty ({c.floor_tolerance:g})"}
+    if not chosen:
+        text = (f"the residual exceeds the noise floor by {e0 - level:.2f} noise variances (95 %: {lo:.2f} to {hi:.2f})"
+                f" and no catalogue effect closes a significant part of it on held-out data")
+        if left:
+            text += f"; it has structure{where_left}"
+        return {"label": "unexplained", "closed": 0.0, "text": text}
+    names = ", ".join(x.name for x in chosen)
+    verb = "closes" if len(chosen) == 1 else "close"
+    if (closed < c.explained and significant) or left:
+        return {"label": "unexplained", "closed": float(closed), "partial": [x.name for x in chosen],
+                "text": f"{names} {verb} {100 * closed:.0f} % of the held-out excess; the rest ({e_final - level:.2f} "
+                        f"noise variances above the floor) has structure{where_left} no catalogue effect explains"
+                        if left else
+                        f"{names} {verb} {100 * closed:.0f} % of the held-out excess; the rest ({e_final - level:.2f} "
+                        "noise variances above the floor) is more than the selection explains"}
+    if not significant:
+        text = (f"a faint gap: {names} lower{'s' if len(chosen) == 1 else ''} the held-out residual by "
+                f"{e0 - e_final:.3f} noise variances, significantly, where the excess over the floor is "
+                f"{e0 - level:.3f} (within the floor's uncertainty)")
+    else:
+        ci = excess["closed_interval"]
+        text = (f"{names} {verb} {100 * closed:.0f} % (95 %: {100 * ci[0]:.0f} to {100 * min(ci[1], 1.0):.0f} %) "
+                "of the held-out excess over the noise floor")
+    return {"label": "explained", "closed": float(closed), "effects": [x.name for x in chosen], "text": text}
+
+
 def _nominal_fit(rep: Replay) -> float:
     """The torque channels' residual mean square relative to the measured torque's, summed over
     joints (scale-free: every joint counts alike)."""
@@ -499,9 +585,16 @@ def _nominal_fit(rep: Replay) -> float:
 
 
 def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Evidence:
-    """The arm's evidence: the replay's channels, its state regions, the catalogue's arm effects."""
+    """The arm's evidence: the log cleaned (stale repeats dropped, a uniform grid: sim2real/clean.py),
+    replayed against the nominal model, seen through the analysis band with its noise floor
+    (sim2real/band.py; `config.band` None: every sample, the fast-part/variogram floor), its state
+    regions and the catalogue's arm effects the log's channels can show."""
     c = config or DiagnosisConfig()
-    notes = []
+    if c.band is not None:  # in the band, velocity and acceleration from the encoder's position
+        c = dataclasses.replace(c, replay=dataclasses.replace(c.replay, velocity_source="q"))
+    cleaned = clean(log, c.clean)
+    log = cleaned.log
+    notes = list(cleaned.notes)
     if c.replay.end_effector is None and (log.meta.get("end_effector") is None or log.meta.get("end_effector_assumed")):
         # the log does not say what the arm carries: the bare arm or the hand, whichever the
         # nominal residual supports (a held gear or tool shows as a payload effect)
@@ -513,19 +606,56 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
                      f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
     else:
         rep = replay(log, c.replay)
-    # the filtered torque channels' noise: kernel-smoothed white noise's share of the fast part, or
-    # the variogram's nugget (noise_floor)
-    floor = {ch: noise_floor(rep.residual[ch], rep.valid, kernel=rep.kernel, reach=rep.reach)
-             for ch in rep.unfiltered}
+    rep.valid &= cleaned.fresh
     phase = segment_phases(rep.log)
     if rep.log.phase is None and np.any(phase != 0):
         notes.append("the log has no phase labels: phases segmented from its external force (sim2real/phases.py)")
     labels = {ch: [f"joint {j + 1}" for j in range(7)] for ch in rep.channels}
-    return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
-                    pool=candidates(rep, c.effects), audit=functools.partial(_arm_audit, rep), x=rep.log.dq,
-                    x_label="dq [rad/s]", time=rep.log.time, meta={**log.meta, "end_effector": rep.model.end_effector},
-                    floor_min=dict(ARM_FLOOR_MIN), notes=notes, floor=floor, reach=rep.reach,
-                    structure={"joint velocity": hat_basis(rep.dq), "time": trend_basis(rep.log.time, 7)})
+    meta = {**log.meta, "end_effector": rep.model.end_effector}
+    pool = candidates(rep, c.effects)
+    structure = {"joint velocity": hat_basis(rep.dq), "time": trend_basis(rep.log.time, 7)}
+    preprocessing: dict[str, Any] = {"clean": cleaned.report}
+    if c.band is None:
+        # the filtered torque channels' noise: kernel-smoothed white noise's share of the fast
+        # part, or the variogram's nugget (noise_floor)
+        floor = {ch: noise_floor(rep.residual[ch], rep.valid, kernel=rep.kernel, reach=rep.reach)
+                 for ch in rep.unfiltered}
+        return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
+                        pool=pool, audit=functools.partial(_arm_audit, rep, None), x=rep.log.dq,
+                        x_label="dq [rad/s]", time=rep.log.time, meta=meta, floor_min=dict(ARM_FLOOR_MIN),
+                        notes=notes, floor=floor, reach=rep.reach, structure=structure, preprocessing=preprocessing)
+    band = choose_band(rep.dq, rep.dt, c.band)
+    valid = rep.valid.copy()
+    valid[:band.settle] = False
+    valid[-band.settle:] = False
+    floor = {}
+    detail = {}
+    for ch in rep.channels:
+        inertia = _channel_mass(rep, ch)
+        floor[ch], detail[ch] = band_floor(rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None,
+                                           rep.log.q if inertia is not None else None, inertia, rep.window)
+    preprocessing["band"] = band.summary()
+    preprocessing["floor"] = {ch: {"in_band": floor[ch].tolist(), **detail[ch]} for ch in rep.channels}
+    notes.append(f"the residual is judged below {band.cutoff:.3g} Hz ({band.reason}), sampled at "
+                 f"{1.0 / (band.dt * band.stride):.3g} Hz; noise floor from its spectrum in "
+                 f"{band.cutoff:.3g}-{band.reference * band.cutoff:.3g} Hz")
+    return Evidence(residual={ch: band.apply(r) for ch, r in rep.residual.items()}, labels=labels,
+                    valid=band.rows(valid), phase=band.rows(phase),
+                    regions={k: band.rows(m) for k, m in arm_regions(rep).items()},
+                    pool=band_pool(pool, band), audit=functools.partial(_arm_audit, rep, band),
+                    x=band.rows(rep.dq), x_label="dq [rad/s]", time=band.rows(rep.log.time), meta=meta,
+                    floor_min=dict(ARM_FLOOR_MIN), notes=notes, floor=floor, reach=None,
+                    structure={k: band.apply(b) for k, b in structure.items()}, preprocessing=preprocessing)
+
+
+def _channel_mass(rep: Replay, channel: str) -> Array | None:
+    """The mass matrix (T, 7, 7) through which the acceleration's noise enters a torque channel
+    (the links', plus the reflected rotor inertia where the channel holds it); None for channels
+    without the acceleration."""
+    if channel not in ("tau", "cmd"):
+        return None
+    rotor = channel == "cmd" or rep.rotor_in_tau
+    return rep.terms.mass + (np.eye(7)[None] * rep.model.reflected_inertia[None, :, None] if rotor else 0.0)
 
 
 def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None
@@ -665,49 +795,21 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     e_final = current.sse.sum() / n_rows.sum()
     # structure the selection left: what a generic function of the state predicts of the rest
     structure = []
-    if ev.structure and excess0 >= 0.05:
+    if ev.structure:
         structure = structure_gains(design.y - pred, design.w, ev.valid, design.starts, folds, ev.structure,
                                     c.bootstrap, rng)
         rest = max(e_final - level, c.min_gain_abs)  # what the selection leaves above a log with no gap
         for st in structure:
-            st["share"] = float(st["gain"] / excess0)
+            st["share"] = float(st["gain"] / max(excess0, 1e-12))
             st["share_rest"] = float(st["gain"] / rest)
             st["left"] = bool(st["low"] > 0 and st["gain"] >= c.min_gain_abs
                               and (st["gain"] >= c.structure * excess0 or st["gain"] >= c.structure_rest * rest))
-    left = [st for st in structure if st["left"]]
-    # a selected effect is a gap by itself (its held-out gain is significant and at least
-    # min_gain_abs), even within the floor's own uncertainty (excess0 < 0.05): a faint gap
-    closed = min((e0 - e_final) / max(excess0, 1e-12), 1.0)
-    noise_only = excess0 < 0.05 or ranking == [] or (not any(r["significant"] for r in ranking) and excess0 < 0.2)
-    if noise_only and not chosen:
-        verdict = {"label": "no gap", "text": "the residual is at the noise floor: no excess to explain",
-                   "closed": 0.0}
-    elif not chosen:
-        verdict = {"label": "unexplained", "closed": 0.0,
-                   "text": f"the residual exceeds the noise floor ({e0:.2f} noise variances) and no catalogue "
-                           "effect closes a significant part of it on held-out data"}
-    elif closed < c.explained or left:
-        where_left = (" in " + " and in ".join(f"{st['basis']} ({100 * st['share']:.0f} % of the excess, "
-                                               f"{100 * min(st['share_rest'], 1.0):.0f} % of what is left)"
-                                               for st in left) if left else "")
-        verdict = {"label": "unexplained", "closed": float(closed),
-                   "text": f"{', '.join(x.name for x in chosen)} close{'s' if len(chosen) == 1 else ''} "
-                           f"{100 * closed:.0f} % of the held-out excess; the rest ({e_final:.2f} noise "
-                           f"variances) has structure{where_left} no catalogue effect explains",
-                   "partial": [x.name for x in chosen]}
-    else:
-        names = ", ".join(x.name for x in chosen)
-        if excess0 < 0.05:
-            text = (f"a faint gap: {names} lower{'s' if len(chosen) == 1 else ''} the held-out residual by "
-                    f"{e0 - e_final:.3f} noise variances, significantly, where a log with no gap reads "
-                    f"{level:.3f} and this one {e0:.3f}")
-        else:
-            text = (f"{names} close{'s' if len(chosen) == 1 else ''} {100 * closed:.0f} % of the held-out "
-                    "excess over the noise floor")
-        verdict = {"label": "explained", "closed": float(closed), "effects": [x.name for x in chosen], "text": text}
+    excess = _excess_interval(base.sse, current.sse, n_rows, level, c.bootstrap, rng)
+    verdict = _verdict(c, chosen, structure, excess, e0, e_final, level)
     verdict["heldout_before"] = float(e0)
     verdict["heldout_after"] = float(e_final)
     verdict["floor_level"] = level
+    verdict["excess"] = excess
     verdict["structure"] = structure
 
     meta = {k: v for k, v in ev.meta.items() if k != "truth"}
@@ -715,4 +817,5 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
               "time": ev.time, "valid": ev.valid}
     return Diagnosis(log_meta=meta, channels=chans, where=where, audit=audit, ranking=ranking,
                      selected=selected, warnings=warnings, how_far=how_far, verdict=verdict, arrays=arrays,
-                     labels=ev.labels, x_label=ev.x_label, extra={"notes": list(ev.notes)})
+                     labels=ev.labels, x_label=ev.x_label,
+                     extra={"notes": list(ev.notes), "preprocessing": ev.preprocessing})

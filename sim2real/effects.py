@@ -26,7 +26,7 @@ from assembly.panda_model import TAU_MAX
 from sim2real.catalogue import CATALOGUE, effect
 from sim2real.replay import Replay
 
-__all__ = ["Candidate", "Family", "candidates", "backlash_excess", "backlash_motor_inertia", "FITTABLE",
+__all__ = ["Candidate", "Family", "candidates", "untestable", "motor_band_offset", "backlash_excess", "backlash_motor_inertia", "FITTABLE",
            "STRIBECK_SIGN_VELOCITY", "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
 
 STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
@@ -438,20 +438,178 @@ def _controller(rep: Replay) -> list[Candidate]:
     return [Candidate("controller_gain", {}, _route(rep, "controller", feats), {}, names, bounds, to_params)]
 
 
+# Plausible corrections of one link's standard parameters (the bounds of the base-parameter fit):
+# the mass within LINK_MASS_FRACTION of the link's, the first moments by that fraction of the
+# nominal plus the link's mass times LINK_COM_SHIFT, the rotational inertia by that fraction of
+# its largest nominal moment plus the mass times LINK_COM_SHIFT^2 (and the parallel-axis change
+# of a first moment shifted that far). A base parameter, a combination beta @ pi, is bounded by
+# the sum of |beta| times its members' bounds: every combination reachable by plausible links.
+LINK_MASS_FRACTION = 0.5
+LINK_COM_SHIFT = 0.05  # [m]
+
+
+def _link_bounds(pi: Array) -> Array:
+    """(70,) half-widths of plausible corrections of the standard parameters `pi` (70,)."""
+    out = np.zeros(70)
+    for k in range(N):
+        p = pi[10 * k:10 * k + 10]
+        m = p[0]
+        out[10 * k] = LINK_MASS_FRACTION * m
+        out[10 * k + 1:10 * k + 4] = LINK_MASS_FRACTION * np.abs(p[1:4]) + m * LINK_COM_SHIFT
+        scale = LINK_MASS_FRACTION * np.abs(p[4:7]).max() + m * LINK_COM_SHIFT ** 2 \
+            + 2.0 * np.linalg.norm(p[1:4]) * LINK_COM_SHIFT
+        out[10 * k + 4:10 * k + 10] = scale
+    return out
+
+
+def _link_inertia(rep: Replay) -> list[Candidate]:
+    """Corrections of the links' base parameters (sim2real/inertia.py): the features are the base
+    regressor's columns at the replayed motion, the bounds `_link_bounds` combined per base
+    parameter; to_params gives {"base": corrections} in the order of the base parameters' groups."""
+    from sim2real.inertia import base_parameters, link_regressor
+
+    reg = link_regressor("none")
+    bp = base_parameters("none")
+    Y = reg(rep.q, rep.dq, rep.ddq)[..., list(bp.independent)]
+    half = np.abs(bp.beta) @ _link_bounds(reg.nominal)
+    bounds = np.stack([-half, half], axis=1)
+    names = [f"base[{i + 1}]" for i in range(bp.count)]
+    return [Candidate("link_inertia", {}, _route(rep, "dynamics", Y), {}, names, bounds,
+                      lambda coef: {"base": [float(v) for v in coef]})]
+
+
+def _tau_prediction(rep: Replay) -> Array:
+    """The nominal model's prediction of the "tau" channel (T, 7): the torque the sensor sees."""
+    t = rep.terms
+    return t.total - (0.0 if rep.rotor_in_tau else t.rotor)
+
+
+def _torque_scale(rep: Replay) -> list[Candidate]:
+    if "tau" not in rep.residual:
+        return []
+    # k tau - tau = (k - 1) tau: coefficient (k - 1) on the predicted sensor torque
+    names, to_params = _per_joint("torque_scale", "k", lambda coef: 1.0 + coef)
+    return [Candidate("torque_scale", {}, _route(rep, "sensing", _diag(_tau_prediction(rep))), {}, names,
+                      _bounds("torque_scale", "k", shift=1.0), to_params)]
+
+
+def _torque_delay(rep: Replay) -> list[Candidate]:
+    """One delay d for all joints: the offset tau(t - d) - tau(t) of the predicted sensor torque."""
+    if "tau" not in rep.residual:
+        return []
+    pred = _tau_prediction(rep)
+
+    def make(d: float) -> Candidate:
+        off = rep.smooth(_shift(pred, d / rep.dt) - pred)
+        return Candidate("torque_delay", {"d": d}, {}, {"tau": off}, [], np.zeros((0, 2)), lambda coef: {"d": d})
+
+    return _family("torque_delay", "d", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02), make)
+
+
+def _joint_inertia(rep: Replay) -> list[Candidate]:
+    names, to_params = _per_joint("joint_inertia", "dJ")
+    return [Candidate("joint_inertia", {}, _route(rep, "dynamics", _diag(rep.ddq)), {}, names,
+                      _bounds("joint_inertia", "dJ"), to_params)]
+
+
+def motor_band_offset(drive: Array, dt: float, b: float, motor_inertia: Array) -> tuple[Array, Array]:
+    """The motor's position and velocity relative to the link behind a dead band of width b, (T, 7) each.
+
+    The rigid-mesh limit of the backlash transmission: the motor rests on the flank its torque
+    pushes against (`drive`, the torque it passes to the link, (T, 7)); when the torque changes
+    sign it crosses the band, J x'' = drive, until it reaches the other flank."""
+    T = drive.shape[0]
+    side = np.sign(drive[0])
+    side[side == 0] = 1.0
+    x = side * b / 2.0
+    v = np.zeros_like(x)
+    xs = np.empty_like(drive)
+    vs = np.empty_like(drive)
+    for t in range(T):
+        m = drive[t]
+        engaged = (np.abs(x) >= b / 2.0 - 1e-12) & (np.sign(m) == np.sign(x))
+        free = ~engaged
+        v = np.where(free, v + dt * m / motor_inertia, 0.0)
+        x_new = np.clip(x + dt * v, -b / 2.0, b / 2.0)
+        v = np.where(free & (np.abs(x_new) >= b / 2.0), 0.0, v)  # stopped by the flank
+        x = np.where(free, x_new, x)
+        xs[t], vs[t] = x, v
+    return xs, vs
+
+
+def _backlash_motor(rep: Replay) -> list[Candidate]:
+    """Backlash seen through a motor-side encoder: the logged q, dq are the link's plus the motor's
+    offset x, v in the band (`motor_band_offset`, driven by the nominal link torque), so the model
+    evaluated at the logged motion errs by M(q) (ddq_logged - ddq_link), ddq taken by the replay's
+    Savitzky-Golay derivative of v (the dominant term; position and velocity sensitivities of the
+    bias and gravity are left out). Residual = measured - model = -M a_v, in "tau" and "cmd"."""
+    from scipy.signal import savgol_filter
+
+    if rep.log.meta.get("position_side", "link") != "motor":
+        return []
+    motor = backlash_motor_inertia(rep.model.reflected_inertia)
+    drive = rep.terms.rigid + rep.terms.damping
+
+    def make(b: float) -> Candidate:
+        _, v = motor_band_offset(drive, rep.dt, b, motor)
+        a = savgol_filter(v, rep.window, 3, deriv=1, delta=rep.dt, axis=0)
+        a = np.concatenate([0.5 * (a[:-1] + a[1:]), a[-1:]])  # the replay's torque instants ("zoh")
+        off = -np.einsum("tij,tj->ti", rep.terms.mass, a)
+        offsets = {c: off for c in ("tau", "cmd") if c in rep.residual}
+        return Candidate("backlash_motor", {"b": b}, {}, offsets, [], np.zeros((0, 2)), lambda coef: {"b": b})
+
+    return _family("backlash_motor", "b", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02), make)
+
+
 #: The effects a replayed arm log can be fitted with, and how to make their candidates.
 FITTABLE: dict[str, Callable[[Replay], list[Candidate]]] = {
     "coulomb": _coulomb, "stribeck": _stribeck, "viscous": _viscous, "rotor_inertia": _rotor,
     "payload": _payload, "torque_offset": _offset, "actuation_delay": _delay, "torque_gain": _gain,
     "torque_saturation": _saturation, "backlash": _backlash, "controller_gain": _controller,
+    "link_inertia": _link_inertia, "torque_scale": _torque_scale, "torque_delay": _torque_delay,
+    "joint_inertia": _joint_inertia, "backlash_motor": _backlash_motor,
 }
 assert set(FITTABLE) <= set(CATALOGUE)
+
+_NEEDS_CMD = "needs the commanded torque (tau_cmd), which the log lacks"
+
+
+def untestable(rep: Replay) -> dict[str, str]:
+    """The catalogue's arm effects that the log's channels cannot show, each with the reason.
+
+    Arguments:
+        rep: the replayed log.
+    Returns:
+        {effect: reason}: the actuation effects and rotor_inertia without a commanded torque (a
+        link-side torque does not see the rotor), controller_gain without q_cmd/dq_cmd and meta
+        controller gains, backlash_motor without meta position_side "motor", the sensing effects
+        without a measured torque."""
+    out: dict[str, str] = {}
+    has_cmd = rep.tau_cmd is not None  # the log's command, or the control law's from its reference
+    if not has_cmd:
+        for name in ("actuation_delay", "torque_saturation", "backlash", "torque_gain"):
+            out[name] = _NEEDS_CMD
+        if not rep.rotor_in_tau:
+            out["rotor_inertia"] = _NEEDS_CMD + " (a link-side torque does not see the rotor)"
+    if "ctrl" not in rep.residual:
+        out["controller_gain"] = ("needs the reference (q_cmd, dq_cmd), the commanded torque and meta controller "
+                                  "gains, which the log lacks")
+    if rep.log.meta.get("position_side", "link") != "motor":
+        out["backlash_motor"] = 'needs a motor-side position (meta position_side "motor"); the log\'s is the link\'s'
+    if "tau" not in rep.residual:
+        for name in ("torque_offset", "torque_scale", "torque_delay"):
+            out[name] = "needs the measured joint torque (tau), which the log lacks"
+    return out
 
 
 def candidates(rep: Replay, names: list[str] | tuple[str, ...] | None = None) -> dict[str, list[Candidate]]:
     """The candidates of each effect in `names` (default: every fittable effect) that the log's
     channels can show; an effect no channel can show is left out."""
     out: dict[str, list[Candidate]] = {}
+    skip = untestable(rep)
     for name in names or FITTABLE:
+        if name in skip:
+            continue
         cands = [c for c in FITTABLE[name](rep) if c.features or c.offset]
         cands = [c for c in cands if any(ch in rep.residual for ch in (*c.features, *c.offset))]
         if cands:

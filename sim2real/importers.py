@@ -21,7 +21,7 @@ from common.errors import FileFormatError, InputError
 from common.files import _reject_constant, check_output_file, read_json, write_atomic
 from sim2real.log import PHASES, RobotLog, validate_log
 
-__all__ = ["GAZ_FILES", "GAZ_JOINTS", "read_gaz_layout", "read_gaz_trajectory", "csv_columns",
+__all__ = ["GAZ_FILES", "GAZ_JOINTS", "read_gaz_layout", "write_gaz_layout", "read_gaz_trajectory", "csv_columns",
            "read_franka_csv", "write_franka_csv"]
 
 # ---------------------------------------------------------------------------------------------- Gaz et al. 2019
@@ -157,6 +157,25 @@ def read_gaz_layout(folder: str | os.PathLike[str]) -> RobotLog:
     log = RobotLog(time=arrays["time"], q=arrays["q"].reshape(n, GAZ_JOINTS), dq=arrays["dq"].reshape(n, GAZ_JOINTS),
                    tau=arrays["tau"].reshape(n, GAZ_JOINTS), meta=_gaz_meta(folder, where, notes))
     return _validated(log, folder, GAZ_JOINTS)
+
+
+def write_gaz_layout(log: RobotLog, folder: str | os.PathLike[str]) -> Path:
+    """Write `log` (validated first, 7 joints, tau present; nothing is written if it fails) into
+    `folder` in the Gaz et al. 2019 layout that `read_gaz_layout` reads back to the same values:
+    `folder/rbt_log/exciting_traj_{time,positions,velocity,torques}.txt` (one number per line in
+    its shortest exact form, 7 lines per sample) and `folder/rbt_log/meta.json` (the log's meta;
+    the other fields are not part of the layout). `folder` may exist; the files are written
+    atomically. Returns `folder`. Raises InputError for a log that fails validation or lacks tau."""
+    log = validate_log(log, n_joints=GAZ_JOINTS)
+    if log.tau is None:
+        raise InputError("log.tau is missing; expected measured joint torques for exciting_traj_torques.txt")
+    where = Path(folder) / "rbt_log"
+    where.mkdir(parents=True, exist_ok=True)
+    for name, file in GAZ_FILES.items():
+        values = getattr(log, name).reshape(-1).tolist()
+        write_atomic(where / file, "".join(repr(x) + "\n" for x in values))
+    write_atomic(where / "meta.json", json.dumps(log.meta, allow_nan=False, indent=1) + "\n")
+    return Path(folder)
 
 
 def _validated(log: RobotLog, path: Path, n_joints: int | None) -> RobotLog:

@@ -28,7 +28,7 @@ from common.errors import FileFormatError, InputError
 from common.files import _reject_constant, check_output_file, to_strict_json, write_atomic
 
 __all__ = [
-    "RobotLog", "PHASES", "UNITS", "FIELDS", "TORQUE_SIDES", "MIN_SAMPLES", "LOG_FORMAT",
+    "RobotLog", "PHASES", "UNITS", "FIELDS", "TORQUE_SIDES", "POSITION_SIDES", "MIN_SAMPLES", "LOG_FORMAT",
     "validate_log", "save_log", "load_log", "slice_log", "with_meta",
 ]
 
@@ -60,6 +60,7 @@ class RobotLog:
     phase: (T,) int labels indexing PHASES, or None when the log is not labelled.
     meta: plain JSON-compatible metadata: "robot", "joint_names", "units", "frames",
         "end_effector" ("none", "hand", "hand+gear_<size>"), "torque_side" ("link"/"motor"),
+        "position_side" ("link" (default) / "motor": q, dq from a motor-side encoder through the gear),
         "controller" (law and gains, when known), "source", "license", "truth" (the injected
         effects of a simulated log, never read by the diagnosis).
     """
@@ -93,6 +94,8 @@ FIELDS: tuple[str, ...] = ("time", "q", "dq", "tau", "tau_cmd", "q_cmd", "dq_cmd
                            "tool_pose", "tool_target", "wrench", "gripper_width", "phase")
 #: Values of meta["torque_side"]: torques measured after the gearbox (Franka's tau_J) or before it.
 TORQUE_SIDES: tuple[str, ...] = ("link", "motor")
+#: Values of meta["position_side"]: positions measured on the link (default) or the motor (reflected).
+POSITION_SIDES: tuple[str, ...] = ("link", "motor")
 #: The fewest samples a log may hold.
 MIN_SAMPLES = 10
 #: The value of the "format" entry of a saved log (.npz).
@@ -133,7 +136,8 @@ def validate_log(log: RobotLog, n_joints: int | None = 7) -> RobotLog:
     meta units that differ from UNITS, values that look like other units (|q| > 2 pi + 0.5:
     degrees; |dq| > 20 rad/s; |tau| > 1000 N m: mN m; a time span over a day or a step over 1 s:
     ms or ns), phase labels outside range(len(PHASES)), tool poses that are not rigid transforms,
-    and meta["end_effector"] / meta["torque_side"] outside sim2real.arm.END_EFFECTORS / TORQUE_SIDES.
+    and meta["end_effector"] / meta["torque_side"] / meta["position_side"] outside
+    sim2real.arm.END_EFFECTORS / TORQUE_SIDES / POSITION_SIDES.
     """
     if not isinstance(log, RobotLog):
         raise InputError(f"log = {type(log).__name__}; expected a RobotLog")
@@ -341,6 +345,8 @@ def _checked_meta(meta: Any, arrays: dict[str, Any]) -> dict[str, Any]:
             raise InputError(f"meta end_effector = {meta['end_effector']!r}; expected one of {list(END_EFFECTORS)}")
     if "torque_side" in meta and meta["torque_side"] not in TORQUE_SIDES:
         raise InputError(f"meta torque_side = {meta['torque_side']!r}; expected one of {list(TORQUE_SIDES)}")
+    if "position_side" in meta and meta["position_side"] not in POSITION_SIDES:
+        raise InputError(f"meta position_side = {meta['position_side']!r}; expected one of {list(POSITION_SIDES)}")
     n = arrays["q"].shape[1]
     names = meta.setdefault("joint_names", [f"panda_joint{i + 1}" if n == 7 else f"joint{i + 1}" for i in range(n)])
     if not (isinstance(names, list) and len(names) == n and all(isinstance(s, str) for s in names)):

@@ -11,9 +11,12 @@ Signal chain per control tick k (t_k = k / log_rate; the controller runs at the 
     measure    q_m = q + n_q, dq_m = dq + n_dq                                (sensors)
     control    tau_cmd = ID_nom(q_ref, dq_ref, ddq_ref) + kp_s Kp (q_ref - q_m) + kd_s Kd (dq_ref - dq_m)
     actuate    tau_a(t) = clip(k tau_cmd(t - delay), +-s TAU_MAX)             (zero-order hold)
-    sense      tau = tau_a - (I_r + dI) ddq + offset + n_tau   (link-side torque sensor, tau_J)
-    move       [M_links(q) + diag(I_r + dI)] ddq + c(q, dq) - g(q) = tau_a + tau_f(dq) + tau_stop(q, dq)
-with tau_f = -(D + fv) dq - fc tanh(dq / v_smooth) - fs exp(-(dq / vs)^2) tanh(dq / 0.002) (the
+    sense      tau(t) = k_tau [tau_a - (I_r + dI) ddq](t - d_tau) + offset + n_tau   (link-side sensor, tau_J)
+    move       [M_links(q) + diag(I_r + dI + dJ)] ddq + c(q, dq) - g(q) = tau_a + tau_f(dq) + tau_stop(q, dq)
+with M_links, c, g of the links as link_inertia changes them (mass, centre of mass, inertia per link),
+dJ the link-side joint_inertia, and with backlash_motor the logged (and fed back) q, dq the motor side's
+of the backlash transmission (meta position_side "motor").
+Here tau_f = -(D + fv) dq - fc tanh(dq / v_smooth) - fs exp(-(dq / vs)^2) tanh(dq / 0.002) (the
 model's joint damping D plus the friction effects), the payload in M, c and g, and, with backlash,
 a two-mass transmission between tau_a and the joint. The torque sensor sits where a Panda's does,
 between the gearbox and the link (torque_side "link", Franka's tau_J): the rotor's reflected
@@ -47,13 +50,17 @@ from sim2real.catalogue import ARM_EFFECTS, effect
 from sim2real.effects import (BACKLASH_DAMPING, BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN,
                               BACKLASH_STIFFNESS, STRIBECK_SIGN_VELOCITY, backlash_motor_inertia)
 from sim2real.log import UNITS, RobotLog
+from sim2real.logger import apply_logger
 from sim2real.trajectory import default_base_frequency, exciting_trajectory
 
-__all__ = ["RealityConfig", "make_arm_log", "resolve_effects", "ExtraTorque", "KP", "KD", "STRIBECK_SIGN_VELOCITY",
+__all__ = ["RealityConfig", "SENSORS", "make_arm_log", "resolve_effects", "ExtraTorque", "KP", "KD",
+           "STRIBECK_SIGN_VELOCITY",
            "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING", "MOTOR_INERTIA_MIN",
            "STOP_STIFFNESS", "STOP_DAMPING"]
 
 Array = NDArray[np.float64]
+#: Values of RealityConfig.sensors: the ideal logger of the control ticks, or the Panda's (sim2real.logger).
+SENSORS: tuple[str, ...] = ("ideal", "panda")
 #: An out-of-catalogue joint torque [N m] acting on the joints, a function of (q, dq) (7,) each.
 ExtraTorque = Callable[[Array, Array], Array]
 
@@ -94,6 +101,10 @@ class RealityConfig:
     Controller: kp [N m/rad], kd [N m s/rad] (7 each; the nominal gains the log's meta states).
     Sensors: noise on or off; standard deviations q_noise [rad], dq_noise [rad/s], tau_noise [N m]
     of white Gaussian noise (our choice, see docs/sim2real.md).
+    sensors: what logs q, dq and tau: "ideal" (the controller's noisy measurements at the control
+    ticks) or "panda" (sim2real.logger.apply_logger with PANDA_LOGGER and this seed on the
+    noise-free truth: jittered polling, stale rows, gaps, coloured noise; the controller still
+    sees the measurements with the white noise above).
     time_step: the plant's step [s]; 1 / log_rate must be a whole multiple of it.
     """
 
@@ -112,6 +123,7 @@ class RealityConfig:
     dq_noise: float = 1.0e-3
     tau_noise: float = 0.05
     time_step: float = 5.0e-4
+    sensors: str = "ideal"
 
     def __post_init__(self) -> None:
         name = "RealityConfig."
@@ -135,6 +147,7 @@ class RealityConfig:
         for sigma in ("q_noise", "dq_noise", "tau_noise"):
             check_number(getattr(self, sigma), name + sigma, 0.0, 1.0)
         check_number(self.time_step, name + "time_step", 1e-5, 1.0 / self.log_rate)
+        check_choice(self.sensors, SENSORS, name + "sensors")
         ratio = 1.0 / (self.log_rate * self.time_step)
         if abs(ratio - round(ratio)) > 1e-6:
             raise InputError(f"{name}time_step = {self.time_step:g} s; expected a whole fraction of the "
@@ -219,6 +232,11 @@ class _Truth:
     kp_scale: Array
     kd_scale: Array
     notes: tuple[str, ...]
+    links: tuple[Array, Array, Array] = (np.ones(N_ARM), np.zeros(N_ARM), np.ones(N_ARM))  # mass, com z, inertia
+    joint_inertia: Array = dataclasses.field(default_factory=lambda: np.zeros(N_ARM))  # link side [kg m^2]
+    sensor_scale: Array = dataclasses.field(default_factory=lambda: np.ones(N_ARM))
+    sensor_delay: float = 0.0  # [s]
+    motor_position: bool = False  # q, dq logged (and fed back) on the motor side of the backlash
 
 
 def _truth(resolved: dict[str, dict[str, Any]]) -> _Truth:
@@ -240,13 +258,24 @@ def _truth(resolved: dict[str, dict[str, Any]]) -> _Truth:
                      f"{(np.flatnonzero(neg) + 1).tolist()} (the joint gains energy with speed; the controller "
                      "has to hold it)")
     com = np.array([get("payload", f"com_{a}") for a in "xyz"])
+    if get("link_inertia", "base") != 0.0:
+        raise InputError(f"effect link_inertia.base = {get('link_inertia', 'base'):g}; expected 0 (the fit's output): "
+                         "make a log with mass_scale, com_shift and inertia_scale")
+    b_act, b_mot = get("backlash", "b"), get("backlash_motor", "b")
+    if b_act > 0.0 and b_mot > 0.0:
+        raise InputError(f"effects backlash.b = {b_act:g} rad and backlash_motor.b = {b_mot:g} rad name one dead band "
+                         "twice; expected one of them")
     return _Truth(viscous=viscous, fc=get("coulomb", "fc"), v_smooth=get("coulomb", "v_smooth"),
                   fs=get("stribeck", "fs"), vs=get("stribeck", "vs"), inertia=inertia,
                   payload=(get("payload", "dm"), com), offset=get("torque_offset", "offset"),
                   delay=get("actuation_delay", "delay"), gain=get("torque_gain", "k"),
-                  limit=get("torque_saturation", "s") * TAU_MAX, backlash=get("backlash", "b"),
+                  limit=get("torque_saturation", "s") * TAU_MAX, backlash=max(b_act, b_mot),
                   kp_scale=get("controller_gain", "kp_scale"), kd_scale=get("controller_gain", "kd_scale"),
-                  notes=tuple(notes))
+                  notes=tuple(notes),
+                  links=(get("link_inertia", "mass_scale"), get("link_inertia", "com_shift"),
+                         get("link_inertia", "inertia_scale")),
+                  joint_inertia=get("joint_inertia", "dJ"), sensor_scale=get("torque_scale", "k"),
+                  sensor_delay=get("torque_delay", "d"), motor_position=b_mot > 0.0)
 
 
 # ---------------------------------------------------------------------------------------------- plant
@@ -283,6 +312,7 @@ class _Plant:
         for j, index in enumerate(self.plant.GetJointActuatorIndices(arm)[:N_ARM]):
             actuator = self.plant.get_joint_actuator(index)
             actuator.SetRotorInertia(self.context, link_inertia[j] / actuator.default_gear_ratio() ** 2)
+        self._set_links(arm, truth.links)
         dm, com = truth.payload
         if dm != 0.0:
             flange = self.plant.GetBodyByName("panda_link8", arm)
@@ -298,14 +328,33 @@ class _Plant:
             G = UnitInertia(rot[0, 0] / m, rot[1, 1] / m, rot[2, 2] / m, rot[0, 1] / m, rot[0, 2] / m, rot[1, 2] / m)
             flange.SetSpatialInertiaInBodyFrame(self.context, SpatialInertia(m, first / m, G, skip_validity_check=True))
 
+    def _set_links(self, arm: Any, links: tuple[Array, Array, Array]) -> None:
+        """Links 1..7's bodies changed: mass times mass_scale, the centre of mass shifted by com_shift
+        along the link frame's z, the rotational inertia about the centre of mass times
+        mass_scale * inertia_scale (a positive multiple of a physical inertia stays physical)."""
+        from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+
+        mass_scale, shift, inertia_scale = links
+        for k in range(N_ARM):
+            if mass_scale[k] == 1.0 and shift[k] == 0.0 and inertia_scale[k] == 1.0:
+                continue
+            body = self.plant.GetBodyByName(f"panda_link{k + 1}", arm)
+            own = body.default_spatial_inertia()
+            m = own.get_mass() * mass_scale[k]
+            c = own.get_com() + np.array([0.0, 0.0, shift[k]])
+            I_c = own.Shift(own.get_com()).CalcRotationalInertia().CopyToFullMatrix3() * mass_scale[k] * inertia_scale[k]
+            body.SetSpatialInertiaInBodyFrame(self.context, SpatialInertia.MakeFromCentralInertia(
+                m, c, RotationalInertia(I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2])))
+
     def rigid(self, q: Array, v: Array) -> tuple[Array, Array]:
-        """M (7, 7) with the link-side rotor inertia, and c(q, v) - g(q) (7,), fingers held still."""
+        """M (7, 7) with the link-side rotor inertia and the joint_inertia effect's dJ, and
+        c(q, v) - g(q) (7,), fingers held still."""
         x = self.x
         x[:N_ARM] = q
         x[self.nq:self.nq + N_ARM] = v
         p, c = self.plant, self.context
         p.SetPositionsAndVelocities(c, x)
-        M = p.CalcMassMatrix(c)[:N_ARM, :N_ARM]
+        M = p.CalcMassMatrix(c)[:N_ARM, :N_ARM] + np.diag(self.truth.joint_inertia)
         return M, p.CalcBiasTerm(c)[:N_ARM] - p.CalcGravityGeneralizedForces(c)[:N_ARM]
 
     def joint_potential(self, u: Array) -> tuple[Array, Array, Array]:
@@ -491,9 +540,11 @@ def make_arm_log(effects: Mapping[str, Mapping[str, float | Sequence[float]]] | 
 
     Returns:
         A RobotLog of config.duration * config.log_rate + 1 samples (both ends at rest): time, q, dq
-        (measured, with noise), tau (the joint torque sensor: the torque the actuator delivers,
-        plus offset and noise), tau_cmd (the controller's command), q_cmd, dq_cmd (the reference),
+        (measured, with noise; with backlash_motor the motor side's, fed back too), tau (the joint
+        torque sensor: the link-side torque, delayed by torque_delay, scaled by torque_scale, plus
+        offset and noise), tau_cmd (the controller's command), q_cmd, dq_cmd (the reference),
         phase 0 ("free"); meta: robot, joint_names, units, end_effector, torque_side "link",
+        position_side ("motor" with backlash_motor, else "link"),
         controller (law "computed_torque_pd" and the nominal kp, kd), source, truth (the resolved
         effects), reality (the config), notes (clipped values, limit stops, saturation).
 
@@ -521,6 +572,7 @@ def make_arm_log(effects: Mapping[str, Mapping[str, float | Sequence[float]]] | 
     meta = {
         "robot": "panda", "joint_names": list(ARM_JOINT_NAMES), "units": units,
         "end_effector": cfg.end_effector, "torque_side": "link",
+        "position_side": "motor" if truth.motor_position else "link",
         "controller": {"law": "computed_torque_pd", "kp": list(cfg.kp), "kd": list(cfg.kd),
                        "rate": cfg.log_rate, "feedforward": "nominal ArmModel total torque at the reference"},
         "source": "goflow simulated reality (sim2real/reality.py)",
@@ -532,6 +584,11 @@ def make_arm_log(effects: Mapping[str, Mapping[str, float | Sequence[float]]] | 
     }
     if extra_torque is not None:
         meta["extra_torque"] = ".".join(getattr(extra_torque, key, "?") for key in ("__module__", "__qualname__"))
+    if cfg.sensors == "panda":  # the logger records the truth: the measurements less their noise
+        nq, ndq, ntau = run.noise
+        return apply_logger(RobotLog(time=run.time, q=run.q_meas - nq, dq=run.dq_meas - ndq, tau=run.tau_meas - ntau,
+                                     tau_cmd=run.tau_cmd, q_cmd=run.q_ref, dq_cmd=run.dq_ref,
+                                     phase=np.zeros(run.time.shape[0], dtype=np.int64), meta=meta), seed=cfg.seed)
     return RobotLog(time=run.time, q=run.q_meas, dq=run.dq_meas, tau=run.tau_meas, tau_cmd=run.tau_cmd,
                     q_cmd=run.q_ref, dq_cmd=run.dq_ref, phase=np.zeros(run.time.shape[0], dtype=np.int64),
                     meta=meta)
@@ -600,20 +657,27 @@ class _Run:
         state = self._initial_state()
         n = self.time.shape[0]
         nq, ndq, ntau = self.noise
+        side = 2 if t.motor_position else 0  # backlash_motor: the encoder (and the controller) on the motor
         for k in range(n):
-            q_m = state[0] + nq[k]
-            dq_m = state[1] + ndq[k]
+            q_m = state[side] + nq[k]
+            dq_m = state[side + 1] + ndq[k]
             cmd = self.feedforward[k] + self.kp * (self.q_ref[k] - q_m) + self.kd * (self.dq_ref[k] - dq_m)
             self.q_meas[k], self.dq_meas[k], self.tau_cmd[k] = q_m, dq_m, cmd
             self.delivered[k] = np.clip(t.gain * cmd, -t.limit, t.limit)
             if k == n - 1:  # at rest at the end: the sensor carries the held torque
-                self.tau_meas[k] = self._link_torque(state, state) + t.offset + ntau[k]
+                self.tau_meas[k] = self._link_torque(state, state)
                 break
             start = state
             for i in range(self.substeps):
                 state = self._advance(state, k + i / self.substeps, k + (i + 1) / self.substeps)
             self._check(state, (k + 1) * self.dt)
-            self.tau_meas[k] = self._link_torque(start, state, k) + t.offset + ntau[k]
+            self.tau_meas[k] = self._link_torque(start, state, k)
+        # the sensor: its delay (the first reading held before the start), scale, offset and noise
+        true = self.tau_meas
+        if t.sensor_delay > 0.0:
+            src = np.arange(n) - t.sensor_delay * self.cfg.log_rate
+            true = np.stack([np.interp(src, np.arange(n), true[:, j]) for j in range(N_ARM)], axis=1)
+        self.tau_meas = t.sensor_scale * true + t.offset + ntau
 
     def _link_torque(self, start: tuple[Array, ...], end: tuple[Array, ...], k: int | None = None) -> Array:
         """What the link-side torque sensor reads over the tick from `start` to `end`: the torque

@@ -46,7 +46,10 @@ class ReplayConfig:
     evaluated at the period's midpoint) or "sample" (at the sample instant); torque_filter:
     "matched" (default: the torques are smoothed with the kernel matched to the acceleration's
     derivative filter, see `matched_kernel`) or "none" (raw torques against the smoothed
-    acceleration)."""
+    acceleration); velocity_source: "dq" (the velocity and acceleration are the measured velocity
+    and its Savitzky-Golay derivative) or "q" (the first and second Savitzky-Golay derivatives of
+    the measured position: an encoder's position is far less noisy than a velocity estimate, whose
+    differentiated noise grows as f^2 into the band the diagnosis analyses)."""
 
     derivative_window: float = 0.041
     forward_steps: int = 20
@@ -54,6 +57,7 @@ class ReplayConfig:
     rotor_in_tau: bool | None = None
     torque_hold: str = "zoh"
     torque_filter: str = "matched"
+    velocity_source: str = "dq"
 
 
 @dataclasses.dataclass
@@ -209,9 +213,14 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
     check_choice(c.torque_hold, ("zoh", "sample"), "ReplayConfig.torque_hold")
     check_choice(c.torque_filter, ("matched", "none"), "ReplayConfig.torque_filter")
     kernel = matched_kernel(window, c.torque_hold) if c.torque_filter == "matched" else None
+    check_choice(c.velocity_source, ("dq", "q"), "ReplayConfig.velocity_source")
     q_t = log.q
-    dq_s = savgol_filter(log.dq, window, 3, axis=0)
-    ddq = savgol_filter(log.dq, window, 3, deriv=1, delta=dt, axis=0)
+    if c.velocity_source == "q":
+        dq_s = savgol_filter(log.q, window, 3, deriv=1, delta=dt, axis=0)
+        ddq = savgol_filter(log.q, window, 3, deriv=2, delta=dt, axis=0)
+    else:
+        dq_s = savgol_filter(log.dq, window, 3, axis=0)
+        ddq = savgol_filter(log.dq, window, 3, deriv=1, delta=dt, axis=0)
     if c.torque_hold == "zoh":  # the model at each hold period's midpoint
         q_t, dq_s, ddq = (np.concatenate([0.5 * (x[:-1] + x[1:]), x[-1:]]) for x in (q_t, dq_s, ddq))
     terms = model.terms(q_t, dq_s, ddq)

@@ -1,0 +1,244 @@
+"""The analysis band and the noise floor in it: where the excitation and the effects live.
+
+A robot's torque residual holds, besides the model's error, sensor noise, the arm's structural
+vibration (20-60 Hz on the Panda) and the noise of the acceleration differentiated from the
+measured velocity; the trajectory and every catalogue effect live below ~10 Hz. Judging the gap
+against the whole band's noise hides the slow errors a user cares about (on the real Panda log
+joints 1-4 have 0.8-1.2 N m of broadband noise but 0.1 N m below 10 Hz). So the diagnosis looks at
+the residual through one zero-phase low-pass filter (the band), applied alike to the residual and to
+every effect's prediction (linear, so the fits are unchanged in kind), and samples it at four
+times the band's edge.
+
+- `choose_band`: the band's edge from the data: a multiple of the frequency below which 99 % of the
+  joint velocities' power lies (the excitation), within [min_cutoff, max_cutoff].
+- `band_floor`: the noise's standard deviation in the band, per column, from the residual's own
+  spectrum just above the band (where the model's error is small): a fitted noise spectrum
+  a |K(f)|^2 + b |D(f)|^2, white sensor noise seen through the torque filter K plus the blue noise of
+  a position differentiated twice (D) into the acceleration, integrated under the band's response. docs/sim2real.md gives the
+  check of it on noise-only logs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import butter, savgol_coeffs, sosfiltfilt, sosfreqz, welch
+
+from common.checks import check_int, check_number
+from common.errors import InputError
+from sim2real.effects import Candidate, Family
+
+__all__ = ["BandConfig", "Band", "choose_band", "band_floor", "band_candidate", "band_pool"]
+
+Array = NDArray[np.float64]
+
+
+@dataclasses.dataclass(frozen=True)
+class BandConfig:
+    """cutoff: the band's edge [Hz] (None: from the data, `excitation_factor` times the frequency
+    below which 99 % of the joint velocities' power lies, within [min_cutoff, max_cutoff]);
+    order: the Butterworth low-pass's order (applied forward and backward: zero phase);
+    reference: the noise is read in [cutoff, reference x cutoff] (below the Panda's 20-60 Hz
+    vibration band for cutoffs up to 10 Hz); samples_per_cycle: the band-limited residual is
+    kept every dt x stride with stride = 1 / (samples_per_cycle x cutoff x dt)."""
+
+    cutoff: float | None = None
+    excitation_factor: float = 16.0
+    min_cutoff: float = 4.0
+    max_cutoff: float = 8.0
+    order: int = 4
+    reference: float = 2.0
+    samples_per_cycle: float = 4.0
+
+    def __post_init__(self) -> None:
+        n = "BandConfig."
+        if self.cutoff is not None:
+            check_number(self.cutoff, n + "cutoff", 0.1, 200.0)
+        check_number(self.excitation_factor, n + "excitation_factor", 1.0, 1000.0)
+        check_number(self.min_cutoff, n + "min_cutoff", 0.1, 200.0)
+        check_number(self.max_cutoff, n + "max_cutoff", self.min_cutoff, 200.0)
+        check_int(self.order, n + "order", 1)
+        check_number(self.reference, n + "reference", 1.2, 10.0)
+        check_number(self.samples_per_cycle, n + "samples_per_cycle", 2.0, 100.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Band:
+    """The analysis band: low-pass at `cutoff` [Hz] on samples `dt` [s] apart, kept every
+    `stride` samples; `excitation` [Hz] the joint velocities' 99 % power frequency; `reason`
+    how the edge was chosen."""
+
+    cutoff: float
+    dt: float
+    stride: int
+    order: int
+    reference: float
+    excitation: float
+    reason: str
+
+    @property
+    def sos(self) -> Array:
+        return butter(self.order, self.cutoff, btype="low", fs=1.0 / self.dt, output="sos")
+
+    def filter(self, x: Array) -> Array:
+        """x (T, ...) through the band's zero-phase low-pass along time, at every sample."""
+        if x.shape[0] <= 3 * (2 * len(self.sos) + 1):
+            raise InputError(f"a signal of {x.shape[0]} samples is too short for the {self.cutoff:g} Hz band filter")
+        return sosfiltfilt(self.sos, x, axis=0)
+
+    def apply(self, x: Array) -> Array:
+        """x (T, ...) filtered and kept every `stride` samples."""
+        return self.filter(np.asarray(x, dtype=np.float64))[::self.stride]
+
+    def rows(self, x: NDArray[Any]) -> NDArray[Any]:
+        """A per-sample array (masks, labels, states) kept every `stride` samples, unfiltered."""
+        return np.asarray(x)[::self.stride]
+
+    @property
+    def settle(self) -> int:
+        """Samples at each end of a log that the filter's start-up and ringing reach (two cycles of
+        the edge: the derivative filters' ends are far noisier than their interior)."""
+        return int(np.ceil(2.0 / (self.cutoff * self.dt)))
+
+    def power_response(self, f: Array) -> Array:
+        """|H(f)|^2 of the forward-backward filter (its magnitude response squared twice)."""
+        _, h = sosfreqz(self.sos, worN=f, fs=1.0 / self.dt)
+        return np.abs(h) ** 4
+
+    def summary(self) -> dict[str, Any]:
+        return {"cutoff_hz": self.cutoff, "excitation_hz": self.excitation, "stride": self.stride,
+                "rate_hz": 1.0 / (self.dt * self.stride), "reference_hz": [self.cutoff, self.reference * self.cutoff],
+                "reason": self.reason}
+
+
+def _power_edge(x: Array, dt: float, share: float = 0.99) -> float:
+    """The frequency [Hz] below which `share` of the power of x (T, k) (each column demeaned,
+    summed over columns) lies."""
+    x = x - x.mean(axis=0)
+    spec = np.sum(np.abs(np.fft.rfft(x, axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(x.shape[0], dt)
+    cum = np.cumsum(spec[1:])
+    if cum[-1] <= 0:
+        return 0.0
+    return float(f[1:][np.searchsorted(cum, share * cum[-1])])
+
+
+def choose_band(dq: Array, dt: float, config: BandConfig | None = None) -> Band:
+    """The analysis band for a log with joint velocities dq (T, 7) on a uniform grid dt [s] apart.
+
+    Raises:
+        InputError: the joints do not move (no joint's velocity varies by more than 1e-3 rad/s
+            below the band's edge): nothing excites the effects.
+    """
+    c = config or BandConfig()
+    fs = 1.0 / dt
+    excitation = _power_edge(dq, dt)
+    if c.cutoff is not None:
+        cutoff, reason = float(c.cutoff), "given"
+    else:
+        cutoff = float(np.clip(c.excitation_factor * excitation, c.min_cutoff, c.max_cutoff))
+        reason = (f"{c.excitation_factor:g} x the excitation's {excitation:.3g} Hz (99 % of the joint velocities' "
+                  f"power), within [{c.min_cutoff:g}, {c.max_cutoff:g}] Hz")
+    if c.reference * cutoff >= 0.45 * fs:
+        raise InputError(f"band edge {cutoff:g} Hz is too high for a log sampled at {fs:g} Hz; expected at most "
+                         f"{0.45 * fs / c.reference:g} Hz")
+    stride = max(1, int(np.floor(fs / (c.samples_per_cycle * cutoff))))
+    band = Band(cutoff=cutoff, dt=dt, stride=stride, order=c.order, reference=c.reference,
+                excitation=excitation, reason=reason)
+    moving = np.std(band.filter(dq - dq.mean(axis=0)), axis=0)
+    if float(np.max(moving)) < 1e-3:
+        raise InputError(f"the log's joints do not move below {cutoff:g} Hz (largest velocity spread "
+                         f"{float(np.max(moving)):.2g} rad/s); expected a trajectory that excites the joints")
+    return band
+
+
+def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Array | None = None,
+               position: Array | None = None, mass: Array | None = None, window: int = 41
+               ) -> tuple[Array, dict[str, Any]]:
+    """The noise's standard deviation in the band for each column of `residual` (T, k).
+
+    The residual's noise spectrum is modelled as a |K(f)|^2 + |D(f)|^2 b (K: the torque filter
+    `kernel`'s response, 1 without one): the sensor's noise, flat near the band, plus the noise of
+    the encoder's position differentiated twice into the acceleration (the replay's velocity
+    source "q": D is the cubic Savitzky-Golay second derivative over `window` samples) and
+    multiplied by the mass matrix. b comes from the position's own noise, read where the motion
+    has no power (0.1-0.4 of the sample rate): b_j = sum_k <M_jk^2> S_q,k (0 without `position` and
+    `mass` (T, k, k)). a is the residual's mean density in the reference band
+    [cutoff, reference x cutoff] less that part, over K^2 (at least 0). The noise variance the
+    band-limited residual holds when the model has no gap is the spectrum's integral under the
+    band's power response.
+
+    Returns:
+        (floor (k,), detail): detail holds per column a, b, the reference band's mean density and
+        the broadband standard deviation for comparison.
+
+    Raises:
+        InputError: too few valid samples to read a spectrum.
+    """
+    r = residual[valid]
+    fs = 1.0 / band.dt
+    nper = int(min(len(r) // 4, 2 ** int(np.ceil(np.log2(4.0 * fs)))))
+    if nper < 64:
+        raise InputError(f"the log has {len(r)} valid samples; too few to read its noise spectrum (expected at "
+                         f"least {4 * 64})")
+    f, P = welch(r - r.mean(axis=0), fs=fs, nperseg=nper, axis=0)
+    K2 = np.ones_like(f)
+    if kernel is not None:
+        taps = np.arange(len(kernel)) - len(kernel) // 2
+        K2 = np.abs(np.exp(-2j * np.pi * np.outer(f, taps) * band.dt) @ kernel) ** 2
+    k = r.shape[1]
+    b = np.zeros(k)
+    if position is not None and mass is not None:
+        qv = position[valid]
+        fq, Pq = welch(qv - qv.mean(axis=0), fs=fs, nperseg=nper, axis=0)
+        quiet = (fq >= 0.1 * fs) & (fq <= 0.4 * fs)
+        Sq = np.mean(Pq[quiet], axis=0)  # (k,)
+        b = np.mean(mass[valid] ** 2, axis=0) @ Sq
+    d2 = savgol_coeffs(window, 3, deriv=2, delta=band.dt, use="dot")
+    taps2 = np.arange(window) - window // 2
+    D2 = np.abs(np.exp(-2j * np.pi * np.outer(f, taps2) * band.dt) @ d2) ** 2
+    ref = (f >= band.cutoff) & (f <= band.reference * band.cutoff)
+    fine = np.linspace(0.0, fs / 2, 8192)
+    Kf = np.interp(fine, f, K2)
+    Df = np.interp(fine, f, D2)
+    H = band.power_response(fine)
+    white = np.trapezoid(Kf * H, fine)
+    blue = np.trapezoid(Df * H, fine)
+    a = np.maximum(np.mean((P[ref] - D2[ref, None] * b[None, :]) / K2[ref, None], axis=0), 0.0)
+    floors = np.sqrt(np.maximum(a * white + b * blue, 0.0))
+    detail = {"a": a.tolist(), "b": b.tolist(), "reference_density": np.mean(P[ref], axis=0).tolist(),
+              "broadband_std": np.std(r, axis=0).tolist()}
+    return np.maximum(floors, 1e-9), detail
+
+
+def band_candidate(cand: Candidate, band: Band, cache: dict[int, Candidate]) -> Candidate:
+    """The candidate as the band sees it: its features and offsets filtered and kept every stride
+    samples; a family member's refinements are banded too (`cache` keeps one banded copy per
+    candidate, as the fits' caches need)."""
+    key = id(cand)
+    if key in cache:
+        return cache[key]
+    family = cand.family
+    if family is not None:
+        family = _band_family(family, band, cache)
+    out = dataclasses.replace(cand, features={c: band.apply(v) for c, v in cand.features.items()},
+                              offset={c: band.apply(v) for c, v in cand.offset.items()}, family=family)
+    cache[key] = out
+    return out
+
+
+def _band_family(family: Family, band: Band, cache: dict[int, Candidate]) -> Family:
+    key = ("family", id(family))
+    if key not in cache:  # type: ignore[comparison-overlap]
+        cache[key] = Family(family.key, family.grid, family.low, family.high,  # type: ignore[index]
+                            lambda value: band_candidate(family.at(value), band, cache))
+    return cache[key]  # type: ignore[index,return-value]
+
+
+def band_pool(pool: dict[str, list[Candidate]], band: Band) -> dict[str, list[Candidate]]:
+    """Every candidate of an effect pool seen through the band."""
+    cache: dict[int, Candidate] = {}
+    return {name: [band_candidate(c, band, cache) for c in options] for name, options in pool.items()}
