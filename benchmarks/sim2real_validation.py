@@ -1,9 +1,17 @@
-"""Leave-one-effect-out validation of the sim-to-real diagnosis (issue 18): every arm effect of the
-catalogue at three magnitudes (large, small, near the noise floor) and several seeds, pairs of effects, and an effect outside the
-catalogue, each made by the simulated reality and diagnosed without being told; plus the contact
-case in the station.
+"""Leave-one-effect-out validation of the sim-to-real diagnosis, on logs made by the simulated
+reality and diagnosed without being told.
 
-    .venv/bin/python benchmarks/sim2real_validation.py [--seeds 0 1] [--duration 10] [--workers 2]
+--grid realistic (default; sim2real/realistic.py): torque-only logs with the calibrated Panda
+logger, in the real log's folder layout and the Franka CSV layout, every torque-only effect at
+in-band SNR 8 and 2.5, pairs, noise-only logs and effects outside the catalogue, 20 s each:
+
+    .venv/bin/python benchmarks/sim2real_validation.py --seeds 0 1 2 --workers 2 --json docs/results/sim2real_realistic.json
+
+--grid easy: the white-noise, uniformly sampled logs with every channel (the grid of the version
+before; every arm effect at three magnitudes, pairs, effects outside the catalogue) and the
+station contact case:
+
+    .venv/bin/python benchmarks/sim2real_validation.py --grid easy [--seeds 0 1] [--duration 10] [--workers 2]
         [--out runs/sim2real_validation] [--json docs/results/sim2real.json] [--no-contact]
 
 Each case writes <out>/<case>.json atomically and is skipped when present with the same --duration
@@ -19,12 +27,58 @@ import argparse
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from common.files import check_output_dir, check_output_file, read_json, write_json
+from learning.execution import Job, make_backend, run_grid
+from sim2real.realistic import UNIT_SETTINGS, realistic_cases, run_realistic, summarize_realistic
+from sim2real.validation import MAGNITUDES, cases, run_case, summarize
 
-from common.files import check_output_dir, check_output_file, read_json, write_json  # noqa: E402
-from learning.execution import Job, make_backend, run_grid  # noqa: E402
-from sim2real.validation import MAGNITUDES, cases, run_case, summarize  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _realistic_job(case, duration: float, path: str) -> dict:
+    """One realistic case, or its saved result when made with the same log length and settings."""
+    from sim2real.diagnosis import DiagnosisConfig
+    settings = {"duration": duration, "config": repr(DiagnosisConfig())}
+    if Path(path).is_file():
+        saved = read_json(path, "validation case")
+        if saved.get("settings") == settings:
+            return saved
+    result = run_realistic(case, duration)
+    result["settings"] = settings
+    write_json(path, result)
+    return result
+
+
+def _run_realistic(args, argv) -> int:
+    out = check_output_dir(args.out, "--out")
+    summary_path = check_output_file(args.json or out / "summary.json", "--json")
+    grid = realistic_cases(tuple(args.seeds), tuple(args.effects) if args.effects else None)
+    jobs = [Job(c.name, _realistic_job, (c, args.duration, str(out / f"{c.name}.json"))) for c in grid]
+    with make_backend(None, args.workers) as backend:
+        results = run_grid(jobs, backend, desc="sim2real realistic validation")
+    summary = {"command": "benchmarks/sim2real_validation.py " + " ".join(argv or sys.argv[1:]),
+               "duration": args.duration, "seeds": args.seeds, "summary": summarize_realistic(results),
+               "cases": results}
+    write_json(summary_path, summary)
+    pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
+    print("| group | cases | named right | where right | explained / unexplained / no gap | diagnosis [s] |")
+    print("|---|---|---|---|---|---|")
+    for group, row in summary["summary"].items():
+        if group in ("per_effect", "floor_check"):
+            continue
+        v = row["verdicts"]
+        print(f"| {group} | {row['cases']} | {pct(row['right'])} | {pct(row['where_right'])} | "
+              f"{v['explained']} / {v['unexplained']} / {v['no gap']} | {row['diagnose_s_median']:.1f} |")
+    fc = summary["summary"].get("floor_check")
+    if fc:
+        print(f"\nfloor check ({fc['logs']} noise-only logs), predicted / observed in-band residual per joint:")
+        print("| | " + " | ".join(f"J{j + 1}" for j in range(7)) + " |\n|---|" + "---|" * 7)
+        for k in ("mean", "min", "max"):
+            print(f"| {k} | " + " | ".join(f"{v:.2f}" for v in fc[k]) + " |")
+    print("\n| effect (SNR) | n | named right | where right | missed as |\n|---|---|---|---|---|")
+    for name, row in summary["summary"]["per_effect"].items():
+        print(f"| {name} | {row['n']} | {row['right']} | {row['where']} | {row['missed_as'] or ''} |")
+    return 0
 
 
 def _case_job(case, duration: float, path: str, torque_filter: str = "matched") -> dict:
@@ -66,8 +120,10 @@ def _contact_job(path: str, episodes: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
-    p.add_argument("--duration", type=float, default=10.0, help="seconds per log")
+    p.add_argument("--grid", choices=["realistic", "easy"], default="realistic",
+                   help="realistic: torque-only logs with the Panda's logger; easy: white noise, every channel")
+    p.add_argument("--seeds", type=int, nargs="+", default=None, help="default: 0 1 2 (realistic), 0 1 (easy)")
+    p.add_argument("--duration", type=float, default=None, help="seconds per log (default: 20 realistic, 10 easy)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=ROOT / "runs" / "sim2real_validation")
     p.add_argument("--json", type=Path, default=None, help="summary JSON (default <out>/summary.json)")
@@ -75,9 +131,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=10, help="episodes per success rate of the contact case")
     p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
                    help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)")
-    p.add_argument("--effects", nargs="+", choices=sorted(MAGNITUDES), metavar="NAME",
+    p.add_argument("--effects", nargs="+", choices=sorted(set(MAGNITUDES) | set(UNIT_SETTINGS)), metavar="NAME",
                    help="only these effects' cases and the effects outside the catalogue (default: the whole grid)")
     args = p.parse_args(argv)
+    realistic = args.grid == "realistic"
+    args.seeds = args.seeds or ([0, 1, 2] if realistic else [0, 1])
+    args.duration = args.duration or (20.0 if realistic else 10.0)
+    if realistic:
+        if args.effects and not set(args.effects) <= set(UNIT_SETTINGS):
+            p.error(f"--effects {sorted(set(args.effects) - set(UNIT_SETTINGS))}: not shown by a torque-only log; "
+                    f"expected some of {sorted(UNIT_SETTINGS)}")
+        if args.out == ROOT / "runs" / "sim2real_validation":
+            args.out = ROOT / "runs" / "sim2real_realistic"
+        return _run_realistic(args, argv)
+    if args.effects and not set(args.effects) <= set(MAGNITUDES):
+        p.error(f"--effects {sorted(set(args.effects) - set(MAGNITUDES))}: not in the easy grid; expected some of "
+                f"{sorted(MAGNITUDES)}")
     out = check_output_dir(args.out, "--out")
     summary_path = check_output_file(args.json or out / "summary.json", "--json")
     grid = cases(seeds=tuple(args.seeds), effects=tuple(args.effects) if args.effects else None,

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import lsq_linear
 from scipy.signal import butter, savgol_coeffs, sosfiltfilt, sosfreqz, welch
 
 from common.checks import check_int, check_number
@@ -50,7 +51,7 @@ class BandConfig:
     min_cutoff: float = 4.0
     max_cutoff: float = 8.0
     order: int = 4
-    reference: float = 2.0
+    reference: float = 1.5
     samples_per_cycle: float = 4.0
 
     def __post_init__(self) -> None:
@@ -156,18 +157,21 @@ def choose_band(dq: Array, dt: float, config: BandConfig | None = None) -> Band:
 
 
 def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Array | None = None,
-               position: Array | None = None, mass: Array | None = None, window: int = 41
-               ) -> tuple[Array, dict[str, Any]]:
+               derivative: int | None = None, window: int = 41, measured: Array | None = None,
+               mass: Array | None = None) -> tuple[Array, dict[str, Any]]:
     """The noise's standard deviation in the band for each column of `residual` (T, k).
 
-    The residual's noise spectrum is modelled as a |K(f)|^2 + |D(f)|^2 b (K: the torque filter
-    `kernel`'s response, 1 without one): the sensor's noise, flat near the band, plus the noise of
-    the encoder's position differentiated twice into the acceleration (the replay's velocity
-    source "q": D is the cubic Savitzky-Golay second derivative over `window` samples) and
-    multiplied by the mass matrix. b comes from the position's own noise, read where the motion
-    has no power (0.1-0.4 of the sample rate): b_j = sum_k <M_jk^2> S_q,k (0 without `position` and
-    `mass` (T, k, k)). a is the residual's mean density in the reference band
-    [cutoff, reference x cutoff] less that part, over K^2 (at least 0). The noise variance the
+    The residual's noise spectrum is modelled as a |K(f)|^2 + b |D(f)|^2: the sensor's noise, flat
+    near the band, seen through the torque filter K (`kernel`; 1 without one), plus the noise of
+    the measurement the acceleration is differentiated from, which rises with frequency: D is the
+    cubic Savitzky-Golay derivative of order `derivative` over `window` samples (1: from the
+    measured velocity, 2: from the position; None: no such part). a, b >= 0 are fitted to the
+    residual's power spectral density (Welch, valid samples) in the reference band
+    [cutoff, reference x cutoff] (least squares, every bin alike). b is bounded by what the
+    `measured` signal (T, k) the acceleration comes from can hold there, through the mass matrix
+    `mass` (T, k, k): b_j <= sum_k <M_jk^2> S_k, S_k the signal's mean density in the reference
+    band (its noise and its motion: an upper bound), so that a spectrum rising for another reason
+    (the arm's vibration setting in) is not read as derivative noise. The noise variance the
     band-limited residual holds when the model has no gap is the spectrum's integral under the
     band's power response.
 
@@ -185,31 +189,42 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
         raise InputError(f"the log has {len(r)} valid samples; too few to read its noise spectrum (expected at "
                          f"least {4 * 64})")
     f, P = welch(r - r.mean(axis=0), fs=fs, nperseg=nper, axis=0)
-    K2 = np.ones_like(f)
-    if kernel is not None:
-        taps = np.arange(len(kernel)) - len(kernel) // 2
-        K2 = np.abs(np.exp(-2j * np.pi * np.outer(f, taps) * band.dt) @ kernel) ** 2
-    k = r.shape[1]
-    b = np.zeros(k)
-    if position is not None and mass is not None:
-        qv = position[valid]
-        fq, Pq = welch(qv - qv.mean(axis=0), fs=fs, nperseg=nper, axis=0)
-        quiet = (fq >= 0.1 * fs) & (fq <= 0.4 * fs)
-        Sq = np.mean(Pq[quiet], axis=0)  # (k,)
-        b = np.mean(mass[valid] ** 2, axis=0) @ Sq
-    d2 = savgol_coeffs(window, 3, deriv=2, delta=band.dt, use="dot")
-    taps2 = np.arange(window) - window // 2
-    D2 = np.abs(np.exp(-2j * np.pi * np.outer(f, taps2) * band.dt) @ d2) ** 2
+
+    def response(taps: Array) -> Array:
+        lags = np.arange(len(taps)) - len(taps) // 2
+        return np.abs(np.exp(-2j * np.pi * np.outer(f, lags) * band.dt) @ taps) ** 2
+
+    K2 = np.ones_like(f) if kernel is None else response(kernel)
+    D2 = np.zeros_like(f) if derivative is None else response(
+        savgol_coeffs(window, 3, deriv=derivative, delta=band.dt, use="dot"))
     ref = (f >= band.cutoff) & (f <= band.reference * band.cutoff)
     fine = np.linspace(0.0, fs / 2, 8192)
-    Kf = np.interp(fine, f, K2)
-    Df = np.interp(fine, f, D2)
     H = band.power_response(fine)
-    white = np.trapezoid(Kf * H, fine)
-    blue = np.trapezoid(Df * H, fine)
-    a = np.maximum(np.mean((P[ref] - D2[ref, None] * b[None, :]) / K2[ref, None], axis=0), 0.0)
+    white = np.trapezoid(np.interp(fine, f, K2) * H, fine)
+    blue = np.trapezoid(np.interp(fine, f, D2) * H, fine)
+    k = r.shape[1]
+    a, b = np.zeros(k), np.zeros(k)
+    b_max = np.full(k, np.inf)
+    if derivative is not None and measured is not None and mass is not None:
+        m = measured[valid]
+        fm, Pm = welch(m - m.mean(axis=0), fs=fs, nperseg=nper, axis=0)
+        S = np.mean(Pm[(fm >= band.cutoff) & (fm <= band.reference * band.cutoff)], axis=0)
+        D_ref = np.mean(D2[ref]) / max(float(np.mean((2 * np.pi * f[ref]) ** (2 * derivative))), 1e-300)
+        b_max = np.mean(mass[valid] ** 2, axis=0) @ S / max(D_ref, 1e-300)
+    for j in range(k):
+        p = P[ref, j]
+        scale = max(float(np.mean(p)), 1e-300)
+        if derivative is None:
+            a[j] = float(np.mean(p / K2[ref]))
+            continue
+        unit = max(float(np.mean(D2[ref])), 1e-300)  # columns of like size: a well-posed fit
+        fit = lsq_linear(np.stack([K2[ref], D2[ref] / unit], axis=1), p / scale,
+                         bounds=([0.0, 0.0], [np.inf, max(b_max[j] * unit / scale, 1e-12)]))
+        a[j] = fit.x[0] * scale
+        b[j] = fit.x[1] * scale / unit
     floors = np.sqrt(np.maximum(a * white + b * blue, 0.0))
-    detail = {"a": a.tolist(), "b": b.tolist(), "reference_density": np.mean(P[ref], axis=0).tolist(),
+    detail = {"a": a.tolist(), "b": b.tolist(), "b_max": np.where(np.isfinite(b_max), b_max, -1.0).tolist(),
+              "reference_density": np.mean(P[ref], axis=0).tolist(),
               "broadband_std": np.std(r, axis=0).tolist()}
     return np.maximum(floors, 1e-9), detail
 

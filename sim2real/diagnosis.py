@@ -31,7 +31,7 @@ from sim2real.arm import END_EFFECTORS, ArmModel
 from sim2real.band import Band, BandConfig, band_candidate, band_floor, band_pool, choose_band
 from sim2real.catalogue import CATALOGUE
 from sim2real.clean import CleanConfig, clean
-from sim2real.effects import Candidate, candidates
+from sim2real.effects import Candidate, candidates, untestable
 from sim2real.fitting import Design, Model, bootstrap_mean
 from sim2real.structure import hat_basis, structure_gains, trend_basis
 from sim2real.log import PHASES, RobotLog
@@ -566,8 +566,8 @@ def _verdict(c: DiagnosisConfig, chosen: list[Candidate], structure: list[dict[s
                 f"{e0 - level:.3f} (within the floor's uncertainty)")
     else:
         ci = excess["closed_interval"]
-        text = (f"{names} {verb} {100 * closed:.0f} % (95 %: {100 * ci[0]:.0f} to {100 * min(ci[1], 1.0):.0f} %) "
-                "of the held-out excess over the noise floor")
+        text = (f"{names} {verb} {100 * closed:.0f} % (95 %: {100 * min(ci[0], 1.0):.0f} to "
+                f"{100 * min(ci[1], 1.0):.0f} %) of the held-out excess over the noise floor")
     return {"label": "explained", "closed": float(closed), "effects": [x.name for x in chosen], "text": text}
 
 
@@ -590,22 +590,34 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     (sim2real/band.py; `config.band` None: every sample, the fast-part/variogram floor), its state
     regions and the catalogue's arm effects the log's channels can show."""
     c = config or DiagnosisConfig()
-    if c.band is not None:  # in the band, velocity and acceleration from the encoder's position
-        c = dataclasses.replace(c, replay=dataclasses.replace(c.replay, velocity_source="q"))
     cleaned = clean(log, c.clean)
     log = cleaned.log
     notes = list(cleaned.notes)
-    if c.replay.end_effector is None and (log.meta.get("end_effector") is None or log.meta.get("end_effector_assumed")):
+    ees = ["none", "hand"] if c.replay.end_effector is None and (
+        log.meta.get("end_effector") is None or log.meta.get("end_effector_assumed")) else [None]
+    sources = ["q", "dq"] if c.band is not None else [c.replay.velocity_source]
+    options = {(ee, src): replay(log, dataclasses.replace(c.replay, end_effector=ee or c.replay.end_effector,
+                                                          velocity_source=src))
+               for ee in ees for src in sources}
+    if len(ees) > 1:
         # the log does not say what the arm carries: the bare arm or the hand, whichever the
         # nominal residual supports (a held gear or tool shows as a payload effect)
-        reps = {ee: replay(log, dataclasses.replace(c.replay, end_effector=ee)) for ee in ("none", "hand")}
-        score = {ee: _nominal_fit(r) for ee, r in reps.items()}
+        score = {ee: _nominal_fit(options[(ee, sources[0])]) for ee in ees}
         best = min(score, key=score.get)
-        rep = reps[best]
         notes.append(f"the log does not state its end effector; the data support {best!r} "
                      f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
-    else:
-        rep = replay(log, c.replay)
+        options = {k: r for k, r in options.items() if k[0] == best}
+    if len(sources) > 1:
+        # the velocity and acceleration from the encoder's position or from the measured velocity,
+        # whichever leaves the less noise in the band (a log's position can carry its stamps'
+        # rounding; its velocity the noise of the robot's own estimate)
+        probe = {src: _band_noise(r, c.band) for (ee, src), r in options.items()}
+        chosen_source = min(probe, key=probe.get)
+        notes.append(f"velocity and acceleration from the measured {'position' if chosen_source == 'q' else 'velocity'}"
+                     f" (its in-band torque noise {probe[chosen_source]:.3g} N m, geometric mean over joints, against "
+                     f"{max(probe.values()):.3g} from the {'velocity' if chosen_source == 'q' else 'position'})")
+        options = {k: r for k, r in options.items() if k[1] == chosen_source}
+    rep = next(iter(options.values()))
     rep.valid &= cleaned.fresh
     phase = segment_phases(rep.log)
     if rep.log.phase is None and np.any(phase != 0):
@@ -614,7 +626,9 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     meta = {**log.meta, "end_effector": rep.model.end_effector}
     pool = candidates(rep, c.effects)
     structure = {"joint velocity": hat_basis(rep.dq), "time": trend_basis(rep.log.time, 7)}
-    preprocessing: dict[str, Any] = {"clean": cleaned.report}
+    preprocessing: dict[str, Any] = {"clean": cleaned.report,
+                                     "untestable": {k: v for k, v in untestable(rep).items()
+                                                    if c.effects is None or k in c.effects}}
     if c.band is None:
         # the filtered torque channels' noise: kernel-smoothed white noise's share of the fast
         # part, or the variogram's nugget (noise_floor)
@@ -631,9 +645,11 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     floor = {}
     detail = {}
     for ch in rep.channels:
-        inertia = _channel_mass(rep, ch)
+        # the acceleration's own noise is not added: the position's high frequencies on a robot
+        # in closed loop are mostly real motion (which the measured torque holds too), not
+        # encoder noise, so they cannot tell it (band_floor's position term is for known noise)
         floor[ch], detail[ch] = band_floor(rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None,
-                                           rep.log.q if inertia is not None else None, inertia, rep.window)
+                                           *_derivative(rep, ch))
     preprocessing["band"] = band.summary()
     preprocessing["floor"] = {ch: {"in_band": floor[ch].tolist(), **detail[ch]} for ch in rep.channels}
     notes.append(f"the residual is judged below {band.cutoff:.3g} Hz ({band.reason}), sampled at "
@@ -648,14 +664,31 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
                     structure={k: band.apply(b) for k, b in structure.items()}, preprocessing=preprocessing)
 
 
-def _channel_mass(rep: Replay, channel: str) -> Array | None:
-    """The mass matrix (T, 7, 7) through which the acceleration's noise enters a torque channel
-    (the links', plus the reflected rotor inertia where the channel holds it); None for channels
-    without the acceleration."""
-    if channel not in ("tau", "cmd"):
-        return None
+def _band_noise(rep: Replay, config: BandConfig) -> float:
+    """The geometric mean over joints of a replay's in-band noise floor in its first torque channel,
+    read flat from the reference band (one rule for both sources: a fair comparison)."""
+    ch = next((c for c in ("tau", "cmd") if c in rep.residual), rep.channels[0])
+    band = choose_band(rep.dq, rep.dt, config)
+    valid = rep.valid.copy()
+    valid[:band.settle] = False
+    valid[-band.settle:] = False
+    floor, _ = band_floor(rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None)
+    return float(np.exp(np.mean(np.log(floor))))
+
+
+def _derivative(rep: Replay, channel: str) -> tuple[int | None, int, Array | None, Array | None]:
+    """What band_floor needs of the acceleration a torque channel's prediction holds, where its
+    noise rises with frequency: the derivative's order, its window, the measurement differentiated
+    and the mass matrix it enters through (the links', plus the reflected rotor inertia where the
+    channel holds it). Only for a velocity differentiated once (its noise rising as f^2 into the
+    band: the Panda's velocity estimate); an encoder's position, differentiated twice, adds little
+    in the band, and a spectrum rising at the reference band's top (the arm's vibration setting in)
+    would be read as its f^4 noise: (None, ...), the floor read flat, as for other channels."""
+    if channel not in ("tau", "cmd") or rep.velocity_source == "q":
+        return None, rep.window, None, None
     rotor = channel == "cmd" or rep.rotor_in_tau
-    return rep.terms.mass + (np.eye(7)[None] * rep.model.reflected_inertia[None, :, None] if rotor else 0.0)
+    mass = rep.terms.mass + (np.eye(7)[None] * rep.model.reflected_inertia[None, :, None] if rotor else 0.0)
+    return 1, rep.window, rep.log.dq, mass
 
 
 def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None

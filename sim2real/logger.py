@@ -177,7 +177,7 @@ class LoggerConfig:
 PANDA_LOGGER = LoggerConfig(
     tau_psd=(1.6e-4, 3.5e-4, 2.7e-4, 1.8e-4, 5.5e-6, 8.1e-6, 6.4e-6),
     tau_corner=50.0, tau_order=4,
-    vibration_low=12.0, vibration_high=60.0,
+    vibration_low=14.0, vibration_high=60.0,
     vibration_psd=(1.9e-4, 2.1e-4, 1.75e-4, 8.0e-4, 0.0, 1.2e-5, 0.0),
     floor_psd=(1.2e-5, 2.5e-5, 1.45e-5, 1.45e-5, 1.8e-5, 2.45e-5, 1.4e-6), floor_low=50.0, floor_high=200.0,
     speed_gain=(1.36, 1.51, 0.68, 0.86, 0.68, 0.58, 0.15),

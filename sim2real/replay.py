@@ -86,6 +86,7 @@ class Replay:
     kernel: NDArray[np.float64] | None = None
     unfiltered: dict[str, NDArray[np.float64]] = dataclasses.field(default_factory=dict)
     window: int = 1
+    velocity_source: str = "dq"
 
     @property
     def reach(self) -> int:
@@ -246,7 +247,7 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
     rep = Replay(log=log, dt=dt, q=q_t, dq=dq_s, ddq=ddq, terms=terms, model=model, residual=residual,
                  valid=np.ones(log.n_samples, dtype=bool), forward_steps=c.forward_steps,
                  tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau, kernel=kernel,
-                 window=window)
+                 window=window, velocity_source=c.velocity_source)
     measured = {"tau": log.tau, "cmd": commanded}
     for ch in ("tau", "cmd"):  # the measured torque through the filter; the model's side is smooth
         if ch in residual and kernel is not None:

@@ -37,6 +37,28 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
     src = s["log"].get("source", "")
     L += [f"Log: {src or 'in memory'}; end effector {s['log'].get('end_effector', 'hand')!r}; "
           f"channels {', '.join(s['channels'])}.", ""]
+    pre = s.get("preprocessing", {})
+    if pre:
+        L += ["## The log as the diagnosis reads it", ""]
+        cl = pre.get("clean", {})
+        if cl:
+            L.append(f"- {cl['samples_in']} samples; {cl['stale_dropped']} stale repeats dropped "
+                     f"({100 * cl['stale_share']:.1f} %); period {1e3 * cl['period']:.3f} ms"
+                     + ("" if cl["uniform"] else f" (resampled; steps {cl['step_percentiles_ms']['1']:.2f}-"
+                        f"{cl['step_percentiles_ms']['99']:.2f} ms, 1-99 %)")
+                     + (f"; {cl['gaps']} gaps (longest {cl['longest_gap_ms']:.1f} ms), their {cl['not_fresh']} "
+                        "grid points not fitted" if cl["gaps"] else ""))
+        b = pre.get("band")
+        if b:
+            L.append(f"- analysis band: below {b['cutoff_hz']:.3g} Hz ({b['reason']}), sampled at "
+                     f"{b['rate_hz']:.3g} Hz; the noise floor is read from the residual's spectrum in "
+                     f"{b['reference_hz'][0]:.3g}-{b['reference_hz'][1]:.3g} Hz")
+        for ch, f in pre.get("floor", {}).items():
+            L.append(f"- noise floor of {ch} in the band: {_fmt(f['in_band'])} (broadband spread "
+                     f"{_fmt(f['broadband_std'])})")
+        for name, why in pre.get("untestable", {}).items():
+            L.append(f"- not testable on this log: {name}: {why}")
+        L.append("")
     L += ["## Verdict", "", f"**{v['label']}**: {v['text']}.",
           f"Held-out residual, in noise-floor variances: {v['heldout_before']:.3g} before, "
           f"{v['heldout_after']:.3g} after (a log with no gap reads {v.get('floor_level', 1.0):.3g}: 1 per column "
@@ -53,11 +75,13 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
                      f"{'yes' if st['left'] else 'no'} |")
         L.append("")
     w = s["where"]
-    L += ["## Where", "", "Residual RMS over the noise floor per channel and joint (largest excess first):", "",
-          "| channel | column | RMS | noise floor | ratio | share of excess |", "|---|---|---|---|---|---|"]
+    L += ["## Where", "", "Residual RMS against the noise floor per channel and joint, the largest excess (in the "
+          "channel's unit, N m for torques) first:", "",
+          "| channel | column | RMS | noise floor | excess RMS | ratio | share of excess (noise var.) |",
+          "|---|---|---|---|---|---|---|"]
     for r in w["channels"][:14]:
-        L.append(f"| {r['channel']} | {r['column']} | {r['rms']:.3g} | {r['floor']:.3g} | {r['ratio']:.3g} | "
-                 f"{100 * r['excess_share']:.0f} % |")
+        L.append(f"| {r['channel']} | {r['column']} | {r['rms']:.3g} | {r['floor']:.3g} | {r.get('excess_rms', 0.0):.3g} | "
+                 f"{r['ratio']:.3g} | {100 * r['excess_share']:.0f} % |")
     L += ["", f"Carrying the excess: {', '.join(w['carry']) or 'nothing above 1.5 x the floor'}. "
           f"Phase with the largest excess per sample: {w['dominant_phase']}.", "",
           "Regions (mean squared ratio in the region over the overall one; > 1: the gap concentrates there):", "",

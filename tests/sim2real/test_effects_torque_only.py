@@ -137,6 +137,34 @@ def test_backlash_motor_logs_the_motor_side_and_is_fitted_only_there():
     assert "backlash_motor" not in candidates(rep_link)
 
 
+@pytest.mark.parametrize("noise", [True, False])
+def test_backlash_motor_is_recovered(noise):
+    """b = 10 mrad behind a motor-side encoder: the family's best member by a direct least-squares
+    fit to the "tau" residual lies within 30 % of it, so do the per-joint widths of the joints that
+    carry most of the predicted torque, and the fit removes at least half the residual's sum of
+    squares; on a nominal log read as motor-side it removes next to nothing."""
+    log = make_arm_log({"backlash_motor": {"b": 0.01}}, dataclasses.replace(CONFIG, noise=noise))
+    rep = replay(dataclasses.replace(log, tau_cmd=None, q_cmd=None, dq_cmd=None))
+    cands = candidates(rep, ["backlash_motor"])["backlash_motor"]
+    fits = [_fit(rep, c) for c in cands]
+    i = int(np.argmin([sse for _, sse in fits]))
+    best, (coef, sse) = cands[i], fits[i]
+    assert best.setting["b"] == pytest.approx(0.01, rel=0.3)
+    share = np.sum((best.features["tau"][rep.valid] * coef) ** 2, axis=(0, 1))
+    share /= share.sum()
+    widths = np.asarray(best.to_params(coef)["b"])
+    assert share[np.abs(widths / 0.01 - 1.0) <= 0.3].sum() > 0.8, (widths, share)
+    assert sse < 0.5 * np.sum(rep.residual["tau"][rep.valid] ** 2)
+
+    nominal = make_arm_log({}, CONFIG)
+    nominal = dataclasses.replace(nominal, tau_cmd=None, q_cmd=None, dq_cmd=None,
+                                  meta={**nominal.meta, "position_side": "motor"})
+    rep = replay(nominal)
+    sse0 = np.sum(rep.residual["tau"][rep.valid] ** 2)
+    for cand in candidates(rep, ["backlash_motor"])["backlash_motor"]:
+        assert _fit(rep, cand)[1] > 0.98 * sse0
+
+
 def test_untestable_lists_the_command_effects_of_a_torque_only_log():
     rep = _torque_only({})
     out = untestable(rep)
