@@ -664,8 +664,25 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
                    help="arm: 'matched' (default) smooths the logged torques with the kernel of the "
                         "acceleration's derivative filter; 'none' compares raw torques (docs/sim2real.md)")
+    p.add_argument("--band", default="auto", metavar="HZ|auto|none",
+                   help="arm: the residual is judged below this edge [Hz]; 'auto' (default) from the log's "
+                        "excitation; 'none' every sample against the broadband noise (docs/sim2real.md)")
     p.add_argument("--episodes", type=int, default=10,
                    help="station: episodes per success rate of the shipped skill (0: skip the downstream figure)")
+
+
+def _band_option(value: str):
+    """--band: 'auto', 'none' or an edge in Hz -> a BandConfig or None."""
+    from sim2real.band import BandConfig
+    if value == "auto":
+        return BandConfig()
+    if value == "none":
+        return None
+    try:
+        hz = float(value)
+    except ValueError:
+        raise InputError(f"--band = {value!r}; expected 'auto', 'none' or an edge in Hz (e.g. 6)") from None
+    return BandConfig(cutoff=hz)
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
@@ -673,7 +690,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from sim2real.files import diagnose_file
     from sim2real.replay import ReplayConfig
     config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed,
-                             replay=ReplayConfig(torque_filter=args.torque_filter))
+                             replay=ReplayConfig(torque_filter=args.torque_filter), band=_band_option(args.band))
     if args.episodes < 0:
         raise InputError(f"--episodes = {args.episodes}; expected an integer >= 0")
     d, paths = diagnose_file(args.log, args.out, args.model, config, progress=True, episodes=args.episodes)

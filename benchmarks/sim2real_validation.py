@@ -81,17 +81,20 @@ def _run_realistic(args, argv) -> int:
     return 0
 
 
-def _case_job(case, duration: float, path: str, torque_filter: str = "matched") -> dict:
+def _case_job(case, duration: float, path: str, torque_filter: str = "matched", band: bool = False) -> dict:
     """One case, or its saved result when that was made with the same log length and filter."""
     from sim2real.diagnosis import DiagnosisConfig
     c = DiagnosisConfig()
     settings = {"duration": duration, "torque_filter": torque_filter, "structure": [c.structure, c.structure_rest]}
+    if band:
+        settings["band"] = repr(c.band)
     if Path(path).is_file():
         saved = read_json(path, "validation case")
         if saved.get("settings") == settings:
             return saved
     from sim2real.replay import ReplayConfig
-    result = run_case(case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter)))
+    result = run_case(case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter),
+                                                      band=c.band if band else None))
     result["settings"] = settings
     write_json(path, result)
     return result
@@ -131,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=10, help="episodes per success rate of the contact case")
     p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
                    help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)")
+    p.add_argument("--band", choices=["none", "auto"], default="none",
+                   help="easy grid: judge every sample against the broadband floor (none, default: these logs' "
+                        "in-band noise is under the simulated reality's own misfit) or in the band (auto)")
     p.add_argument("--effects", nargs="+", choices=sorted(set(MAGNITUDES) | set(UNIT_SETTINGS)), metavar="NAME",
                    help="only these effects' cases and the effects outside the catalogue (default: the whole grid)")
     args = p.parse_args(argv)
@@ -151,8 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     summary_path = check_output_file(args.json or out / "summary.json", "--json")
     grid = cases(seeds=tuple(args.seeds), effects=tuple(args.effects) if args.effects else None,
                  pairs=not args.effects)
-    jobs = [Job(c.name, _case_job, (c, args.duration, str(out / f"{c.name}.json"), args.torque_filter))
-            for c in grid]
+    jobs = [Job(c.name, _case_job, (c, args.duration, str(out / f"{c.name}.json"), args.torque_filter,
+                                    args.band == "auto")) for c in grid]
     if not args.no_contact:
         jobs.append(Job("contact", _contact_job, (str(out / "contact.json"), args.episodes)))
     with make_backend(None, args.workers) as backend:

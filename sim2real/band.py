@@ -11,6 +11,8 @@ times the band's edge.
 
 - `choose_band`: the band's edge from the data: a multiple of the frequency below which 99 % of the
   joint velocities' power lies (the excitation), within [min_cutoff, max_cutoff].
+- `noise_floor`: without a band (`DiagnosisConfig.band` None), the broadband floor: the fast
+  part's spread or the variogram's nugget, for every sample (and for the station's channels).
 - `band_floor`: the noise's standard deviation in the band, per column, from the residual's own
   spectrum just above the band (where the model's error is small): a fitted noise spectrum
   a |K(f)|^2 + b |D(f)|^2, white sensor noise seen through the torque filter K plus the blue noise of
@@ -32,7 +34,7 @@ from common.checks import check_int, check_number
 from common.errors import InputError
 from sim2real.effects import Candidate, Family
 
-__all__ = ["BandConfig", "Band", "choose_band", "band_floor", "band_candidate", "band_pool"]
+__all__ = ["BandConfig", "Band", "choose_band", "band_floor", "band_candidate", "band_pool", "noise_floor"]
 
 Array = NDArray[np.float64]
 
@@ -257,3 +259,58 @@ def band_pool(pool: dict[str, list[Candidate]], band: Band) -> dict[str, list[Ca
     """Every candidate of an effect pool seen through the band."""
     cache: dict[int, Candidate] = {}
     return {name: [band_candidate(c, band, cache) for c in options] for name, options in pool.items()}
+
+
+# ---------------------------------------------------------------------------------------------- broadband
+
+def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101,
+                kernel: Array | None = None, reach: int | None = None) -> Array:
+    """Per column of a (T, k) residual: the standard deviation of its noise, i.e. of what varies
+    faster than any effect of the state can (vibration, sensor noise, derivative noise).
+
+    The fast-part estimate: the residual minus its cubic Savitzky-Golay smoothing over `window`
+    samples, robustly (1.4826 MAD), corrected for the part of the noise the smoothing keeps
+    (divided by sqrt(1 - h0), h0 the filter's centre weight, for white noise; with a `kernel`, for
+    white noise smoothed by it, a replay's torque filter). Slow model error gives ~0, but noise
+    bluer than assumed (derivative noise) reads too high. With `reach`, the noise's correlation
+    length in samples, the nugget of the residual's semivariogram is a second estimate: beyond
+    that lag the noise's share of the semivariogram is its whole variance, so a + b lag^2 fitted
+    at lags reach .. 3 reach gives it at a = lag 0 whatever the noise's spectrum; slow model error
+    makes it read high. The floor is the smaller of the two, and no lower than the fast part's
+    spread over the smoothing's largest high-pass gain (no noise spectrum keeps more)."""
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    r = residual[valid]
+    window = min(window, (len(r) // 2) * 2 - 1)
+    if window < 7:  # too few samples to tell fast from slow: the whole spread, conservatively
+        return np.maximum(np.std(r, axis=0), 1e-9)
+    fast = r - savgol_filter(r, window, 3, axis=0)
+    if kernel is None:
+        kept = 1.0 - savgol_coeffs(window, 3)[window // 2]
+    else:  # the fast part of kernel-smoothed white noise: (I - SG) * kernel
+        impulse = np.zeros(window + 2 * len(kernel))
+        impulse[len(impulse) // 2] = 1.0
+        seen = np.convolve(impulse, kernel[::-1], mode="same")
+        kept = float(np.sum((seen - savgol_filter(seen, window, 3)) ** 2) / np.sum(kernel ** 2))
+    spread = 1.4826 * np.median(np.abs(fast - np.median(fast, axis=0)), axis=0)
+    floor = spread / np.sqrt(kept)
+    if reach is not None and len(r) >= 12 * reach:
+        # the fast part keeps at most the smoothing's largest high-pass gain of any noise
+        highpass = -savgol_coeffs(window, 3)
+        highpass[window // 2] += 1.0
+        gain = float(np.max(np.abs(np.fft.rfft(highpass, 8 * window))))
+        floor = np.clip(_nugget(r, reach), spread / gain, floor)
+    scale = np.sqrt(np.mean(r ** 2, axis=0))
+    return np.maximum(floor, 1e-6 * np.maximum(scale, 1e-12) + 1e-9)
+
+
+def _nugget(r: Array, reach: int) -> Array:
+    """The standard deviation at lag 0 of the semivariogram gamma(lag) = E (r[t + lag] - r[t])^2 / 2
+    of each column of r (T, k), extrapolated from lags reach .. 3 reach by a + b lag^2 (0 where
+    the fit's a is not positive)."""
+    lags = np.unique(np.linspace(reach, 3 * reach, 12).astype(int))
+    gamma = np.array([0.5 * np.mean((r[k:] - r[:-k]) ** 2, axis=0) for k in lags])
+    x = (lags / reach) ** 2.0
+    design = np.stack([np.ones_like(x), x], axis=1)
+    a = np.linalg.lstsq(design, gamma, rcond=None)[0][0]
+    return np.sqrt(np.maximum(a, 0.0))

@@ -70,7 +70,7 @@ class Design:
         self.wm = wm
         self.count = np.add.reduceat(self.mask, self.starts) * self.y.shape[1] * 7  # rows per block
         self.yy = self._reduce((wm * self.y ** 2).sum(axis=(1, 2)))
-        self._parts: dict[int, list[_Part]] = {}
+        self._parts: dict[int, tuple[Candidate, list[_Part]]] = {}
         self._gram: dict[tuple[int, int], Array] = {}
         self._cross: dict[int, Array] = {}
 
@@ -98,8 +98,10 @@ class Design:
                     parts.append(_Part(None, dense, False))
             if cand.offset:
                 parts.append(_Part(None, self._stack(cand.offset, ())[..., None], True))
-            self._parts[key] = parts
-        return self._parts[key]
+            # the candidate is held with its parts: a freed candidate's id, reused by a new one, would
+            # otherwise return the old one's columns (and its parts' ids key the Gram caches)
+            self._parts[key] = (cand, parts)
+        return self._parts[key][1]
 
     def _gram_pair(self, a: _Part, b: _Part) -> Array:
         """Per-block weighted Gram (nb, Pa, Pb) of two parts."""

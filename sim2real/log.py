@@ -241,7 +241,9 @@ def _check_time(time: NDArray[np.float64]) -> None:
     if back.size:
         k = int(back[0]) + 1
         if dt[k - 1] == 0:
-            raise InputError(f"time repeats at sample {k}: t = {float(time[k])!r} s as at sample {k - 1}; "
+            run = int(np.argmax(dt[k - 1:] != 0)) if np.any(dt[k - 1:] != 0) else len(dt) - k + 1
+            stall = f" and for {run} samples: a stalled logger clock" if run > 1 else ""
+            raise InputError(f"time repeats at sample {k}: t = {float(time[k])!r} s as at sample {k - 1}{stall}; "
                              "expected strictly increasing timestamps")
         raise InputError(f"time goes back at sample {k}: t = {float(time[k])!r} s after {float(time[k - 1])!r} s; "
                          "expected strictly increasing timestamps")

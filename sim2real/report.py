@@ -114,6 +114,14 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
         L.append(f"- note: {note}")
     if s["warnings"]:
         L += ["", "Identifiability:", ""] + [f"- {x}" for x in s["warnings"]]
+    fr = s.get("friction")
+    if fr:
+        L += ["", "Friction opposing motion (the model's joint damping plus " + ", ".join(fr["effects"]) +
+              ") [N m], 95 % intervals, per joint and speed:", "",
+              "| speed [rad/s] | " + " | ".join(f"J{j + 1}" for j in range(7)) + " |", "|---|" + "---|" * 7]
+        for i, v_ in enumerate(fr["speeds"]):
+            L.append(f"| {v_:g} | " + " | ".join(f"{fr['value'][i][j]:.3g} ({fr['low'][i][j]:.3g}..{fr['high'][i][j]:.3g})"
+                                             for j in range(7)) + " |")
     hf = s["how_far"]
     closed = ("no gap to close" if hf["closed_total"] is None
               else f"{100 * hf['closed_total']:.0f} % of the gap (in RMS) closed toward the floor")
