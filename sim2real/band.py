@@ -169,11 +169,12 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
     cubic Savitzky-Golay derivative of order `derivative` over `window` samples (1: from the
     measured velocity, 2: from the position; None: no such part). a, b >= 0 are fitted to the
     residual's power spectral density (Welch, valid samples) in the reference band
-    [cutoff, reference x cutoff] (least squares, every bin alike). b is bounded by what the
-    `measured` signal (T, k) the acceleration comes from can hold there, through the mass matrix
-    `mass` (T, k, k): b_j <= sum_k <M_jk^2> S_k, S_k the signal's mean density in the reference
-    band (its noise and its motion: an upper bound), so that a spectrum rising for another reason
-    (the arm's vibration setting in) is not read as derivative noise. The noise variance the
+    [cutoff, reference x cutoff]. With the `measured` signal (T, k) the acceleration comes from and
+    the mass matrix `mass` (T, k, k) it enters through, b is what that signal holds there,
+    b_j = sum_k <M_jk^2> S_k (S_k its mean density in the reference band), at most what the
+    residual's density allows, and a the rest (at least 0): over one octave a flat part and an f^2
+    part are nearly collinear, so a joint fit would trade one for the other. Without them, (a, b)
+    is the least-squares fit. The noise variance the
     band-limited residual holds when the model has no gap is the spectrum's integral under the
     band's power response.
 
@@ -219,11 +220,17 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
         if derivative is None:
             a[j] = float(np.mean(p / K2[ref]))
             continue
-        unit = max(float(np.mean(D2[ref])), 1e-300)  # columns of like size: a well-posed fit
-        fit = lsq_linear(np.stack([K2[ref], D2[ref] / unit], axis=1), p / scale,
-                         bounds=([0.0, 0.0], [np.inf, max(b_max[j] * unit / scale, 1e-12)]))
-        a[j] = fit.x[0] * scale
-        b[j] = fit.x[1] * scale / unit
+        if np.isfinite(b_max[j]):
+            # the velocity's noise first: as much of the reference density as what the measured
+            # velocity holds there can explain (a flat part and an f^2 part are nearly collinear
+            # over one octave, so a joint fit would trade one for the other), the rest flat
+            b[j] = min(b_max[j], float(np.mean(p / np.maximum(D2[ref], 1e-300))))
+        else:
+            unit = max(float(np.mean(D2[ref])), 1e-300)  # columns of like size: a well-posed fit
+            fit = lsq_linear(np.stack([K2[ref], D2[ref] / unit], axis=1), p / scale,
+                             bounds=([0.0, 0.0], [np.inf, np.inf]))
+            b[j] = fit.x[1] * scale / unit
+        a[j] = max(float(np.mean((p - b[j] * D2[ref]) / K2[ref])), 0.0)
     floors = np.sqrt(np.maximum(a * white + b * blue, 0.0))
     detail = {"a": a.tolist(), "b": b.tolist(), "b_max": np.where(np.isfinite(b_max), b_max, -1.0).tolist(),
               "reference_density": np.mean(P[ref], axis=0).tolist(),

@@ -21,7 +21,7 @@ from common.checks import check_number
 from common.errors import InputError
 from sim2real.log import MIN_SAMPLES, RobotLog
 
-__all__ = ["CleanConfig", "Cleaned", "clean", "stale_rows"]
+__all__ = ["CleanConfig", "Cleaned", "clean", "stale_rows", "resample"]
 
 Array = NDArray[np.float64]
 
@@ -81,8 +81,9 @@ def _take(log: RobotLog, keep: NDArray[np.bool_]) -> RobotLog:
     return RobotLog(**fields)
 
 
-def _resample(log: RobotLog, dt: float) -> RobotLog:
-    """The log on the grid t0 + k dt (linear interpolation; phases held)."""
+def resample(log: RobotLog, dt: float) -> RobotLog:
+    """The log on the grid t0 + k dt [s] (linear interpolation; phase labels held from the sample
+    before), its meta as it was."""
     t = log.time
     grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
     fields: dict[str, Any] = {"time": grid, "meta": dict(log.meta)}
@@ -142,7 +143,7 @@ def clean(log: RobotLog, config: CleanConfig | None = None) -> Cleaned:
         fresh = np.ones(out.n_samples, dtype=bool)
         gaps = np.zeros(0)
     else:
-        out = _resample(fresh_log, dt)
+        out = resample(fresh_log, dt)
         # distance from each grid point to the nearest fresh sample
         t = fresh_log.time
         i = np.clip(np.searchsorted(t, out.time), 1, len(t) - 1)

@@ -43,13 +43,16 @@ Array = NDArray[np.float64]
 
 #: Per effect a torque-only log can show: a setting whose torque the SNR scales; `SCALED` names the
 #: parameters scaled (their deviation from the catalogue's `none`); the others keep their value.
-UNIT_SETTINGS: dict[str, dict[str, float]] = {
+UNIT_SETTINGS: dict[str, dict[str, Any]] = {
     "coulomb": {"fc": 0.2, "v_smooth": 0.05},
     "stribeck": {"fs": 0.3, "vs": 0.05},
     "viscous": {"fv": 0.1},
     "payload": {"dm": 0.3, "com_z": 0.08},
     "torque_offset": {"offset": 0.1},
-    "link_inertia": {"mass_scale": 1.1},
+    # one link heavier and another's centre of mass moved: a uniform scale of every link's mass and
+    # inertia is a scale of the rigid-body torque, which a torque-only log cannot tell from a
+    # torque sensor's scale (that direction is in the identifiability warnings, not in the grid)
+    "link_inertia": {"mass_scale": [1.0, 1.0, 1.0, 1.1, 1.0, 1.0, 1.0], "com_shift": [0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.0]},
     "torque_scale": {"k": 0.97},
     "torque_delay": {"d": 0.005},
     "joint_inertia": {"dJ": 0.05},
@@ -57,7 +60,7 @@ UNIT_SETTINGS: dict[str, dict[str, float]] = {
 }
 SCALED: dict[str, tuple[str, ...]] = {
     "coulomb": ("fc",), "stribeck": ("fs",), "viscous": ("fv",), "payload": ("dm",), "torque_offset": ("offset",),
-    "link_inertia": ("mass_scale",), "torque_scale": ("k",), "torque_delay": ("d",), "joint_inertia": ("dJ",),
+    "link_inertia": ("mass_scale", "com_shift"), "torque_scale": ("k",), "torque_delay": ("d",), "joint_inertia": ("dJ",),
     "backlash_motor": ("b",),
 }
 #: Effects outside the catalogue: a unit size of their one parameter (the functions live in
@@ -172,7 +175,8 @@ def _scale(name: str, factor: float) -> dict[str, Any]:
     out = dict(UNIT_SETTINGS[name])
     for key in SCALED[name]:
         p = spec.param(key)
-        out[key] = float(np.clip(p.none + (out[key] - p.none) * factor, p.low, p.high))
+        value = np.clip(p.none + (np.asarray(out[key], dtype=float) - p.none) * factor, p.low, p.high)
+        out[key] = value.tolist() if value.ndim else float(value)
     return out
 
 

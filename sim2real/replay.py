@@ -28,6 +28,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 from common.checks import check_choice
 from common.errors import InputError
 from sim2real.arm import ArmModel, ArmTerms
+from sim2real.clean import resample
 from sim2real.log import RobotLog
 
 __all__ = ["ReplayConfig", "Replay", "replay", "uniform", "matched_kernel", "CHANNELS"]
@@ -164,22 +165,9 @@ def uniform(log: RobotLog) -> RobotLog:
     dt = float(np.median(np.diff(t)))
     if np.allclose(np.diff(t), dt, rtol=1e-6, atol=1e-9):
         return log
-    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
-    fields = {}
-    for f in dataclasses.fields(RobotLog):
-        v = getattr(log, f.name)
-        if f.name in ("time", "meta") or v is None:
-            continue
-        if f.name == "phase":
-            idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
-            fields[f.name] = v[idx]
-            continue
-        flat = v.reshape(len(t), -1)
-        fields[f.name] = np.stack([np.interp(grid, t, flat[:, j]) for j in range(flat.shape[1])],
-                                  axis=1).reshape((len(grid),) + v.shape[1:])
-    meta = dict(log.meta)
-    meta["resampled"] = {"from_samples": len(t), "period": dt}
-    return RobotLog(time=grid, meta=meta, **fields)
+    out = resample(log, dt)
+    out.meta["resampled"] = {"from_samples": len(t), "period": dt}
+    return out
 
 
 def _controller_law(log: RobotLog, terms_ref: ArmTerms | None) -> NDArray[np.float64] | None:

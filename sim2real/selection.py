@@ -15,8 +15,9 @@ from sim2real.config import DiagnosisConfig
 from sim2real.effects import Candidate
 from sim2real.fitting import Design, Model, bootstrap_mean
 
-__all__ = ["Scored", "Selection", "block_folds", "best_setting", "score", "rank_effects", "select",
-           "params_with_intervals", "selected_effects", "overlap", "identifiability_warnings", "heldout_prediction", "REFINE_STEPS"]
+__all__ = ["Scored", "Selection", "block_folds", "best_setting", "score", "rank_effects", "select", "greedy", "exchange",
+           "order_by_contribution",
+           "params_with_intervals", "selected_effects", "simplest_within_error", "complexity", "overlap", "identifiability_warnings", "heldout_prediction", "REFINE_STEPS"]
 
 Array = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -181,7 +182,7 @@ def rank_effects(design: Design, pool: dict[str, list[Candidate]], folds, base: 
     return ranking, best_single
 
 
-def select(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored, best_single: dict[str, Candidate],
+def greedy(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored, best_single: dict[str, Candidate],
            excess0: float, c: DiagnosisConfig, rng: np.random.Generator) -> Selection:
     """Forward selection (add the effect that lowers the held-out residual most with those chosen,
     while its added gain is significant and at least max(min_gain x excess, min_gain_abs)), then
@@ -191,17 +192,15 @@ def select(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored
     current = base
     steps = []
     while len(chosen) < c.max_effects:
-        best = None
+        trials = []
         for name in pool:
             if any(x.name == name for x in chosen):
                 continue
             cand = best_setting(design, pool[name], chosen) if len(pool[name]) > 1 else best_single[name]
-            s = score(design, chosen + [cand], folds)
-            if best is None or s.sse.sum() < best[1].sse.sum():
-                best = (cand, s)
-        if best is None:
+            trials.append(([cand], score(design, chosen + [cand], folds)))
+        if not trials:
             break
-        cand, s = best
+        (cand,), s = simplest_within_error(trials)
         diff = (current.sse - s.sse) / np.maximum(n_rows, 1)
         lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
         gain = float((current.sse.sum() - s.sse.sum()) / n_rows.sum())
@@ -238,6 +237,82 @@ def select(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored
     else:
         steps = [st for st in steps if chosen and st["effect"] == chosen[0].name]
     return Selection(chosen, steps, current, best_single)
+
+
+def select(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored, best_single: dict[str, Candidate],
+           excess0: float, c: DiagnosisConfig, rng: np.random.Generator) -> Selection:
+    """Forward selection, backward elimination and exchange (see `greedy` and `exchange`), the
+    final set ordered by what each effect adds to it, with the gain's interval."""
+    first = greedy(design, pool, folds, base, best_single, excess0, c, rng)
+    if len(first.chosen) < 2:
+        return first
+    chosen, current = exchange(design, pool, folds, first.chosen, first.current)
+    if [x.name for x in chosen] == [x.name for x in first.chosen]:
+        return first
+    return order_by_contribution(design, folds, chosen, current, best_single, c, rng)
+
+
+def order_by_contribution(design: Design, folds, chosen: list[Candidate], current: Scored,
+                          best_single: dict[str, Candidate], c: DiagnosisConfig, rng: np.random.Generator
+                          ) -> Selection:
+    """The set ordered by what each effect adds to it (its held-out loss when removed), with the
+    loss's 95 % block-bootstrap interval."""
+    n_rows = design.count
+    margins = []
+    for k in range(len(chosen)):
+        rest = score(design, chosen[:k] + chosen[k + 1:], folds)
+        diff = (rest.sse - current.sse) / np.maximum(n_rows, 1)
+        lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
+        margins.append((float((rest.sse.sum() - current.sse.sum()) / n_rows.sum()), lo, hi))
+    order = np.argsort([-m[0] for m in margins])
+    steps = [{"effect": chosen[k].name, "setting": chosen[k].setting, "gain": margins[k][0],
+              "gain_low": margins[k][1], "gain_high": margins[k][2],
+              "heldout_after": float(current.sse.sum() / n_rows.sum())} for k in order]
+    return Selection([chosen[k] for k in order], steps, current, best_single)
+
+
+def complexity(cand: Candidate) -> int:
+    """A candidate's free parameters: its linear coefficients plus its nonlinear setting's."""
+    return cand.n_coef + (len(cand.setting) if cand.setting else 0)
+
+
+def simplest_within_error(trials: list[tuple[list[Candidate], Scored]]) -> tuple[list[Candidate], Scored]:
+    """Of candidate sets scored alike, the best (least held-out SSE) or, among those whose held-out
+    SSE exceeds the best's by less than one standard error of the blocks' paired differences (the
+    one-standard-error rule, Breiman et al. 1984), the one with the fewest parameters: a payload
+    before the links' 44 inertial parameters that contain it, when the log cannot tell them apart."""
+    best = min(trials, key=lambda t: t[1].sse.sum())
+    n = len(best[1].sse)
+    close = []
+    for cands, s in trials:
+        d = s.sse - best[1].sse
+        if d.sum() <= np.std(d, ddof=1) * np.sqrt(n):  # mean difference within one standard error
+            close.append((sum(complexity(x) for x in cands), s.sse.sum(), cands, s))
+    _, _, cands, s = min(close, key=lambda t: (t[0], t[1]))
+    return cands, s
+
+
+def exchange(design: Design, pool: dict[str, list[Candidate]], folds, chosen: list[Candidate], current: Scored,
+             rounds: int = 3) -> tuple[list[Candidate], Scored]:
+    """Exchange steps after the greedy selection: each selected effect replaced by each other
+    effect of the pool (its setting chosen with the rest), the set kept by `simplest_within_error`
+    among the current one and its exchanges; until nothing changes. A flexible effect taken first
+    (the links' inertia absorbing a payload while the friction was still missing) gives way to the
+    simpler one the final set supports."""
+    for _ in range(rounds):
+        trials = [(chosen, current)]
+        for k in range(len(chosen)):
+            rest = chosen[:k] + chosen[k + 1:]
+            for name, options in pool.items():
+                if any(x.name == name for x in chosen):
+                    continue
+                cand = best_setting(design, options, rest)
+                trials.append((rest[:k] + [cand] + rest[k:], score(design, rest[:k] + [cand] + rest[k:], folds)))
+        new, scored = simplest_within_error(trials)
+        if [x.name for x in new] == [x.name for x in chosen]:
+            break
+        chosen, current = list(new), scored
+    return chosen, current
 
 
 def selected_effects(design: Design, selection: Selection, c: DiagnosisConfig, rng: np.random.Generator
