@@ -228,14 +228,8 @@ def greedy(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored
         del chosen[k]
         current = rest
     if len(chosen) > 1:
-        margins = [marginal(k) for k in range(len(chosen))]
-        order = np.argsort([-m[0] for m in margins])
-        chosen = [chosen[k] for k in order]
-        steps = [{"effect": chosen[i].name, "setting": chosen[i].setting, "gain": margins[k][0],
-                  "gain_low": margins[k][1], "gain_high": margins[k][2],
-                  "heldout_after": float(current.sse.sum() / n_rows.sum())} for i, k in enumerate(order)]
-    else:
-        steps = [st for st in steps if chosen and st["effect"] == chosen[0].name]
+        return order_by_contribution(design, folds, chosen, current, best_single, c, rng)
+    steps = [st for st in steps if chosen and st["effect"] == chosen[0].name]
     return Selection(chosen, steps, current, best_single)
 
 
