@@ -664,6 +664,9 @@ def _diagnose_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
                    help="arm: 'matched' (default) smooths the logged torques with the kernel of the "
                         "acceleration's derivative filter; 'none' compares raw torques (docs/sim2real.md)")
+    p.add_argument("--torque-hold", default="zoh", choices=["zoh", "sample"],
+                   help="arm: 'zoh' (default) a torque sample holds over the period after it (a 1 kHz torque "
+                        "loop's log); 'sample' a torque measured at its instant (logs sampled well below 1 kHz)")
     p.add_argument("--band", default="auto", metavar="HZ|auto|none",
                    help="arm: the residual is judged below this edge [Hz]; 'auto' (default) from the log's "
                         "excitation; 'none' every sample against the broadband noise (docs/sim2real.md)")
@@ -690,7 +693,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from sim2real.files import diagnose_file
     from sim2real.replay import ReplayConfig
     config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed,
-                             replay=ReplayConfig(torque_filter=args.torque_filter), band=_band_option(args.band))
+                             replay=ReplayConfig(torque_filter=args.torque_filter, torque_hold=args.torque_hold),
+                             band=_band_option(args.band))
     if args.episodes < 0:
         raise InputError(f"--episodes = {args.episodes}; expected an integer >= 0")
     d, paths = diagnose_file(args.log, args.out, args.model, config, progress=True, episodes=args.episodes)
