@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import lsq_linear
 from scipy.signal import butter, savgol_coeffs, sosfiltfilt, sosfreqz, welch
 
 from common.checks import check_int, check_number
@@ -106,6 +105,13 @@ class Band:
         the edge: the derivative filters' ends are far noisier than their interior)."""
         return int(np.ceil(2.0 / (self.cutoff * self.dt)))
 
+    def inner(self, valid: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """A copy of the per-sample mask `valid` with the `settle` samples at each end set False."""
+        out = np.array(valid, dtype=bool)
+        out[:self.settle] = False
+        out[-self.settle:] = False
+        return out
+
     def power_response(self, f: Array) -> Array:
         """|H(f)|^2 of the forward-backward filter (its magnitude response squared twice)."""
         _, h = sosfreqz(self.sos, worN=f, fs=1.0 / self.dt)
@@ -169,22 +175,25 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
     cubic Savitzky-Golay derivative of order `derivative` over `window` samples (1: from the
     measured velocity, 2: from the position; None: no such part). a, b >= 0 are fitted to the
     residual's power spectral density (Welch, valid samples) in the reference band
-    [cutoff, reference x cutoff]. With the `measured` signal (T, k) the acceleration comes from and
-    the mass matrix `mass` (T, k, k) it enters through, b is what that signal holds there,
-    b_j = sum_k <M_jk^2> S_k (S_k its mean density in the reference band), at most what the
-    residual's density allows, and a the rest (at least 0): over one octave a flat part and an f^2
-    part are nearly collinear, so a joint fit would trade one for the other. Without them, (a, b)
-    is the least-squares fit. The noise variance the
-    band-limited residual holds when the model has no gap is the spectrum's integral under the
-    band's power response.
+    [cutoff, reference x cutoff]. b comes from the `measured` signal (T, k) the acceleration is
+    differentiated from and the mass matrix `mass` (T, k, k) it enters through: what that signal
+    holds there, b_j = sum_k <M_jk^2> S_k (S_k its mean density in the reference band), at most
+    what the residual's density allows, and a is the rest (at least 0); over one octave a flat part
+    and an f^2 part are nearly collinear, so a joint fit would trade one for the other. The noise
+    variance the band-limited residual holds when the model has no gap is the spectrum's integral
+    under the band's power response.
 
     Returns:
         (floor (k,), detail): detail holds per column a, b, the reference band's mean density and
         the broadband standard deviation for comparison.
 
     Raises:
-        InputError: too few valid samples to read a spectrum.
+        InputError: too few valid samples to read a spectrum, or `derivative` without `measured`
+            and `mass`.
     """
+    if derivative is not None and (measured is None or mass is None):
+        raise InputError(f"band_floor: derivative = {derivative} needs the measured signal and the mass matrix; "
+                         "expected both")
     r = residual[valid]
     fs = 1.0 / band.dt
     nper = int(min(len(r) // 4, 2 ** int(np.ceil(np.log2(4.0 * fs)))))
@@ -207,8 +216,8 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
     blue = np.trapezoid(np.interp(fine, f, D2) * H, fine)
     k = r.shape[1]
     a, b = np.zeros(k), np.zeros(k)
-    b_max = np.full(k, np.inf)
-    if derivative is not None and measured is not None and mass is not None:
+    b_max = np.zeros(k)
+    if derivative is not None:
         m = measured[valid]
         fm, Pm = welch(m - m.mean(axis=0), fs=fs, nperseg=nper, axis=0)
         S = np.mean(Pm[(fm >= band.cutoff) & (fm <= band.reference * band.cutoff)], axis=0)
@@ -216,32 +225,21 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
         b_max = np.mean(mass[valid] ** 2, axis=0) @ S / max(D_ref, 1e-300)
     for j in range(k):
         p = P[ref, j]
-        scale = max(float(np.mean(p)), 1e-300)
-        if derivative is None:
-            a[j] = float(np.mean(p / K2[ref]))
-            continue
-        if np.isfinite(b_max[j]):
-            # the velocity's noise first: as much of the reference density as what the measured
-            # velocity holds there can explain (a flat part and an f^2 part are nearly collinear
-            # over one octave, so a joint fit would trade one for the other), the rest flat
+        if derivative is not None:
+            # the measured signal's noise first, as much of the reference density as it can explain
             b[j] = min(b_max[j], float(np.mean(p / np.maximum(D2[ref], 1e-300))))
-        else:
-            unit = max(float(np.mean(D2[ref])), 1e-300)  # columns of like size: a well-posed fit
-            fit = lsq_linear(np.stack([K2[ref], D2[ref] / unit], axis=1), p / scale,
-                             bounds=([0.0, 0.0], [np.inf, np.inf]))
-            b[j] = fit.x[1] * scale / unit
         a[j] = max(float(np.mean((p - b[j] * D2[ref]) / K2[ref])), 0.0)
     floors = np.sqrt(np.maximum(a * white + b * blue, 0.0))
-    detail = {"a": a.tolist(), "b": b.tolist(), "b_max": np.where(np.isfinite(b_max), b_max, -1.0).tolist(),
+    detail = {"a": a.tolist(), "b": b.tolist(), "b_max": b_max.tolist(),
               "reference_density": np.mean(P[ref], axis=0).tolist(),
               "broadband_std": np.std(r, axis=0).tolist()}
     return np.maximum(floors, 1e-9), detail
 
 
-def band_candidate(cand: Candidate, band: Band, cache: dict[int, Candidate]) -> Candidate:
+def band_candidate(cand: Candidate, band: Band, cache: dict[Any, Any]) -> Candidate:
     """The candidate as the band sees it: its features and offsets filtered and kept every stride
     samples; a family member's refinements are banded too (`cache` keeps one banded copy per
-    candidate, as the fits' caches need)."""
+    candidate and family, keyed by the original's id, as the fits' caches need)."""
     key = id(cand)
     if key in cache:
         return cache[key]
@@ -254,17 +252,17 @@ def band_candidate(cand: Candidate, band: Band, cache: dict[int, Candidate]) -> 
     return out
 
 
-def _band_family(family: Family, band: Band, cache: dict[int, Candidate]) -> Family:
+def _band_family(family: Family, band: Band, cache: dict[Any, Any]) -> Family:
     key = ("family", id(family))
-    if key not in cache:  # type: ignore[comparison-overlap]
-        cache[key] = Family(family.key, family.grid, family.low, family.high,  # type: ignore[index]
+    if key not in cache:
+        cache[key] = Family(family.key, family.grid, family.low, family.high,
                             lambda value: band_candidate(family.at(value), band, cache))
-    return cache[key]  # type: ignore[index,return-value]
+    return cache[key]
 
 
 def band_pool(pool: dict[str, list[Candidate]], band: Band) -> dict[str, list[Candidate]]:
     """Every candidate of an effect pool seen through the band."""
-    cache: dict[int, Candidate] = {}
+    cache: dict[Any, Any] = {}
     return {name: [band_candidate(c, band, cache) for c in options] for name, options in pool.items()}
 
 

@@ -21,7 +21,7 @@ from common.checks import check_number
 from common.errors import InputError
 from sim2real.log import MIN_SAMPLES, RobotLog
 
-__all__ = ["CleanConfig", "Cleaned", "clean", "stale_rows", "resample"]
+__all__ = ["CleanConfig", "Cleaned", "clean", "stale_rows", "resample", "interpolate"]
 
 Array = NDArray[np.float64]
 
@@ -81,6 +81,12 @@ def _take(log: RobotLog, keep: NDArray[np.bool_]) -> RobotLog:
     return RobotLog(**fields)
 
 
+def interpolate(at: Array, t: Array, values: Array) -> Array:
+    """Each column of `values` (T, k), sampled at the increasing times `t` (T,), linearly
+    interpolated at `at` (N,): (N, k)."""
+    return np.stack([np.interp(at, t, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
 def resample(log: RobotLog, dt: float) -> RobotLog:
     """The log on the grid t0 + k dt [s] (linear interpolation; phase labels held from the sample
     before), its meta as it was."""
@@ -96,8 +102,7 @@ def resample(log: RobotLog, dt: float) -> RobotLog:
             fields[f.name] = v[idx]
             continue
         flat = v.reshape(len(t), -1)
-        fields[f.name] = np.stack([np.interp(grid, t, flat[:, j]) for j in range(flat.shape[1])],
-                                  axis=1).reshape((len(grid),) + v.shape[1:])
+        fields[f.name] = interpolate(grid, t, flat).reshape((len(grid),) + v.shape[1:])
     return RobotLog(**fields)
 
 

@@ -556,12 +556,16 @@ def _band_loop(drive: Array, dt: float, half: float, J: Array, xs: Array, vs: Ar
 _MOTOR_BAND_GRID = tuple(float(b) for b in np.geomspace(0.001, 0.02, 22))
 
 
+def _link_share(rep: Replay) -> Array:
+    """The link side's share of the reflected inertia behind a dead band (7,) [kg m^2]."""
+    return (1.0 - BACKLASH_MOTOR_FRACTION) * np.asarray(rep.model.reflected_inertia)
+
+
 def _mesh_torque(rep: Replay) -> Array:
     """What the gear mesh passes to the link (T, 7), from the log: the link-side sensor's torque
     (seen through the replay's filter) plus the link side's share of the reflected inertia times
     the replayed acceleration."""
-    link_share = (1.0 - BACKLASH_MOTOR_FRACTION) * np.asarray(rep.model.reflected_inertia)
-    return rep.smooth(rep.log.tau) + link_share * rep.ddq
+    return rep.smooth(rep.log.tau) + _link_share(rep) * rep.ddq
 
 
 def _backlash_motor(rep: Replay) -> list[Candidate]:
@@ -583,19 +587,16 @@ def _backlash_motor(rep: Replay) -> list[Candidate]:
     drive = _mesh_torque(rep)
     mass = rep.terms.mass
     damping = np.asarray(rep.model.damping)
-    link_share = (1.0 - BACKLASH_MOTOR_FRACTION) * np.asarray(rep.model.reflected_inertia)
+    link_share = _link_share(rep)
     idx = np.arange(N)
     names, to_params = _per_joint("backlash_motor", "b")
     bounds = _bounds("backlash_motor", "b")
 
-    def mid(x: Array) -> Array:  # the replay's torque instants: under "zoh" (q there not the log's) the midpoints
-        return np.concatenate([0.5 * (x[:-1] + x[1:]), x[-1:]]) if rep.q is not rep.log.q else x
-
     def make(b: float) -> Candidate:
         _, v = motor_band_offset(drive, rep.dt, b, motor)
         v /= b  # per unit width
-        vel = mid(savgol_filter(v, rep.window, 3, axis=0))
-        acc = mid(savgol_filter(v, rep.window, 3, deriv=1, delta=rep.dt, axis=0))
+        vel = rep.at_instants(savgol_filter(v, rep.window, 3, axis=0))
+        acc = rep.at_instants(savgol_filter(v, rep.window, 3, deriv=1, delta=rep.dt, axis=0))
         feat = -mass * acc[:, None, :]  # column j: joint j's offset through the mass matrix
         feat[:, idx, idx] -= damping * vel
         feats = {"tau": feat} if "tau" in rep.residual else {}

@@ -152,15 +152,10 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
                         x_label="dq [rad/s]", time=rep.log.time, meta=meta, floor_min=dict(ARM_FLOOR_MIN),
                         notes=notes, floor=floor, reach=rep.reach, structure=structure, preprocessing=preprocessing)
     band = choose_band(rep.dq, rep.dt, c.band)
-    valid = rep.valid.copy()
-    valid[:band.settle] = False
-    valid[-band.settle:] = False
+    valid = band.inner(rep.valid)
     floor = {}
     detail = {}
     for ch in rep.channels:
-        # the acceleration's own noise is not added: the position's high frequencies on a robot
-        # in closed loop are mostly real motion (which the measured torque holds too), not
-        # encoder noise, so they cannot tell it (band_floor's position term is for known noise)
         floor[ch], detail[ch] = band_floor(rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None,
                                            *_derivative(rep, ch))
     preprocessing["band"] = band.summary()
@@ -182,10 +177,7 @@ def _band_noise(rep: Replay, config: BandConfig) -> float:
     read flat from the reference band (one rule for both sources: a fair comparison)."""
     ch = next((c for c in ("tau", "cmd") if c in rep.residual), rep.channels[0])
     band = choose_band(rep.dq, rep.dt, config)
-    valid = rep.valid.copy()
-    valid[:band.settle] = False
-    valid[-band.settle:] = False
-    floor, _ = band_floor(rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None)
+    floor, _ = band_floor(rep.residual[ch], band.inner(rep.valid), band, rep.kernel if ch in rep.unfiltered else None)
     return float(np.exp(np.mean(np.log(floor))))
 
 

@@ -42,6 +42,7 @@ from scipy import signal
 from common.checks import check_int, check_number
 from common.config import config_to_dict
 from common.errors import InputError
+from sim2real.clean import interpolate
 from sim2real.log import RobotLog, validate_log
 
 __all__ = ["LoggerConfig", "PANDA_LOGGER", "apply_logger", "log_statistics", "TAU_BANDS", "DQ_BANDS"]
@@ -279,17 +280,17 @@ def apply_logger(truth: RobotLog, config: LoggerConfig | None = None, seed: int 
     truth = validate_log(truth, n_joints=N_JOINTS)
     if truth.tau is None:
         raise InputError("truth.tau is missing; expected the true link-side joint torques")
+    extra = {f: getattr(truth, f) for f in ("tool_pose", "tool_target", "wrench", "gripper_width")}
+    if any(v is not None for v in extra.values()):
+        raise InputError(f"truth has {[k for k, v in extra.items() if v is not None]}; expected only joint "
+                         "signals, time and phase (the logger models joint sensors)")
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x10661]))
     t = _poll_times(float(truth.time[0]), float(truth.time[-1]), cfg, rng)
     n = t.shape[0]
-
-    def interp(arr: Array) -> Array:
-        return np.stack([np.interp(t, truth.time, arr[:, j]) for j in range(arr.shape[1])], axis=1)
-
     values: dict[str, Any] = {"time": t}
     for name in ("q", "dq", "tau", "tau_cmd", "q_cmd", "dq_cmd", "tau_ext"):
         arr = getattr(truth, name)
-        values[name] = None if arr is None else interp(arr)
+        values[name] = None if arr is None else interpolate(t, truth.time, arr)
     fs = 1.0 / cfg.step_median
     nyq = 0.5 * fs
     lp_tau = signal.butter(cfg.tau_order, min(cfg.tau_corner / nyq, 0.99), output="sos")
@@ -319,10 +320,6 @@ def apply_logger(truth: RobotLog, config: LoggerConfig | None = None, seed: int 
         keep = np.concatenate([[True], np.diff(stamps) > 0])
     values["time"] = stamps
     _repeat_rows(values, cfg, rng)
-    extra = {f: getattr(truth, f) for f in ("tool_pose", "tool_target", "wrench", "gripper_width")}
-    if any(v is not None for v in extra.values()):
-        raise InputError(f"truth has {[k for k, v in extra.items() if v is not None]}; expected only joint "
-                         "signals, time and phase (the logger models joint sensors)")
     meta = dict(truth.meta)
     meta["logger"] = {**config_to_dict(cfg), "seed": seed, "model": "sim2real.logger.apply_logger"}
     return validate_log(RobotLog(**values, meta=meta), n_joints=N_JOINTS)
@@ -334,7 +331,7 @@ def _uniform(log: RobotLog, arr: Array) -> tuple[Array, float]:
     """`arr` linearly interpolated on a uniform grid of the log's median step, ends cut by _EDGE."""
     h = float(np.median(np.diff(log.time)))
     grid = np.arange(log.time[0] + _EDGE, log.time[-1] - _EDGE, h)
-    return np.stack([np.interp(grid, log.time, arr[:, j]) for j in range(arr.shape[1])], axis=1), 1.0 / h
+    return interpolate(grid, log.time, arr), 1.0 / h
 
 
 def _residual(x: Array, fs: float) -> Array:

@@ -138,9 +138,7 @@ def _band_residual(log: RobotLog) -> tuple[Array, Any, NDArray[np.bool_]]:
     cleaned = clean(log)
     rep = replay(cleaned.log, ReplayConfig(velocity_source="q"))
     band = choose_band(rep.dq, rep.dt)
-    valid = rep.valid & cleaned.fresh
-    valid[:band.settle] = False
-    valid[-band.settle:] = False
+    valid = band.inner(rep.valid & cleaned.fresh)
     return band.filter(rep.residual["tau"]), band, valid
 
 

@@ -49,6 +49,7 @@ from sim2real.arm import END_EFFECTORS, N_ARM, ArmModel, arm_plant
 from sim2real.catalogue import ARM_EFFECTS, effect
 from sim2real.effects import (BACKLASH_DAMPING, BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN,
                               BACKLASH_STIFFNESS, STRIBECK_SIGN_VELOCITY, backlash_motor_inertia)
+from sim2real.clean import interpolate
 from sim2real.log import UNITS, RobotLog
 from sim2real.logger import apply_logger
 from sim2real.trajectory import default_base_frequency, exciting_trajectory
@@ -676,7 +677,7 @@ class _Run:
         true = self.tau_meas
         if t.sensor_delay > 0.0:
             src = np.arange(n) - t.sensor_delay * self.cfg.log_rate
-            true = np.stack([np.interp(src, np.arange(n), true[:, j]) for j in range(N_ARM)], axis=1)
+            true = interpolate(src, np.arange(n), true)
         self.tau_meas = t.sensor_scale * true + t.offset + ntau
 
     def _link_torque(self, start: tuple[Array, ...], end: tuple[Array, ...], k: int | None = None) -> Array:

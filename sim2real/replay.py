@@ -88,6 +88,13 @@ class Replay:
     unfiltered: dict[str, NDArray[np.float64]] = dataclasses.field(default_factory=dict)
     window: int = 1
     velocity_source: str = "dq"
+    torque_hold: str = "zoh"
+
+    def at_instants(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """x (T, ...) on the log's samples taken at the instants the model is evaluated at: each
+        hold period's midpoint under torque_hold "zoh" (the last sample kept), the samples
+        themselves under "sample"."""
+        return instants(x, self.torque_hold)
 
     @property
     def reach(self) -> int:
@@ -130,6 +137,12 @@ class Replay:
             M = self.terms.mass + np.eye(7)[None] * self.model.reflected_inertia[None, :, None]
             self._minv = np.linalg.inv(M)
         return self._minv
+
+
+def instants(x: NDArray[np.float64], hold: str) -> NDArray[np.float64]:
+    """x (T, ...) at the model's instants for `hold`: the periods' midpoints ("zoh"; the last
+    sample kept) or the samples ("sample")."""
+    return np.concatenate([0.5 * (x[:-1] + x[1:]), x[-1:]]) if hold == "zoh" else x
 
 
 def matched_kernel(window: int, hold: str = "zoh") -> NDArray[np.float64]:
@@ -210,8 +223,7 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
     else:
         dq_s = savgol_filter(log.dq, window, 3, axis=0)
         ddq = savgol_filter(log.dq, window, 3, deriv=1, delta=dt, axis=0)
-    if c.torque_hold == "zoh":  # the model at each hold period's midpoint
-        q_t, dq_s, ddq = (np.concatenate([0.5 * (x[:-1] + x[1:]), x[-1:]]) for x in (q_t, dq_s, ddq))
+    q_t, dq_s, ddq = (instants(x, c.torque_hold) for x in (q_t, dq_s, ddq))
     terms = model.terms(q_t, dq_s, ddq)
     residual: dict[str, NDArray[np.float64]] = {}
     rotor_in_tau = (log.meta.get("torque_side", "link") == "motor") if c.rotor_in_tau is None else c.rotor_in_tau
@@ -235,7 +247,7 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
     rep = Replay(log=log, dt=dt, q=q_t, dq=dq_s, ddq=ddq, terms=terms, model=model, residual=residual,
                  valid=np.ones(log.n_samples, dtype=bool), forward_steps=c.forward_steps,
                  tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau, kernel=kernel,
-                 window=window, velocity_source=c.velocity_source)
+                 window=window, velocity_source=c.velocity_source, torque_hold=c.torque_hold)
     measured = {"tau": log.tau, "cmd": commanded}
     for ch in ("tau", "cmd"):  # the measured torque through the filter; the model's side is smooth
         if ch in residual and kernel is not None:
