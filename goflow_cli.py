@@ -18,14 +18,14 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from common.config import key_values, parse_value
-from common.errors import GoflowError, InputError, OutputPathError
-from common.files import check_output_file, read_json, write_atomic, write_json
+from goflow_common.config import key_values, parse_value
+from goflow_common.errors import GoflowError, InputError, OutputPathError
+from goflow_common.files import check_output_file, read_json, write_atomic, write_json
 
 __all__ = ["main", "make_parser"]
 
 # ---------------------------------------------------------------------------------------------
-# KEY=VALUE options (parsed by common.config.key_values)
+# KEY=VALUE options (parsed by goflow_common.config.key_values)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -42,7 +42,7 @@ def _method_kwargs(pairs: Iterable[str] | None, methods: Iterable[str]) -> dict[
 
 
 def _ppo_config(args: argparse.Namespace) -> Any:
-    from common.config import config_with_overrides
+    from goflow_common.config import config_with_overrides
     from learning.ppo import PPOConfig
     return config_with_overrides(PPOConfig, key_values(args.ppo, "--ppo"), owner="--ppo")
 

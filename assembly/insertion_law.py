@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from common.checks import check_finite_array, check_int
-from common.errors import InputError
+from goflow_common.checks import check_finite_array, check_int
+from goflow_common.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ method fails the same way on the same bad input.
 Construction has one signature for every sampler, `Cls(space, success_threshold=None, config=None,
 **overrides)`: `config` is the sampler's config dataclass, a mapping of its fields or None (its
 defaults), and keyword `overrides` are fields of that dataclass applied last
-(`common.config.config_with_overrides`). Methods that compare returns with J_T (ADR, DORAEMON)
+(`goflow_common.config.config_with_overrides`). Methods that compare returns with J_T (ADR, DORAEMON)
 need a finite `success_threshold`; the others keep it for reference. `learning.samplers.registry`
 builds any of them by name.
 
@@ -35,9 +35,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
-from common.checks import check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 
 __all__ = [
     "Sampler",

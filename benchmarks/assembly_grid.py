@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 
 VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7")
 

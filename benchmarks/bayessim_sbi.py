@@ -52,7 +52,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))  # nfpde_table, also when not run as a script
 
 from nfpde_table import dataset, oracle_ot, score  # noqa: E402
-from common.files import read_json, write_json  # noqa: E402
+from goflow_common.files import read_json, write_json  # noqa: E402
 from learning.estimation.bayessim import (BayesSimConfig, BayesSimSimulations, fit_mdn,  # noqa: E402
                                           simulate_bayessim)
 from learning.estimation.distributions import GaussianMixtureAggregate  # noqa: E402

@@ -27,7 +27,7 @@ import scipy.linalg
 
 from assembly.envs.cartpole import CARTPOLE_SPACE, CartpoleEnv
 from assembly.samplers import FullDR
-from common.files import write_json
+from goflow_common.files import write_json
 
 GRAVITY = 9.81  # [m/s^2]
 CONTROL_WEIGHTS = (1e-4, 1e-3, 1e-2)  # R [1/N^2] against Q = diag(1, 100, 1, 1) on (x, theta, xdot, thetadot)

@@ -44,9 +44,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from assembly.gearset import GEARS  # noqa: E402
-from common.checks import InputErrorParser, check_int, check_number  # noqa: E402
-from common.errors import GoflowError, InputError  # noqa: E402
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.checks import InputErrorParser, check_int, check_number  # noqa: E402
+from goflow_common.errors import GoflowError, InputError  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 from learning.feasible_grid import FeasibleSet, FlowRefitConfig  # noqa: E402
 from learning.feasible_sets import LAYOUTS, Layout  # noqa: E402
 from learning.samplers.evidence import Evidence  # noqa: E402

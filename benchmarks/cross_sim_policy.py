@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT))
 import assembly  # noqa: E402,F401
 from assembly.envs.mujoco_reference import ORIGINALS, reference_env  # noqa: E402
 from assembly.samplers import NoDR  # noqa: E402
-from common.errors import InputError  # noqa: E402
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.errors import InputError  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 from learning.estimation.transfer import run_episodes  # noqa: E402
 
 SIMS = ("drake", "mujoco")

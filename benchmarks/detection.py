@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from common.errors import OutputPathError
-from common.files import check_output_file, write_json
+from goflow_common.errors import OutputPathError
+from goflow_common.files import check_output_file, write_json
 from perception.detection import DetectionConfig, detect_gears
 from perception.scenes import PERTURBATIONS, SceneRenderer, random_scenes
 

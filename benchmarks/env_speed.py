@@ -22,7 +22,7 @@ import numpy as np
 
 import assembly  # noqa: F401  (registers the ids)
 from assembly.samplers import NoDR
-from common.files import write_json
+from goflow_common.files import write_json
 
 ENVS = {
     "goflow/Toy2D-v0": {},
@@ -87,7 +87,7 @@ def mujoco_speed(name: str, steps: int, seed: int) -> float | None:
     """Steps per second of gymnasium's MuJoCo original of `name` (None: no original, or no
     `mujoco` package), the same action workload as `single`."""
     from assembly.envs.mujoco_reference import ORIGINALS, reference_env
-    from common.errors import InputError
+    from goflow_common.errors import InputError
 
     if _env_id(name) not in ORIGINALS:
         return None

@@ -25,7 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from common.files import write_json
+from goflow_common.files import write_json
 from learning.experiment import load_run, probe_env
 from learning.feasible_grid import FeasibleGridConfig, FlowRefitConfig, flow_report, refit_flow
 from learning.feasible_sets import report_on

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from assembly.gearset import GEAR_NAMES  # noqa: E402
 from assembly.world import random_gear_poses  # noqa: E402
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 from planning.pick import simulate_pick  # noqa: E402
 
 

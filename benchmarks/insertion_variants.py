@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from assembly.envs.gear_insertion import GearInsertionEnv
-from common.files import write_json
+from goflow_common.files import write_json
 
 
 def action_sequences(steps: int, rng: np.random.Generator) -> dict[str, np.ndarray]:

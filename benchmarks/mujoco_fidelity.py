@@ -21,7 +21,7 @@ import numpy as np
 
 import assembly  # noqa: F401
 from assembly.envs.mujoco_reference import ORIGINALS, paired_rollout, random_action_episodes, reference_env
-from common.files import write_json
+from goflow_common.files import write_json
 
 
 def step_rewards(env, steps: int, seed: int, options=None) -> np.ndarray:

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nfpde_table import RESULTS, run_one  # noqa: E402
-from common.files import check_output_file, read_json, write_json  # noqa: E402
+from goflow_common.files import check_output_file, read_json, write_json  # noqa: E402
 from learning.estimation.targets import TARGETS  # noqa: E402
 
 

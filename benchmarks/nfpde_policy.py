@@ -31,8 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from assembly.samplers import FullDR  # noqa: E402
-from common.errors import InputError  # noqa: E402
-from common.files import check_output_dir, write_json  # noqa: E402
+from goflow_common.errors import InputError  # noqa: E402
+from goflow_common.files import check_output_dir, write_json  # noqa: E402
 from learning.estimation.collect import CollectConfig, collect  # noqa: E402
 from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
 from learning.estimation.estimate_file import load_estimate, save_estimate  # noqa: E402

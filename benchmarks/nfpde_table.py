@@ -39,8 +39,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.errors import GoflowError, GridError  # noqa: E402
-from common.files import read_json, write_json  # noqa: E402
+from goflow_common.errors import GoflowError, GridError  # noqa: E402
+from goflow_common.files import read_json, write_json  # noqa: E402
 from learning.execution import InlineBackend, Job, add_ray_flag, make_backend, run_grid  # noqa: E402
 from learning.estimation import ESTIMATORS  # noqa: E402
 from learning.estimation.collect import CollectConfig, collect  # noqa: E402

@@ -39,8 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from common.errors import InputError  # noqa: E402
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.errors import InputError  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 from perception.calibration import LEVELS, row_brightness  # noqa: E402
 from perception.likelihood import close_factor  # noqa: E402
 from perception_far_view import fit_parser, moved_levels, result_rows  # noqa: E402

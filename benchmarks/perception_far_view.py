@@ -42,8 +42,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))  # perception_tempering, also when not run as a script
 
-from common.errors import InputError  # noqa: E402
-from common.files import check_output_file, read_json, write_json  # noqa: E402
+from goflow_common.errors import InputError  # noqa: E402
+from goflow_common.files import check_output_file, read_json, write_json  # noqa: E402
 from perception.calibration import named_by_set  # noqa: E402
 from perception.likelihood import FAR_REFERENCE_PIXELS, far_factor, teeth_resolved  # noqa: E402
 from perception_tempering import FIT_LEVELS, coverage  # noqa: E402

@@ -27,7 +27,7 @@ from perception.calibration import CalibrationConfig, pose_error, run_calibratio
 from perception.station_views import observe
 from perception.likelihood import LikelihoodConfig
 from perception.search import Prior, SearchConfig, estimate_pose
-from common.files import write_json
+from goflow_common.files import write_json
 
 
 def _renderer_table(rows: list[dict]) -> str:

@@ -47,9 +47,9 @@ from pathlib import Path
 
 import numpy as np
 
-from common.config import config_to_dict, config_with_overrides, key_values
-from common.errors import InputError
-from common.files import check_output_file, read_json, write_json
+from goflow_common.config import config_to_dict, config_with_overrides, key_values
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_file, read_json, write_json
 from perception.calibration import HELD_OUT_SEED, LEVELS, CalibrationConfig, row_brightness, run_calibration
 from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved
 from perception.search import SearchConfig

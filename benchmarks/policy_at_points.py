@@ -19,7 +19,7 @@ import torch
 import assembly  # noqa: F401  (registers the goflow/* ids)
 from assembly.samplers import NoDR
 from learning.experiment import _make_vector_env, load_run
-from common.files import write_json
+from goflow_common.files import write_json
 
 VECTOR_ENVS = 4
 

@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from assembly.gearset import GEAR_NAMES  # noqa: E402
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 
 EPS = (0.0, 0.1, 1.0, 10.0, 100.0, 1000.0)
 

@@ -23,7 +23,7 @@ import numpy as np
 from learning.experiment import load_run, probe_env
 from learning.feasible_sets import mass_on, report_on
 from learning.samplers.registry import METHODS
-from common.files import write_json
+from goflow_common.files import write_json
 
 
 def region_mass(run: Path, low: np.ndarray | None, high: np.ndarray | None, draws: int = 4000) -> dict:

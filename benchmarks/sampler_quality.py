@@ -7,7 +7,7 @@ to the objective's optimum, against update rounds, for GoFlow in each mode and t
         --protocols uniform --sampler leak_target=0.008 --out runs/sq_leak0.008
 
 `--sampler KEY=VALUE` (repeatable) sets a GoFlowConfig field of every goflow-* method of the run,
-over the method's own options (values as JSON, else strings: `common.config.key_values`); it is refused
+over the method's own options (values as JSON, else strings: `goflow_common.config.key_values`); it is refused
 when a non-goflow method is selected, for `seed` (from `--seeds`) and `mode` (the method's name), and
 for `alpha` with a goflow-entropy-<alpha> method. The KL keeps the method's default objective
 whatever the flag sets (e.g. `delta`).
@@ -69,9 +69,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.checks import InputErrorParser, check_int  # noqa: E402
-from common.errors import GoflowError, InputError  # noqa: E402
-from common.files import check_output_dir, check_output_file, read_json, to_strict_json, write_json  # noqa: E402
+from goflow_common.checks import InputErrorParser, check_int  # noqa: E402
+from goflow_common.errors import GoflowError, InputError  # noqa: E402
+from goflow_common.files import check_output_dir, check_output_file, read_json, to_strict_json, write_json  # noqa: E402
 from learning.execution import Job, add_ray_flag, make_backend, run_grid  # noqa: E402
 from learning.samplers.goflow import GoFlowConfig  # noqa: E402
 from learning.feasible_sets import (LAYOUTS, Layout, coverage, describe, kl_to_optimum,  # noqa: E402
@@ -193,7 +193,7 @@ def default_config(task: Task) -> dict[str, Any]:
 
 def _config_data(sampler: str, options: dict[str, Any] | None) -> dict[str, Any]:
     """The registered config of `sampler` with `options` (None: its defaults), as JSON data."""
-    from common.config import config_to_dict
+    from goflow_common.config import config_to_dict
     from learning.samplers.registry import sampler_config as registered_config
     return to_plain(config_to_dict(registered_config(sampler, options)))
 
@@ -390,8 +390,8 @@ def _frozen(value: Any) -> Any:
 def parse_overrides(pairs: Sequence[str] | None, methods: Sequence[str]) -> tuple[tuple[str, Any], ...]:
     """`--sampler KEY=VALUE ...` for `methods`: (key, value) pairs sorted by key, each checked by
     the goflow config of every method (`config_with_overrides`); InputError naming the pair otherwise."""
-    from common.config import config_with_overrides, key_values
-    from common.errors import UnknownOptionError
+    from goflow_common.config import config_with_overrides, key_values
+    from goflow_common.errors import UnknownOptionError
     values = key_values(pairs, "--sampler")
     if not values:
         return ()

@@ -25,7 +25,7 @@ import learning.samplers.goflow as goflow_module
 from assembly.params import Param, ParamSpace
 from learning.experiment import protocol_sampler_kwargs
 from learning.samplers.registry import METHODS, make_sampler
-from common.files import write_json
+from goflow_common.files import write_json
 
 
 def _zuko_nsf(features: int, transforms: int, hidden_features: tuple[int, ...], bins: int) -> zuko.flows.Flow:

@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.files import check_output_file, write_json  # noqa: E402
 from learning.execution import Backend, Job, PoolBackend, RayBackend, run_jobs  # noqa: E402
 from learning.experiment import ExperimentConfig, experiment_jobs  # noqa: E402
 from learning.ppo import PPOConfig  # noqa: E402

@@ -51,7 +51,7 @@ def compare(duration: float = 21.0, seed: int = 0) -> dict[str, Any]:
     from sim2real.log import load_log
     from sim2real.logger import PANDA_LOGGER, log_statistics
     from sim2real.reality import RealityConfig, make_arm_log
-    from common.config import config_to_dict
+    from goflow_common.config import config_to_dict
 
     start = time.perf_counter()
     real = log_statistics(load_log(REAL_LOG))

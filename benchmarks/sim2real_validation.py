@@ -27,7 +27,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from common.files import check_output_dir, check_output_file, read_json, write_json
+from goflow_common.files import check_output_dir, check_output_file, read_json, write_json
 from learning.execution import Job, make_backend, run_grid
 from sim2real.realistic import UNIT_SETTINGS, realistic_cases, run_realistic, summarize_realistic
 from sim2real.validation import MAGNITUDES, cases, run_case, summarize

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from assembly.demo import AssemblyConfig, build_assembly
 from assembly.station import StationConfig
-from common.files import write_json
+from goflow_common.files import write_json
 
 # Phases of the scripted pick-and-insert motion (labels "<gear>: <phase>") and the bucket each one counts toward.
 FREE = ("approach", "steady above gear", "descend")

@@ -16,7 +16,7 @@ import argparse
 from pathlib import Path
 
 from learning.skills import evaluate_skill, feasible_report, flow_width, load_skill, skill_path
-from common.files import write_json
+from goflow_common.files import write_json
 
 
 def main() -> None:

@@ -36,8 +36,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.checks import check_int, check_number
-from common.errors import ClusterError, GridError, InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import ClusterError, GridError, InputError
 
 __all__ = ["Job", "Outcome", "Backend", "InlineBackend", "PoolBackend", "RayBackend", "parse_ray_address",
            "make_backend", "add_ray_flag", "run_jobs", "run_grid"]

@@ -37,10 +37,10 @@ from tqdm import tqdm
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from common.checks import check_choice, check_int
-from common.config import config_to_dict, config_with_overrides
-from common.errors import InputError
-from common.files import check_output_dir, load_tensors, run_folder_lock, save_tensors, write_json
+from goflow_common.checks import check_choice, check_int
+from goflow_common.config import config_to_dict, config_with_overrides
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_dir, load_tensors, run_folder_lock, save_tensors, write_json
 from learning.execution import Backend, Job, make_backend, parse_ray_address, run_grid
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import (

@@ -45,10 +45,10 @@ from tqdm import tqdm
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
-from common.checks import check_int, check_number
-from common.config import config_to_dict
-from common.errors import FileFormatError, InputError
-from common.files import load_tensors, save_tensors
+from goflow_common.checks import check_int, check_number
+from goflow_common.config import config_to_dict
+from goflow_common.errors import FileFormatError, InputError
+from goflow_common.files import load_tensors, save_tensors
 from learning.feasible_sets import coverage, mass_on
 from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
 

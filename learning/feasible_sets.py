@@ -41,8 +41,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
-from common.checks import check_choice, check_finite_array, check_int, check_number
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_finite_array, check_int, check_number
+from goflow_common.errors import InputError
 
 __all__ = [
     "Layout",

@@ -42,8 +42,8 @@ from gymnasium.vector import AutoresetMode
 from numpy.typing import ArrayLike, NDArray
 from torch import nn
 
-from common.errors import FileFormatError
-from common.files import check_output_file, load_tensors, save_tensors
+from goflow_common.errors import FileFormatError
+from goflow_common.files import check_output_file, load_tensors, save_tensors
 from learning.networks import Actor, Critic, RunningMeanStd
 
 __all__ = ["PPOConfig", "PPO", "RolloutStats", "NonFiniteError", "compute_gae"]

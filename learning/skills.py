@@ -33,9 +33,9 @@ import assembly  # noqa: F401  (registers the environment ids)
 from assembly.gearset import GEARS
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from common.checks import check_int
-from common.errors import FileFormatError, InputError
-from common.files import check_output_file, load_tensors, run_folder_lock, save_tensors
+from goflow_common.checks import check_int
+from goflow_common.errors import FileFormatError, InputError
+from goflow_common.files import check_output_file, load_tensors, run_folder_lock, save_tensors
 from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.experiment import SamplerFitConfig, TrainConfig, fit_sampler, load_run, protocol_sampler_kwargs, train
 from learning.feasible_grid import FeasibleGridConfig, FeasibleSet, FlowRefitConfig, GridPlan, flow_report, refit_flow

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common.checks import check_choice
-from common.errors import InputError
-from common.files import check_output_dir, write_json
+from goflow_common.checks import check_choice
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_dir, write_json
 from learning.execution import Backend, run_grid
 from learning.experiment import ExperimentConfig, experiment_backend, experiment_jobs, probe_env, write_experiment
 from learning.samplers.registry import METHODS

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from assembly.gearset import GEAR_NAMES
-from common.checks import check_int
-from common.errors import InputError
+from goflow_common.checks import check_int
+from goflow_common.errors import InputError
 from perception.detection import detect_gears
 from perception.gear_model import gear_model
 from perception.posterior import PosePosterior, wrap

@@ -20,7 +20,7 @@ from assembly.cameras import CamerasConfig, extrinsic_error, with_extrinsic_erro
 from assembly.gearset import GEAR_NAMES
 from assembly.station import StationConfig, build_station
 from assembly.world import WorldConfig, random_gear_poses
-from common.checks import check_int
+from goflow_common.checks import check_int
 from planning.domain import PlannerConfig, gearbox_domain
 from planning.system import BeliefSpacePlanner, PlannerSystemConfig, connect_planner
 

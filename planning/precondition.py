@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from common.checks import check_int
-from common.errors import FileFormatError
-from common.files import read_json
+from goflow_common.checks import check_int
+from goflow_common.errors import FileFormatError
+from goflow_common.files import read_json
 from learning.skills import Skill, load_skill, rollout_return
 
 #: V_T per gear, measured by `benchmarks/preconditions.py --thresholds` (docs/planning.md).

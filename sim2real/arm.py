@@ -18,8 +18,8 @@ from pydrake.multibody.tree import ModelInstanceIndex
 from assembly.panda_model import JOINT_DAMPING, REFLECTED_INERTIA
 from assembly.world import X_FLANGE_HAND, add_held_gear, model_parser, tool_frame
 from assembly.panda_model import panda_model_paths
-from common.checks import check_choice
-from common.errors import InputError
+from goflow_common.checks import check_choice
+from goflow_common.errors import InputError
 
 __all__ = ["END_EFFECTORS", "ArmTerms", "arm_plant", "ArmModel"]
 

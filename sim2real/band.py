@@ -29,8 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, savgol_coeffs, sosfiltfilt, sosfreqz, welch
 
-from common.checks import check_int, check_number
-from common.errors import InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import InputError
 from sim2real.effects import Candidate, Family
 
 __all__ = ["BandConfig", "Band", "choose_band", "band_floor", "band_candidate", "band_pool", "noise_floor"]

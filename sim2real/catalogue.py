@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Literal
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 
 __all__ = ["Param", "Effect", "CATALOGUE", "ARM_EFFECTS", "effect", "parse_effect_values"]
 

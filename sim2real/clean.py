@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.checks import check_number
-from common.errors import InputError
+from goflow_common.checks import check_number
+from goflow_common.errors import InputError
 from sim2real.log import MIN_SAMPLES, RobotLog
 
 __all__ = ["CleanConfig", "Cleaned", "clean", "stale_rows", "resample", "interpolate"]

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from common.checks import check_int, check_number
-from common.errors import InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import InputError
 from sim2real.band import BandConfig
 from sim2real.catalogue import CATALOGUE
 from sim2real.clean import CleanConfig

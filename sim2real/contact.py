@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.diagnosis import Diagnosis, DiagnosisConfig, Evidence, Progress, analyse
 from sim2real.effects import Candidate
 from sim2real.log import RobotLog

@@ -8,8 +8,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.checks import check_choice
-from common.files import check_output_dir, check_output_file
+from goflow_common.checks import check_choice
+from goflow_common.files import check_output_dir, check_output_file
 from sim2real.diagnosis import Diagnosis, DiagnosisConfig, diagnose
 
 __all__ = ["diagnose_file", "make_log_file", "MODELS"]
@@ -83,8 +83,8 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
     episode of the shipped skill,
     `overrides` may set gear, seed, xi (sim2real.station_logs.make_insertion_log) and noise (default
     true: sensor noise on torques, tool position and contact force, station_logs.with_sensor_noise)."""
-    from common.config import config_with_overrides
-    from common.errors import InputError
+    from goflow_common.config import config_with_overrides
+    from goflow_common.errors import InputError
     from sim2real.catalogue import parse_effect_values
     from sim2real.importers import write_franka_csv
     from sim2real.log import save_log

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.errors import FileFormatError, InputError
-from common.files import _reject_constant, check_output_file, read_json, write_atomic
+from goflow_common.errors import FileFormatError, InputError
+from goflow_common.files import _reject_constant, check_output_file, read_json, write_atomic
 from sim2real.log import PHASES, RobotLog, validate_log
 
 __all__ = ["GAZ_FILES", "GAZ_JOINTS", "read_gaz_layout", "write_gaz_layout", "read_gaz_trajectory", "csv_columns",

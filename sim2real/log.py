@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.checks import check_int
-from common.errors import FileFormatError, InputError
-from common.files import _reject_constant, check_output_file, to_strict_json, write_atomic
+from goflow_common.checks import check_int
+from goflow_common.errors import FileFormatError, InputError
+from goflow_common.files import _reject_constant, check_output_file, to_strict_json, write_atomic
 
 __all__ = [
     "RobotLog", "PHASES", "UNITS", "FIELDS", "TORQUE_SIDES", "POSITION_SIDES", "MIN_SAMPLES", "LOG_FORMAT",

@@ -39,9 +39,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
-from common.checks import check_int, check_number
-from common.config import config_to_dict
-from common.errors import InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.config import config_to_dict
+from goflow_common.errors import InputError
 from sim2real.clean import interpolate
 from sim2real.log import RobotLog, validate_log
 

@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.catalogue import CATALOGUE, effect
 from sim2real.diagnosis import Diagnosis, DiagnosisConfig, Evidence, Progress, analyse
 from sim2real.effects import Candidate
@@ -213,7 +213,7 @@ def offset_jacobians(X_WC: Array, P: Array) -> tuple[Array, Array]:
 def save_perception_log(log: dict[str, Any], path: str | os.PathLike[str]) -> Path:
     """Write a perception log (make_perception_log) as an .npz of plain arrays, atomically (the
     path checked first); text entries become 0-d unicode arrays."""
-    from common.files import check_output_file, write_atomic
+    from goflow_common.files import check_output_file, write_atomic
 
     _check_log(log)
     target = check_output_file(path, "perception log")
@@ -225,7 +225,7 @@ def save_perception_log(log: dict[str, Any], path: str | os.PathLike[str]) -> Pa
 def load_perception_log(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read a perception log written by save_perception_log (np.load with allow_pickle=False);
     FileNotFoundError when absent, FileFormatError naming the file when it is not one."""
-    from common.errors import FileFormatError
+    from goflow_common.errors import FileFormatError
 
     path = Path(path)
     if not path.is_file():

@@ -42,9 +42,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.panda_model import ARM_JOINT_NAMES, JOINT_DAMPING, Q_MAX, Q_MIN, REFLECTED_INERTIA, TAU_MAX, V_MAX
-from common.checks import check_choice, check_int, check_number
-from common.config import config_to_dict
-from common.errors import InputError, SimulationError
+from goflow_common.checks import check_choice, check_int, check_number
+from goflow_common.config import config_to_dict
+from goflow_common.errors import InputError, SimulationError
 from sim2real.arm import END_EFFECTORS, N_ARM, ArmModel, arm_plant
 from sim2real.catalogue import ARM_EFFECTS, effect
 from sim2real.effects import (BACKLASH_DAMPING, BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN,

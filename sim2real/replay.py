@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 from scipy.ndimage import correlate1d
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from common.checks import check_choice
-from common.errors import InputError
+from goflow_common.checks import check_choice
+from goflow_common.errors import InputError
 from sim2real.arm import ArmModel, ArmTerms
 from sim2real.clean import resample
 from sim2real.log import RobotLog

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from common.files import check_output_dir, to_strict_json, write_atomic
+from goflow_common.files import check_output_dir, to_strict_json, write_atomic
 from sim2real.diagnosis import Diagnosis
 
 __all__ = ["write_report", "render_markdown"]

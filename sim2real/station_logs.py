@@ -38,8 +38,8 @@ from assembly.envs.drake_sim import advance
 from assembly.gearset import GEAR_BORE_CHAMFER, GEAR_BORE_RADIUS, SHAFT_CHAMFER, SHAFT_HEIGHT, gear_spec
 from assembly.samplers import FullDR, NoDR
 from assembly.world import ContactOverrides, GraspHold
-from common.checks import check_choice, check_finite_array, check_int
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_finite_array, check_int
+from goflow_common.errors import InputError
 from sim2real.catalogue import CATALOGUE
 from sim2real.log import PHASES, UNITS, RobotLog
 

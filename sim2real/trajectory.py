@@ -26,8 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.panda_model import Q_HOME, Q_MAX, Q_MIN, V_MAX
-from common.checks import check_int, check_number
-from common.errors import InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import InputError
 
 __all__ = ["FourierTrajectory", "exciting_trajectory", "default_base_frequency", "DDQ_MAX"]
 

@@ -287,8 +287,8 @@ def test_estimate_refuses_non_finite_options_and_bad_outputs_at_once(tmp_path):
 
 
 def test_key_value_values_are_strict_json_or_strings():
-    from common.errors import InputError
-    from common.config import key_values
+    from goflow_common.errors import InputError
+    from goflow_common.config import key_values
 
     assert key_values(["a=1", "b=x", "c=[1, 2.5]", "d=true", "e=null", "f=a=b"], "--x") == {
         "a": 1, "b": "x", "c": [1, 2.5], "d": True, "e": None, "f": "a=b"}

@@ -20,8 +20,8 @@ if str(ROOT) not in sys.path:  # run as a script from a checkout
 
 import numpy as np  # noqa: E402
 
-from common.errors import GoflowError  # noqa: E402
-from common.files import check_output_dir, write_atomic  # noqa: E402
+from goflow_common.errors import GoflowError  # noqa: E402
+from goflow_common.files import check_output_dir, write_atomic  # noqa: E402
 from sim2real.importers import GAZ_FILES, read_gaz_layout  # noqa: E402
 from sim2real.log import RobotLog, save_log, with_meta  # noqa: E402
 

@@ -33,9 +33,9 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
-from common.checks import check_choice, check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 from assembly.envs.drake_sim import PlantAccess, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler

@@ -48,9 +48,9 @@ from assembly.envs.base import ParamEnv, SimulationError, quaternion_rotation
 from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
-from common.checks import check_choice, check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 
 __all__ = ["AnymalConfig", "AnymalEnv", "NOMINAL_BASE_MASS", "SEED_J_T", "LEGS", "JOINT_NAMES"]
 

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from common.errors import SimulationError
+from goflow_common.errors import SimulationError
 
 __all__ = ["ParamEnv", "SimulationError", "clipped_float32", "quaternion_rotation"]
 

@@ -47,9 +47,9 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from assembly.envs.base import ParamEnv, SimulationError
-from common.checks import check_choice, check_finite_array, check_int, check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_finite_array, check_int, check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 from assembly.envs.drake_sim import advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.insertion_law import InsertionLaw, PoseHistory

@@ -38,9 +38,9 @@ from assembly.envs.drake_sim import HeldInput, advance
 from assembly.envs.mjcf import ContactSettings, MjcfPlant, build_plant, gymnasium_asset, pair_friction, read_mjcf
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
-from common.checks import check_choice, check_int, check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_int, check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 
 __all__ = ["LocomotionConfig", "LocomotionEnv", "HopperEnv", "Walker2dEnv", "HalfCheetahEnv", "HumanoidEnv"]
 

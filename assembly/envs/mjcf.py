@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.envs.base import quaternion_rotation
-from common.errors import InputError
+from goflow_common.errors import InputError
 
 __all__ = ["MjcfSpec", "MjcfPlant", "ContactSettings", "gymnasium_asset", "read_mjcf", "build_plant",
            "pair_friction", "drake_coefficient"]

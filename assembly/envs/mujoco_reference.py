@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 
 __all__ = ["ORIGINALS", "reference_env", "PairedRollout", "paired_rollout", "random_action_episodes"]
 

@@ -33,9 +33,9 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import SimulationError, clipped_float32
-from common.checks import check_finite_array, check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_finite_array, check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 from assembly.envs.drake_sim import HeldInput, PlantEnv, point_contact_properties
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler

@@ -35,9 +35,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
 from assembly.envs.base import ParamEnv
-from common.checks import check_choice, check_finite_array, check_int, check_number
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.checks import check_choice, check_finite_array, check_int, check_number
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 from assembly.samplers import Sampler
 
 __all__ = ["Toy2DConfig", "Toy2DEnv"]

@@ -19,7 +19,7 @@ from typing import Any
 
 from assembly.transition.base import BatchTransitionSim, TransitionSim, check_step_args, xi_groups
 from assembly.transition.parallel import ParallelTransitionSim
-from common.errors import UnknownOptionError
+from goflow_common.errors import UnknownOptionError
 
 __all__ = [
     "TransitionSim",

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
-from common.errors import SimulationError
+from goflow_common.errors import SimulationError
 
 __all__ = ["TransitionSim", "BatchTransitionSim", "check_step_args", "xi_groups"]
 

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
 from assembly.transition.drake import DrakeTransitionSim
-from common.config import config_with_overrides
+from goflow_common.config import config_with_overrides
 
 __all__ = ["PandaArmConfig", "PandaArmSim", "PANDA_ARM_SPACE"]
 

@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import Param, ParamSpace
 from assembly.transition.base import BatchTransitionSim, check_step_args
-from common.config import config_with_overrides
+from goflow_common.config import config_with_overrides
 
 __all__ = ["POINT_MASS_SPACE", "PointMassConfig", "PointMassSim"]
 

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from common.checks import check_int
+from goflow_common.checks import check_int
 from learning.estimation.common import Budget, check_sim_budget, segment_rows
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import EPS, GaussianMixtureAggregate, logit

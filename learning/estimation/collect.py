@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from assembly.transition import make_transition_sim
-from common.errors import FileFormatError
+from goflow_common.errors import FileFormatError
 from learning.estimation.dataset import TransitionDataset, save_dataset
 from learning.estimation.targets import TargetConfig, sample_target, target_description
 
@@ -55,7 +55,7 @@ class CollectConfig:
 def _load_policy(path: str) -> Callable[[NDArray[np.float32]], NDArray[np.float64]]:
     """Deterministic actions of a PPO checkpoint (a PPO.save file or a `goflow train` checkpoint.pt),
     loaded as data only; FileFormatError naming the file if it is neither."""
-    from common.files import load_tensors
+    from goflow_common.files import load_tensors
     from learning.ppo import PPO
 
     state = load_tensors(path, "PPO checkpoint or `goflow train` checkpoint.pt")

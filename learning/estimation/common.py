@@ -12,8 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from common.checks import check_int
-from common.errors import InputError
+from goflow_common.checks import check_int
+from goflow_common.errors import InputError
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import UnitBoxDistribution
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import cma
 import numpy as np
 
-from common.checks import check_int, check_number
-from common.errors import InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import InputError
 from learning.estimation.common import Budget, BudgetExhausted, check_sim_budget
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import TruncNormalProduct

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 
 from assembly.transition import ParallelTransitionSim
-from common.config import config_with_overrides
+from goflow_common.config import config_with_overrides
 from learning.estimation import ESTIMATORS
 from learning.estimation.common import Budget
 from learning.estimation.dataset import TransitionDataset, load_dataset
@@ -33,8 +33,8 @@ class EstimateConfig:
     options: dict[str, Any] = field(default_factory=dict)  # fields of the method's config dataclass
 
     def __post_init__(self) -> None:
-        from common.checks import check_int
-        from common.errors import InputError
+        from goflow_common.checks import check_int
+        from goflow_common.errors import InputError
 
         if self.method not in ESTIMATORS:
             raise InputError(f"unknown estimation method {self.method!r}; expected one of {list(ESTIMATORS)}")

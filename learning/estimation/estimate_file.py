@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from assembly.params import ParamSpace
-from common.errors import FileFormatError
-from common.files import read_json, write_json
+from goflow_common.errors import FileFormatError
+from goflow_common.files import read_json, write_json
 from learning.samplers.estimated import EstimatedSampler
 
 __all__ = ["ESTIMATE_FORMAT", "save_estimate", "load_estimate"]

@@ -33,8 +33,8 @@ import numpy as np
 import torch
 from scipy.special import expit, log_softmax
 
-from common.checks import check_int, check_number
-from common.errors import InputError
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import InputError
 from learning.estimation.common import (Budget, BudgetExhausted, check_sim_budget, prediction_loss,
                                         segment_rows)
 from learning.estimation.dataset import TransitionDataset

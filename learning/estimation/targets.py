@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.params import ParamSpace
-from common.checks import check_finite_array
-from common.errors import InputError
+from goflow_common.checks import check_finite_array
+from goflow_common.errors import InputError
 
 __all__ = ["TargetConfig", "TargetSampler", "sample_target", "target_description", "TARGETS", "L_MEANS"]
 

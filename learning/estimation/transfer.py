@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.samplers import Sampler
-from common.checks import check_choice, check_int
+from goflow_common.checks import check_choice, check_int
 from learning.experiment import TrainConfig, _make_vector_env
 from learning.ppo import PPO, PPOConfig
 

@@ -48,8 +48,8 @@ from assembly.params import ParamSpace
 from assembly.samplers import (
     check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
-from common.checks import check_int, check_number
-from common.config import config_to_dict, config_with_overrides
+from goflow_common.checks import check_int, check_number
+from goflow_common.config import config_to_dict, config_with_overrides
 
 __all__ = ["ADRConfig", "ADRSampler"]
 

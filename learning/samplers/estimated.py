@@ -14,8 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
 from assembly.samplers import check_sample_args, check_sampler_args, check_state_dict, check_update_inputs
-from common.config import config_with_overrides
-from common.errors import InputError
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import InputError
 from learning.estimation.distributions import UnitBoxDistribution, distribution_from_dict
 
 __all__ = ["EstimatedSampler", "EstimatedSamplerConfig"]

@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from common.checks import check_int
-from common.errors import InputError
+from goflow_common.checks import check_int
+from goflow_common.errors import InputError
 
 __all__ = ["Evidence"]
 

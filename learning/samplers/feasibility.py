@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from numpy.typing import NDArray
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from learning.samplers.evidence import Evidence
 
 __all__ = ["SuccessClassifier"]

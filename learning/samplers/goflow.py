@@ -79,9 +79,9 @@ from assembly.params import ParamSpace
 from assembly.samplers import (
     _diagnostics, check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
 )
-from common.checks import check_choice, check_int, check_number
-from common.errors import InputError
-from common.config import config_to_dict, config_with_overrides
+from goflow_common.checks import check_choice, check_int, check_number
+from goflow_common.errors import InputError
+from goflow_common.config import config_to_dict, config_with_overrides
 from learning.samplers.evidence import Evidence
 from learning.samplers.feasibility import SuccessClassifier
 

@@ -5,7 +5,7 @@ imported on first use), so that listing the names costs no import of torch or sc
 
 Every sampler has one constructor signature, `Cls(space, success_threshold=None, config=None,
 **overrides)` (assembly.samplers); `config` is checked against the sampler's config dataclass by
-`common.config.config_with_overrides` (an unknown key is an UnknownOptionError naming the known
+`goflow_common.config.config_with_overrides` (an unknown key is an UnknownOptionError naming the known
 ones). A new sampler goes here with `register_sampler`.
 """
 
@@ -16,8 +16,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from common.config import config_with_overrides
-from common.errors import UnknownOptionError
+from goflow_common.config import config_with_overrides
+from goflow_common.errors import UnknownOptionError
 
 __all__ = [
     "SamplerSpec",

@@ -107,7 +107,7 @@ def test_env_options_are_checked_with_value_and_expectation(env_id, option, valu
     import gymnasium
 
     import assembly.envs  # noqa: F401 (registers the goflow/ ids)
-    from common.errors import InputError
+    from goflow_common.errors import InputError
 
     with pytest.raises(InputError, match=message) as info:
         gymnasium.make(env_id, **{option: value})

@@ -7,7 +7,7 @@ import pytest
 
 from assembly.envs.gear_insertion import GearInsertionEnv
 from assembly.insertion_law import InsertionLaw, PoseHistory
-from common.errors import InputError
+from goflow_common.errors import InputError
 from learning.skills import load_skill
 
 

@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 import assembly  # noqa: F401  (registers the ids)
 from assembly.envs.mjcf import drake_coefficient, gymnasium_asset, read_mjcf
-from common.errors import InputError
+from goflow_common.errors import InputError
 
 IDS = ["goflow/Hopper-v0", "goflow/Walker2d-v0", "goflow/HalfCheetah-v0", "goflow/Humanoid-v0"]
 DIMS = {"goflow/Hopper-v0": (6, 11, 3), "goflow/Walker2d-v0": (7, 17, 6),

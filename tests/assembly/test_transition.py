@@ -14,7 +14,7 @@ from assembly.params import Param, ParamSpace
 from assembly.transition import (TRANSITION_SIMS, BatchTransitionSim, ParallelTransitionSim,
                                  TransitionSim, make_transition_sim, register_transition_sim,
                                  xi_groups)
-from common.errors import SimulationError, UnknownOptionError
+from goflow_common.errors import SimulationError, UnknownOptionError
 
 IDS = sorted(TRANSITION_SIMS)
 DRAKE_IDS = [i for i in IDS if i != "goflow/PointMass-v0"]

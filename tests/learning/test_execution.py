@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from common.errors import ClusterError, GridError, InputError
+from goflow_common.errors import ClusterError, GridError, InputError
 from learning.execution import (
     InlineBackend, Job, PoolBackend, RayBackend, make_backend, parse_ray_address, run_grid, run_jobs,
 )

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from common.errors import FileFormatError, RunFolderBusyError
-from common.files import run_folder_lock
+from goflow_common.errors import FileFormatError, RunFolderBusyError
+from goflow_common.files import run_folder_lock
 from learning.experiment import (
     ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, format_summary, load_run, plot_curves, summarize,
     train,

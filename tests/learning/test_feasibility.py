@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from learning.samplers.evidence import Evidence
 from learning.samplers.feasibility import SuccessClassifier
 

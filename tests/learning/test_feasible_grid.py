@@ -7,7 +7,7 @@ import pytest
 
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR
-from common.errors import InputError
+from goflow_common.errors import InputError
 from learning.feasible_grid import (FeasibleGridConfig, FeasibleSet, FlowRefitConfig, constrained_copy, flow_report,
                                    refit_flow)
 from learning.samplers.goflow import GoFlowSampler

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from assembly.samplers import FullDR
-from common.errors import InputError
+from goflow_common.errors import InputError
 from learning.feasible_sets import (LAYOUTS, MC_SEED, coverage, kl_to_optimum, mass_on, optimum_log_prob,
                                     optimum_mass, unit_space)
 

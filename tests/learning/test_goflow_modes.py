@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from assembly.params import Param, ParamSpace
-from common.errors import InputError
+from goflow_common.errors import InputError
 from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
 
 

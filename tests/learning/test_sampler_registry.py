@@ -8,7 +8,7 @@ import pytest
 
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
-from common.errors import UnknownOptionError
+from goflow_common.errors import UnknownOptionError
 from learning.estimation.distributions import TruncNormalProduct
 from learning.samplers.registry import METHODS, SAMPLERS, make_sampler, sampler_class, sampler_config
 

@@ -3,7 +3,7 @@ and its output folders are checked before the first run."""
 
 import pytest
 
-from common.errors import InputError, OutputPathError, UnknownOptionError
+from goflow_common.errors import InputError, OutputPathError, UnknownOptionError
 from learning.experiment import ExperimentConfig
 from learning.ppo import PPOConfig
 from learning.sweep import SweepConfig, format_sweep, run_sweep, value_label

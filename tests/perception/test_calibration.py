@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from perception.calibration import (
     HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, coverage_se, group_rows,
     markdown_table, pool_results, resampled_set_count, row_brightness, sets_text, summarize,

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.files import read_json
+from goflow_common.files import read_json
 from perception.inspect_model import CLOSE_VIEW, close_view_noise, predict_inspection
 from perception.posterior import uniform_posterior
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.band import BandConfig, band_floor, choose_band
 
 

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.clean import CleanConfig, clean, stale_rows
 from sim2real.log import RobotLog
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.errors import FileFormatError, InputError
+from goflow_common.errors import FileFormatError, InputError
 from sim2real.importers import GAZ_FILES, read_franka_csv, read_gaz_layout, write_franka_csv
 from sim2real.log import (
     FIELDS, LOG_FORMAT, PHASES, UNITS, RobotLog, load_log, save_log, slice_log, validate_log, with_meta,

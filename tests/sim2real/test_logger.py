@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.importers import read_gaz_layout, write_gaz_layout
 from sim2real.log import RobotLog, validate_log
 from sim2real.logger import PANDA_LOGGER, LoggerConfig, apply_logger, log_statistics

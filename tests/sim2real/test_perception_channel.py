@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.perception_channel import (POSE_COLUMNS, diagnose_perception, make_perception_log,
                                          offset_jacobians, perception_config, perception_evidence)
 

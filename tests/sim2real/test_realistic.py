@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.diagnosis import diagnose
 from sim2real.log import load_log, validate_log
 from sim2real.realistic import RealisticCase, make_case_log, run_realistic

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from assembly.panda_model import Q_HOME, Q_MAX, Q_MIN, REFLECTED_INERTIA, TAU_MAX, V_MAX
-from common.errors import InputError, SimulationError
+from goflow_common.errors import InputError, SimulationError
 from sim2real.arm import ArmModel
 from sim2real.log import validate_log
 from sim2real.reality import KD, KP, RealityConfig, _Plant, make_arm_log, resolve_effects

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 from sim2real.log import PHASES, load_log, save_log, validate_log
 from sim2real.station_logs import (
     check_station_effects, make_insertion_log, phase_residuals, replay_insertion, segment_phases,

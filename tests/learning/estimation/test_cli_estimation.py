@@ -77,7 +77,7 @@ def test_budget_below_one_iteration_is_refused_by_the_cli(tmp_path, small_data):
 
 @pytest.mark.parametrize("method", ["nfpde-softmax", "nfpde-cai", "dropo", "bayessim"])
 def test_every_method_refuses_a_budget_below_its_minimum_before_simulating(small_data, method):
-    from common.errors import InputError
+    from goflow_common.errors import InputError
     from learning.estimation.estimate import EstimateConfig, estimate, min_sim_calls
 
     _, ds = small_data
@@ -123,7 +123,7 @@ def test_non_finite_method_option_is_one_line(tmp_path, small_data):
     ("dropo", "popsize", 1, r"DROPOConfig\.popsize = 1; expected an integer >= 2"),
 ])
 def test_method_configs_check_their_options(method, option, value, message):
-    from common.errors import InputError
+    from goflow_common.errors import InputError
     from learning.estimation.estimate import EstimateConfig
 
     with pytest.raises(InputError, match=message):

@@ -1,4 +1,4 @@
-"""common.files: atomic writes, strict JSON, data-only tensor loads, output paths, run locks."""
+"""goflow_common.files: atomic writes, strict JSON, data-only tensor loads, output paths, run locks."""
 
 import json
 import os
@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from common.errors import FileFormatError, OutputPathError, RunFolderBusyError
-from common.files import (
+from goflow_common.errors import FileFormatError, OutputPathError, RunFolderBusyError
+from goflow_common.files import (
     check_output_dir, check_output_file, load_tensors, read_json, run_folder_lock, save_tensors, write_json,
 )
 
@@ -97,8 +97,8 @@ def test_a_run_folder_has_one_writer(tmp_path):
             with run_folder_lock(run):
                 pass
         code = textwrap.dedent(f"""
-            from common.files import run_folder_lock
-            from common.errors import RunFolderBusyError
+            from goflow_common.files import run_folder_lock
+            from goflow_common.errors import RunFolderBusyError
             try:
                 with run_folder_lock({str(run)!r}):
                     print("acquired")

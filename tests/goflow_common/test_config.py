@@ -1,12 +1,12 @@
-"""common.config: configs from defaults, mappings and overrides, and back to JSON data."""
+"""goflow_common.config: configs from defaults, mappings and overrides, and back to JSON data."""
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 
-from common.config import config_to_dict, config_with_overrides
-from common.errors import UnknownOptionError
+from goflow_common.config import config_to_dict, config_with_overrides
+from goflow_common.errors import UnknownOptionError
 
 
 @dataclass

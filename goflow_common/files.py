@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from common.errors import FileFormatError, OutputPathError, RunFolderBusyError
+from goflow_common.errors import FileFormatError, OutputPathError, RunFolderBusyError
 
 __all__ = [
     "write_atomic",

@@ -11,7 +11,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-from common.errors import InputError, UnknownOptionError
+from goflow_common.errors import InputError, UnknownOptionError
 
 __all__ = ["config_with_overrides", "config_to_dict", "key_values", "parse_value"]
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from common.errors import InputError
+from goflow_common.errors import InputError
 
 __all__ = ["check_int", "check_number", "check_choice", "check_finite_array", "InputErrorParser"]
 
