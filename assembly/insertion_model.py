@@ -17,6 +17,7 @@ gear touches anything.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from pydrake.geometry import (
@@ -95,16 +96,9 @@ def _proximity(contact, compliant: bool) -> ProximityProperties:
     return props
 
 
-def build_fast_insertion(config: FastInsertionConfig | None = None) -> FastInsertionModel:
-    """Build the reduced insertion Diagram. Its exported inputs: "desired_state" (8: q_d, v_d for
-    x, y, z, yaw) and "feedforward" (4); output "state" (8)."""
-    config = config or FastInsertionConfig()
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(
-        time_step=config.time_step, contact_model="hydroelastic_with_fallback",
-        discrete_contact_approximation="lagged"), builder)
-
-    # Plate: a point-contact box; shafts: compliant convex meshes, as in the station's plate model.
+def add_fast_fixtures(plant: MultibodyPlant, config: FastInsertionConfig) -> RigidTransform:
+    """Add the plate (a point-contact box) and its shafts (compliant convex meshes, as in the
+    station's plate model) to the world of an unfinalized plant; return the plate pose X_WP."""
     X_WP = planar_pose(*config.plate_pose)
     world = plant.world_body()
     plate_props = _proximity(PLATE_CONTACT, compliant=False)
@@ -115,11 +109,22 @@ def build_fast_insertion(config: FastInsertionConfig | None = None) -> FastInser
         plant.RegisterCollisionGeometry(
             world, X_WP @ RigidTransform(shaft_position_in_plate(name)), Convex(str(shaft_mesh)),
             f"shaft_{name}", _proximity(SHAFT_CONTACT, compliant=True))
+    return X_WP
 
-    # Tool on x, y, z, yaw joints.
+
+def add_fast_tool(plant: MultibodyPlant, config: FastInsertionConfig, instance=None) -> tuple[Any, HeldGear]:
+    """Add the tool on x, y, z, yaw joints (PD-actuated, with the Panda's reflected inertia) and the
+    gear it holds to an unfinalized plant, the tool in model instance `instance` (default: the
+    plant's default instance; another instance numbers the gear's instance); return (tool body,
+    HeldGear)."""
+    from pydrake.multibody.tree import default_model_instance
+
+    copy = instance is not None
+    instance = default_model_instance() if instance is None else instance
+    world = plant.world_body()
     inertia = SpatialInertia(1e-3, np.zeros(3), UnitInertia.SolidSphere(0.01))
-    links = [plant.AddRigidBody(f"{n}_link", inertia) for n in JOINT_NAMES[:3]]
-    tool = plant.AddRigidBody("tool", SpatialInertia(
+    links = [plant.AddRigidBody(f"{n}_link", instance, inertia) for n in JOINT_NAMES[:3]]
+    tool = plant.AddRigidBody("tool", instance, SpatialInertia(
         TOOL_MASS, np.zeros(3), UnitInertia.SolidBox(0.06, 0.2, 0.06)))
     parents = [world] + links
     children = links + [tool]
@@ -138,7 +143,24 @@ def build_fast_insertion(config: FastInsertionConfig | None = None) -> FastInser
         actuator.set_controller_gains(PdControllerGains(p=float(K), d=float(D)))
     tcp = plant.AddFrame(FixedOffsetFrame(
         "tool_tcp", tool.body_frame(), RigidTransform(RotationMatrix.MakeXRotation(np.pi), np.zeros(3))))
-    held = add_held_gear(plant, config.gear, tcp)
+    return tool, add_held_gear(plant, config.gear, tcp, auto_renaming=copy)
+
+
+def fast_plant_config(config: FastInsertionConfig) -> MultibodyPlantConfig:
+    """The reduced model's plant: discrete at config.time_step, hydroelastic with point-contact
+    fallback, SAP "lagged"."""
+    return MultibodyPlantConfig(time_step=config.time_step, contact_model="hydroelastic_with_fallback",
+                                discrete_contact_approximation="lagged")
+
+
+def build_fast_insertion(config: FastInsertionConfig | None = None) -> FastInsertionModel:
+    """Build the reduced insertion Diagram. Its exported inputs: "desired_state" (8: q_d, v_d for
+    x, y, z, yaw) and "feedforward" (4); output "state" (8)."""
+    config = config or FastInsertionConfig()
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(fast_plant_config(config), builder)
+    X_WP = add_fast_fixtures(plant, config)
+    tool, held = add_fast_tool(plant, config)
     plant.Finalize()
 
     builder.ExportInput(plant.get_desired_state_input_port(tool.model_instance()), "desired_state")

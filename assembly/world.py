@@ -48,12 +48,14 @@ PLACEMENT_X = (0.30, 0.62)
 PLACEMENT_Y = (-0.23, 0.22)
 
 
-def model_parser(plant: MultibodyPlant) -> Parser:
+def model_parser(plant: MultibodyPlant, auto_renaming: bool = False) -> Parser:
     """A Parser for our own models that cannot download anything: Drake's remote model package is
     removed from its package map, so a stray package:// reference fails instead of fetching.
-    (drake 1.51: DRAKE_ALLOW_NETWORK=none would make the Parser constructor itself throw.)"""
+    (drake 1.51: DRAKE_ALLOW_NETWORK=none would make the Parser constructor itself throw.)
+    With auto_renaming, a model added again gets a numbered instance name (copies in one plant)."""
     parser = Parser(plant)
     parser.package_map().Remove("drake_models")
+    parser.SetAutoRenaming(auto_renaming)
     return parser
 
 
@@ -315,10 +317,12 @@ def grasp_with_error(gear: str, x: float, y: float, yaw: float) -> RigidTransfor
                           X.translation() + np.array([x, y, 0.0]))
 
 
-def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame, hold: GraspHold | None = None) -> HeldGear:
+def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame, hold: GraspHold | None = None,
+                  auto_renaming: bool = False) -> HeldGear:
     """Add gear `gear` welded to a new grasp frame on `tool` (initially the nominal grasp), or
-    hanging from `tool` on the joints of `hold` (GraspHold)."""
-    instance = model_parser(plant).AddModels(str(gearset_model_paths()[gear]))[0]
+    hanging from `tool` on the joints of `hold` (GraspHold). With auto_renaming, the gear's model
+    instance is numbered when the plant already holds one (copies in one plant)."""
+    instance = model_parser(plant, auto_renaming).AddModels(str(gearset_model_paths()[gear]))[0]
     (index,) = plant.GetBodyIndices(instance)
     if hold is None:
         grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", tool, nominal_grasp(gear)))

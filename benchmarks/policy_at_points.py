@@ -18,7 +18,7 @@ import torch
 
 import assembly  # noqa: F401  (registers the goflow/* ids)
 from assembly.samplers import NoDR
-from learning.experiment import _make_vector_env, load_run
+from learning.experiment import make_vector_env, load_run
 from goflow_common.files import write_json
 
 VECTOR_ENVS = 4
@@ -27,7 +27,7 @@ VECTOR_ENVS = 4
 def evaluate_at(run: Path, points: list[np.ndarray], episodes: int, seed: int = 0) -> list[dict]:
     """Success rate and mean return of the run's final policy with the env's parameters fixed at each point."""
     loaded = load_run(run)
-    vec_env = _make_vector_env(loaded.config, VECTOR_ENVS)
+    vec_env = make_vector_env(loaded.config, VECTOR_ENVS)
     rows = []
     for point in points:
         if len(point) != loaded.space.dim:

@@ -78,6 +78,10 @@ def probe_env(env_id: str, env_kwargs: dict[str, Any]) -> gymnasium.Env:
     return env.unwrapped
 
 
+#: TrainConfig.vectorization choices (make_vector_env).
+VECTORIZATIONS = ("batched", "sync")
+
+
 @dataclass
 class TrainConfig:
     """One training run. Every `goflow train` flag maps to a field."""
@@ -97,6 +101,9 @@ class TrainConfig:
     sampler_batch: str | None = None
     # what the sampler learns: "return" (the episode return) or "success" (1 if return >= J_T else 0)
     sampler_signal: str = "return"
+    # how the num_envs environments are stepped: "batched" (N copies in one Drake plant, where the
+    # env id has a batched vector env; else "sync") or "sync" (N single envs in a SyncVectorEnv)
+    vectorization: str = "batched"
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -116,6 +123,8 @@ class TrainConfig:
         if self.method == "adr" and self.sampler_batch != "training":
             raise ValueError("ADR learns only from its own boundary-pinned training episodes: "
                              "sampler_batch must be 'training'")
+        if self.vectorization not in VECTORIZATIONS:
+            raise ValueError(f"TrainConfig.vectorization = {self.vectorization!r}; expected one of {VECTORIZATIONS}")
         for name in ("total_steps", "iterations_per_round", "eval_episodes"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"TrainConfig.{name} = {getattr(self, name)}; expected >= 1")
@@ -182,8 +191,15 @@ def load_run(run: Path | str) -> Run:
     return Run(state, config, space, sampler, PPO.from_state_dict(state["agent"]))
 
 
-def _make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
-    """n environments in this process (runs parallelize across processes, one per run)."""
+def make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
+    """n environments of `config.env` in this process, in the SAME_STEP autoreset layout PPO needs
+    (runs parallelize across processes, one per run): the env id's batched vector env (n copies in
+    one Drake plant, assembly/envs/batched.py) when `config.vectorization` is "batched" and the id
+    has one, else n single envs in a SyncVectorEnv."""
+    spec = gymnasium.spec(config.env)
+    if config.vectorization == "batched" and spec.vector_entry_point is not None:
+        return gymnasium.make_vec(config.env, num_envs=n, vectorization_mode="vector_entry_point",
+                                  **config.env_kwargs)
     return gymnasium.vector.SyncVectorEnv(
         [lambda: gymnasium.make(config.env, **config.env_kwargs) for _ in range(n)],
         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
@@ -225,8 +241,8 @@ def _train(config: TrainConfig, probe: gymnasium.Env, progress: bool) -> dict:
     sampler = make_sampler(config.method, space, J_T, protocol_sampler_kwargs(config.method, config.sampler_kwargs))
     ppo_config = dataclasses.replace(config.ppo, seed=config.seed)
     agent = PPO(obs_dim, critic_dim, probe.action_space, ppo_config)
-    train_envs = _make_vector_env(config, ppo_config.num_envs)
-    val_envs = _make_vector_env(config, ppo_config.num_envs)
+    train_envs = make_vector_env(config, ppo_config.num_envs)
+    val_envs = make_vector_env(config, ppo_config.num_envs)
     val_envs.set_attr("sampler", FullDR(space))
     log = {"config": config.to_json(), "env": config.env, "method": config.method,
            "success_threshold": J_T, "curve": [], "seconds": 0.0, "sampler_seconds": 0.0,
@@ -387,7 +403,7 @@ def _fit_sampler(run: Path, fit: SamplerFitConfig, progress: bool) -> dict:
     if "sampler_fit_last" in state:  # go on from the last update, not from the selected sampler
         sampler.load_state_dict(state["sampler_fit_last"])
     log, checkpoint = state["log"], run / "checkpoint.pt"
-    envs = _make_vector_env(config, agent.config.num_envs)
+    envs = make_vector_env(config, agent.config.num_envs)
     envs.set_attr("sampler", sampler)
     done = log.setdefault("sampler_fit", [])
     log["sampler_fit_config"] = dataclasses.asdict(fit)

@@ -21,6 +21,15 @@ _ENVS = {
                                 {"gear": "medium", "variant": "fast"}),
 }
 
+# Batched vector envs (N copies in one Drake diagram, assembly/envs/batched.py): what
+# `gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")` builds.
+_VECTOR_ENVS = {
+    "goflow/Cartpole-v0": "assembly.envs.cartpole_vector:CartpoleVectorEnv",
+    "goflow/Quadrotor-v0": "assembly.envs.quadrotor_vector:QuadrotorVectorEnv",
+    "goflow/GearInsertion-v0": "assembly.envs.gear_insertion_vector:GearInsertionVectorEnv",
+}
+
 for _env_id, (_entry_point, _kwargs) in _ENVS.items():
     if _env_id not in gymnasium.registry:  # importing twice (e.g. importlib test mode) must not warn
-        gymnasium.register(id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs))
+        gymnasium.register(id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs),
+                           vector_entry_point=_VECTOR_ENVS.get(_env_id))

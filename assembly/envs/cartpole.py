@@ -93,6 +93,61 @@ def _proximity(mu: float, cfg: CartpoleConfig):
     return point_contact_properties(cfg.contact_stiffness, cfg.contact_dissipation, mu)
 
 
+def cart_height(cfg: CartpoleConfig) -> float:
+    """[m] height of the cart origin when its wheel touches the ground top (z = 0)."""
+    return 0.5 * cfg.cart_size[2] + cfg.wheel_radius
+
+
+@dataclass(frozen=True)
+class CartpoleCopy:
+    """One cartpole added to a plant: its bodies, joints, actuator and contact geometries."""
+
+    cart: Any  # RigidBody
+    pole: Any  # RigidBody
+    joints: tuple[Any, Any, Any]  # slider (x), cart vertical (z), pole hinge (theta)
+    actuator: Any  # JointActuator on the slider
+    geometries: tuple[Any, Any]  # GeometryIds: wheel, ground
+
+
+def add_cartpole(plant, cfg: CartpoleConfig, instance=None, y: float = 0.0) -> CartpoleCopy:
+    """Add one cartpole (bodies, joints, the slider actuator, the wheel and its ground) to an
+    unfinalized plant, in model instance `instance` (default: the plant's default instance), its
+    rail along x at lateral offset y [m] (the joint coordinates do not depend on y)."""
+    from pydrake.geometry import Box, Sphere
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.tree import (FixedOffsetFrame, PrismaticJoint, RevoluteJoint, SpatialInertia,
+                                        UnitInertia, default_model_instance)
+
+    instance = default_model_instance() if instance is None else instance
+    # Massless carriage between the x slider and the vertical joint; the cart and pole above it
+    # give both joints positive inertia.
+    carriage = plant.AddRigidBody("carriage", instance, SpatialInertia(0.0, np.zeros(3), UnitInertia(0.0, 0.0, 0.0)))
+    cart = plant.AddRigidBody("cart", instance, SpatialInertia(1.0, np.zeros(3), UnitInertia.SolidBox(*cfg.cart_size)))
+    g_pole = UnitInertia.SolidBox(0.04, 0.06, cfg.pole_length).ShiftFromCenterOfMass([0.0, 0.0, -cfg.pole_com])
+    pole = plant.AddRigidBody("pole", instance, SpatialInertia(1.0, [0.0, 0.0, cfg.pole_com], g_pole))
+    rail = plant.world_frame()
+    if y != 0.0:
+        rail = plant.AddFrame(FixedOffsetFrame("rail", plant.world_frame(), RigidTransform([0.0, y, 0.0]), instance))
+    slider = plant.AddJoint(PrismaticJoint("slider_to_cart", rail, carriage.body_frame(),
+                                           [1.0, 0.0, 0.0], -cfg.slider_limit, cfg.slider_limit,
+                                           cfg.slider_damping))
+    vertical = plant.AddJoint(PrismaticJoint("cart_vertical", carriage.body_frame(), cart.body_frame(), [0.0, 0.0, 1.0]))
+    hinge = plant.AddJoint(RevoluteJoint("cart_to_pole", cart.body_frame(), pole.body_frame(), [0.0, 1.0, 0.0]))
+    actuator = plant.AddJointActuator("slider_force", slider)
+    wheel = plant.RegisterCollisionGeometry(cart, RigidTransform([0.0, 0.0, -0.5 * cfg.cart_size[2]]),
+                                            Sphere(cfg.wheel_radius), "wheel", _proximity(0.0, cfg))
+    # A box, not a HalfSpace (which makes Drake warn about deformable contact).
+    name = "ground" if instance == default_model_instance() else f"ground_{plant.GetModelInstanceName(instance)}"
+    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, y, -0.5]),
+                                             Box(4.0 * cfg.slider_limit + 2.0, 2.0, 1.0), name,
+                                             _proximity(0.0, cfg))
+    # SAP with its default "lagged" approximation: it enforces the slider limits, and stays stable
+    # for 0.02 kg carts hitting them; TAMSI (~4x faster) ignores joint limits and diverges on stiff
+    # end stops, and SAP's "sap"/"similar" approximations make a sliding cart float (normal
+    # velocity ~ mu * slip speed).
+    return CartpoleCopy(cart, pole, (slider, vertical, hinge), actuator, (wheel, ground))
+
+
 class CartpoleEnv(PlantEnv):
     """Balance a pole on a force-driven cart; xi = (pole mass, cart mass, slider Coulomb friction)."""
 
@@ -115,45 +170,19 @@ class CartpoleEnv(PlantEnv):
     # -- Drake model ---------------------------------------------------------------------------
 
     def _build(self) -> None:
-        from pydrake.geometry import Box, Sphere
-        from pydrake.math import RigidTransform
         from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
-        from pydrake.multibody.tree import PrismaticJoint, RevoluteJoint, SpatialInertia, UnitInertia
         from pydrake.systems.analysis import Simulator
         from pydrake.systems.framework import DiagramBuilder
 
-        cfg = self.config
         builder = DiagramBuilder()
-        plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=cfg.sim_dt)
-        # Massless carriage between the x slider and the vertical joint; the cart and pole above it
-        # give both joints positive inertia.
-        carriage = plant.AddRigidBody("carriage", SpatialInertia(0.0, np.zeros(3), UnitInertia(0.0, 0.0, 0.0)))
-        cart = plant.AddRigidBody("cart", SpatialInertia(1.0, np.zeros(3), UnitInertia.SolidBox(*cfg.cart_size)))
-        g_pole = UnitInertia.SolidBox(0.04, 0.06, cfg.pole_length).ShiftFromCenterOfMass([0.0, 0.0, -cfg.pole_com])
-        pole = plant.AddRigidBody("pole", SpatialInertia(1.0, [0.0, 0.0, cfg.pole_com], g_pole))
-        slider = plant.AddJoint(PrismaticJoint("slider_to_cart", plant.world_frame(), carriage.body_frame(),
-                                               [1.0, 0.0, 0.0], -cfg.slider_limit, cfg.slider_limit,
-                                               cfg.slider_damping))
-        plant.AddJoint(PrismaticJoint("cart_vertical", carriage.body_frame(), cart.body_frame(), [0.0, 0.0, 1.0]))
-        plant.AddJoint(RevoluteJoint("cart_to_pole", cart.body_frame(), pole.body_frame(), [0.0, 1.0, 0.0]))
-        plant.AddJointActuator("slider_force", slider)
-        # The wheel touches the ground top (z = 0) when the cart origin is at z = cart_height.
-        self._cart_height = 0.5 * cfg.cart_size[2] + cfg.wheel_radius
-        wheel = plant.RegisterCollisionGeometry(cart, RigidTransform([0.0, 0.0, -0.5 * cfg.cart_size[2]]),
-                                                Sphere(cfg.wheel_radius), "wheel", _proximity(0.0, cfg))
-        # A box, not a HalfSpace (which makes Drake warn about deformable contact).
-        ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]),
-                                                 Box(4.0 * cfg.slider_limit + 2.0, 2.0, 1.0), "ground",
-                                                 _proximity(0.0, cfg))
-        # SAP with its default "lagged" approximation: it enforces the slider limits, and stays stable
-        # for 0.02 kg carts hitting them; TAMSI (~4x faster) ignores joint limits and diverges on stiff
-        # end stops, and SAP's "sap"/"similar" approximations make a sliding cart float (normal
-        # velocity ~ mu * slip speed).
+        plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.config.sim_dt)
+        copy = add_cartpole(plant, self.config)
         plant.Finalize()
         self._diagram = builder.Build()
         self._plant, self._scene_graph = plant, scene_graph
-        self._cart, self._pole = cart, pole
-        self._geometries = (wheel, ground)
+        self._cart, self._pole = copy.cart, copy.pole
+        self._geometries = copy.geometries
+        self._cart_height = cart_height(self.config)
         self._simulator = Simulator(self._diagram)
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)

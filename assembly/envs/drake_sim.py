@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 from contextlib import contextmanager
 
 import numpy as np
@@ -81,6 +82,18 @@ def rollout_fixed_inputs(simulator: Simulator, held: HeldInput, inputs: NDArray[
         advance(simulator, t0 + (k + 1) * dt, owner)
         out.append(read_state())
     return np.array(out)
+
+
+def filter_between_copies(scene_graph, copies: Sequence[Sequence[Any]]) -> None:
+    """Exclude contact between the geometries of different copies (GeometryIds, one sequence per
+    copy) in SceneGraph's model; contact within a copy and with shared geometry is kept."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+
+    manager = scene_graph.collision_filter_manager()
+    later = [gid for copy in copies for gid in copy]
+    for copy in copies[:-1]:
+        later = later[len(copy):]
+        manager.Apply(CollisionFilterDeclaration().ExcludeBetween(GeometrySet(list(copy)), GeometrySet(later)))
 
 
 class PlantAccess:

@@ -129,6 +129,35 @@ def _down(p: np.ndarray, yaw: float) -> RigidTransform:
     return RigidTransform(RotationMatrix.MakeZRotation(yaw) @ RotationMatrix.MakeXRotation(np.pi), p)
 
 
+def grasp_error_space(c: GearInsertionConfig) -> ParamSpace:
+    """xi: the grasp error (x, y [m] along the tool's axes, yaw [rad]) over the config's box."""
+    return ParamSpace((Param("x", -c.grasp_xy, c.grasp_xy, "m"),
+                       Param("y", -c.grasp_xy, c.grasp_xy, "m"),
+                       Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))
+
+
+def observation_space(c: GearInsertionConfig) -> spaces.Box:
+    """The pose history's bounds: poses within 1 m / pi of the seated pose, velocities within
+    10 m/s / 100 rad/s (far beyond what the impedance allows; a simulation that leaves them has failed)."""
+    bound = np.tile(np.r_[1.0, 1.0, 1.0, np.pi, 10.0, 10.0, 10.0, 100.0], c.history).astype(np.float32)
+    return spaces.Box(-bound, bound, dtype=np.float32)
+
+
+def seated_and_start(c: GearInsertionConfig, X_WS: RigidTransform) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Tool poses (x, y, z, yaw): seated (where a centred gear sits on the shaft at X_WS) and the
+    episode's start above it."""
+    X_WT_seated = X_WS @ nominal_grasp(c.gear).inverse()
+    seated = np.array([*X_WT_seated.translation(), _yaw(X_WT_seated.rotation())])
+    return seated, seated + [0.0, 0.0, SHAFT_HEIGHT + c.start_height, 0.0]
+
+
+def insertion_reward(c: GearInsertionConfig, seated: bool, d: float, d_before: float) -> float:
+    """The step reward: 1 when seated, two tanh shaping terms in the distance d [m] to the seat, and
+    progress (d_before - d)."""
+    return (float(seated) + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
+            + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (d_before - d))
+
+
 class GearInsertionEnv(ParamEnv):
     """Insert a gear held with grasp error xi = (x, y, yaw) onto its shaft."""
 
@@ -136,23 +165,13 @@ class GearInsertionEnv(ParamEnv):
                  **overrides: Any) -> None:
         self.config = c = config_with_overrides(GearInsertionConfig, config, overrides,
                                                 "GearInsertionEnv")
-        space = ParamSpace((Param("x", -c.grasp_xy, c.grasp_xy, "m"),
-                            Param("y", -c.grasp_xy, c.grasp_xy, "m"),
-                            Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))
-        super().__init__(space, sampler)
+        super().__init__(grasp_error_space(c), sampler)
         self._set_timing(c.control_dt, c.t_max, c.success_threshold)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        # Bounds: poses within 1 m / pi of the seated pose, velocities within 10 m/s / 100 rad/s
-        # (far beyond what the impedance allows; a simulation that leaves them has failed).
-        bound = np.tile(np.r_[1.0, 1.0, 1.0, np.pi, 10.0, 10.0, 10.0, 100.0], c.history)
-        self.observation_space = spaces.Box(-bound.astype(np.float32), bound.astype(np.float32),
-                                            dtype=np.float32)
+        self.observation_space = observation_space(c)
         self._sim = _FastSim(c) if c.variant == "fast" else _PandaSim(c)
         self._X_SW = self._sim.X_WS.inverse()
-        # Seated tool pose: the tool where a centred gear sits on its shaft.
-        self._X_WT_seated = self._sim.X_WS @ nominal_grasp(c.gear).inverse()
-        self._seated = np.array([*self._X_WT_seated.translation(), _yaw(self._X_WT_seated.rotation())])
-        self._start = self._seated + [0.0, 0.0, SHAFT_HEIGHT + c.start_height, 0.0]
+        self._seated, self._start = seated_and_start(c, self._sim.X_WS)
         self._sim.prepare(_down(self._start[:3], self._start[3]))
         self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt)
         self._history = PoseHistory(self.law)
@@ -213,9 +232,7 @@ class GearInsertionEnv(ParamEnv):
         lateral, height = self.insertion_error()
         seated = is_seated(lateral, height)
         d = math.hypot(lateral, height)
-        c = self.config
-        reward = (float(seated) + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
-                  + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (self._d - d))
+        reward = insertion_reward(self.config, seated, d, self._d)
         self._d = d
         return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
                                                     "height_error": height}

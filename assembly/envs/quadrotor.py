@@ -109,6 +109,68 @@ class QuadrotorConfig:
         return self.thrust_to_weight * self.nominal_mass
 
 
+def rotor_layout(cfg: QuadrotorConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rotor positions in the body frame [m] (4, 3), "+" layout, and each rotor's spin sign (4,):
+    rotor i's drag moment about body z is sign_i * moment_ratio * thrust_i."""
+    L = cfg.arm_length
+    positions = np.array([[L, 0, 0], [0, L, 0], [-L, 0, 0], [0, -L, 0]], dtype=np.float64)
+    return positions, np.array([1.0, -1.0, 1.0, -1.0])
+
+
+def _contact():
+    return point_contact_properties(1e5, 20.0, 1.0)
+
+
+def add_quadrotor(plant, cfg: QuadrotorConfig, instance=None):
+    """Add one airframe (a free body with rotor damping and a collision sphere) to an unfinalized
+    plant in model instance `instance` (default: the plant's default instance); return its body.
+    Also sets the plant's contact approximation (SAP "lagged")."""
+    from pydrake.math import RigidTransform
+    from pydrake.geometry import Sphere
+    from pydrake.multibody.plant import DiscreteContactApproximation
+    from pydrake.multibody.tree import (QuaternionFloatingJoint, SpatialInertia, UnitInertia,
+                                        default_model_instance)
+
+    instance = default_model_instance() if instance is None else instance
+    unit = UnitInertia(*(np.asarray(cfg.inertia) / cfg.nominal_mass))
+    body = plant.AddRigidBody("body", instance, SpatialInertia(cfg.nominal_mass, np.zeros(3), unit))
+    # Rotor aerodynamic damping of the body rotation, applied implicitly by the discrete solver. Without
+    # it a light drone under bang-bang thrusts spins up without bound and the explicit gyroscopic
+    # term diverges (NaN within 0.2 s at 0.05 kg); PhysX (the seed) damps and caps angular velocity.
+    plant.AddJoint(QuaternionFloatingJoint("body_free", plant.world_frame(), body.body_frame(),
+                                           angular_damping=cfg.angular_damping, translational_damping=0.0))
+    plant.RegisterCollisionGeometry(body, RigidTransform(), Sphere(cfg.collision_radius), "body", _contact())
+    # SAP "lagged" (Drake's default, explicit here): TAMSI is ~3.5x faster while the drone rests on
+    # the ground but failed (NaN) in 31 of 90 bang-bang episodes across the mass box; lagged in none.
+    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+    return body
+
+
+def add_ground(plant):
+    """The ground box (top at z = 0) every airframe lands on; returns its GeometryId."""
+    from pydrake.geometry import Box
+    from pydrake.math import RigidTransform
+
+    return plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]),
+                                           Box(200.0, 200.0, 1.0), "ground", _contact())
+
+
+def add_propellers(builder, plant, cfg: QuadrotorConfig, bodies):
+    """One Drake Propeller system (named "propellers") driving four rotors on each body, its
+    command input ordered body by body; connected to the finalized plant's spatial force input."""
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.plant import Propeller, PropellerInfo
+
+    positions, spins = rotor_layout(cfg)
+    infos = [PropellerInfo(body.index(), RigidTransform(p), 1.0, s * cfg.moment_ratio)
+             for body in bodies for p, s in zip(positions, spins)]
+    propellers = builder.AddSystem(Propeller(infos))
+    propellers.set_name("propellers")
+    builder.Connect(propellers.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
+    builder.Connect(plant.get_body_poses_output_port(), propellers.get_body_poses_input_port())
+    return propellers
+
+
 class QuadrotorEnv(PlantEnv):
     """Fly to a random goal in 2 s; xi = (mass,); actions are four normalized rotor thrusts."""
 
@@ -131,46 +193,24 @@ class QuadrotorEnv(PlantEnv):
     # -- Drake model ---------------------------------------------------------------------------
 
     def _build(self) -> None:
-        from pydrake.geometry import Box, Sphere
-        from pydrake.math import RigidTransform
-        from pydrake.multibody.plant import (AddMultibodyPlantSceneGraph, DiscreteContactApproximation,
-                                             Propeller, PropellerInfo)
-        from pydrake.multibody.tree import QuaternionFloatingJoint, SpatialInertia, UnitInertia
+        from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
         from pydrake.systems.analysis import Simulator
         from pydrake.systems.framework import DiagramBuilder
 
         cfg = self.config
         builder = DiagramBuilder()
         plant, _ = AddMultibodyPlantSceneGraph(builder, time_step=cfg.sim_dt)
-        unit = UnitInertia(*(np.asarray(cfg.inertia) / cfg.nominal_mass))
-        body = plant.AddRigidBody("body", SpatialInertia(cfg.nominal_mass, np.zeros(3), unit))
-        # Rotor aerodynamic damping of the body rotation, applied implicitly by the discrete solver. Without
-        # it a light drone under bang-bang thrusts spins up without bound and the explicit gyroscopic
-        # term diverges (NaN within 0.2 s at 0.05 kg); PhysX (the seed) damps and caps angular velocity.
-        plant.AddJoint(QuaternionFloatingJoint("body_free", plant.world_frame(), body.body_frame(),
-                                               angular_damping=cfg.angular_damping, translational_damping=0.0))
-        props = point_contact_properties(1e5, 20.0, 1.0)
-        plant.RegisterCollisionGeometry(body, RigidTransform(), Sphere(cfg.collision_radius), "body", props)
-        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]), Box(200.0, 200.0, 1.0),
-                                        "ground", props)
-        # SAP "lagged" (Drake's default, explicit here): TAMSI is ~3.5x faster while the drone rests on
-        # the ground but failed (NaN) in 31 of 90 bang-bang episodes across the mass box; lagged in none.
-        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+        body = add_quadrotor(plant, cfg)
+        add_ground(plant)
         plant.Finalize()
-        L = cfg.arm_length
-        # "+" layout, alternate spin: rotor i's drag moment about body z is sign_i * moment_ratio * thrust_i.
-        self._rotor_positions = np.array([[L, 0, 0], [0, L, 0], [-L, 0, 0], [0, -L, 0]], dtype=np.float64)
-        self._rotor_spin = np.array([1.0, -1.0, 1.0, -1.0])
-        infos = [PropellerInfo(body.index(), RigidTransform(p), 1.0, s * cfg.moment_ratio)
-                 for p, s in zip(self._rotor_positions, self._rotor_spin)]
-        propellers = builder.AddSystem(Propeller(infos))
-        builder.Connect(propellers.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
-        builder.Connect(plant.get_body_poses_output_port(), propellers.get_body_poses_input_port())
+        self._rotor_positions, self._rotor_spin = rotor_layout(cfg)
+        add_propellers(builder, plant, cfg, [body])
         self._diagram = builder.Build()
         self._plant, self._body = plant, body
         self._simulator = Simulator(self._diagram)
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        propellers = self._diagram.GetSubsystemByName("propellers")
         self._prop_context = propellers.GetMyMutableContextFromRoot(self._context)
         self._input_zero = np.zeros(4)
         self._input = HeldInput(propellers.get_command_input_port(), self._prop_context, self._input_zero)

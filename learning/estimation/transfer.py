@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 import assembly  # noqa: F401  (registers the environment ids)
 from assembly.samplers import Sampler
 from goflow_common.checks import check_choice, check_int
-from learning.experiment import TrainConfig, _make_vector_env
+from learning.experiment import TrainConfig, make_vector_env
 from learning.ppo import PPO, PPOConfig
 
 __all__ = ["ALGOS", "SACConfig", "TransferConfig", "run_episodes", "train_and_evaluate"]
@@ -90,8 +90,8 @@ def _train_ppo(probe: Any, train_sampler: Sampler, true_sampler: Sampler, config
     obs_dim = int(np.prod(probe.observation_space.shape))
     agent = PPO(obs_dim, obs_dim + probe.space.dim, probe.action_space, ppo_config)
     envs_config = TrainConfig(env=config.env, method="fulldr", seed=config.seed)
-    train_envs = _make_vector_env(envs_config, ppo_config.num_envs)
-    eval_envs = _make_vector_env(envs_config, ppo_config.num_envs)
+    train_envs = make_vector_env(envs_config, ppo_config.num_envs)
+    eval_envs = make_vector_env(envs_config, ppo_config.num_envs)
     train_envs.set_attr("sampler", train_sampler)
     eval_envs.set_attr("sampler", true_sampler)
     curve = []
