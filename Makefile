@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test venv models clean
+.PHONY: demo test check venv models clean
 
 venv: $(STAMP)
 
@@ -22,6 +22,15 @@ demo: $(STAMP)
 # one math thread per worker (torch's and BLAS's default of one per core would oversubscribe).
 test: $(STAMP)
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --no-loadscope-reorder
+
+# The inner loop (under 3 minutes): lint, then the fast tests of the code every change touches
+# (files, configs, layers, the CLI, the batched envs); `make test` runs everything.
+check: $(STAMP)
+	$(BIN)/ruff check .
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -x -m "not slow" -n auto --maxprocesses 4 --dist loadfile \
+		tests/goflow_common tests/test_layers.py tests/test_benchmarks.py tests/test_cli.py \
+		tests/assembly/test_params.py tests/assembly/test_samplers.py tests/assembly/test_batched.py \
+		tests/learning/test_sampler_registry.py
 
 # Regenerate every committed model file (bit-identical for the same code).
 models: $(STAMP)

@@ -49,6 +49,7 @@ __all__ = [
     "NoDRConfig",
     "FullDRConfig",
     "check_sampler_args",
+    "base_diagnostics",
 ]
 
 
@@ -136,8 +137,9 @@ def check_state_dict(space: ParamSpace, state: Mapping[str, Any], expected_type:
         )
 
 
-def _diagnostics(returns: NDArray[np.float64], entropy: float) -> dict[str, Any]:
-    """Diagnostics every sampler reports from update."""
+def base_diagnostics(returns: NDArray[np.float64], entropy: float) -> dict[str, Any]:
+    """The diagnostics every sampler's `update` reports: {"n": the rows' count, "mean_return":
+    their mean return, "entropy": `entropy`} (`returns`: a non-empty 1-D array)."""
     return {"n": int(len(returns)), "mean_return": float(returns.mean()), "entropy": entropy}
 
 
@@ -195,7 +197,7 @@ class NoDR:
     def update(self, xi: ArrayLike, returns: ArrayLike) -> dict[str, Any]:
         """Validate the batch; nothing is learned."""
         _, ret = check_update_inputs(self.space, xi, returns)
-        return _diagnostics(ret, self.entropy())
+        return base_diagnostics(ret, self.entropy())
 
     def entropy(self) -> float:
         """-inf: a point mass has no differential entropy."""
@@ -243,7 +245,7 @@ class FullDR:
     def update(self, xi: ArrayLike, returns: ArrayLike) -> dict[str, Any]:
         """Validate the batch; nothing is learned."""
         _, ret = check_update_inputs(self.space, xi, returns)
-        return _diagnostics(ret, self.entropy())
+        return base_diagnostics(ret, self.entropy())
 
     def entropy(self) -> float:
         """log(volume) of the box, in nats."""

@@ -9,7 +9,7 @@ release, retreat); `assembly.inspection` adds the wrist-camera inspect motion.
 
 A scripted motion is open loop: it plans from where it *believes* the gear is. Compliance and the
 chamfers absorb small errors; larger ones make it fail, which is what trained skills
-(`learning.skills`) are for. "Skill" in goflow means only such a trained policy.
+(`learning.skill_file`) are for. "Skill" in goflow means only such a trained policy.
 """
 
 from __future__ import annotations

@@ -35,8 +35,6 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
-from multiprocessing import get_context  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -44,6 +42,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from goflow_common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.pool import ProcessPool, WorkerError  # noqa: E402
 
 VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7")
 
@@ -150,13 +149,12 @@ def main(argv: list[str] | None = None) -> int:
     done = {(r["variant"], r["seed"]) for r in rows}
     todo = [(v, s) for s in range(first, end) for v in args.variants if (v, s) not in done]
     print(f"{len(todo)} runs to do ({len(done)} already in {args.out})", flush=True)
-    with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-        futures = {pool.submit(run_one, v, s, camera_error, args.eta): (v, s) for v, s in todo}
-        for future in as_completed(futures):
-            variant, seed = futures[future]
-            try:
-                row = future.result()
-            except Exception as e:  # a crashed run is a failed row, reported, and the grid goes on
+    with ProcessPool(args.workers) as pool:
+        calls = [(v, s, camera_error, args.eta) for v, s in todo]
+        for k, row in pool.imap(run_one, calls, errors="return"):
+            variant, seed = todo[k]
+            if isinstance(row, WorkerError):  # a crashed run is a failed row, reported, and the grid goes on
+                e = row.__cause__ or row
                 row = {"variant": variant, "seed": seed, "camera_error": list(camera_error), "eta": args.eta,
                        "status": "error", "inserted": 0, "all_inserted": False,
                        "inspections": 0, "replans": 0, "reason": f"{type(e).__name__}: {e}", "sim_error": "",

@@ -29,7 +29,7 @@ sbi is benchmark-only: `.venv/bin/pip install -e ".[sbi]"` (sbi 0.27.0). `--reco
 puts the OT of earlier runs (e.g. docs/results/bayessim_sbi_runs.json) beside each new one.
 Writes runs/results/bayessim_sbi.json unless `--json` names another file.
 
-Usage: .venv/bin/python benchmarks/bayessim_sbi.py --envs goflow/PointMass-v0 --targets mixture gaussian \\
+Usage: .venv/bin/python -m benchmarks.bayessim_sbi --envs goflow/PointMass-v0 --targets mixture gaussian \\
            --seeds 3 --budget 80000 --sbi-training sbi ours --recorded docs/results/bayessim_sbi_runs.json
 """
 
@@ -42,21 +42,15 @@ import io
 import sys
 import time
 import warnings
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))  # nfpde_table, also when not run as a script
-
-from nfpde_table import dataset, oracle_ot, score  # noqa: E402
-from goflow_common.files import read_json, write_json  # noqa: E402
-from learning.estimation.bayessim import (BayesSimConfig, BayesSimSimulations, fit_mdn,  # noqa: E402
-                                          simulate_bayessim)
-from learning.estimation.distributions import GaussianMixtureAggregate  # noqa: E402
-from learning.samplers.estimated import EstimatedSampler  # noqa: E402
+from benchmarks.nfpde_table import dataset, oracle_ot, score
+from goflow_common.files import read_json, write_json
+from learning.estimation.bayessim import BayesSimConfig, BayesSimSimulations, fit_mdn, simulate_bayessim
+from learning.estimation.distributions import GaussianMixtureAggregate
+from learning.samplers.estimated import EstimatedSampler
 
 SBI_VERSION = "0.27.0"
 LABELS = {"sbi": "sbi-mdn", "ours": "sbi-mdn-our-training"}  # --sbi-training value -> label
@@ -230,7 +224,7 @@ def main() -> int:
     p.add_argument("--no-ours", action="store_true", help="skip our MDN")
     p.add_argument("--recorded", default=None, metavar="RUNS.json",
                    help="earlier runs to put beside the new ones (docs/results/bayessim_sbi_runs.json)")
-    p.add_argument("--json", default=str(ROOT / "runs" / "results" / "bayessim_sbi.json"), help="output file")
+    p.add_argument("--json", default="runs/results/bayessim_sbi.json", help="output file")
     args = p.parse_args()
     sbi = import_sbi() if args.sbi_training else None
 
@@ -240,7 +234,7 @@ def main() -> int:
 
     config = BayesSimConfig()  # the table's BayesSim
     recorded = recorded_ots(args.recorded)
-    doc: dict = {"command": "python benchmarks/bayessim_sbi.py " + " ".join(sys.argv[1:]),
+    doc: dict = {"command": "python -m benchmarks.bayessim_sbi " + " ".join(sys.argv[1:]),
                  "versions": {"sbi": getattr(sbi, "__version__", None), "torch": torch.__version__},
                  "bayessim_config": dataclasses.asdict(config), "runs": [], "oracle": {}}
     fits = ([("ours", lambda sims, seed: fit_mdn(sims, config, seed))] if not args.no_ours else [])

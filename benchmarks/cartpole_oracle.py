@@ -1,7 +1,7 @@
 """How much of the Cartpole box can be balanced at all: the success rate on the uniform box of
 controllers that know each episode's parameters xi, a ceiling-side reference for the learned policies.
 
-    .venv/bin/python benchmarks/cartpole_oracle.py [--episodes 1000] [--seed 0] [--json PATH]
+    .venv/bin/python -m benchmarks.cartpole_oracle [--episodes 1000] [--seed 0] [--json PATH]
 
 Each episode draws xi uniformly on the box and the start as `goflow/Cartpole-v0` does (pole angle
 uniform in +-45 deg), exactly like a validation episode, and is run by every controller of a

@@ -2,9 +2,9 @@
 and coverage of the ideal sampler on F-hat at each level, against rounds and `memory`; and the
 same for the skills' measured feasible sets, fitted from their grids as the skill refit does.
 
-    .venv/bin/python benchmarks/classifier_frontier.py --layouts tiny --seeds 0 1 2 --rounds 100 200 300 \\
+    .venv/bin/python -m benchmarks.classifier_frontier --layouts tiny --seeds 0 1 2 --rounds 100 200 300 \\
         --memory 16384 131072 [--boundary-memory 0 16384] [--levels 0.3 0.5 0.6 0.7 0.8 0.9] [--json PATH]
-    .venv/bin/python benchmarks/classifier_frontier.py --skills small medium large --per-cell 1 10 --seeds 0
+    .venv/bin/python -m benchmarks.classifier_frontier --skills small medium large --per-cell 1 10 --seeds 0
 
 Each (layout, seed, memory, boundary memory) feeds uniform batches of `--batch` points with their
 0/1 success to an `Evidence` of a window of `memory` rows and up to `boundary memory` older rows on
@@ -40,19 +40,17 @@ from typing import Any
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from assembly.gearset import GEARS  # noqa: E402
-from goflow_common.checks import InputErrorParser, check_int, check_number  # noqa: E402
-from goflow_common.errors import GoflowError, InputError  # noqa: E402
-from goflow_common.files import check_output_file, write_json  # noqa: E402
-from learning.feasible_grid import FeasibleSet, FlowRefitConfig  # noqa: E402
-from learning.feasible_sets import LAYOUTS, Layout  # noqa: E402
-from learning.samplers.evidence import Evidence  # noqa: E402
-from learning.samplers.feasibility import SuccessClassifier  # noqa: E402
-from learning.samplers.goflow import GoFlowConfig  # noqa: E402
-from learning.skills import load_skill  # noqa: E402
+from assembly.gearset import GEARS
+from goflow_common.checks import InputErrorParser, check_int, check_number
+from goflow_common.errors import GoflowError, InputError
+from goflow_common.files import check_output_file, write_json
+from learning.feasible_grid import FeasibleSet, FlowRefitConfig
+from learning.feasible_sets import LAYOUTS, Layout
+from learning.samplers.evidence import Evidence
+from learning.samplers.feasibility import SuccessClassifier
+from learning.samplers.goflow_config import GoFlowConfig
+from learning.skill_file import load_skill
 
 NAME = "classifier_frontier"
 TARGET_MASS, TARGET_COVERAGE, COVERAGE_LEVEL = 0.99, 0.95, 0.1

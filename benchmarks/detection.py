@@ -3,7 +3,7 @@ placement region, the plate, the station's scene camera) under each perturbation
 gear is found, how far the detection's centre is from the truth, how often the truth lies outside
 the proposed prior box, and the seconds detect_gears takes per scene (rendering not counted).
 
-    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python benchmarks/detection.py --scenes 100 --seed 1
+    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python -m benchmarks.detection --scenes 100 --seed 1
 
 prints a markdown table (and writes every row with --json PATH).
 """

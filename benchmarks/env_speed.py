@@ -217,14 +217,14 @@ def mujoco_rollout_speed(env_id: str, n: int, steps: int, seed: int) -> float | 
 
 def batched_table(copies: list[int], steps: int, seed: int, only: list[str] | None) -> list[dict]:
     """Print and return the --batched table (see the module docstring)."""
-    from assembly.envs import _VECTOR_ENVS
+    from assembly.envs import VECTOR_ENVS
 
     header = (f"{'env':<26} {'sync x16':>9} " + " ".join(f"{f'N={n}':>8} {'x':>5}" for n in copies)
               + f" {'AdvanceTo':>9} {'MuJoCo':>8} {f'rollout N={copies[-1]}':>14}")
     print(header)
     print("-" * len(header))
     rows = []
-    for env_id in _VECTOR_ENVS:
+    for env_id in VECTOR_ENVS:
         name = next((k for k in ENVS if _env_id(k) == env_id), env_id)
         if only and name not in only and env_id not in only:
             continue

@@ -1,7 +1,7 @@
 """A trained run's flow refitted to where its frozen policy succeeds (the skills' stage 4 on any
 `goflow train` run folder), and the result against the environment's own feasible set.
 
-    .venv/bin/python benchmarks/frozen_refit.py --runs runs/toy2d/toy2d-circle-entropy/goflow/seed0 ... \
+    .venv/bin/python -m benchmarks.frozen_refit --runs runs/toy2d/toy2d-circle-entropy/goflow/seed0 ... \
         [--cells 100] [--repeats 8] [--level 0.8] [--rounds 20] [--episodes 256] [--json PATH]
 
 For each run: the deterministic policy runs `--repeats` episodes (reset seeds 0, 1, ...) at the
@@ -29,7 +29,7 @@ from goflow_common.files import write_json
 from learning.experiment import load_run, probe_env
 from learning.feasible_grid import FeasibleGridConfig, FlowRefitConfig, flow_report, refit_flow
 from learning.feasible_sets import report_on
-from learning.skills import rollout_return
+from learning.skill_evaluation import rollout_return
 
 
 def success_rate(agent, env, xi: np.ndarray, threshold: float, repeats: int) -> np.ndarray:

@@ -3,7 +3,7 @@
 For each xi (uniform over a box, seeded) and each open-loop action sequence, run both variants
 and compare success, return and final insertion error. Prints a table; --json writes it.
 
-    .venv/bin/python benchmarks/insertion_variants.py --episodes 20 --json docs/results/insertion_variants.json
+    .venv/bin/python -m benchmarks.insertion_variants --episodes 20 --json docs/results/insertion_variants.json
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ the per-step reward distribution (mean, std, two-sample KS statistic), and open-
 from one shared initial state under the same actions (zero and random) after 0.1 s and 1 s: the
 largest generalized-position difference, x excluded. Prints a table; --json writes it.
 
-    .venv/bin/python benchmarks/mujoco_fidelity.py --episodes 100 --json docs/results/mujoco_fidelity.json
+    .venv/bin/python -m benchmarks.mujoco_fidelity --episodes 100 --json docs/results/mujoco_fidelity.json
 
 Needs the `mujoco` extra (`make test` installs it where it can).
 """

@@ -14,8 +14,8 @@ Every finished run is appended to docs/results/nfpde_policy-[<env>-]<target>.jso
 so an interrupted sweep resumes); the plot is docs/results/nfpde-policy-[<env>-]<target>.png. Cartpole
 keeps the names without <env>.
 
-Usage: .venv/bin/python benchmarks/nfpde_policy.py --target feasible-mixture --seeds 3 --iterations 60
-       .venv/bin/python benchmarks/nfpde_policy.py --env goflow/Hopper-v0 --target mixture5 --algos sac ppo --seeds 3
+Usage: .venv/bin/python -m benchmarks.nfpde_policy --target feasible-mixture --seeds 3 --iterations 60
+       .venv/bin/python -m benchmarks.nfpde_policy --env goflow/Hopper-v0 --target mixture5 --algos sac ppo --seeds 3
 """
 
 from __future__ import annotations
@@ -27,19 +27,18 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from assembly.samplers import FullDR
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_dir, write_json
+from learning.estimation.collect import CollectConfig, collect
+from learning.estimation.estimate import EstimateConfig, estimate
+from learning.estimation.estimate_file import load_estimate, save_estimate
+from learning.estimation.metrics import ot_cost
+from learning.estimation.targets import TARGETS, TargetConfig, TargetSampler
+from learning.estimation.transfer import ALGOS, SACConfig, TransferConfig, train_and_evaluate
+from learning.ppo import PPOConfig
 
-from assembly.samplers import FullDR  # noqa: E402
-from goflow_common.errors import InputError  # noqa: E402
-from goflow_common.files import check_output_dir, write_json  # noqa: E402
-from learning.estimation.collect import CollectConfig, collect  # noqa: E402
-from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
-from learning.estimation.estimate_file import load_estimate, save_estimate  # noqa: E402
-from learning.estimation.metrics import ot_cost  # noqa: E402
-from learning.estimation.targets import TARGETS, TargetConfig, TargetSampler  # noqa: E402
-from learning.estimation.transfer import ALGOS, SACConfig, TransferConfig, train_and_evaluate  # noqa: E402
-from learning.ppo import PPOConfig  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 CARTPOLE = "goflow/Cartpole-v0"
 #: The L of the table's mixture moved to the balanceable corner of Cartpole's box (unit-box coordinates:
@@ -94,7 +93,7 @@ def main() -> int:
     stem = "" if cartpole else args.env.split("/")[-1].split("-v")[0].lower() + "-"
     res_path = out / f"nfpde_policy-{stem}{args.target}.json"
     doc = json.loads(res_path.read_text()) if res_path.exists() else {"runs": [], "estimates": {}}
-    command = "python benchmarks/nfpde_policy.py " + " ".join(sys.argv[1:])
+    command = "python -m benchmarks.nfpde_policy " + " ".join(sys.argv[1:])
 
     target = TARGET_CONFIGS[args.target]
     episodes = args.episodes or (48 if cartpole else 10)

@@ -22,7 +22,7 @@ The runs are independent jobs (learning.execution): `--workers N` runs N at once
 `--ray local|auto|HOST:PORT` as Ray tasks (docs/cluster.md); each finished run is saved as it comes,
 and the numbers are the same wherever a run went (its dataset and estimator are seeded by the cell).
 
-Usage: .venv/bin/python benchmarks/nfpde_table.py --envs goflow/Cartpole-v0 --seeds 3
+Usage: .venv/bin/python -m benchmarks.nfpde_table --envs goflow/Cartpole-v0 --seeds 3
 """
 
 from __future__ import annotations
@@ -36,17 +36,16 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from goflow_common.errors import GoflowError, GridError
+from goflow_common.files import read_json, write_json
+from learning.execution import InlineBackend, Job, add_ray_flag, make_backend, run_grid
+from learning.estimation import ESTIMATORS
+from learning.estimation.collect import CollectConfig, collect
+from learning.estimation.estimate import EstimateConfig, estimate
+from learning.estimation.metrics import ot_cost
+from learning.estimation.targets import TARGETS, TargetConfig, sample_target
 
-from goflow_common.errors import GoflowError, GridError  # noqa: E402
-from goflow_common.files import read_json, write_json  # noqa: E402
-from learning.execution import InlineBackend, Job, add_ray_flag, make_backend, run_grid  # noqa: E402
-from learning.estimation import ESTIMATORS  # noqa: E402
-from learning.estimation.collect import CollectConfig, collect  # noqa: E402
-from learning.estimation.estimate import EstimateConfig, estimate  # noqa: E402
-from learning.estimation.metrics import ot_cost  # noqa: E402
-from learning.estimation.targets import TARGETS, TargetConfig, sample_target  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -252,7 +251,7 @@ def main() -> int:
         runs_path = out / f"{args.name}_runs.json"
         doc = read_json(runs_path, "runs file") if runs_path.exists() else {"runs": [], "oracle": {}}
         done = {_key(r) for r in doc["runs"]}
-        doc["command"] = "python benchmarks/nfpde_table.py " + " ".join(sys.argv[1:])
+        doc["command"] = "python -m benchmarks.nfpde_table " + " ".join(sys.argv[1:])
         doc.setdefault("commands", []).append(doc["command"])  # every invocation on this runs file
         cells = [(env, target, method, seed, args.budget, args.episodes, options, label)
                  for env in args.envs for target in args.targets for seed in range(args.seeds)

@@ -21,7 +21,7 @@ Rows made before the brightness was recorded take their group's headlight intens
 headlight; the scorer reads 0.498-0.500, 1.600-1.601 and 0.999-1.003 there); the oblique light's
 rows, whose gain varies with the view (0.70-1.0), are left out of the fit unless they recorded it.
 
-    .venv/bin/python benchmarks/perception_close_view.py \
+    .venv/bin/python -m benchmarks.perception_close_view \
         --results docs/results/perception_calibration_seed{19,20,21,22,23}000.json --json runs/close_view_fit.json
 
 prints, per gear and group, the coverage at 50/68/80/90/95 % before and after, and the fit.
@@ -35,16 +35,13 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from goflow_common.errors import InputError  # noqa: E402
-from goflow_common.files import check_output_file, write_json  # noqa: E402
-from perception.calibration import LEVELS, row_brightness  # noqa: E402
-from perception.likelihood import close_factor  # noqa: E402
-from perception_far_view import fit_parser, moved_levels, result_rows  # noqa: E402
-from perception_tempering import FIT_LEVELS, coverage  # noqa: E402
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_file, write_json
+from perception.calibration import LEVELS, row_brightness
+from perception.likelihood import close_factor
+from benchmarks.perception_far_view import fit_parser, moved_levels, result_rows
+from benchmarks.perception_tempering import FIT_LEVELS, coverage
 
 AMPLITUDES = np.round(np.geomspace(0.5, 2.0, 81), 4)
 EXPONENTS = np.round(np.linspace(-3.0, 3.0, 121), 3)

@@ -20,7 +20,7 @@ level moves as that of a Gaussian truth in 3 dimensions would: level' = F(f^g F^
 chi-square distribution function with 3 degrees of freedom. Checked against the exact levels that
 `perception_tempering.py` records on tuning rows (docs/perception.md, Tempering, item 9).
 
-    .venv/bin/python benchmarks/perception_far_view.py \
+    .venv/bin/python -m benchmarks.perception_far_view \
         --results docs/results/perception_calibration_seed1{5,6,7,8,9}000.json \
         docs/results/perception_calibration_seed2{0,1}000.json --json runs/far_view_fit.json
 
@@ -38,15 +38,12 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))  # perception_tempering, also when not run as a script
 
-from goflow_common.errors import InputError  # noqa: E402
-from goflow_common.files import check_output_file, read_json, write_json  # noqa: E402
-from perception.calibration import named_by_set  # noqa: E402
-from perception.likelihood import FAR_REFERENCE_PIXELS, far_factor, teeth_resolved  # noqa: E402
-from perception_tempering import FIT_LEVELS, coverage  # noqa: E402
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_file, write_json
+from perception.calibration import load_result, named_by_set
+from perception.likelihood import FAR_REFERENCE_PIXELS, far_factor, teeth_resolved
+from benchmarks.perception_tempering import FIT_LEVELS, coverage
 
 SLOPES = np.round(np.linspace(-4.0, 2.0, 61), 2)
 AMPLITUDES = np.round(np.geomspace(0.5, 2.0, 41), 4)
@@ -59,9 +56,9 @@ def result_rows(paths: list[Path]) -> list[dict]:
     is not one)."""
     rows: list[dict] = []
     for k, path in enumerate(paths):
-        result = read_json(path, "calibration result")
-        if not isinstance(result, dict) or not isinstance(result.get("rows"), list):
-            raise InputError(f"{path}: not a calibration result (no 'rows' list)")
+        result = load_result(path)
+        if not isinstance(result.get("rows"), list):
+            raise InputError(f"{path}: no rows (a summary); expected a calibration run's --rows file")
         rows += named_by_set(result["rows"], k)
     return rows
 

@@ -19,7 +19,7 @@ far- and close-view factors held, for the levels closest to uniform in every per
 view cell, and prints each source's fit and the coverage per view and group under the shipped
 pair and the fits.
 
-    .venv/bin/python benchmarks/perception_reshaping.py --side resolved \
+    .venv/bin/python -m benchmarks.perception_reshaping --side resolved \
         --results docs/results/perception_calibration_seed{19,20,21,22,23,24,25}000.json \
         --tuning-rows runs/tempering/seed6500.json --json runs/reshaping_resolved.json
 """
@@ -33,16 +33,13 @@ from pathlib import Path
 import numpy as np
 from scipy.special import gammainc, gammaincinv
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from goflow_common.errors import InputError  # noqa: E402
-from goflow_common.files import check_output_file, write_json  # noqa: E402
-from perception.calibration import LEVELS, resampled_set_count  # noqa: E402
-from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved  # noqa: E402
-from perception_far_view import fit_parser, result_rows  # noqa: E402
-from perception_tempering import Rows, cell_loss, coverage, held_factors, load_rows  # noqa: E402
+from goflow_common.errors import InputError
+from goflow_common.files import check_output_file, write_json
+from perception.calibration import LEVELS, resampled_set_count
+from perception.likelihood import LikelihoodConfig, blend_reshaping, teeth_resolved
+from benchmarks.perception_far_view import fit_parser, result_rows
+from benchmarks.perception_tempering import Rows, cell_loss, coverage, held_factors, load_rows
 
 SIDES = {"unresolved": 0, "resolved": 1}  # index into the (unresolved, resolved) pairs
 FACTORS = np.round(np.geomspace(0.5, 2.0, 49), 4)  # the side's factor searched (1 included)

@@ -2,7 +2,7 @@
 agreement), whole posteriors per gear, and the posterior plots of one gear seen close (wrist camera
 after inspect) and far (scene camera). Calibration is `goflow bench calibration`.
 
-    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python benchmarks/perception_speed.py --out DIR
+    OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python -m benchmarks.perception_speed --out DIR
 
 writes DIR/perception_bench.json, perception_posterior_close.png and perception_posterior_far.png
 (docs/results holds the committed ones), and prints markdown tables.

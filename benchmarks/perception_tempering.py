@@ -20,7 +20,7 @@ held at the shipped values. The reshaping acts once the posterior's cells are fi
 predicts the pipeline; a change of the search's tempering moves the cells, and its fit does not
 (docs/perception.md, Tempering, items 6 and 7).
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/perception_tempering.py --scenes 30 --seed 400 \
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.perception_tempering --scenes 30 --seed 400 \
         --workers 2 --rows runs/tempering/seed400.json
 
 prints the coverage at 50/68/80/90/95 % with the tempering the rows were made with and with the

@@ -21,8 +21,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from concurrent.futures import ProcessPoolExecutor  # noqa: E402
-from multiprocessing import get_context  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -31,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from assembly.gearset import GEAR_NAMES  # noqa: E402
 from goflow_common.files import check_output_file, write_json  # noqa: E402
+from goflow_common.pool import map_calls  # noqa: E402
 
 EPS = (0.0, 0.1, 1.0, 10.0, 100.0, 1000.0)
 
@@ -38,7 +37,7 @@ EPS = (0.0, 0.1, 1.0, 10.0, 100.0, 1000.0)
 def measure(gear: str, episodes: int, spread: float, seed: int) -> dict:
     import torch
 
-    from learning.skills import load_skill
+    from learning.skill_file import load_skill
     from planning.precondition import calibrate_value_threshold
 
     torch.set_num_threads(1)
@@ -93,9 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in (args.json, args.thresholds):
         if path is not None:
             check_output_file(path)
-    with ProcessPoolExecutor(min(args.workers, len(args.gears)), mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(measure, args.gears, [args.episodes] * len(args.gears),
-                             [args.spread] * len(args.gears), [args.seed] * len(args.gears)))
+    rows = map_calls(measure, [(gear, args.episodes, args.spread, args.seed) for gear in args.gears], args.workers)
     print(table(rows))
     if args.json:
         write_json(args.json, {"command": " ".join(sys.argv), "rows": rows})

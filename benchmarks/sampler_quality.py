@@ -1,9 +1,9 @@
 """Sampler quality on known feasible sets (issue 21): mass on the set, coverage of it, entropy and KL
 to the objective's optimum, against update rounds, for GoFlow in each mode and the baselines.
 
-    .venv/bin/python benchmarks/sampler_quality.py --layouts disks ring --methods uniform lsdr goflow-paper \\
+    .venv/bin/python -m benchmarks.sampler_quality --layouts disks ring --methods uniform lsdr goflow-paper \\
         --seeds 1 --rounds 30 --workers 1 [--out runs/sampler_quality] [--json PATH] [--plot PNG]
-    .venv/bin/python benchmarks/sampler_quality.py --layouts strip --methods goflow-constrained \\
+    .venv/bin/python -m benchmarks.sampler_quality --layouts strip --methods goflow-constrained \\
         --protocols uniform --sampler leak_target=0.008 --out runs/sq_leak0.008
 
 `--sampler KEY=VALUE` (repeatable) sets a GoFlowConfig field of every goflow-* method of the run,
@@ -66,16 +66,15 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from goflow_common.checks import InputErrorParser, check_int  # noqa: E402
-from goflow_common.errors import GoflowError, InputError  # noqa: E402
-from goflow_common.files import check_output_dir, check_output_file, read_json, to_strict_json, write_json  # noqa: E402
-from learning.execution import Job, add_ray_flag, make_backend, run_grid  # noqa: E402
-from learning.samplers.goflow import GoFlowConfig  # noqa: E402
-from learning.feasible_sets import (LAYOUTS, Layout, coverage, describe, kl_to_optimum,  # noqa: E402
+from goflow_common.checks import InputErrorParser, check_int
+from goflow_common.errors import GoflowError, InputError
+from goflow_common.files import check_output_dir, check_output_file, read_json, to_strict_json, write_json
+from learning.execution import Job, add_ray_flag, make_backend, run_grid
+from learning.samplers.goflow_config import GoFlowConfig
+from learning.feasible_sets import (LAYOUTS, Layout, coverage, describe, kl_to_optimum,
                                     mass_on, optimum_mass)
+
+ROOT = Path(__file__).resolve().parents[1]
 
 NAME = "sampler_quality"
 PROTOCOLS = ("uniform", "own")

@@ -1,11 +1,11 @@
 """Wall time of one sampler update per method and parameter dimension, and the training round it
 needs for the update to stay within the 5 % share of training time (issue 4's speed target).
 
-    .venv/bin/python benchmarks/sampler_update.py [--dims 1 3 5] [--batch 32] [--repeats 5] [--json PATH]
+    .venv/bin/python -m benchmarks.sampler_update [--dims 1 3 5] [--batch 32] [--repeats 5] [--json PATH]
 
 Each update gets a validation-sized batch (`--batch` uniform draws, ADR its own draws, with
 returns that peak in the box's centre), as `goflow train` gives it. One torch thread, as in training. The GoFlow rows also
-time zuko's own NSF class beside ours (`learning.samplers.goflow.build_spline_flow`, the same
+time zuko's own NSF class beside ours (`learning.samplers.spline_flow.build_spline_flow`, the same
 function with a cheaper bin softmax), and each GoFlow mode (the constrained mode learns from 0/1
 successes, 1 where the return >= 0.6), side by side in one process. "round for 5 %" is 19 x the
 update: the round's training + validation time at which the update is 5 % of the total.
@@ -21,7 +21,7 @@ import numpy as np
 import torch
 import zuko
 
-import learning.samplers.goflow as goflow_module
+import learning.samplers.spline_flow as goflow_module
 from assembly.params import Param, ParamSpace
 from learning.experiment import protocol_sampler_kwargs
 from learning.samplers.registry import METHODS, make_sampler

@@ -11,7 +11,7 @@ of a long grid, where a worker runs many tasks). The runs' results are checked t
 every backend. Last, `--noop` empty tasks on one worker give the backend's own cost per task,
 without a training run's variation.
 
-Usage: .venv/bin/python benchmarks/scale.py --seeds 2 --steps 3072 --json runs/scale.json
+Usage: .venv/bin/python -m benchmarks.scale --seeds 2 --steps 3072 --json runs/scale.json
 """
 
 from __future__ import annotations
@@ -23,13 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from goflow_common.files import check_output_file, write_json  # noqa: E402
-from learning.execution import Backend, Job, PoolBackend, RayBackend, run_jobs  # noqa: E402
-from learning.experiment import ExperimentConfig, experiment_jobs  # noqa: E402
-from learning.ppo import PPOConfig  # noqa: E402
+from goflow_common.files import check_output_file, write_json
+from learning.execution import Backend, Job, PoolBackend, RayBackend, run_jobs
+from learning.experiment import ExperimentConfig, experiment_jobs
+from learning.ppo import PPOConfig
 
 # Toy2D learns something within a few thousand steps with these (docs/learning.md's Toy2D options).
 PPO = PPOConfig(num_envs=4, num_steps=64, num_minibatches=2, update_epochs=2, learning_rate=0.003, init_log_std=-1.0)
@@ -113,7 +111,7 @@ def main() -> int:
     print(f"scaling, Ray warm, 1 -> 2 workers: {scaling:.2f}x (ideal 2.00 on 2 idle cores)")
     print(f"results identical on every backend: {'yes' if same else 'NO'}")
     if args.json:
-        write_json(args.json, {"command": "python benchmarks/scale.py " + " ".join(sys.argv[1:]),
+        write_json(args.json, {"command": "python -m benchmarks.scale " + " ".join(sys.argv[1:]),
                                "steps": args.steps, "cpus": os.cpu_count(),
                                "load_average_1min": [load_start[0], load[0]],
                                "scaling_warm_1_to_2": scaling, "identical": same,

@@ -1,6 +1,6 @@
 """Calibrate the simulated Panda logger: log_statistics of the real log beside a simulated nominal log.
 
-Run as `.venv/bin/python benchmarks/sim2real_calibration.py [--duration 21] [--seed 0] [--json PATH]`;
+Run as `.venv/bin/python -m benchmarks.sim2real_calibration [--duration 21] [--seed 0] [--json PATH]`;
 prints (statistic, joint, real, simulated, ratio) and writes the statistics of both as JSON
 (default docs/results/sim2real_calibration.json).
 """
@@ -48,7 +48,7 @@ def rows(real: dict[str, Any], sim: dict[str, Any]) -> list[dict[str, Any]]:
 def compare(duration: float = 21.0, seed: int = 0) -> dict[str, Any]:
     """log_statistics of the real log and of a simulated nominal log (no effects, no end effector,
     sensors "panda") of `duration` [s] and `seed`, with their side-by-side rows."""
-    from sim2real.log import load_log
+    from sim2real.importers import load_log
     from sim2real.logger import PANDA_LOGGER, log_statistics
     from sim2real.reality import RealityConfig, make_arm_log
     from goflow_common.config import config_to_dict

@@ -1,7 +1,7 @@
 """Speed of the sim-to-real diagnosis (target: a 20 s, 1 kHz arm log with the full catalogue in
 <= 60 s on one core).
 
-    .venv/bin/python benchmarks/sim2real_speed.py [--repeat 3]
+    .venv/bin/python -m benchmarks.sim2real_speed [--repeat 3]
 
 Prints a table: per log, samples, channels, the wall and CPU seconds of `diagnose` (replay, every
 arm effect fitted with blocked cross-validation and bootstrap intervals, forward selection, audit).
@@ -22,7 +22,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from sim2real.diagnosis import diagnose  # noqa: E402
-from sim2real.log import load_log  # noqa: E402
+from sim2real.importers import load_log  # noqa: E402
 from sim2real.realistic import RealisticCase, make_case_log  # noqa: E402
 from sim2real.reality import RealityConfig, make_arm_log  # noqa: E402
 

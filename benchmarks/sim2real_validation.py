@@ -5,13 +5,13 @@ reality and diagnosed without being told.
 logger, in the real log's folder layout and the Franka CSV layout, every torque-only effect at
 in-band SNR 8 and 2.5, pairs, noise-only logs and effects outside the catalogue, 20 s each:
 
-    .venv/bin/python benchmarks/sim2real_validation.py --seeds 0 1 2 --workers 2 --json docs/results/sim2real_realistic.json
+    .venv/bin/python -m benchmarks.sim2real_validation --seeds 0 1 2 --workers 2 --json docs/results/sim2real_realistic.json
 
 --grid easy: the white-noise, uniformly sampled logs with every channel (the grid of the version
 before; every arm effect at three magnitudes, pairs, effects outside the catalogue) and the
 station contact case:
 
-    .venv/bin/python benchmarks/sim2real_validation.py --grid easy [--seeds 0 1] [--duration 10] [--workers 2]
+    .venv/bin/python -m benchmarks.sim2real_validation --grid easy [--seeds 0 1] [--duration 10] [--workers 2]
         [--out runs/sim2real_validation] [--json docs/results/sim2real.json] [--no-contact]
 
 Each case writes <out>/<case>.json atomically and is skipped when present with the same --duration

@@ -6,9 +6,9 @@ Prints one table: for each (contact model, time step, discrete approximation) th
   insertion    - the gear on the shaft: align, insert, settle,
 and whether the gear ended seated. Run:
 
-    .venv/bin/python benchmarks/sim_speed.py                 # the station's defaults + point contact
-    .venv/bin/python benchmarks/sim_speed.py --sweep         # time steps x approximations
-    .venv/bin/python benchmarks/sim_speed.py --json docs/results/sim_speed.json
+    .venv/bin/python -m benchmarks.sim_speed                 # the station's defaults + point contact
+    .venv/bin/python -m benchmarks.sim_speed --sweep         # time steps x approximations
+    .venv/bin/python -m benchmarks.sim_speed --json docs/results/sim_speed.json
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """A shipped skill's flow against where its policy succeeds, by Monte Carlo episodes instead of
 the measured grid (issue 21, items 4-5).
 
-    .venv/bin/python benchmarks/skill_feasible_mc.py --gear medium [--draws 600] [--uniform 4000] \\
+    .venv/bin/python -m benchmarks.skill_feasible_mc --gear medium [--draws 600] [--uniform 4000] \\
         [--seed 0] [--out runs/skill_mc] [--json PATH]
 
 The skill's measured feasible set (`Skill.feasible`) labels each 0.3 mm grid cell by one episode
@@ -36,16 +36,15 @@ from typing import Any
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from assembly.gearset import GEARS  # noqa: E402
-from goflow_common.checks import InputErrorParser, check_int  # noqa: E402
-from goflow_common.errors import GoflowError, InputError  # noqa: E402
-from goflow_common.files import check_output_file, write_json  # noqa: E402
-from learning.feasible_grid import flow_report  # noqa: E402
-from learning.feasible_sets import coverage  # noqa: E402
-from learning.skills import Skill, load_skill, rollout_return  # noqa: E402
+from assembly.gearset import GEARS
+from goflow_common.checks import InputErrorParser, check_int
+from goflow_common.errors import GoflowError, InputError
+from goflow_common.files import check_output_file, write_json
+from learning.feasible_grid import flow_report
+from learning.feasible_sets import coverage
+from learning.skill_evaluation import rollout_return
+from learning.skill_file import load_skill, Skill
 
 NAME = "skill_feasible_mc"
 

@@ -2,7 +2,7 @@
 skill's own flow, in the fast variant and on the full Panda station, plus how wide each flow is
 and, for a file that holds a measured feasible set, the flow's mass on it and coverage of it.
 
-    .venv/bin/python benchmarks/skill_report.py [--gears small medium large] [--episodes 100]
+    .venv/bin/python -m benchmarks.skill_report [--gears small medium large] [--episodes 100]
         [--panda-episodes 100] [--xi flow uniform] [--json docs/results/skills.json]
 
 Prints one table; the JSON holds every row (the `goflow evaluate` schema plus the flow's width and
@@ -15,7 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from learning.skills import evaluate_skill, feasible_report, flow_width, load_skill, skill_path
+from learning.skill_evaluation import evaluate_skill, feasible_report, flow_width
+from learning.skill_file import load_skill, skill_path
 from goflow_common.files import write_json
 
 

@@ -22,6 +22,7 @@ __all__ = [
     "write_atomic",
     "write_json",
     "read_json",
+    "reject_json_constant",
     "to_strict_json",
     "save_tensors",
     "load_tensors",
@@ -80,7 +81,8 @@ def write_json(path: str | os.PathLike[str], obj: Any, indent: int | None = 2, n
     return write_atomic(path, text)
 
 
-def _reject_constant(name: str) -> Any:
+def reject_json_constant(name: str) -> Any:
+    """json.loads' `parse_constant` for strict JSON: raises ValueError naming NaN / Infinity."""
     raise ValueError(f"{name} is not valid JSON")
 
 
@@ -94,7 +96,7 @@ def read_json(path: str | os.PathLike[str], what: str = "JSON file") -> Any:
     if not text.strip():
         raise FileFormatError(f"{path}: the file is empty; expected a {what}")
     try:
-        return json.loads(text, parse_constant=_reject_constant)
+        return json.loads(text, parse_constant=reject_json_constant)
     except ValueError as exc:
         raise FileFormatError(f"{path}: not a {what} (invalid JSON: {exc})") from exc
 

@@ -38,6 +38,7 @@ from typing import Any
 
 from goflow_common.checks import check_int, check_number
 from goflow_common.errors import ClusterError, GridError, InputError
+from goflow_common.pool import ProcessPool, WorkerError
 
 __all__ = ["Job", "Outcome", "Backend", "InlineBackend", "PoolBackend", "RayBackend", "parse_ray_address",
            "make_backend", "add_ray_flag", "run_jobs", "run_grid"]
@@ -209,26 +210,21 @@ class InlineBackend(Backend):
 
 
 _STOP: Any = None  # a pool worker's view of the grid's stop event
-_EVENTS: Any = None  # a pool worker's queue of (job index, pid) when it starts a job
 
 
-def _init_pool_worker(stop: Any, events: Any) -> None:
-    """A pool worker ignores Ctrl-C except while it runs a job (`_pool_call`), and skips the jobs
-    left once the grid is stopped."""
-    import signal
-    global _STOP, _EVENTS
-    _STOP, _EVENTS = stop, events
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _init_pool_worker(stop: Any) -> None:
+    """A pool worker skips the jobs left once the grid is stopped (it ignores Ctrl-C except while
+    it runs a job: `_pool_call`; goflow_common.pool ignores it between jobs)."""
+    global _STOP
+    _STOP = stop
 
 
-def _pool_call(index: int, job: Job) -> tuple[str, Any, str, float]:
+def _pool_call(job: Job) -> tuple[str, Any, str, float]:
     """One job in a pool worker; "stopped" when the grid was interrupted (a training run keeps
     its last checkpoint)."""
     import signal
     if _STOP is not None and _STOP.is_set():
         return "stopped", None, "", 0.0
-    if _EVENTS is not None:
-        _EVENTS.put((index, os.getpid()))
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return _call(job)
@@ -240,7 +236,8 @@ def _pool_call(index: int, job: Job) -> tuple[str, Any, str, float]:
 
 
 class PoolBackend(Backend):
-    """`workers` spawned processes on this machine, one job each at a time.
+    """`workers` spawned processes on this machine (a goflow_common.pool.ProcessPool), one job each
+    at a time.
 
     Ctrl-C stops every job at its next step (a training run keeps its last checkpoint), skips the
     jobs not started, lets the workers exit on their own (nothing is killed mid-write) and then
@@ -259,10 +256,8 @@ class PoolBackend(Backend):
         import multiprocessing as mp
         import signal
         import threading
-        ctx = mp.get_context("spawn")
-        stop, done = ctx.Event(), threading.Event()
-        events = ctx.SimpleQueue()
-        pool = ctx.Pool(min(self.workers, len(jobs)), initializer=_init_pool_worker, initargs=(stop, events))
+        stop, done = mp.get_context("spawn").Event(), threading.Event()
+        pool = ProcessPool(min(self.workers, len(jobs)), _init_pool_worker, (stop,))
 
         def forward() -> None:
             # Until the pool has drained, tell the workers every second (a Ctrl-C in a terminal has
@@ -282,66 +277,29 @@ class PoolBackend(Backend):
 
         main_thread = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGINT, interrupt) if main_thread else None
-        lost = False
+        outcomes: list[Outcome | None] = [None] * len(jobs)
         try:
-            outcomes, lost = self._drive(pool, events, jobs, board)
+            for i, result in pool.imap(_pool_call, [(job,) for job in jobs], retries=self.retries, errors="return",
+                                       on_start=board.started):
+                if isinstance(result, WorkerError):
+                    error = (f"WorkerDied: its worker process (pid {result.pid}) died on each of {result.attempts} "
+                             "attempts") if result.pid is not None else _one_line(result.__cause__ or result)
+                    outcomes[i] = Outcome(jobs[i].name, "failed", error=error)
+                else:
+                    status, value, error, seconds = result
+                    outcomes[i] = Outcome(jobs[i].name, status, value, error, seconds)
+                board.finished(i, outcomes[i])
         except BaseException:
             pool.terminate()
-            pool.join()
             raise
         finally:
             done.set()
             if main_thread:
                 signal.signal(signal.SIGINT, previous)
-        if lost:  # a dead worker's task stays in the pool's books, and join() would wait for it
-            pool.terminate()
-        else:  # let the workers exit on their own: the context's terminate() leaks their semaphores
-            pool.close()
-        pool.join()
+        pool.close()
         if stop.is_set():
             raise KeyboardInterrupt
-        return outcomes
-
-    def _drive(self, pool: Any, events: Any, jobs: Sequence[Job], board: _Board) -> tuple[list[Outcome], bool]:
-        """Submit the jobs, follow their starts and ends, start again those whose worker died."""
-        import multiprocessing as mp
-        pending = {i: pool.apply_async(_pool_call, (i, job)) for i, job in enumerate(jobs)}
-        outcomes: list[Outcome | None] = [None] * len(jobs)
-        pids: dict[int, int] = {}  # running job -> its worker's pid
-        lost, checked = False, time.monotonic()
-        while pending:
-            time.sleep(0.05)
-            while not events.empty():
-                i, pid = events.get()
-                if i in pending:
-                    pids[i] = pid
-                    board.started(i)
-            for i, result in list(pending.items()):
-                if result.ready():
-                    del pending[i]
-                    pids.pop(i, None)
-                    try:
-                        status, value, error, seconds = result.get()
-                    except Exception as exc:  # the result did not come back (e.g. not picklable)
-                        status, value, error, seconds = "failed", None, _one_line(exc), 0.0
-                    outcomes[i] = Outcome(jobs[i].name, status, value, error, seconds)
-                    board.finished(i, outcomes[i])
-            if pids and time.monotonic() - checked > 0.5:
-                checked = time.monotonic()
-                alive = {p.pid for p in mp.active_children()}
-                for i, pid in list(pids.items()):
-                    if pid in alive or pending[i].ready():
-                        continue
-                    lost = True
-                    del pids[i]
-                    if board.attempts[i] <= self.retries:
-                        pending[i] = pool.apply_async(_pool_call, (i, jobs[i]))
-                    else:
-                        del pending[i]
-                        outcomes[i] = Outcome(jobs[i].name, "failed", error=(
-                            f"WorkerDied: its worker process (pid {pid}) died on each of {board.attempts[i]} attempts"))
-                        board.finished(i, outcomes[i])
-        return [o for o in outcomes if o is not None], lost
+        return [o for o in outcomes if o is not None]
 
 
 def _import_ray() -> Any:

@@ -88,10 +88,12 @@ class TrainConfig:
 
     env: str = "goflow/Toy2D-v0"  # environment id, e.g. goflow/Cartpole-v0
     env_kwargs: dict[str, Any] = field(default_factory=dict)  # the environment's config fields
-    method: str = "goflow"  # the sampler (learning.samplers.registry.METHODS)
+    # the sampler: a domain-randomization method (learning.samplers.registry.METHODS), or
+    # "estimated" (a fixed estimate, e.g. of `goflow estimate`, as sampler_kwargs["distribution"])
+    method: str = "goflow"
     sampler_kwargs: dict[str, Any] = field(default_factory=dict)  # the sampler's config fields, e.g. alpha
     seed: int = 0  # of the policy, the sampler and the validation episodes
-    total_steps: int = 200_000  # environment steps in training phases
+    total_steps: int = 198_656  # environment steps in training phases: 97 rounds of the default 2 x 8 x 128
     iterations_per_round: int = 2  # PPO iterations between validations
     eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
     ppo: PPOConfig = field(default_factory=PPOConfig)
@@ -106,8 +108,10 @@ class TrainConfig:
     vectorization: str = "batched"
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"unknown sampler {self.method!r}; expected one of {list(METHODS)}")
+        if self.method not in (*METHODS, "estimated"):
+            raise ValueError(f"unknown sampler {self.method!r}; expected one of {[*METHODS, 'estimated']}")
+        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
+            raise ValueError(f"TrainConfig.seed = {self.seed!r}; expected an integer >= 0")
         if self.sampler_batch is None:
             self.sampler_batch = "training" if self.method == "adr" else "validation"
         if self.sampler_batch not in ("validation", "training"):
@@ -448,7 +452,7 @@ class ExperimentConfig:
     methods: tuple[str, ...] = METHODS  # samplers compared
     seeds: int = 5  # runs per method, seeds first_seed .. first_seed + seeds - 1
     first_seed: int = 0  # the first of them (add seeds to a grid whose earlier seeds ran elsewhere)
-    total_steps: int = 200_000  # training environment steps per run
+    total_steps: int = 198_656  # training environment steps per run: 97 rounds of the default 2 x 8 x 128
     iterations_per_round: int = 2  # PPO iterations between validations
     eval_episodes: int = 64  # validation episodes per round, xi uniform on the box
     ppo: PPOConfig = field(default_factory=PPOConfig)
@@ -608,7 +612,8 @@ def write_experiment(config: ExperimentConfig, logs: list[dict], command: str = 
     if gymnasium.spec(config.env).name == "Toy2D":
         from learning.plots import plot_toy2d_densities
         summary["figures"].append(str(stem) + "-densities.png")
-        plot_toy2d_densities(config, Path(summary["figures"][-1]))
+        finals = {m: load_run(config.out / config.stem() / m / "seed0").sampler for m in config.methods}
+        plot_toy2d_densities(config.env, config.env_kwargs, finals, Path(summary["figures"][-1]))
     write_json(str(stem) + ".json", summary)
     return summary
 

@@ -20,8 +20,8 @@ E_p[success] >= 1 - delta): the flow starts from the skill's, learns first from 
 and then from `rounds` batches of its own draws, each labelled by the policy. It checkpoints after
 every update and resumes.
 
-This module knows nothing of skill files or episodes: `learning.skills.measure_feasible_set`
-runs the grid's episodes and `learning.skills.refit_skill` the refit of a skill file.
+This module knows nothing of skill files or episodes: `learning.skill_feasible_set.measure_feasible_set`
+runs the grid's episodes and `learning.skill_feasible_set.refit_skill` the refit of a skill file.
 
     skill = load_skill("insert", "medium")
     flow_report(skill.sampler, skill.feasible)   # {"share": ..., "mass_on": ..., "coverage10": ...}
@@ -50,7 +50,8 @@ from goflow_common.config import config_to_dict
 from goflow_common.errors import FileFormatError, InputError
 from goflow_common.files import load_tensors, save_tensors
 from learning.feasible_sets import coverage, mass_on
-from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
+from learning.samplers.goflow import GoFlowSampler
+from learning.samplers.goflow_config import GoFlowConfig
 
 __all__ = ["FeasibleGridConfig", "GridPlan", "FeasibleSet", "FlowRefitConfig", "flow_report", "constrained_copy",
            "refit_flow"]

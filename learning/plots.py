@@ -1,42 +1,42 @@
-"""Figures of learned parameter distributions (the GoFlow paper's Fig. 2 for Toy2D)."""
+"""Figures of learned parameter distributions (the GoFlow paper's Fig. 2 for Toy2D) and of sweeps.
+
+The figures take what they draw (samplers, a sweep's summary), never a run folder: loading runs is
+`learning.experiment`'s (`load_run`), which calls these.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import gymnasium
 import numpy as np
 
 import assembly  # noqa: F401  (registers the environment ids)
-from learning.experiment import ExperimentConfig, load_run
 
 
-def load_final_sampler(config: ExperimentConfig, method: str, seed: int = 0):
-    """(env, sampler): the experiment's environment and the sampler of run (method, seed) as saved
-    in its last checkpoint."""
-    env = gymnasium.make(config.env, **config.env_kwargs).unwrapped
-    return env, load_run(config.out / config.stem() / method / f"seed{seed}").sampler
-
-
-def plot_toy2d_densities(config: ExperimentConfig, path: Path, seed: int = 0, grid: int = 120) -> None:
-    """One panel per method: the learned density over the 2-D box, the feasible set's outline on top;
-    a first panel shows the feasible set itself."""
+def plot_toy2d_densities(env_id: str, env_kwargs: Mapping[str, Any], samplers: Mapping[str, Any], path: Path,
+                         grid: int = 120) -> None:
+    """One panel per method of `samplers` (method -> a sampler with `log_prob`, e.g. a run's final
+    one): its density over the 2-D box of env `env_id` (made with `env_kwargs`), the feasible set's
+    outline on top; a first panel shows the feasible set itself. Written to `path` (a PNG)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    env = gymnasium.make(config.env, **config.env_kwargs).unwrapped
+    env = gymnasium.make(env_id, **env_kwargs).unwrapped
     lo, hi = env.space.low, env.space.high
     xs, ys = np.linspace(lo[0], hi[0], grid), np.linspace(lo[1], hi[1], grid)
     X, Y = np.meshgrid(xs, ys)
     points = np.stack([X.ravel(), Y.ravel()], axis=1)
     feasible = env.feasible_set(points).reshape(grid, grid)
-    methods = list(config.methods)
+    methods = list(samplers)
     fig, axes = plt.subplots(1, len(methods) + 1, figsize=(3 * (len(methods) + 1), 3.2))
     extent = (lo[0], hi[0], lo[1], hi[1])
     axes[0].imshow(feasible, origin="lower", extent=extent, cmap="Greens")
     axes[0].set_title("feasible set")
     for ax, method in zip(axes[1:], methods):
-        _, sampler = load_final_sampler(config, method, seed)
+        sampler = samplers[method]
         logp = np.asarray(sampler.log_prob(points), dtype=float)
         density = np.exp(np.where(np.isfinite(logp), logp, -np.inf))
         ax.imshow(density.reshape(grid, grid), origin="lower", extent=extent, cmap="viridis",
@@ -72,3 +72,6 @@ def plot_sweep(sweep: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+__all__ = ["plot_sweep", "plot_toy2d_densities"]

@@ -38,24 +38,22 @@ import gymnasium
 import numpy as np
 import torch
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode
 from numpy.typing import ArrayLike, NDArray
 from torch import nn
 
-from goflow_common.errors import FileFormatError
-from goflow_common.files import check_output_file, load_tensors, save_tensors
+from goflow_common.checks import check_int, check_number
+from goflow_common.errors import InputError
 from learning.networks import Actor, Critic, RunningMeanStd
+from learning.ppo_checkpoint import (
+    CHECKPOINT_FORMAT, check_loadable, is_checkpoint, read_checkpoint, saved_action_space, saved_config, write_checkpoint,
+)
+from learning.samplers.goflow_config import check_layer_sizes
+from learning.vector_env_contract import NonFiniteError, check_finite, check_vec_env, read_final_info, read_obs
 
-__all__ = ["PPOConfig", "PPO", "RolloutStats", "NonFiniteError", "compute_gae"]
+__all__ = ["PPOConfig", "PPO", "RolloutStats", "compute_gae"]
 
-_CHECKPOINT_FORMAT = "goflow.ppo/1"
-_CHECKPOINT_WHAT = "PPO checkpoint (written by PPO.save)"
 # Purposes mixed into derived seeds (np.random.SeedSequence([seed, purpose, ...])).
 _SEED_INIT, _SEED_ROLLOUT, _SEED_EVAL, _SEED_ACT, _SEED_SAMPLE, _SEED_SHUFFLE = 0, 1, 2, 3, 4, 5
-
-
-class NonFiniteError(ValueError):
-    """An environment returned a NaN or infinite reward or observation (or a loss became non-finite)."""
 
 
 @dataclass(frozen=True)
@@ -88,52 +86,30 @@ class PPOConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        def positive_int(name: str) -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"PPOConfig.{name} must be a positive integer, got {v!r}")
-
-        def number(name: str, lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) -> None:
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-            ok = ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
-            if not ok:
-                interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-                raise ValueError(f"PPOConfig.{name} must be a finite number in {interval}, got {v!r}")
-
         for name in ("num_envs", "num_steps", "num_minibatches", "update_epochs"):
-            positive_int(name)
-        number("gamma", 0.0, 1.0)
-        number("gae_lambda", 0.0, 1.0)
-        number("clip_coef", 0.0, math.inf, lo_open=True, hi_open=True)
-        number("ent_coef", 0.0, math.inf, hi_open=True)
-        number("vf_coef", 0.0, math.inf, hi_open=True)
-        number("max_grad_norm", 0.0, math.inf, lo_open=True, hi_open=True)
-        number("learning_rate", 0.0, math.inf, lo_open=True, hi_open=True)
-        number("init_log_std", -20.0, 2.0)
-        number("obs_clip", 0.0, math.inf, lo_open=True)
-        number("reward_clip", 0.0, math.inf, lo_open=True)
+            check_int(getattr(self, name), f"PPOConfig.{name}", 1)
+        check_number(self.gamma, "PPOConfig.gamma", 0.0, 1.0)
+        check_number(self.gae_lambda, "PPOConfig.gae_lambda", 0.0, 1.0)
+        for name in ("clip_coef", "max_grad_norm", "learning_rate", "obs_clip", "reward_clip"):
+            check_number(getattr(self, name), f"PPOConfig.{name}", 0.0, low_open=True)
+        for name in ("ent_coef", "vf_coef"):
+            check_number(getattr(self, name), f"PPOConfig.{name}", 0.0)
+        check_number(self.init_log_std, "PPOConfig.init_log_std", -20.0, 2.0)
         if self.target_kl is not None:
-            number("target_kl", 0.0, math.inf, lo_open=True, hi_open=True)
-        if self.anneal_lr:
-            if self.total_iterations is None:
-                raise ValueError("PPOConfig: anneal_lr=True needs total_iterations (the learning rate "
-                                 "goes linearly from learning_rate to 0 over that many updates)")
+            check_number(self.target_kl, "PPOConfig.target_kl", 0.0, low_open=True)
+        if self.anneal_lr and self.total_iterations is None:
+            raise InputError("PPOConfig: anneal_lr=True needs total_iterations (the learning rate "
+                             "goes linearly from learning_rate to 0 over that many updates)")
         if self.total_iterations is not None:
-            positive_int("total_iterations")
-        sizes = self.hidden_sizes
-        if (not isinstance(sizes, (tuple, list)) or len(sizes) == 0
-                or not all(isinstance(h, (int, np.integer)) and not isinstance(h, bool) and h >= 1 for h in sizes)):
-            raise ValueError(f"PPOConfig.hidden_sizes must be a non-empty tuple of positive integers, got {sizes!r}")
-        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in sizes))
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"PPOConfig.seed must be a non-negative integer, got {self.seed!r}")
+            check_int(self.total_iterations, "PPOConfig.total_iterations", 1)
+        object.__setattr__(self, "hidden_sizes", check_layer_sizes(self.hidden_sizes, "PPOConfig.hidden_sizes"))
+        check_int(self.seed, "PPOConfig.seed", 0)
         batch = self.batch_size
         if batch % self.num_minibatches != 0:
-            raise ValueError(f"PPOConfig: num_minibatches ({self.num_minibatches}) must divide the batch "
+            raise InputError(f"PPOConfig: num_minibatches ({self.num_minibatches}) must divide the batch "
                              f"num_envs * num_steps = {batch}")
         if batch // self.num_minibatches < 2:
-            raise ValueError(f"PPOConfig: minibatches of {batch // self.num_minibatches} sample(s) are too small "
+            raise InputError(f"PPOConfig: minibatches of {batch // self.num_minibatches} sample(s) are too small "
                              "(need >= 2 to standardize advantages); use fewer num_minibatches")
 
     @property
@@ -218,19 +194,6 @@ def _derive_seed(seed: int, *keys: int) -> int:
     return int(np.random.SeedSequence([int(seed), *(int(k) for k in keys)]).generate_state(1)[0])
 
 
-def _check_finite(x: ArrayLike, what: str, step: int | None = None) -> None:
-    """NonFiniteError naming the quantity, the sub-env (row) and the rollout step when x has NaN/inf."""
-    arr = np.asarray(x, dtype=np.float64)
-    if np.isfinite(arr).all():
-        return
-    rows = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
-    env = int(np.flatnonzero(~np.isfinite(rows).all(axis=1))[0])
-    where = f" at rollout step {step}" if step is not None else ""
-    raise NonFiniteError(f"PPO: the environment returned a non-finite {what}{where} in sub-env {env}: "
-                         f"{rows[env].tolist()}; refusing to train on it (fix the environment, or end the "
-                         "episode truncated with info['sim_error'])")
-
-
 class PPO:
     """PPO agent: Gaussian actor on obs, privileged critic on critic_obs = concat(obs, normalized xi).
 
@@ -246,9 +209,8 @@ class PPO:
     def __init__(self, obs_dim: int, critic_obs_dim: int, action_space: spaces.Box,
                  config: PPOConfig | None = None) -> None:
         self.config = config or PPOConfig()
-        for name, v in (("obs_dim", obs_dim), ("critic_obs_dim", critic_obs_dim)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"PPO: {name} must be a positive integer, got {v!r}")
+        check_int(obs_dim, "PPO obs_dim", 1)
+        check_int(critic_obs_dim, "PPO critic_obs_dim", 1)
         if not isinstance(action_space, spaces.Box) or len(action_space.shape) != 1:
             raise ValueError(f"PPO: action_space must be a 1-D gymnasium.spaces.Box, got {action_space!r}")
         self.obs_dim, self.critic_obs_dim = int(obs_dim), int(critic_obs_dim)
@@ -309,49 +271,6 @@ class PPO:
             return self.critic_obs_rms.normalize(cobs).astype(np.float32)
         return np.asarray(cobs, dtype=np.float32)
 
-    def _check_vec_env(self, vec_env: Any, what: str) -> int:
-        if not isinstance(vec_env, gymnasium.vector.VectorEnv):
-            raise TypeError(f"PPO.{what}: expected a gymnasium.vector.VectorEnv (SyncVectorEnv or "
-                            f"AsyncVectorEnv), got {type(vec_env).__name__}")
-        mode = vec_env.metadata.get("autoreset_mode")
-        try:
-            mode = AutoresetMode(mode) if not isinstance(mode, AutoresetMode) else mode
-        except ValueError:
-            mode = None
-        if mode != AutoresetMode.SAME_STEP:
-            raise ValueError(f"PPO.{what}: the vector env's autoreset mode is {mode!r}; PPO needs "
-                             "autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP (pass it to "
-                             "SyncVectorEnv/AsyncVectorEnv) so that final observations come in "
-                             "info['final_obs'] / info['final_info']")
-        obs_shape = vec_env.single_observation_space.shape
-        if obs_shape != (self.obs_dim,):
-            raise ValueError(f"PPO.{what}: the env's observations have shape {obs_shape}, this PPO was built "
-                             f"for obs_dim={self.obs_dim}")
-        act = vec_env.single_action_space
-        if (not isinstance(act, spaces.Box) or act.shape != (self.action_dim,)
-                or not np.array_equal(act.low, self._low) or not np.array_equal(act.high, self._high)):
-            raise ValueError(f"PPO.{what}: the env's action space {act!r} differs from this PPO's "
-                             f"{self.action_space!r}")
-        return int(vec_env.num_envs)
-
-    def _read_obs(self, obs: Any, info: dict[str, Any], n: int, what: str, step: int | None
-                  ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """(obs, critic_obs) of a reset/step result, shape-checked and finite."""
-        obs = np.asarray(obs, dtype=np.float32)
-        if obs.shape != (n, self.obs_dim):
-            raise ValueError(f"PPO: {what} returned observations of shape {obs.shape}, expected "
-                             f"({n}, {self.obs_dim})")
-        if "critic_obs" not in info or not np.all(info.get("_critic_obs", True)):
-            raise ValueError(f"PPO: {what} did not return info['critic_obs'] for every sub-env; the env must "
-                             "follow the ParamEnv contract (critic_obs = concat(obs, normalized xi))")
-        cobs = np.asarray(info["critic_obs"], dtype=np.float32)
-        if cobs.shape != (n, self.critic_obs_dim):
-            raise ValueError(f"PPO: {what} returned info['critic_obs'] of shape {cobs.shape}, expected "
-                             f"({n}, {self.critic_obs_dim})")
-        _check_finite(obs, "observation", step)
-        _check_finite(cobs, "info['critic_obs']", step)
-        return obs, cobs
-
     # -- rollout -------------------------------------------------------------------------------
 
     def collect(self, vec_env: gymnasium.vector.VectorEnv, *, reset_seed: int | None = None) -> RolloutStats:
@@ -363,7 +282,7 @@ class PPO:
         Otherwise the episodes running at the end of the previous rollout continue.
         """
         cfg = self.config
-        n = self._check_vec_env(vec_env, "collect")
+        n = check_vec_env(vec_env, "collect", self.obs_dim, self.action_space)
         if n != cfg.num_envs:
             raise ValueError(f"PPO.collect: the vector env has {n} sub-envs, config.num_envs = {cfg.num_envs}")
         carried = self._obs is not None and self._env_ref is not None and self._env_ref() is vec_env
@@ -373,7 +292,7 @@ class PPO:
         if reset_seed is not None or cfg.reset_each_rollout or not carried:
             seed = self.rollout_seed(self.iteration) if reset_seed is None else int(reset_seed)
             obs, info = vec_env.reset(seed=seed)
-            self._obs, self._critic_obs = self._read_obs(obs, info, n, "vec_env.reset", None)
+            self._obs, self._critic_obs = read_obs(obs, info, n, self.obs_dim, self.critic_obs_dim, "vec_env.reset", None)
             self._env_ref = weakref.ref(vec_env)
             self._ep_len[:] = 0
             self._disc_return[:] = 0.0
@@ -409,8 +328,8 @@ class PPO:
             reward = np.asarray(reward, dtype=np.float64)
             if reward.shape != (n,):
                 raise ValueError(f"PPO.collect: vec_env.step returned rewards of shape {reward.shape}, expected ({n},)")
-            _check_finite(reward, "reward", t)
-            self._obs, self._critic_obs = self._read_obs(obs, info, n, "vec_env.step", t)
+            check_finite(reward, "reward", t)
+            self._obs, self._critic_obs = read_obs(obs, info, n, self.obs_dim, self.critic_obs_dim, "vec_env.step", t)
             term = np.asarray(term, dtype=bool)
             done = term | np.asarray(trunc, dtype=bool)
             terminated[t], ended[t] = term, done
@@ -426,7 +345,7 @@ class PPO:
             rewards[t] = reward
 
             if done.any():
-                final = self._final_info(info, done, t)
+                final = read_final_info(info, done, self.critic_obs_dim, t)
                 final_c = self._norm_critic_obs(final["critic_obs"])
                 with torch.no_grad():
                     final_v = self.critic(torch.from_numpy(final_c)).numpy()
@@ -459,36 +378,6 @@ class PPO:
             successes=np.asarray(ep_success, dtype=bool),
             xi=np.stack(ep_xi) if ep_xi else np.zeros((0, max(d, 0))),
             terminated=np.asarray(ep_term, dtype=bool), sim_errors=sim_errors)
-
-    def _final_info(self, info: dict[str, Any], done: NDArray[np.bool_], step: int | None) -> dict[str, Any]:
-        """Per ended sub-env (in index order): critic_obs, episode_return, success, xi, sim_error."""
-        if "final_info" not in info:
-            raise ValueError("PPO: an episode ended but info has no 'final_info'; is the vector env in "
-                             "AutoresetMode.SAME_STEP?")
-        mask = np.asarray(info.get("_final_info", done), dtype=bool)
-        if not np.array_equal(mask, done):
-            raise ValueError(f"PPO: info['_final_info'] {mask.tolist()} disagrees with terminated | truncated "
-                             f"{done.tolist()}")
-        fi = info["final_info"]
-        idx = np.flatnonzero(done)
-        out: dict[str, Any] = {}
-        for key in ("critic_obs", "episode_return", "success", "xi"):
-            if key not in fi or not np.all(np.asarray(fi.get("_" + key, done))[idx]):
-                raise ValueError(f"PPO: the final info of an ended episode lacks {key!r}; the env must follow "
-                                 "the ParamEnv contract (assembly/envs/base.py)")
-            out[key] = np.asarray(fi[key])[idx]
-        out["critic_obs"] = np.asarray(out["critic_obs"], dtype=np.float32)
-        if out["critic_obs"].shape != (len(idx), self.critic_obs_dim):
-            raise ValueError(f"PPO: final info['critic_obs'] has shape {out['critic_obs'].shape[1:]} per env, "
-                             f"expected ({self.critic_obs_dim},)")
-        _check_finite(out["critic_obs"], "final info['critic_obs'] (last observation of an episode)", step)
-        out["episode_return"] = np.asarray(out["episode_return"], dtype=np.float64)
-        _check_finite(out["episode_return"], "info['episode_return']", step)
-        if "sim_error" in fi:
-            out["sim_error"] = np.asarray(fi.get("_sim_error", np.zeros_like(done)), dtype=bool)[idx]
-        else:
-            out["sim_error"] = np.zeros(len(idx), dtype=bool)
-        return out
 
     # -- optimization --------------------------------------------------------------------------
 
@@ -595,9 +484,15 @@ class PPO:
         batch = x[None] if single else x
         if batch.ndim != 2 or batch.shape[1] != self.obs_dim:
             raise ValueError(f"PPO.act: obs has shape {x.shape}, expected ({self.obs_dim},) or (n, {self.obs_dim})")
-        _check_finite(batch, "observation given to act()")
+        check_finite(batch, "observation given to act()")
         actions = self._policy(batch, deterministic, self.act_rng)
         return actions[0] if single else actions
+
+    def value(self, critic_obs: NDArray[Any]) -> NDArray[np.float32]:
+        """The critic's V for raw critic observations (n, critic_obs_dim), with the normalizer's
+        statistics (not updated); float32, shape (n,)."""
+        with torch.no_grad():
+            return self.critic(torch.from_numpy(self._norm_critic_obs(critic_obs))).numpy()
 
     def _policy(self, obs: NDArray[np.float32], deterministic: bool, gen: torch.Generator) -> NDArray[np.float32]:
         o = torch.from_numpy(self._norm_obs(obs))
@@ -619,26 +514,25 @@ class PPO:
         """
         from tqdm import tqdm
 
-        if isinstance(n_episodes, bool) or not isinstance(n_episodes, (int, np.integer)) or n_episodes < 1:
-            raise ValueError(f"PPO.evaluate: n_episodes must be a positive integer, got {n_episodes!r}")
-        n = self._check_vec_env(vec_env, "evaluate")
+        check_int(n_episodes, "PPO.evaluate n_episodes", 1)
+        n = check_vec_env(vec_env, "evaluate", self.obs_dim, self.action_space)
         if self._env_ref is not None and self._env_ref() is vec_env:
             self._clear_env_state()
         seed = _derive_seed(self.config.seed, _SEED_EVAL, self.iteration) if seed is None else int(seed)
         gen = torch.Generator().manual_seed(seed)
         obs, info = vec_env.reset(seed=seed)
-        obs, _ = self._read_obs(obs, info, n, "vec_env.reset", None)
+        obs, _ = read_obs(obs, info, n, self.obs_dim, self.critic_obs_dim, "vec_env.reset", None)
         quota = -(-int(n_episodes) // n)
         got: list[list[tuple[NDArray[np.float64], float, bool]]] = [[] for _ in range(n)]
         step = 0
         with tqdm(total=int(n_episodes), disable=not progress, desc="evaluate", unit="episode") as bar:
             while any(len(g) < quota for g in got):
                 obs, reward, term, trunc, info = vec_env.step(self._policy(obs, deterministic, gen))
-                _check_finite(np.asarray(reward, dtype=np.float64), "reward", step)
-                obs, _ = self._read_obs(obs, info, n, "vec_env.step", step)
+                check_finite(np.asarray(reward, dtype=np.float64), "reward", step)
+                obs, _ = read_obs(obs, info, n, self.obs_dim, self.critic_obs_dim, "vec_env.step", step)
                 done = np.asarray(term, dtype=bool) | np.asarray(trunc, dtype=bool)
                 if done.any():
-                    final = self._final_info(info, done, step)
+                    final = read_final_info(info, done, self.critic_obs_dim, step)
                     for j, i in enumerate(np.flatnonzero(done)):
                         if len(got[i]) < quota:
                             got[i].append((np.asarray(final["xi"][j], dtype=np.float64),
@@ -660,7 +554,7 @@ class PPO:
             raise RuntimeError("PPO.state_dict: a collected rollout has not been used by update() yet; "
                                "checkpoint between iterations (after update())")
         return {
-            "format": _CHECKPOINT_FORMAT,
+            "format": CHECKPOINT_FORMAT,
             "config": dataclasses.asdict(self.config),
             "obs_dim": self.obs_dim,
             "critic_obs_dim": self.critic_obs_dim,
@@ -684,21 +578,9 @@ class PPO:
         bounds differ, or (strict_config) if any hyperparameter differs from this PPO's config.
         optimizer=False keeps this PPO's own (fresh) Adam state: for a state saved to act, not to
         resume training, which may lack it."""
-        if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
-            raise ValueError(f"PPO.load_state_dict: not a PPO checkpoint (expected format {_CHECKPOINT_FORMAT!r})")
-        for key, mine in (("obs_dim", self.obs_dim), ("critic_obs_dim", self.critic_obs_dim),
-                          ("action_low", self._low.tolist()), ("action_high", self._high.tolist())):
-            if state[key] != mine:
-                raise ValueError(f"PPO.load_state_dict: the checkpoint's {key} is {state[key]}, this PPO's is {mine}")
-        saved = dict(state["config"])
-        saved["hidden_sizes"] = tuple(saved["hidden_sizes"])
-        mine = dataclasses.asdict(self.config)
-        diff = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
-        if diff and strict_config:
-            raise ValueError("PPO.load_state_dict: the checkpoint's config differs from this PPO's in "
-                             + ", ".join(f"{k} (checkpoint {saved.get(k)!r}, here {mine.get(k)!r})" for k in diff)
-                             + "; build the PPO with the checkpoint's config (PPO.from_checkpoint) or pass "
-                               "strict_config=False")
+        dims = {"obs_dim": self.obs_dim, "critic_obs_dim": self.critic_obs_dim, "action_low": self._low.tolist(),
+                "action_high": self._high.tolist()}
+        check_loadable(state, dims, self.config, strict_config)
         self.actor.load_state_dict(state["actor"])
         self.critic.load_state_dict(state["critic"])
         if optimizer:
@@ -717,30 +599,23 @@ class PPO:
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the state_dict atomically (tensors and plain data: loadable with weights_only=True)."""
-        save_tensors(check_output_file(path, "PPO checkpoint"), self.state_dict())
+        write_checkpoint(path, self.state_dict())
 
     def load(self, path: str | os.PathLike[str], strict_config: bool = True) -> None:
         """Load a checkpoint written by save() (as data only)."""
-        self.load_state_dict(load_tensors(path, _CHECKPOINT_WHAT), strict_config)
+        self.load_state_dict(read_checkpoint(path, check=False), strict_config)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike[str]) -> "PPO":
         """A PPO built with the checkpoint's dimensions, action bounds and config, then loaded."""
-        state = load_tensors(path, _CHECKPOINT_WHAT)
-        if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
-            raise FileFormatError(f"{path}: not a {_CHECKPOINT_WHAT}")
-        return cls.from_state_dict(state)
+        return cls.from_state_dict(read_checkpoint(path))
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any], optimizer: bool = True) -> "PPO":
         """A PPO built with a state_dict's dimensions, action bounds and config, then loaded
         (optimizer: as in load_state_dict)."""
-        if not isinstance(state, dict) or state.get("format") != _CHECKPOINT_FORMAT:
+        if not is_checkpoint(state):
             raise ValueError("PPO.from_state_dict: not a PPO state_dict")
-        cfg = dict(state["config"])
-        cfg["hidden_sizes"] = tuple(cfg["hidden_sizes"])
-        box = spaces.Box(np.asarray(state["action_low"], dtype=np.float32),
-                         np.asarray(state["action_high"], dtype=np.float32), dtype=np.float32)
-        ppo = cls(state["obs_dim"], state["critic_obs_dim"], box, PPOConfig(**cfg))
+        ppo = cls(state["obs_dim"], state["critic_obs_dim"], saved_action_space(state), PPOConfig(**saved_config(state)))
         ppo.load_state_dict(state, optimizer=optimizer)
         return ppo

@@ -12,17 +12,20 @@ the standard deviations and the seconds. A calibrated posterior's truth levels a
 
 from __future__ import annotations
 
+import gzip
+import json
+import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
 from assembly.gearset import GEAR_NAMES
 from goflow_common.checks import check_int
-from goflow_common.errors import InputError
+from goflow_common.errors import FileFormatError, InputError
+from goflow_common.files import read_json, to_strict_json, write_atomic, write_json
+from goflow_common.pool import ProcessPool
 from perception.detection import detect_gears
 from perception.gear_model import gear_model
 from perception.posterior import PosePosterior, wrap
@@ -303,17 +306,58 @@ def run_calibration(config: CalibrationConfig | None = None, progress: bool = Fa
             if progress:
                 print(f"calibration: {group} done", flush=True)
     else:
-        with ProcessPoolExecutor(min(config.workers, len(config.groups)),
-                                 mp_context=get_context("spawn")) as pool:
-            futures = {g: pool.submit(group_rows, g, config) for g in config.groups}
-            for group, future in futures.items():
-                rows += future.result()
+        done: dict[int, list[dict]] = {}
+        with ProcessPool(min(config.workers, len(config.groups))) as pool:
+            for k, group_result in pool.imap(group_rows, [(g, config) for g in config.groups]):
+                done[k] = group_result
                 if progress:
-                    print(f"calibration: {group} done", flush=True)
+                    print(f"calibration: {config.groups[k]} done", flush=True)
+        rows = [row for k in range(len(config.groups)) for row in done[k]]
     return {"config": {"scenes": config.scenes, "seed": config.seed, "groups": list(config.groups),
                        "levels": list(config.levels)},
             "summary": summarize(rows, config.levels), "rows": rows}
 
+
+
+def save_result(path: str | os.PathLike[str] | None, result: dict,
+                rows: str | os.PathLike[str] | None = None) -> None:
+    """Write a calibration result (`run_calibration`'s) as `goflow bench calibration` does: its
+    config and summary to `path` (strict JSON, small; None: not written); its rows, every
+    posterior's, only where `rows` names a file: there the whole result as gzip'd strict JSON,
+    which `load_result` reads back and `pool_results` pools (a set of 150 scenes: about 8,000
+    rows, 1-2 MB)."""
+    written = {"config": result["config"], "summary": result["summary"]}
+    if rows is not None:
+        data = json.dumps(to_strict_json({**written, "rows": result["rows"]}), separators=(",", ":"))
+        write_atomic(rows, gzip.compress(data.encode(), compresslevel=9, mtime=0))
+        written["rows_file"] = str(rows)
+    if path is not None:
+        write_json(path, written)
+
+
+def load_result(path: str | os.PathLike[str]) -> dict:
+    """A stored calibration result: strict JSON (`save_result`'s `path`, or a result with its rows
+    as runs before 2026-12 wrote them) or gzip'd strict JSON (`save_result`'s `rows`).
+    FileNotFoundError if missing; FileFormatError naming the file if it is neither or not a JSON
+    object."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no calibration result at {path}")
+    data = path.read_bytes()
+    if data[:2] != b"\x1f\x8b":
+        result = read_json(path, "calibration result")
+    else:
+        try:
+            result = json.loads(gzip.decompress(data), parse_constant=_reject_constant)
+        except (OSError, EOFError, ValueError) as exc:
+            raise FileFormatError(f"{path}: not a calibration result (gzip'd strict JSON: {exc})") from exc
+    if not isinstance(result, dict):
+        raise FileFormatError(f"{path}: not a calibration result (expected a JSON object)")
+    return result
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not valid JSON")
 
 def named_by_set(rows: list[dict], name: object) -> list[dict]:
     """Copies of a set's `rows` with each scene named "name/scene", so that two sets' scene 0
@@ -334,8 +378,11 @@ def pool_results(results: list[dict]) -> dict:
     seeds = []
     for k, result in enumerate(results):
         config = result.get("config") if isinstance(result, dict) else None
-        if not isinstance(config, dict) or not isinstance(result.get("rows"), list) or "levels" not in config:
+        if not isinstance(config, dict) or "levels" not in config:
             raise InputError(f"result {k}: not a calibration result (expected 'config' with 'levels' and 'rows')")
+        if not isinstance(result.get("rows"), list):
+            raise InputError(f"result {k}: has no rows (a summary); expected the rows file a run writes with "
+                             "--rows (goflow bench calibration --rows PATH)")
         mine = tuple(float(x) for x in config["levels"])
         if levels is not None and mine != levels:
             raise InputError(f"result {k}: levels {list(mine)}; expected those of the first, {list(levels)}")
@@ -427,6 +474,6 @@ def markdown_table(summary: list[dict]) -> str:
 
 
 __all__ = ["BAND", "CalibrationConfig", "HELD_OUT_SEED", "LEVELS", "calibrated_pass_chance", "confidently_wrong", "coverage_se", "group_rows",
-           "markdown_table", "pool_results", "pose_error", "reliability_plot", "resampled_set_count", "row_brightness",
-           "run_calibration", "sets_text",
+           "load_result", "markdown_table", "pool_results", "pose_error", "reliability_plot", "resampled_set_count", "row_brightness",
+           "run_calibration", "save_result", "sets_text",
            "summarize"]

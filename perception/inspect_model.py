@@ -25,7 +25,7 @@ from perception.posterior import PosePosterior
 # Per gear: close-view std (x [m], y [m], yaw [rad]) median over clean views, the same at the 90th
 # percentile over every perturbation group, and the fraction of close views that were informative.
 # Measured by `goflow bench calibration` on the held-out scenes of seed 12000 with the reshaped
-# posteriors (`close_view_noise` of docs/results/perception_calibration_seed12000.json's rows).
+# posteriors (`close_view_noise` of docs/results/perception_calibration_seed12000_rows.json.gz's rows).
 CLOSE_VIEW: dict[str, dict[str, tuple[float, ...] | float]] = {
     "small": {"median": (2.1e-5, 2.0e-5, 2.3e-3), "p90": (3.0e-5, 2.8e-5, 3.5e-3), "informative": 1.0},
     "medium": {"median": (2.8e-5, 3.3e-5, 1.6e-3), "p90": (3.9e-5, 4.8e-5, 2.4e-3), "informative": 1.0},

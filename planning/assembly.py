@@ -71,7 +71,7 @@ class PlannedAssembly:
 def build_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: dict | None = None,
                            meshcat: Meshcat | None = None) -> PlannedAssembly:
     """The station with the gears placed for `config.seed`, driven by the planner."""
-    from learning.skills import load_skill
+    from learning.skill_file import load_skill
 
     config = config or PlannedAssemblyConfig()
     poses = random_gear_poses(np.random.default_rng(config.seed))
@@ -119,7 +119,7 @@ def run_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: di
     bar = tqdm(total=round(config.max_time), unit="sim s", disable=not progress, desc="assembly")
     t = root.get_time()
     try:
-        while t < config.max_time and planner.run(context).phase not in ("done", "failed"):
+        while t < config.max_time and not planner.run(context).finished:
             t = min(t + 0.5, config.max_time)
             simulator.AdvanceTo(t)
             bar.update(round(t - bar.n, 2))
@@ -137,9 +137,9 @@ def run_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: di
         err = station.insertion_error(root, gear)
         gears[gear] = {"inserted": bool(err.inserted), "lateral_error_m": float(err.lateral_m),
                        "height_error_m": float(abs(err.height_m))}
-    summary = {"seed": config.seed, "plan": run.plans[0] if run.plans else [], "plans": run.plans,
-               "executed": run.executed, "replans": run.replans,
-               "status": run.phase if run.phase in ("done", "failed") else "timeout",
+    summary = {"seed": config.seed, "plan": run.plans[0] if run.plans else [], "plans": list(run.plans),
+               "executed": list(run.executed), "replans": run.replans,
+               "status": run.phase.value if run.finished else "timeout",
                "reason": run.reason, "gears": gears,
                "placement": {g: list(p) for g, p in poses.items()},
                "sim_time_s": float(root.get_time()), "wall_time_s": time.perf_counter() - wall0}

@@ -215,7 +215,7 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
     the measured inspect model (its cautious 90th-percentile close view). `skills` may hold
     already-loaded Skill objects by gear. ValueError for an unknown gear; FileNotFoundError for a
     missing skill or threshold file."""
-    from learning.skills import load_skill
+    from learning.skill_file import load_skill
     from perception.inspect_model import predict_inspection
     from planning.precondition import (
         PreconditionConfig, best_aim, insert_precondition, preferred_grasp_error,

@@ -15,8 +15,14 @@ the pick aimed for).
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from goflow_common.errors import FileFormatError
+from goflow_common.files import read_json
 
 
 def _wrap(angle: NDArray[np.float64], period: float) -> NDArray[np.float64]:
@@ -57,16 +63,41 @@ def aim_tool(pose: ArrayLike, xi: ArrayLike = (0.0, 0.0, 0.0)) -> NDArray[np.flo
     return np.array([p[0] - d[0], p[1] - d[1], psi])
 
 
-# The pick with the real fingers, measured (`benchmarks/grasp_map.py --picks 15 --offset-std 0.002
-# --json docs/results/grasp_map.json`; 45 simulated picks, every gear lifted): the fingers close
-# along the tool's y axis and centre the gear there whatever the aim (residual mean, std); along
-# the tool's x axis the gear keeps the aimed error plus a small push (mean, std); its yaw keeps
-# the aimed one plus (mean, std). Per gear, SI units.
-PICK_MODEL: dict[str, dict[str, tuple[float, float]]] = {
-    "small": {"closing": (-1e-6, 3e-6), "along": (7.9e-5, 1.95e-4), "yaw": (-6.3e-4, 1.96e-3)},
-    "medium": {"closing": (2e-6, 1.1e-5), "along": (9.8e-5, 1.95e-4), "yaw": (-7.6e-4, 1.32e-3)},
-    "large": {"closing": (2e-6, 9e-6), "along": (1.86e-4, 2.81e-4), "yaw": (-4.44e-3, 1.396e-2)},
-}
+# The pick with the real fingers, measured (benchmarks/grasp_map.py, which writes the file with its
+# command, date and commit; 45 simulated picks, every gear lifted): the fingers close along the
+# tool's y axis and centre the gear there whatever the aim (residual mean, std); along the tool's
+# x axis the gear keeps the aimed error plus a small push (mean, std); its yaw keeps the aimed one
+# plus (mean, std). Per gear, SI units.
+PICK_MODEL_FILE = Path(__file__).parent / "data" / "pick_model.json"
+_AXES = ("closing", "along", "yaw")
+
+
+def _is_number(x: object) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
+
+
+def load_pick_model(path: str | os.PathLike[str] = PICK_MODEL_FILE) -> dict[str, dict[str, tuple[float, float]]]:
+    """{gear: {"closing" | "along" | "yaw": (mean, std)}} from a pick-model file (strict JSON:
+    {"pick_model": {gear: {axis: [mean, std >= 0]}}, ...}, as `benchmarks.grasp_map --model`
+    writes it). FileNotFoundError if missing; FileFormatError naming the file and the first bad
+    entry otherwise."""
+    data = read_json(path, "pick-model file (benchmarks/grasp_map.py --model)")
+    table = data.get("pick_model") if isinstance(data, dict) else None
+    if not isinstance(table, dict) or not table:
+        raise FileFormatError(f"{path}: expected {{\"pick_model\": {{gear: {{axis: [mean, std]}}}}}}")
+    model: dict[str, dict[str, tuple[float, float]]] = {}
+    for gear, axes in table.items():
+        ok = isinstance(axes, dict) and set(axes) == set(_AXES) and all(
+            isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v) and v[1] >= 0
+            for v in axes.values())
+        if not ok:
+            raise FileFormatError(f"{path}: pick_model[{gear!r}] = {axes!r}; expected {{axis: [mean, std >= 0]}} "
+                                  f"for the axes {list(_AXES)}")
+        model[str(gear)] = {axis: (float(axes[axis][0]), float(axes[axis][1])) for axis in _AXES}
+    return model
+
+
+PICK_MODEL: dict[str, dict[str, tuple[float, float]]] = load_pick_model()
 
 
 def picked_grasp_errors(gear: str, poses: ArrayLike, tool: ArrayLike, period: float,
@@ -85,4 +116,4 @@ def picked_grasp_errors(gear: str, poses: ArrayLike, tool: ArrayLike, period: fl
     return xi
 
 
-__all__ = ["PICK_MODEL", "aim_tool", "grasp_error", "picked_grasp_errors"]
+__all__ = ["PICK_MODEL", "PICK_MODEL_FILE", "aim_tool", "grasp_error", "load_pick_model", "picked_grasp_errors"]

@@ -24,7 +24,8 @@ from numpy.typing import ArrayLike, NDArray
 from goflow_common.checks import check_int
 from goflow_common.errors import FileFormatError
 from goflow_common.files import read_json
-from learning.skills import Skill, load_skill, rollout_return
+from learning.skill_evaluation import rollout_return
+from learning.skill_file import load_skill, Skill
 
 #: V_T per gear, measured by `benchmarks/preconditions.py --thresholds` (docs/planning.md).
 THRESHOLDS = Path(__file__).parent / "data" / "insert_thresholds.json"

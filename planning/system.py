@@ -3,37 +3,48 @@
 Its inputs are what the robot senses: the scene and wrist cameras' RGB-D images, the measured tool
 pose and the hand's state. It never reads the plant's gear poses (only the final scoring does).
 Its outputs are the command ports the scripted source drives (`X_WT_desired`, `V_WT_desired`,
-`A_WT_desired`, `gripper_width`), so the controller's wiring is unchanged. A periodic unrestricted
-update (every `period`, the insertion policy's control period) runs the state machine, whose whole
-state (beliefs, plan, current skill and its internal state, what was executed) is the system's
-abstract state (the pattern of the manipulation course's clutter-clearing Planner system):
+`A_WT_desired`, `gripper_width`), so the controller's wiring is unchanged. It is a Diagram of
+three systems (the pattern of the manipulation course's clutter-clearing station, where perception
+systems feed the Planner system through ports):
 
-    perceive (scene camera: detection, a far posterior per gear) -> plan (Algorithm 2)
-    -> per step: inspect (motion, close view, belief update, replan) | pick (motion; a miss,
-       read off the fingers' width, re-perceives) | insert (transport to the policy's start, the
-       learned policy closed loop at its control rate, release, and a look at the seated face with
-       the wrist camera; unseated with the gear in hand puts it back and re-perceives, unseated
-       on the shaft fails with the reason). A gear whose pick or insert failed is doubted
-       (planning.domain.GearBelief) until a close view of it: the plan inspects it before picking
-       it again rather than retry from the same, possibly biased, far view.
-    -> done, or failed with the reason.
+    PlannerPerception (planning.planner_perception): images + tool pose -> `percept`, the beliefs
+        of the look the state machine's `request` port asks for;
+    PlannerStateMachine (here): the decisions; a periodic unrestricted update (every `period`,
+        the insertion policy's control period) steps the state machine, whose whole state is one
+        typed, immutable `PlannerState` in the system's abstract state (a new value each step);
+    BeliefDrawer (planning.belief_drawing, only with a Meshcat): the beliefs drawn as they change.
+
+The state machine (`Phase`):
+
+    PERCEIVE (scene camera: detection, a far posterior per gear) -> plan (Algorithm 2)
+    -> per step, a MOTION then what ends it: inspect (close view, belief update, replan) | pick (a
+       miss, read off the fingers' width, re-perceives) | insert (transport to the policy's start,
+       POLICY: the learned policy closed loop at its control rate, release, and a look at the
+       seated face with the wrist camera; unseated with the gear in hand puts it back and
+       re-perceives, unseated on the shaft fails with the reason). A gear whose pick or insert
+       failed is doubted (planning.domain.GearBelief) until a close view of it: the plan inspects
+       it before picking it again rather than retry from the same, possibly biased, far view.
+    -> DONE, or FAILED with the reason.
 """
 
 from __future__ import annotations
 
 import copy
-import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from enum import Enum, StrEnum
+from typing import Any
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.geometry import Meshcat
+from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem, State
 
+from assembly.cameras import CamerasConfig
 from assembly.envs.gear_insertion import GearInsertionConfig
-from assembly.cameras import extrinsic_error_on_table
-from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
-from assembly.inspection import X_HT, InspectConfig, append_inspect
+from assembly.gearset import SHAFT_HEIGHT, gear_spec
+from assembly.inspection import InspectConfig, append_inspect
 from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.scripted_motion import (
     Keyframe, KeyframePlan, ScriptedInsertionConfig, append_move, append_pick, append_place, carry_height,
@@ -41,16 +52,85 @@ from assembly.scripted_motion import (
 )
 from assembly.station import COMMAND_PORTS, Station
 from assembly.world import nominal_grasp, planar_pose
-from perception.detection import detect_gears
-from perception.observation import Observation
-from perception.search import Prior, estimate_pose
-from perception.seat_check import SeatCheckConfig, check_seat
-from perception.station_views import observation_from_images
-from planning.bfs import plan_bfs
-from planning.domain import AssemblyDomain, BeliefState, GearBelief, table_belief
+from perception.seat_check import SeatCheckConfig
+from planning.belief_drawing import BeliefDrawer
+from planning.bfs import Step, plan_bfs
+from planning.domain import AssemblyDomain, BeliefState, GearBelief
 from planning.grasp import aim_tool
+from planning.planner_perception import IMAGE_PORTS, Look, LookRequest, Percept, PlannerPerception
 
-PHASES = ("perceive", "motion", "policy", "done", "failed")
+
+class Phase(StrEnum):
+    """The state machine's phase (its value is what `status` and `goflow demo` report)."""
+
+    PERCEIVE = "perceive"  # look with the scene camera at this update, then plan
+    MOTION = "motion"  # a keyframe motion; `PlannerState.then` says what ends it
+    POLICY = "policy"  # the learned insertion policy, closed loop
+    DONE = "done"  # every goal gear inserted
+    FAILED = "failed"  # `PlannerState.reason` says why
+
+
+class Then(Enum):
+    """What the planner does when the current motion ends."""
+
+    NOTHING = "nothing"  # the start: hold
+    PICTURE = "picture"  # inspect: the close view
+    PICKED = "picked"  # pick: are the fingers holding the gear?
+    POLICY = "policy"  # insert: start the policy
+    RELEASED = "released"  # insert: the seat check, then the next step or a retry
+    REPERCEIVE = "reperceive"  # a retry: look again
+
+
+@dataclass(frozen=True)
+class SkillRun:
+    """The skill being executed: which, on which gear, since when, with the precondition
+    probability it was planned with; `tool` the tool pose a pick aimed at (x, y, heading), and
+    after an insert's policy whether it ended `seated` and its `outcome`."""
+
+    skill: str
+    gear: str
+    t_start: float
+    precondition_prob: float
+    tool: tuple[float, float, float] | None = None
+    seated: bool = False
+    outcome: str = ""
+
+    def record(self, t_end: float, outcome: str) -> dict[str, Any]:
+        """The executed skill as `goflow demo` reports it: {"skill", "gear", "t_start", "t_end",
+        "outcome", "precondition_prob"}."""
+        return {"skill": self.skill, "gear": self.gear, "t_start": self.t_start, "t_end": t_end,
+                "outcome": outcome, "precondition_prob": self.precondition_prob}
+
+
+@dataclass(frozen=True)
+class PlannerState:
+    """The planner's whole state (its system's abstract state; each update stores a new value):
+    `phase`; `beliefs` (gear -> GearBelief); the remaining planned `steps`; every plan made
+    (`plans`, [[skill, gear], ...] each); the `executed` skills (SkillRun.record's); the `current`
+    skill; the commanded `keyframes` and what ends them (`then`); in POLICY the policy's last
+    `target`, the fingers' `width`, the observation `history` and when it ends (`policy_end`);
+    the `replans` spent; the failure's `reason`; and a `log` of lines for people."""
+
+    phase: Phase = Phase.PERCEIVE
+    beliefs: Mapping[str, GearBelief] = field(default_factory=dict)
+    steps: tuple[Step, ...] = ()
+    plans: tuple[list[list[str]], ...] = ()
+    executed: tuple[dict[str, Any], ...] = ()
+    current: SkillRun | None = None
+    keyframes: KeyframePlan | None = None
+    then: Then = Then.NOTHING
+    target: RigidTransform | None = None
+    width: float = 0.08
+    history: PoseHistory | None = None
+    policy_end: float = 0.0
+    replans: int = 0
+    reason: str = ""
+    log: tuple[str, ...] = ()
+
+    @property
+    def finished(self) -> bool:
+        """Whether the run is over (DONE or FAILED)."""
+        return self.phase in (Phase.DONE, Phase.FAILED)
 
 
 @dataclass
@@ -79,48 +159,32 @@ class PlannerSystemConfig:
     seat_check: SeatCheckConfig | None = field(default_factory=SeatCheckConfig)
 
 
-@dataclass
-class _Run:
-    """The planner's abstract state."""
-
-    phase: str = "perceive"
-    beliefs: dict = field(default_factory=dict)          # gear -> GearBelief
-    steps: list = field(default_factory=list)             # remaining planned Steps
-    plans: list = field(default_factory=list)             # every plan made: [[skill, gear], ...]
-    executed: list = field(default_factory=list)
-    current: dict | None = None                            # the skill being executed
-    keyframes: KeyframePlan | None = None
-    after: str = ""                                        # what ends the current motion
-    target: RigidTransform | None = None                   # the policy's last target
-    width: float = 0.08
-    history: PoseHistory | None = None
-    policy_end: float = 0.0
-    replans: int = 0
-    reason: str = ""
-    log: list = field(default_factory=list)
-
-
 def _pose4(X: RigidTransform) -> np.ndarray:
     m = X.rotation().matrix()
     return np.array([*X.translation(), np.arctan2(m[1, 0], m[0, 0])])
 
 
-class BeliefSpacePlanner(LeafSystem):
-    """See the module docstring. `skills`: the insert Skill per gear; `domain`: the planning
-    domain (planning.domain.gearbox_domain); `X_WS`: each shaft's pose (from the plate's known
-    pose); `cameras`: the station's CamerasConfig; `X_WT_start`, `width_start`: the robot's
-    start; `meshcat`: if given, each gear's belief is drawn there (its mean as a thin disc of the
-    gear's tip radius, its 3-sigma x-y region as a translucent one) whenever it changes."""
+class PlannerStateMachine(LeafSystem):
+    """The planner's decisions (see the module docstring): `skills` the insert Skill per gear,
+    `domain` the planning domain (planning.domain.gearbox_domain), `X_WS` each shaft's pose (from
+    the plate's known pose), `cameras` the station's CamerasConfig (the inspect motion's wrist
+    camera), `X_WT_start`, `width_start` the robot's start. ValueError when a goal gear has no
+    skill or shaft pose.
 
-    def __init__(self, skills: dict, domain: AssemblyDomain, X_WS: dict[str, RigidTransform],
-                 cameras, X_WT_start: RigidTransform, width_start: float,
-                 config: PlannerSystemConfig | None = None, meshcat=None) -> None:
+    Inputs: percept (PlannerPerception's answer to `request`), X_WT (the measured tool pose),
+    hand_state (finger positions and velocities). Outputs: the command ports (COMMAND_PORTS),
+    request (the LookRequest of the state now), beliefs (the state's), status (a dict: phase,
+    executed, plans, replans, reason). Every output is a function of the state and the time
+    alone, so the loop through the perception has no direct feedthrough."""
+
+    def __init__(self, skills: Mapping[str, Any], domain: AssemblyDomain, X_WS: Mapping[str, RigidTransform],
+                 cameras: CamerasConfig, X_WT_start: RigidTransform, width_start: float,
+                 config: PlannerSystemConfig | None = None) -> None:
         super().__init__()
-        self.set_name("belief_space_planner")
+        self.set_name("planner_state_machine")
         self.config = config or PlannerSystemConfig()
         self.skills, self.domain, self.X_WS, self.cameras = skills, domain, X_WS, cameras
         self.X_WT_start = X_WT_start
-        self.meshcat = meshcat
         missing = [g for g in domain.goal if g not in skills or g not in X_WS]
         if missing:
             raise ValueError(f"no insert skill or shaft pose for gear(s) {missing}")
@@ -130,169 +194,130 @@ class BeliefSpacePlanner(LeafSystem):
             seated = _pose4(X_WS[gear] @ nominal_grasp(gear).inverse())
             self.laws[gear] = InsertionLaw(tuple(seated), c.action_scale, c.workspace, c.history, c.control_dt)
             self.t_max = c.t_max
-        for cam in ("scene", "wrist"):
-            self.DeclareAbstractInputPort(f"{cam}_rgb", AbstractValue.Make(_image_value("rgb")))
-            self.DeclareAbstractInputPort(f"{cam}_depth", AbstractValue.Make(_image_value("depth")))
+        self.DeclareAbstractInputPort("percept", AbstractValue.Make(Percept(LookRequest())))
         self.DeclareAbstractInputPort("X_WT", AbstractValue.Make(RigidTransform()))
         self.DeclareVectorInputPort("hand_state", 4)
         start = start_keyframe_plan(X_WT_start, width_start)
         start.append(0.5, X_WT_start, width_start, "start: hold")
-        self._state = self.DeclareAbstractState(AbstractValue.Make(
-            _Run(keyframes=start, after="", width=width_start)))
+        self._state = self.DeclareAbstractState(AbstractValue.Make(PlannerState(keyframes=start, width=width_start)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._update)
+        now = {self.time_ticket(), self.abstract_state_ticket(self._state)}
+        state_only = {self.abstract_state_ticket(self._state)}
         self.DeclareAbstractOutputPort("X_WT_desired", lambda: AbstractValue.Make(RigidTransform()),
-                                       self._calc_pose)
-        self.DeclareVectorOutputPort("V_WT_desired", 6, lambda c, o: o.SetFromVector(self._sample(c)[1]))
-        self.DeclareVectorOutputPort("A_WT_desired", 6, lambda c, o: o.SetFromVector(self._sample(c)[2]))
-        self.DeclareVectorOutputPort("gripper_width", 1, lambda c, o: o.SetFromVector([self._sample(c)[3]]))
-        self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make({}), self._calc_status)
+                                       lambda c, o: o.set_value(self._sample(c)[0]), now)
+        self.DeclareVectorOutputPort("V_WT_desired", 6, lambda c, o: o.SetFromVector(self._sample(c)[1]), now)
+        self.DeclareVectorOutputPort("A_WT_desired", 6, lambda c, o: o.SetFromVector(self._sample(c)[2]), now)
+        self.DeclareVectorOutputPort("gripper_width", 1, lambda c, o: o.SetFromVector([self._sample(c)[3]]), now)
+        self.DeclareAbstractOutputPort("request", lambda: AbstractValue.Make(LookRequest()),
+                                       lambda c, o: o.set_value(self.request(self.state(c))), state_only)
+        self.DeclareAbstractOutputPort("beliefs", lambda: AbstractValue.Make({}),
+                                       lambda c, o: o.set_value(dict(self.state(c).beliefs)), state_only)
+        self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make({}), self._calc_status, state_only)
 
     # -- outputs -----------------------------------------------------------------------------
 
-    def run(self, context: Context) -> _Run:
-        """The planner's state in `context` (read only)."""
+    def state(self, context: Context) -> PlannerState:
+        """The planner's state in `context` (this system's context)."""
         return context.get_abstract_state(self._state).get_value()
 
-    def _sample(self, context: Context):
-        run = self.run(context)
-        if run.phase == "policy" and run.target is not None:
-            return run.target, np.zeros(6), np.zeros(6), run.width
-        return sample_plan(run.keyframes, context.get_time())
+    def request(self, s: PlannerState) -> LookRequest:
+        """The look state `s` needs at its next update: SCENE of the gears not inserted while
+        perceiving; CLOSE of the inspected gear and SEAT of an insert's gear (when the tool said
+        seated and `config.seat_check` is set) while their motions run; else NOTHING."""
+        if s.phase is Phase.PERCEIVE:
+            return LookRequest(Look.SCENE, gears=tuple(g for g in self.domain.goal
+                                                       if g not in s.beliefs or s.beliefs[g].location != "inserted"))
+        if s.phase is Phase.MOTION and s.then is Then.PICTURE:
+            return LookRequest(Look.CLOSE, gear=s.current.gear, belief=s.beliefs[s.current.gear])
+        if (s.phase is Phase.MOTION and s.then is Then.RELEASED and s.current.seated
+                and self.config.seat_check is not None):
+            return LookRequest(Look.SEAT, gear=s.current.gear)
+        return LookRequest()
 
-    def _calc_pose(self, context: Context, output: AbstractValue) -> None:
-        output.set_value(self._sample(context)[0])
+    def _sample(self, context: Context):
+        s = self.state(context)
+        if s.phase is Phase.POLICY and s.target is not None:
+            return s.target, np.zeros(6), np.zeros(6), s.width
+        return sample_plan(s.keyframes, context.get_time())
 
     def _calc_status(self, context: Context, output: AbstractValue) -> None:
-        run = self.run(context)
-        output.set_value({"phase": run.phase, "executed": list(run.executed), "plans": list(run.plans),
-                          "replans": run.replans, "reason": run.reason})
-
-    # -- sensing -----------------------------------------------------------------------------
-
-    def _observe(self, context: Context, camera: str) -> Observation:
-        config = self.cameras.scene if camera == "scene" else self.cameras.wrist
-        if camera == "scene":
-            X_WC = config.X_PC
-        else:  # the wrist camera rides on the hand: X_WC = X_WT X_TH X_HC
-            X_WC = self.GetInputPort("X_WT").Eval(context) @ X_HT.inverse() @ config.X_PC
-        return observation_from_images(self.GetInputPort(f"{camera}_rgb").Eval(context),
-                                       self.GetInputPort(f"{camera}_depth").Eval(context), config, X_WC)
+        s = self.state(context)
+        output.set_value({"phase": s.phase.value, "executed": list(s.executed), "plans": list(s.plans),
+                          "replans": s.replans, "reason": s.reason})
 
     # -- the state machine -------------------------------------------------------------------
 
     def _update(self, context: Context, state: State) -> None:
-        run = copy.copy(self.run(context))
-        run.executed, run.log = list(run.executed), list(run.log)
-        run.current = dict(run.current) if run.current else None
+        s = self.state(context)
         t = context.get_time()
         X_WT = self.GetInputPort("X_WT").Eval(context)
-        if run.phase == "perceive":
-            self._perceive(context, run, t, X_WT)
-        elif run.phase == "motion" and self._motion_done(run, t, X_WT):
-            self._after_motion(context, run, t, X_WT)
-        elif run.phase == "policy":
-            self._policy_step(context, run, t, X_WT)
-        state.get_mutable_abstract_state(self._state).set_value(run)
+        if s.phase is Phase.PERCEIVE:
+            s = self._perceived(s, self._percept(context, Look.SCENE), t, X_WT)
+        elif s.phase is Phase.MOTION and self._motion_done(s, t, X_WT):
+            s = self._after_motion(context, s, t, X_WT)
+        elif s.phase is Phase.POLICY:
+            s = self._policy_step(context, s, t, X_WT)
+        state.get_mutable_abstract_state(self._state).set_value(s)
 
-    def _motion_done(self, run: _Run, t: float, X_WT: RigidTransform) -> bool:
-        end = run.keyframes.end_time
+    def _percept(self, context: Context, look: Look) -> Percept:
+        percept = self.GetInputPort("percept").Eval(context)
+        if percept.request.look is not look:
+            raise RuntimeError(f"the perception answered a {percept.request.look.name} look; the planner asked "
+                               f"for {look.name}: connect its request input to the planner's request output")
+        return percept
+
+    def _motion_done(self, s: PlannerState, t: float, X_WT: RigidTransform) -> bool:
+        end = s.keyframes.end_time
         if t < end:
             return False
-        near = np.linalg.norm(X_WT.translation() - run.keyframes.keyframes[-1].X_WT.translation())
+        near = np.linalg.norm(X_WT.translation() - s.keyframes.keyframes[-1].X_WT.translation())
         return near < self.config.settle_tolerance or t > end + self.config.max_wait
 
-    def _hold(self, run: _Run, t: float, X_WT: RigidTransform, width: float | None = None) -> KeyframePlan:
+    def _hold(self, s: PlannerState, t: float, X_WT: RigidTransform) -> KeyframePlan:
         """A new keyframe plan starting now, from the current command."""
-        last = run.keyframes.keyframes[-1] if run.keyframes else None
-        policy = run.phase == "policy" and run.target is not None
-        X = run.target if policy else (last.X_WT if last else X_WT)
-        w = width if width is not None else (run.width if policy or last is None else last.width)
+        last = s.keyframes.keyframes[-1] if s.keyframes else None
+        policy = s.phase is Phase.POLICY and s.target is not None
+        X = s.target if policy else (last.X_WT if last else X_WT)
+        w = s.width if policy or last is None else last.width
         return KeyframePlan([Keyframe(t, X, w, "now")])
 
-    def _perceive(self, context: Context, run: _Run, t: float, X_WT: RigidTransform) -> None:
-        t0 = time.perf_counter()
-        obs = self._observe(context, "scene")
-        found = detect_gears(obs, tuple(g for g in GEAR_NAMES if g in self.domain.goal or g in run.beliefs))
-        beliefs = dict(run.beliefs)
-        for gear in self.domain.goal:
-            if gear in beliefs and beliefs[gear].location == "inserted":
-                continue
-            det = found.get(gear)
-            if det is None or not det.seen:
-                self._fail(run, f"{gear} gear not seen by the scene camera: "
-                                f"{det.reason if det else 'not searched'}")
-                return
-            post = estimate_pose(obs, gear, det.prior)
-            if not post.informative:
-                beliefs[gear] = table_belief((det.prior.x, det.prior.y, 0.0),
-                                             (det.prior.half_width,) * 2 + (np.pi,))
-            else:
-                beliefs[gear] = table_belief(post.mean(), self._far_std(obs, post.mean(), post.std()))
-            if gear in run.beliefs and run.beliefs[gear].doubted:  # still owed a close view
-                beliefs[gear] = replace(beliefs[gear], doubted=True)
-        run.beliefs = beliefs
-        run.log.append(f"t = {t:.2f} s: perceived {sorted(beliefs)} in {time.perf_counter() - t0:.1f} s")
-        self._replan(run, t, X_WT)
+    def _perceived(self, s: PlannerState, percept: Percept, t: float, X_WT: RigidTransform) -> PlannerState:
+        if percept.reason:  # a gear not seen
+            return self._fail(s, percept.reason)
+        beliefs = dict(s.beliefs)
+        for gear, b in percept.beliefs.items():
+            doubted = gear in s.beliefs and s.beliefs[gear].doubted  # still owed a close view
+            beliefs[gear] = replace(b, doubted=True) if doubted else b
+        s = replace(s, beliefs=beliefs,
+                    log=(*s.log, f"t = {t:.2f} s: perceived {sorted(beliefs)} in {percept.seconds:.1f} s"))
+        return self._replan(s, t, X_WT)
 
-    def _far_std(self, obs: Observation, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
-        """A far posterior's std with the scene camera's extrinsic uncertainty added."""
-        t_std, r_std = self.config.scene_extrinsic_std
-        if t_std == 0 and r_std == 0:
-            return std
-        cov = extrinsic_error_on_table(obs.X_WC, np.array([mean[0], mean[1], GEAR_THICKNESS]), t_std, r_std)
-        return np.sqrt(np.asarray(std) ** 2 + np.array([cov[0, 0], cov[1, 1], r_std ** 2]))
-
-    def _draw_beliefs(self, beliefs: dict) -> None:
-        """Each table gear's belief in Meshcat: the mean pose, and the 3-sigma x-y disc."""
-        if self.meshcat is None:
-            return
-        from pydrake.geometry import Cylinder, Rgba
-
-        for gear, b in beliefs.items():
-            path = f"beliefs/{gear}"
-            if b.location != "table":
-                self.meshcat.Delete(path)
-                continue
-            r = gear_spec(gear).tip_radius
-            X = RigidTransform(RotationMatrix.MakeZRotation(b.mean[2]), [b.mean[0], b.mean[1], 0.0222])
-            self.meshcat.SetObject(f"{path}/mean", Cylinder(r, 0.0004), Rgba(0.1, 0.4, 1.0, 0.8))
-            self.meshcat.SetTransform(f"{path}/mean", X)
-            self.meshcat.SetObject(f"{path}/region", Cylinder(r + 3 * max(b.std[:2]), 0.0002),
-                                   Rgba(0.1, 0.4, 1.0, 0.25))
-            self.meshcat.SetTransform(f"{path}/region", X)
-
-    def _replan(self, run: _Run, t: float, X_WT: RigidTransform) -> None:
-        self._draw_beliefs(run.beliefs)
-        start = BeliefState.of(run.beliefs, None)
-        plan = plan_bfs(start, self.domain)
+    def _replan(self, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
+        plan = plan_bfs(BeliefState.of(dict(s.beliefs), None), self.domain)
         if not plan.found:
-            self._fail(run, f"no plan: {plan.reason}")
-            return
-        run.plans.append(plan.pairs())
-        run.steps = list(plan.steps)
-        self._next_step(run, t, X_WT)
+            return self._fail(s, f"no plan: {plan.reason}")
+        s = replace(s, plans=(*s.plans, plan.pairs()), steps=tuple(plan.steps))
+        return self._next_step(s, t, X_WT)
 
-    def _fail(self, run: _Run, reason: str) -> None:
-        run.phase, run.reason = "failed", reason
-        run.log.append(reason)
+    def _fail(self, s: PlannerState, reason: str) -> PlannerState:
+        return replace(s, phase=Phase.FAILED, reason=reason, log=(*s.log, reason))
 
-    def _next_step(self, run: _Run, t: float, X_WT: RigidTransform) -> None:
-        if not run.steps:
-            done = all(run.beliefs[g].location == "inserted" for g in self.domain.goal)
-            run.phase = "done" if done else "failed"
-            run.reason = "" if done else "the plan ended before every gear was inserted"
-            return
-        step = run.steps.pop(0)
-        run.current = {"skill": step.skill, "gear": step.gear, "t_start": t,
-                       "precondition_prob": float(step.probability)}
+    def _next_step(self, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
+        if not s.steps:
+            done = all(s.beliefs[g].location == "inserted" for g in self.domain.goal)
+            return replace(s, phase=Phase.DONE if done else Phase.FAILED,
+                           reason="" if done else "the plan ended before every gear was inserted")
+        step = s.steps[0]
+        current = SkillRun(step.skill, step.gear, t, float(step.probability))
+        s = replace(s, steps=s.steps[1:], current=current)
         c = self.config
         gear = step.gear
-        belief = run.beliefs[gear]
-        plan = self._hold(run, t, X_WT)
+        belief = s.beliefs[gear]
+        plan = self._hold(s, t, X_WT)
         open_w, closed_w = gripper_widths(gear, c.motion)
         if step.skill == "inspect":
             append_inspect(plan, gear, belief.mean[:2], self.cameras.wrist, c.inspect)
-            run.after = "picture"
+            then = Then.PICTURE
         elif step.skill == "pick":
             aim = np.asarray(self.domain.aim_xi.get(gear, (0.0, 0.0, 0.0)), float)
             # the gear repeats every tooth pitch: of the headings giving the aimed yaw, the one
@@ -301,13 +326,13 @@ class BeliefSpacePlanner(LeafSystem):
             k = np.round((np.pi / 2 - (belief.mean[2] - aim[2])) / pitch)
             tool = aim_tool(belief.mean, aim - [0.0, 0.0, k * pitch])
             heading = float(tool[2])
-            run.current["tool"] = tool.tolist()
+            current = replace(current, tool=tuple(tool.tolist()))
             if plan.keyframes[-1].width < open_w:
                 plan.append(c.motion.gripper_time, plan.keyframes[-1].X_WT, open_w, f"{gear}: open")
             # aim the tool: the gear's believed centre shifted by the aimed grasp error
             X_WG_aim = planar_pose(tool[0], tool[1], belief.mean[2])
             append_pick(plan, gear, X_WG_aim, heading, carry_height(gear, self.X_WS[gear], c.motion), c.motion)
-            run.after = "picked"
+            then = Then.PICKED
         elif step.skill == "insert":
             law = self.laws[gear]
             seated = np.asarray(law.seated)
@@ -318,94 +343,83 @@ class BeliefSpacePlanner(LeafSystem):
             append_move(plan, down_pose(start[:3], start[3]), closed_w, f"{gear}: to the policy's start",
                         c.motion.insert_speed * 3, c.motion.min_segment)
             plan.append(c.motion.pause, plan.keyframes[-1].X_WT, closed_w, f"{gear}: steady")
-            run.after = "policy"
-        run.keyframes, run.phase = plan, "motion"
+            then = Then.POLICY
+        else:
+            raise ValueError(f"planned step {step.skill}({gear}); the planner runs inspect, pick and insert")
+        return replace(s, current=current, keyframes=plan, then=then, phase=Phase.MOTION)
 
-    def _after_motion(self, context: Context, run: _Run, t: float, X_WT: RigidTransform) -> None:
-        gear = run.current["gear"] if run.current else None
-        if run.after == "picture":
-            obs = self._observe(context, "wrist")
-            b = run.beliefs[gear]
-            k, lo, hi = self.config.close_prior
-            prior = Prior(b.mean[0], b.mean[1], float(np.clip(k * max(b.std[:2]), lo, hi)))
-            post = estimate_pose(obs, gear, prior)
-            if post.informative:
-                run.beliefs = {**run.beliefs, gear: GearBelief("table", tuple(post.mean()), tuple(post.std()),
-                                                               b.inspections + 1)}
-            else:
-                run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, b.inspections + 1)}
-            self._record(run, t, "informative" if post.informative else f"uninformative: {post.reason}")
-            self._replan(run, t, X_WT)
-        elif run.after == "picked":
+    def _after_motion(self, context: Context, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
+        gear = s.current.gear if s.current else None
+        if s.then is Then.PICTURE:
+            percept = self._percept(context, Look.CLOSE)
+            b, seen = s.beliefs[gear], percept.beliefs.get(gear)
+            mean, std = (seen.mean, seen.std) if seen is not None else (b.mean, b.std)
+            s = replace(s, beliefs={**s.beliefs, gear: GearBelief("table", mean, std, b.inspections + 1)})
+            s = self._record(s, t, "informative" if seen is not None else f"uninformative: {percept.reason}")
+            return self._replan(s, t, X_WT)
+        if s.then is Then.PICKED:
             holding, width = self._holding(context, gear)
             if not holding:  # the fingers closed on nothing
-                self._record(run, t, f"missed (fingers {1e3 * width:.1f} mm apart)")
-                self._retry(run, t, X_WT)
-                return
-            b = run.beliefs[gear]
-            run.beliefs = {**run.beliefs, gear: GearBelief("hand", b.mean, b.std, b.inspections,
-                                                           tuple(run.current["tool"]))}
-            self._record(run, t, "holding")
-            self._next_step(run, t, X_WT)
-        elif run.after == "policy":
-            law = self.laws[gear]
-            run.history = PoseHistory(law)
-            run.history.reset(_pose4(X_WT))
-            run.policy_end = t + self.t_max
-            run.width = run.keyframes.keyframes[-1].width
-            run.phase = "policy"
-            self._policy_action(run, gear, X_WT)
-        elif run.after == "released":
-            if run.current.get("seated") and self.config.seat_check is not None:
-                check = check_seat(self._observe(context, "wrist"), gear, self.X_WS[gear],
-                                   self.config.seat_check)
-                run.log.append(f"t = {t:.2f} s: seat check: {check.reason}")
+                s = self._record(s, t, f"missed (fingers {1e3 * width:.1f} mm apart)")
+                return self._retry(s, t, X_WT)
+            b = s.beliefs[gear]
+            s = replace(s, beliefs={**s.beliefs, gear: GearBelief("hand", b.mean, b.std, b.inspections,
+                                                                  s.current.tool)})
+            return self._next_step(self._record(s, t, "holding"), t, X_WT)
+        if s.then is Then.POLICY:
+            history = PoseHistory(self.laws[gear])
+            history.reset(_pose4(X_WT))
+            s = replace(s, history=history, policy_end=t + self.t_max, width=s.keyframes.keyframes[-1].width,
+                        phase=Phase.POLICY)
+            return replace(s, target=self._policy_target(s, gear, X_WT))
+        if s.then is Then.RELEASED:
+            if s.current.seated and self.config.seat_check is not None:
+                check = self._percept(context, Look.SEAT).seat
+                s = replace(s, log=(*s.log, f"t = {t:.2f} s: seat check: {check.reason}"))
                 if check.verdict == "unseated":
-                    self._record(run, t, f"unseated (wrist camera: {check.reason})")
-                    self._fail(run, f"insert({gear}) left the gear on its shaft unseated ({check.reason}); "
-                                    "no skill takes a gear back off its shaft")
-                    return
-            self._record(run, t, run.current.get("outcome", ""))
-            if run.current.get("seated"):
-                b = run.beliefs[gear]
-                run.beliefs = {**run.beliefs, gear: GearBelief("inserted", b.mean, b.std, b.inspections)}
-                self._next_step(run, t, X_WT)
-            else:
-                self._retry(run, t, X_WT)
-        elif run.after == "reperceive":
-            run.phase = "perceive"
+                    s = self._record(s, t, f"unseated (wrist camera: {check.reason})")
+                    return self._fail(s, f"insert({gear}) left the gear on its shaft unseated ({check.reason}); "
+                                         "no skill takes a gear back off its shaft")
+            s = self._record(s, t, s.current.outcome)
+            if not s.current.seated:
+                return self._retry(s, t, X_WT)
+            b = s.beliefs[gear]
+            s = replace(s, beliefs={**s.beliefs, gear: GearBelief("inserted", b.mean, b.std, b.inspections)})
+            return self._next_step(s, t, X_WT)
+        if s.then is Then.REPERCEIVE:
+            return replace(s, phase=Phase.PERCEIVE)
+        return s
 
-    def _policy_action(self, run: _Run, gear: str, X_WT: RigidTransform) -> None:
-        skill, law = self.skills[gear], self.laws[gear]
-        pose = _pose4(X_WT)
-        action = skill.act(run.history.observation())
-        target = law.target(action, pose)
-        run.target = down_pose(target[:3], target[3])
+    def _policy_target(self, s: PlannerState, gear: str, X_WT: RigidTransform) -> RigidTransform:
+        """The policy's next tool target from the observation history of `s`."""
+        action = self.skills[gear].act(s.history.observation())
+        target = self.laws[gear].target(action, _pose4(X_WT))
+        return down_pose(target[:3], target[3])
 
-    def _policy_step(self, context: Context, run: _Run, t: float, X_WT: RigidTransform) -> None:
-        gear = run.current["gear"]
-        run.history = copy.deepcopy(run.history)
-        run.history.push(_pose4(X_WT))
-        if t + 1e-9 < run.policy_end:
-            self._policy_action(run, gear, X_WT)
-            return
+    def _policy_step(self, context: Context, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
+        gear = s.current.gear
+        history = copy.deepcopy(s.history)  # the stored state is never changed in place
+        history.push(_pose4(X_WT))
+        s = replace(s, history=history)
+        if t + 1e-9 < s.policy_end:
+            return replace(s, target=self._policy_target(s, gear, X_WT))
         # done: seated if the tool came down to its seated height (the gear is on its shaft)
         # ... and the fingers still hold it (a dropped gear lets the tool come down too)
         dz = float(X_WT.translation()[2] - self.laws[gear].seated[2])
         holding, _ = self._holding(context, gear)
         seated = dz < self.config.seated_tolerance and holding
-        run.current["seated"] = seated
-        run.current["outcome"] = ("seated" if seated else "dropped" if not holding
-                                  else f"unseated (tool {1e3 * dz:.1f} mm above seated; put back)")
+        outcome = ("seated" if seated else "dropped" if not holding
+                   else f"unseated (tool {1e3 * dz:.1f} mm above seated; put back)")
+        s = replace(s, current=replace(s.current, seated=seated, outcome=outcome))
         if seated or not holding:
-            plan = self._open_and_lift(run, t, X_WT, gear, f"{gear}: release", f"{gear}: retreat")
+            plan = self._open_and_lift(s, t, X_WT, gear, f"{gear}: release", f"{gear}: retreat")
         else:  # still in hand: put it back where it was picked, on the table the scene camera sees
-            tool = run.beliefs[gear].tool
-            plan = self._hold(run, t, X_WT)
+            tool = s.beliefs[gear].tool
+            plan = self._hold(s, t, X_WT)
             X_WT_place = grasp_tool_pose(gear, planar_pose(tool[0], tool[1], 0.0), tool[2], self.config.motion)
             append_place(plan, gear, X_WT_place, carry_height(gear, self.X_WS[gear], self.config.motion),
                          self.config.motion)
-        run.keyframes, run.after, run.phase, run.target = plan, "released", "motion", None
+        return replace(s, keyframes=plan, then=Then.RELEASED, phase=Phase.MOTION, target=None)
 
     def _holding(self, context: Context, gear: str) -> tuple[bool, float]:
         """Whether the fingers hold `gear` (they stopped on it rather than closing past its
@@ -414,41 +428,77 @@ class BeliefSpacePlanner(LeafSystem):
         width = float(q[0] + q[1])
         return width > 2 * gear_spec(gear).tip_radius - 0.005, width
 
-    def _open_and_lift(self, run: _Run, t: float, X_WT: RigidTransform, gear: str, open_label: str,
+    def _open_and_lift(self, s: PlannerState, t: float, X_WT: RigidTransform, gear: str, open_label: str,
                        lift_label: str) -> KeyframePlan:
         """From the current command: open the fingers for `gear`, then lift by retreat_height."""
         c = self.config.motion
         open_w, _ = gripper_widths(gear, c)
-        plan = self._hold(run, t, X_WT)
+        plan = self._hold(s, t, X_WT)
         plan.append(c.gripper_time, plan.keyframes[-1].X_WT, open_w, open_label)
         up = RigidTransform(plan.keyframes[-1].X_WT.rotation(),
                             plan.keyframes[-1].X_WT.translation() + [0, 0, c.retreat_height])
         append_move(plan, up, open_w, lift_label, c.speed, c.min_segment)
         return plan
 
-    def _record(self, run: _Run, t: float, outcome: str) -> None:
-        cur = dict(run.current)
-        cur.update(t_end=t, outcome=outcome)
-        cur.pop("seated", None)
-        run.executed.append({k: cur[k] for k in ("skill", "gear", "t_start", "t_end", "outcome",
-                                                  "precondition_prob")})
+    def _record(self, s: PlannerState, t: float, outcome: str) -> PlannerState:
+        return replace(s, executed=(*s.executed, s.current.record(t, outcome)))
 
-    def _retry(self, run: _Run, t: float, X_WT: RigidTransform) -> None:
-        if run.replans >= self.config.max_replans:
-            self._fail(run, f"{run.current['skill']}({run.current['gear']}) failed and "
-                            f"{run.replans} replans are spent")
-            return
-        run.replans += 1
+    def _retry(self, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
+        if s.replans >= self.config.max_replans:
+            return self._fail(s, f"{s.current.skill}({s.current.gear}) failed and {s.replans} replans are spent")
         # re-perceive from a clear view: open, lift, back to the start pose (the arm out of the
         # scene camera's view), then look again; the failed gear's belief is doubted
-        gear = run.current["gear"]
-        b = run.beliefs[gear]
-        run.beliefs = {**run.beliefs, gear: GearBelief("table", b.mean, b.std, 0, doubted=True)}
+        gear = s.current.gear
+        b = s.beliefs[gear]
+        s = replace(s, replans=s.replans + 1,
+                    beliefs={**s.beliefs, gear: GearBelief("table", b.mean, b.std, 0, doubted=True)})
         c = self.config.motion
-        plan = self._open_and_lift(run, t, X_WT, gear, "retry: open", "retry: lift")
+        plan = self._open_and_lift(s, t, X_WT, gear, "retry: open", "retry: lift")
         append_move(plan, self.X_WT_start, plan.keyframes[-1].width, "retry: clear the view", c.speed,
                     c.min_segment)
-        run.keyframes, run.after, run.phase = plan, "reperceive", "motion"
+        return replace(s, keyframes=plan, then=Then.REPERCEIVE, phase=Phase.MOTION)
+
+
+class BeliefSpacePlanner(Diagram):
+    """The planner in the station (see the module docstring): its perception, its state machine
+    and, with a `meshcat`, its belief drawing, wired as one Diagram. `skills`: the insert Skill
+    per gear; `domain`: the planning domain (planning.domain.gearbox_domain); `X_WS`: each
+    shaft's pose (from the plate's known pose); `cameras`: the station's CamerasConfig (as
+    calibrated); `X_WT_start`, `width_start`: the robot's start; `meshcat`: if given, each gear's
+    belief is drawn there (planning.belief_drawing) whenever it changes. ValueError when a goal
+    gear has no skill or shaft pose.
+
+    Inputs: scene_rgb, scene_depth, wrist_rgb, wrist_depth, X_WT, hand_state. Outputs: the
+    command ports (COMMAND_PORTS), beliefs and status."""
+
+    def __init__(self, skills: Mapping[str, Any], domain: AssemblyDomain, X_WS: Mapping[str, RigidTransform],
+                 cameras: CamerasConfig, X_WT_start: RigidTransform, width_start: float,
+                 config: PlannerSystemConfig | None = None, meshcat: Meshcat | None = None) -> None:
+        super().__init__()
+        config = config or PlannerSystemConfig()
+        builder = DiagramBuilder()
+        machine = builder.AddSystem(PlannerStateMachine(skills, domain, X_WS, cameras, X_WT_start, width_start,
+                                                        config))
+        perception = builder.AddSystem(PlannerPerception(cameras, tuple(domain.goal), X_WS, config.close_prior,
+                                                         config.scene_extrinsic_std, config.seat_check))
+        for name in IMAGE_PORTS:
+            builder.ExportInput(perception.GetInputPort(name), name)
+        builder.ConnectInput(builder.ExportInput(perception.GetInputPort("X_WT"), "X_WT"), machine.GetInputPort("X_WT"))
+        builder.ExportInput(machine.GetInputPort("hand_state"), "hand_state")
+        builder.Connect(machine.GetOutputPort("request"), perception.GetInputPort("request"))
+        builder.Connect(perception.GetOutputPort("percept"), machine.GetInputPort("percept"))
+        for name in (*COMMAND_PORTS, "beliefs", "status"):
+            builder.ExportOutput(machine.GetOutputPort(name), name)
+        if meshcat is not None:
+            drawer = builder.AddSystem(BeliefDrawer(meshcat, config.period))
+            builder.Connect(machine.GetOutputPort("beliefs"), drawer.GetInputPort("beliefs"))
+        builder.BuildInto(self)
+        self.set_name("belief_space_planner")
+        self.machine, self.perception, self.config = machine, perception, config
+
+    def run(self, context: Context) -> PlannerState:
+        """The planner's state in `context` (this Diagram's context; read only)."""
+        return self.machine.state(self.GetSubsystemContext(self.machine, context))
 
 
 def connect_planner(station: Station, planner: BeliefSpacePlanner) -> Diagram:
@@ -467,9 +517,5 @@ def connect_planner(station: Station, planner: BeliefSpacePlanner) -> Diagram:
     return diagram
 
 
-def _image_value(kind: str):
-    from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
-    return ImageRgba8U() if kind == "rgb" else ImageDepth32F()
-
-
-__all__ = ["BeliefSpacePlanner", "PHASES", "PlannerSystemConfig", "connect_planner"]
+__all__ = ["BeliefSpacePlanner", "Phase", "PlannerState", "PlannerStateMachine", "PlannerSystemConfig", "SkillRun",
+           "Then", "connect_planner"]

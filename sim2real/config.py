@@ -33,7 +33,7 @@ class DiagnosisConfig:
     variances] within the floor's own uncertainty (a floor read 10 % low in standard deviation
     reads a log with no gap 0.23 high): an excess whose interval's lower end is below it is not a
     gap by itself; seed: of the bootstrap; replay, clean, band: the stages' settings (band None:
-    every sample, the fast-part/variogram floor of the version before the band).""" 
+    every sample, the fast-part/variogram floor of the version before the band)."""
 
     blocks: int = 20
     folds: int = 5

@@ -47,20 +47,25 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
     against `model` ("arm": the arm's torque and state channels; "perception": a perception log
     of sim2real.perception_channel, its pose channel; "station": an insertion log,
     contact effects included, with the skill's success rate over `episodes` episodes before and
-    after the selected effects; 0 skips it) and write the report into `out` (checked before any
-    work)."""
-    from sim2real.log import load_log
+    after the selected effects; 0 skips it) and write the report into folder `out`, created once
+    the log has been read and checked before the diagnosis.
+
+    Returns (the diagnosis, the report's files). Raises FileNotFoundError or FileFormatError for a
+    missing or bad log (nothing is created then), OutputPathError for an unwritable `out`."""
+    from sim2real.importers import load_log
     from sim2real.report import write_report
 
     check_choice(model, MODELS, "--model")
-    check_output_dir(out, "--out")
     start = time.perf_counter()
     if model == "perception":
         from sim2real.perception_channel import diagnose_perception, load_perception_log
-        d = diagnose_perception(load_perception_log(log_path), progress=_bar(progress))
+        perception_log = load_perception_log(log_path)
+        check_output_dir(out, "--out-dir")
+        d = diagnose_perception(perception_log, progress=_bar(progress))
         d.log_meta.setdefault("source", str(log_path))
         return d, write_report(d, out, extra={"seconds": time.perf_counter() - start})
-    log = load_log(log_path)
+    log = load_log(log_path)  # the log is read before the report folder is made: a bad log leaves nothing
+    check_output_dir(out, "--out-dir")
     if model == "station":
         from sim2real.contact import diagnose_insertion
         d = diagnose_insertion(log, config, progress=_bar(progress), episodes=episodes)
@@ -82,7 +87,8 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
     scenes (`overrides`: scenes, seed; sim2real.perception_channel); "station": one insertion
     episode of the shipped skill,
     `overrides` may set gear, seed, xi (sim2real.station_logs.make_insertion_log) and noise (default
-    true: sensor noise on torques, tool position and contact force, station_logs.with_sensor_noise)."""
+    true: sensor noise on torques, tool position and contact force, station_logs.with_sensor_noise).
+    InputError names a bad effect, option or file name before anything is simulated."""
     from goflow_common.config import config_with_overrides
     from goflow_common.errors import InputError
     from sim2real.catalogue import parse_effect_values
@@ -99,21 +105,21 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
         options = dict(overrides or {})
         unknown = set(options) - {"scenes", "seed"}
         if unknown:
-            raise InputError(f"--set {sorted(unknown)}: expected scenes or seed for a perception log")
+            raise InputError(f"--model-kwarg {sorted(unknown)}: expected scenes or seed for a perception log")
         return save_perception_log(make_perception_log(values, **options), path)
     if model == "station":
         from sim2real.station_logs import make_insertion_log, with_sensor_noise
         options = dict(overrides or {})
         unknown = set(options) - {"gear", "seed", "xi", "noise"}
         if unknown:
-            raise InputError(f"--set {sorted(unknown)}: expected gear, seed, xi or noise for a station log")
+            raise InputError(f"--model-kwarg {sorted(unknown)}: expected gear, seed, xi or noise for a station log")
         noise = options.pop("noise", True)
         if not isinstance(noise, bool):
-            raise InputError(f"--set noise={noise!r}; expected true or false")
+            raise InputError(f"--model-kwarg noise={noise!r}; expected true or false")
         log, _ = make_insertion_log(values, **options)
         return save_log(with_sensor_noise(log, options.get("seed", 0)) if noise else log, path)
     from sim2real.reality import RealityConfig, make_arm_log
-    config = config_with_overrides(RealityConfig, None, overrides or {}, "sim2real make-log")
+    config = config_with_overrides(RealityConfig, None, overrides or {}, "--model-kwarg")
     log = make_arm_log(values, config)
     (write_franka_csv if path.suffix == ".csv" else save_log)(log, path)
     return path

@@ -1,7 +1,6 @@
-"""Robot logs in foreign layouts: the Gaz et al. 2019 Panda log folder and Franka CSV exports.
-
-`sim2real.log.load_log` dispatches here by what its path is (a folder, a .csv); the formats are
-documented in docs/sim2real.md ("The robot log").
+"""Robot logs in foreign layouts: the Gaz et al. 2019 Panda log folder and Franka CSV exports; and
+`load_log`, which reads a log in any of them or in the npz format of `sim2real.log`, by what its
+path is (a folder, a .csv, a .npz). The formats are documented in docs/robot_logs.md.
 """
 
 from __future__ import annotations
@@ -18,11 +17,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from goflow_common.errors import FileFormatError, InputError
-from goflow_common.files import _reject_constant, check_output_file, read_json, write_atomic
-from sim2real.log import PHASES, RobotLog, validate_log
+from goflow_common.files import check_output_file, read_json, reject_json_constant, write_atomic
+from sim2real.log import PHASES, RobotLog, read_npz_log, validate_log
 
-__all__ = ["GAZ_FILES", "GAZ_JOINTS", "read_gaz_layout", "write_gaz_layout", "read_gaz_trajectory", "csv_columns",
-           "read_franka_csv", "write_franka_csv"]
+__all__ = ["GAZ_FILES", "GAZ_JOINTS", "load_log", "read_gaz_layout", "write_gaz_layout", "read_gaz_trajectory",
+           "csv_columns", "read_franka_csv", "write_franka_csv"]
 
 # ---------------------------------------------------------------------------------------------- Gaz et al. 2019
 
@@ -212,7 +211,7 @@ def _csv_preamble(path: Path, lines: list[str]) -> tuple[int, dict[str, Any]]:
         body = lines[i].lstrip()[1:].strip()
         if body.startswith("meta:"):
             try:
-                extra = json.loads(body[len("meta:"):], parse_constant=_reject_constant)
+                extra = json.loads(body[len("meta:"):], parse_constant=reject_json_constant)
             except ValueError as exc:
                 raise FileFormatError(f"{path}: line {i + 1}: the meta comment is not strict JSON ({exc})") from None
             if not isinstance(extra, dict):
@@ -361,3 +360,31 @@ def write_franka_csv(log: RobotLog, path: str | os.PathLike[str]) -> Path:
     for k, row in enumerate(table):
         out.append(",".join([repr(x) for x in row] + ([phases[k]] if phases else [])))
     return write_atomic(path, "\n".join(out) + "\n")
+
+
+# ---------------------------------------------------------------------------------------------- any format
+
+def load_log(path: str | os.PathLike[str], n_joints: int | None = 7) -> RobotLog:
+    """Read and validate a robot log (see `sim2real.log.validate_log`; `n_joints` None accepts any
+    count).
+
+    `path` is one of: a folder in the layout of the Gaz et al. 2019 log (`read_gaz_layout`) or a
+    folder holding a log.npz, a .csv file as Franka users export it (`read_franka_csv`), or a .npz
+    written by `sim2real.log.save_log` (loaded with allow_pickle=False). Raises FileNotFoundError
+    if nothing is at `path`, and FileFormatError (one line, starting with the path) when the file
+    is empty, truncated, foreign, holds unknown arrays or bad metadata, or the log fails validation."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no robot log at {path}")
+    if path.is_dir() and (path / "log.npz").is_file() and not has_gaz_layout(path):
+        path = path / "log.npz"  # a data folder of the project (data/panda-gaz2019)
+    if path.is_dir():
+        log = read_gaz_layout(path)
+    elif path.suffix.lower() == ".csv":
+        log = read_franka_csv(path, n_joints=n_joints)
+    else:
+        log = read_npz_log(path)
+    try:
+        return validate_log(log, n_joints)
+    except InputError as exc:
+        raise FileFormatError(f"{path}: {exc}") from None

@@ -4,7 +4,8 @@ A log holds T samples of an n-joint arm: timestamps, measured joint positions, v
 link-side joint torques, and optionally the commanded torques, commanded joint targets, the
 estimated external torques, the tool pose, an external wrench, the gripper width and phase labels.
 Units and frames live in `meta`. The on-disk format (.npz of plain arrays plus a JSON metadata
-string, loaded with allow_pickle=False) is documented in docs/sim2real.md.
+string, loaded with allow_pickle=False) is documented in docs/sim2real.md; `sim2real.importers.load_log`
+reads a log in that format or a foreign one.
 """
 
 from __future__ import annotations
@@ -25,11 +26,11 @@ from numpy.typing import NDArray
 
 from goflow_common.checks import check_int
 from goflow_common.errors import FileFormatError, InputError
-from goflow_common.files import _reject_constant, check_output_file, to_strict_json, write_atomic
+from goflow_common.files import check_output_file, reject_json_constant, to_strict_json, write_atomic
 
 __all__ = [
     "RobotLog", "PHASES", "UNITS", "FIELDS", "TORQUE_SIDES", "POSITION_SIDES", "MIN_SAMPLES", "LOG_FORMAT",
-    "validate_log", "save_log", "load_log", "slice_log", "with_meta",
+    "validate_log", "save_log", "read_npz_log", "slice_log", "with_meta",
 ]
 
 #: Phase names, in the order of their integer labels in `RobotLog.phase`.
@@ -380,34 +381,12 @@ def save_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:
     return write_atomic(path, buf.getvalue())
 
 
-def load_log(path: str | os.PathLike[str], n_joints: int | None = 7) -> RobotLog:
-    """Read and validate a robot log (see `validate_log`; `n_joints` None accepts any count).
-
-    `path` is one of: a folder in the layout of the Gaz et al. 2019 log (sim2real.importers.
-    read_gaz_layout) or a folder holding a log.npz, a .csv file as Franka users export it (read_franka_csv), or a .npz written by
-    `save_log` (loaded with allow_pickle=False). Raises FileNotFoundError if nothing is at `path`,
-    and FileFormatError (one line, starting with the path) when the file is empty, truncated,
-    foreign, holds unknown arrays or bad metadata, or the log fails validation."""
-    from sim2real import importers
-
+def read_npz_log(path: str | os.PathLike[str]) -> RobotLog:
+    """The robot log in a .npz written by `save_log` (loaded with allow_pickle=False), not yet
+    validated (`sim2real.importers.load_log` reads any format and validates). FileFormatError (one
+    line, starting with the path) when the file is empty, truncated, foreign, holds pickled
+    objects or unknown arrays, or its metadata is not a strict-JSON object."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no robot log at {path}")
-    if path.is_dir() and (path / "log.npz").is_file() and not importers.has_gaz_layout(path):
-        path = path / "log.npz"  # a data folder of the project (data/panda-gaz2019)
-    if path.is_dir():
-        log = importers.read_gaz_layout(path)
-    elif path.suffix.lower() == ".csv":
-        log = importers.read_franka_csv(path, n_joints=n_joints)
-    else:
-        log = _read_npz(path)
-    try:
-        return validate_log(log, n_joints)
-    except InputError as exc:
-        raise FileFormatError(f"{path}: {exc}") from None
-
-
-def _read_npz(path: Path) -> RobotLog:
     what = "robot log (.npz written by save_log)"
     if path.stat().st_size == 0:
         raise FileFormatError(f"{path}: the file is empty; expected a {what}")
@@ -442,7 +421,7 @@ def _read_npz(path: Path) -> RobotLog:
         raise FileFormatError(f"{path}: meta has dtype {meta.dtype} and shape {meta.shape}; expected a JSON "
                               "string (0-d unicode array)")
     try:
-        meta_obj = json.loads(str(meta[()]), parse_constant=_reject_constant)
+        meta_obj = json.loads(str(meta[()]), parse_constant=reject_json_constant)
     except ValueError as exc:
         raise FileFormatError(f"{path}: meta is not strict JSON ({exc})") from None
     if not isinstance(meta_obj, dict):

@@ -230,11 +230,14 @@ def load_perception_log(path: str | os.PathLike[str]) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no perception log at {path}")
+    if not zipfile.is_zipfile(path):  # np.load would take it for a pickle and suggest loading it unsafely
+        raise FileFormatError(f"{path}: not a perception log (.npz of plain arrays): not a zip archive")
     try:
         with np.load(path, allow_pickle=False) as data:
             log = {k: (data[k].item() if data[k].ndim == 0 else data[k]) for k in data.files}
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise FileFormatError(f"{path}: not a perception log (.npz of plain arrays): {str(exc)[:120]}") from None
+        why = "it holds pickled objects" if "pickle" in str(exc) else str(exc)[:120]
+        raise FileFormatError(f"{path}: not a perception log (.npz of plain arrays): {why}") from None
     try:
         _check_log(log)
     except InputError as exc:

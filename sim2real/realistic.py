@@ -187,8 +187,7 @@ def make_case_log(case: RealisticCase, duration: float = 20.0, folder: str | Pat
     """The case's torque-only realistic log, written in its layout under `folder` (None: a
     temporary folder) and read back, and its truth: the settings, each effect's SNR, the in-band
     effect torque per joint and the in-band noise per joint."""
-    from sim2real.importers import write_franka_csv, write_gaz_layout
-    from sim2real.log import load_log
+    from sim2real.importers import load_log, write_franka_csv, write_gaz_layout
     from sim2real.reality import make_arm_log
 
     _, noise = _nominal(duration, case.seed)

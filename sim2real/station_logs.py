@@ -123,7 +123,7 @@ def station_physics(effects: Mapping[str, Any] | None) -> dict[str, ContactOverr
 
 
 def _load(skill: Any, gear: str):
-    from learning.skills import Skill, load_skill
+    from learning.skill_file import load_skill, Skill
     if skill is None:
         return load_skill("insert", gear)
     if isinstance(skill, Skill):
@@ -295,7 +295,7 @@ def make_insertion_log(effects: Mapping[str, Any] | None, gear: str = "medium",
         gear: "small", "medium" or "large".
         xi: the grasp error (x [m], y [m], yaw [rad]); None draws it from the skill's flow with `seed`.
         seed: the env's reset seed (only the xi draw depends on it: the policy is deterministic).
-        skill: None (the shipped `insert` skill for `gear`), a learning.skills.Skill or a file path.
+        skill: None (the shipped `insert` skill for `gear`), a learning.skill_file.Skill or a file path.
         variant: "panda" (the only one with a station to log).
 
     Returns:
@@ -406,7 +406,7 @@ def skill_success(effects: Mapping[str, Any] | None, gear: str = "medium", episo
                   variant: str = "panda", skill: Any = None, xi: str | tuple[float, float, float] = "flow",
                   num_envs: int = 1) -> float:
     """The success rate of the skill's deterministic policy over `episodes` episodes with `effects`
-    in the physics, xi drawn as learning.skills.evaluate_skill draws it (the skill's flow or the
+    in the physics, xi drawn as learning.skill_evaluation.evaluate_skill draws it (the skill's flow or the
     uniform box, reset seed `seed`), or held at one grasp error (`make_insertion_env`): the same
     seed gives the same xi for every `effects`, so two rates differ by the effect alone (with
     num_envs as in evaluate_skill, the same episodes as it)."""
@@ -455,7 +455,7 @@ def _main(argv: list[str] | None = None) -> None:
     import json
     import time
 
-    from learning.skills import load_skill
+    from learning.skill_file import load_skill
     from sim2real.catalogue import parse_effect_values
 
     parser = argparse.ArgumentParser(prog="python -m sim2real.station_logs", description=_main.__doc__)

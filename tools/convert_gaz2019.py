@@ -58,7 +58,7 @@ exciting trajectory for dynamic identification, converted to the project's robot
 
 {log.n_samples} samples of the 7 joints, t = {log.time[0]:g} .. {log.time[-1]:g} s, about 1 kHz (steps
 {dt.min() * 1e3:.2f} .. {dt.max() * 1e3:.2f} ms, median {np.median(dt) * 1e3:.3f} ms); {npz_bytes / 1e6:.2f} MB.
-Load it with `sim2real.log.load_log("data/panda-gaz2019/log.npz")`.
+Load it with `sim2real.importers.load_log("data/panda-gaz2019/log.npz")`.
 
 | field | shape | unit | from |
 |---|---|---|---|

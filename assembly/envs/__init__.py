@@ -23,13 +23,15 @@ _ENVS = {
 
 # Batched vector envs (N copies in one Drake diagram, assembly/envs/batched.py): what
 # `gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")` builds.
-_VECTOR_ENVS = {
+VECTOR_ENVS = {
     "goflow/Cartpole-v0": "assembly.envs.cartpole_vector:CartpoleVectorEnv",
     "goflow/Quadrotor-v0": "assembly.envs.quadrotor_vector:QuadrotorVectorEnv",
+    "goflow/Ant-v0": "assembly.envs.ant_vector:AntVectorEnv",
+    "goflow/Anymal-v0": "assembly.envs.anymal_vector:AnymalVectorEnv",
     "goflow/GearInsertion-v0": "assembly.envs.gear_insertion_vector:GearInsertionVectorEnv",
 }
 
 for _env_id, (_entry_point, _kwargs) in _ENVS.items():
     if _env_id not in gymnasium.registry:  # importing twice (e.g. importlib test mode) must not warn
         gymnasium.register(id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs),
-                           vector_entry_point=_VECTOR_ENVS.get(_env_id))
+                           vector_entry_point=VECTOR_ENVS.get(_env_id))

@@ -33,6 +33,7 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
+from assembly.envs.batched import rowwise_dot
 from goflow_common.checks import check_choice, check_number
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
@@ -40,7 +41,9 @@ from assembly.envs.drake_sim import PlantAccess, advance, point_contact_properti
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
-__all__ = ["AntConfig", "AntEnv", "NOMINAL_TORSO_MASS", "SEED_J_T"]
+__all__ = ["AntConfig", "AntEnv", "AntLayout", "AntModel", "NOMINAL_TORSO_MASS", "SEED_J_T", "add_ant",
+           "add_ground", "ant_layout", "exclude_self_contact", "initial_row", "observe", "plant_config",
+           "step_reward"]
 
 # -- the seed's task (docs/envs.md#ant names the files these come from) ---------------------------
 SEED_J_T = 700.0  # paper appendix A.1 (the code's yaml says 650)
@@ -150,22 +153,37 @@ class AntConfig:
         return SEED_J_T * self.t_max / (SEED_EPISODE_STEPS * SEED_CONTROL_DT)
 
 
-def _build(config: AntConfig):
-    """The Drake diagram (plant + scene graph) of the ant on a ground plane; returns handles."""
-    from pydrake.geometry import Box, Capsule, CollisionFilterDeclaration, GeometrySet, HalfSpace, Sphere
+def plant_config(config: AntConfig):
+    """The MultibodyPlantConfig of the ant's plant (discrete step, point contact, approximation)."""
+    from pydrake.multibody.plant import MultibodyPlantConfig
+
+    return MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
+                                discrete_contact_approximation=config.contact_approximation)
+
+
+@dataclass(frozen=True)
+class AntModel:
+    """One ant added to a plant by `add_ant`."""
+
+    torso: Any  # RigidBody (the floating base)
+    joints: tuple[Any, ...]  # RevoluteJoints hip_1, ankle_1, ..., hip_4, ankle_4
+    actuators: tuple[Any, ...]  # their JointActuators, same order
+    torso_inertia: Any  # the torso's SpatialInertia at the nominal mass, about its origin
+    geometries: tuple[Any, ...]  # the robot's collision GeometryIds
+
+
+def _props(config: AntConfig):
+    return point_contact_properties(config.point_stiffness, config.hunt_crossley_dissipation, config.friction)
+
+
+def add_ant(plant, config: AntConfig, instance=None) -> AntModel:
+    """Add one ant (torso, legs, joints, motors, collision and visual geometry) to an unfinalized
+    plant, in model instance `instance` (default: the plant's default instance), its torso free."""
+    from pydrake.geometry import Capsule, Sphere
     from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.multibody.tree import RevoluteJoint, SpatialInertia
-    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.multibody.tree import RevoluteJoint, SpatialInertia, default_model_instance
 
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlant(
-        MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
-                             discrete_contact_approximation=config.contact_approximation),
-        builder)
-
-    def props():
-        return point_contact_properties(config.point_stiffness, config.hunt_crossley_dissipation, config.friction)
+    instance = default_model_instance() if instance is None else instance
 
     def capsule_pose(end: np.ndarray) -> RigidTransform:
         """Pose of a Drake capsule (axis z) spanning the segment from the origin to `end`."""
@@ -183,12 +201,14 @@ def _build(config: AntConfig):
     m_torso = SpatialInertia.SolidSphereWithDensity(DENSITY, TORSO_RADIUS)
     for end in aux_ends:
         m_torso += capsule_inertia(end)
-    torso = plant.AddRigidBody("torso", m_torso)
-    plant.RegisterCollisionGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso", props())
+    torso = plant.AddRigidBody("torso", instance, m_torso)
+    geometries = [plant.RegisterCollisionGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso",
+                                                  _props(config))]
     plant.RegisterVisualGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso", [0.9, 0.4, 0.1, 1])
     for i, end in enumerate(aux_ends):
         shape = Capsule(LIMB_RADIUS, float(np.linalg.norm(end)))
-        plant.RegisterCollisionGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}", props())
+        geometries.append(plant.RegisterCollisionGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}",
+                                                          _props(config)))
         plant.RegisterVisualGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}", [0.2, 0.8, 0.2, 1])
 
     joints, actuators = [], []
@@ -196,11 +216,12 @@ def _build(config: AntConfig):
         sx, sy = _LEG_SIGNS[leg]
         thigh_end = np.array([sx * THIGH, sy * THIGH, 0.0])
         shin_end = np.array([sx * SHIN, sy * SHIN, 0.0])
-        thigh = plant.AddRigidBody(f"{leg}_thigh", capsule_inertia(thigh_end))
-        shin = plant.AddRigidBody(f"{leg}_shin", capsule_inertia(shin_end))
+        thigh = plant.AddRigidBody(f"{leg}_thigh", instance, capsule_inertia(thigh_end))
+        shin = plant.AddRigidBody(f"{leg}_shin", instance, capsule_inertia(shin_end))
         for body, end in ((thigh, thigh_end), (shin, shin_end)):
             shape = Capsule(LIMB_RADIUS, float(np.linalg.norm(end)))
-            plant.RegisterCollisionGeometry(body, capsule_pose(end), shape, body.name(), props())
+            geometries.append(plant.RegisterCollisionGeometry(body, capsule_pose(end), shape, body.name(),
+                                                              _props(config)))
             plant.RegisterVisualGeometry(body, capsule_pose(end), shape, body.name(), [0.8, 0.2, 0.2, 1])
         hip_frame = plant.AddFrame(_fixed_frame(f"{leg}_hip_parent", torso.body_frame(),
                                                 RigidTransform(aux_ends[i])))
@@ -218,25 +239,142 @@ def _build(config: AntConfig):
             act.set_default_gear_ratio(1.0)
             joints.append(joint)
             actuators.append(act)
+    return AntModel(torso, tuple(joints), tuple(actuators), m_torso, tuple(geometries))
 
-    ground = plant.world_body()
-    plant.RegisterCollisionGeometry(ground, RigidTransform(), HalfSpace(), "ground", props())
-    plant.RegisterVisualGeometry(ground, RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
+
+def add_ground(plant, config: AntConfig) -> Any:
+    """The ground: a half space z <= 0 on the world body (and a visual slab); its GeometryId."""
+    from pydrake.geometry import Box, HalfSpace
+    from pydrake.math import RigidTransform
+
+    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
+                                             _props(config))
+    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
                                  [0.5, 0.5, 0.5, 1])
-    plant.Finalize()
+    return ground
 
-    # Only the ground touches the ant: no self-collisions (legs may pass through each other).
-    robot_bodies = [torso] + [plant.GetBodyByName(f"{leg}_{part}") for leg in LEGS for part in ("thigh", "shin")]
-    robot_geoms = [g for b in robot_bodies for g in plant.GetCollisionGeometriesForBody(b)]
+
+def exclude_self_contact(scene_graph, model: AntModel) -> None:
+    """Only the ground touches an ant: no self-collisions (legs may pass through each other)."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+
     scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geoms)))
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(list(model.geometries))))
+
+
+def _build(config: AntConfig):
+    """The Drake diagram (plant + scene graph) of the ant on a ground plane; returns handles."""
+    from pydrake.multibody.plant import AddMultibodyPlant
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(plant_config(config), builder)
+    model = add_ant(plant, config)
+    add_ground(plant, config)
+    plant.Finalize()
+    exclude_self_contact(scene_graph, model)
     diagram = builder.Build()
-    return diagram, plant, torso, joints, actuators, m_torso
+    return diagram, plant, model.torso, list(model.joints), list(model.actuators), model.torso_inertia
 
 
 def _fixed_frame(name, parent_frame, X):
     from pydrake.multibody.tree import FixedOffsetFrame
     return FixedOffsetFrame(name, parent_frame, X)
+
+
+@dataclass(frozen=True)
+class AntLayout:
+    """Where one ant's coordinates sit in its row of [q; v] (ordered as the single env's plant
+    state), its joints' limits and default pose: what the per-step math of `AntEnv` and
+    `AntVectorEnv` reads."""
+
+    nq: int  # positions in the row (velocities follow)
+    quat: NDArray[np.int64]  # torso quaternion w, x, y, z
+    pos: NDArray[np.int64]  # torso position x, y, z
+    joint_q: NDArray[np.int64]  # the 8 joint angles, joint order
+    joint_v: NDArray[np.int64]  # the 8 joint rates, joint order
+    obs: NDArray[np.int64]  # the observation's gather: z, quat, joints, v_lin, w, joint rates
+    q_mid: NDArray[np.float64]  # joint range centres [rad]
+    q_half: NDArray[np.float64]  # joint range half widths [rad]
+    q_default: NDArray[np.float64]  # joint angles at reset, before noise [rad]
+
+
+def ant_layout(plant, model: AntModel, columns: NDArray[np.int64]) -> AntLayout:
+    """The layout of `model`'s row, for a finalized plant whose state [q; v] the row gathers at
+    `columns` (all of [q; v] for a plant holding one ant)."""
+    nq_plant = plant.num_positions()
+    where = {int(c): k for k, c in enumerate(columns)}
+    nq = sum(1 for c in columns if c < nq_plant)
+
+    def rows(plant_indices) -> NDArray[np.int64]:
+        return np.array([where[int(i)] for i in plant_indices], dtype=np.int64)
+
+    fb_q = model.torso.floating_positions_start()
+    fb_v = nq_plant + model.torso.floating_velocities_start_in_v()
+    quat, pos = rows(range(fb_q, fb_q + 4)), rows(range(fb_q + 4, fb_q + 7))
+    v_ang, v_lin = rows(range(fb_v, fb_v + 3)), rows(range(fb_v + 3, fb_v + 6))
+    joint_q = rows(j.position_start() for j in model.joints)
+    joint_v = rows(nq_plant + j.velocity_start() for j in model.joints)
+    lower = np.array([j.position_lower_limit() for j in model.joints])
+    upper = np.array([j.position_upper_limit() for j in model.joints])
+    q_default = np.zeros(len(model.joints))
+    for i, leg in enumerate(LEGS):
+        q_default[2 * i + 1] = _ANKLE[leg][1] * INITIAL_ANKLE
+    return AntLayout(nq, quat, pos, joint_q, joint_v, np.concatenate([pos[2:], quat, joint_q, v_lin, v_ang, joint_v]),
+                     0.5 * (upper + lower), 0.5 * (upper - lower), q_default)
+
+
+def initial_row(config: AntConfig, layout: AntLayout, width: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """An ant's reset state row (`width` = its nq + nv): default pose at initial_height, with the
+    reset noise drawn from rng (joint angles, height, then every velocity), joints clipped to
+    their ranges."""
+    s = config.reset_noise_scale
+    row = np.zeros(width)
+    row[layout.quat] = [1.0, 0.0, 0.0, 0.0]
+    row[layout.pos] = [0.0, 0.0, config.initial_height]
+    row[layout.joint_q] = layout.q_default
+    if s > 0:
+        row[layout.joint_q] += rng.uniform(-s, s, size=len(layout.joint_q))
+        row[layout.pos[2]] += rng.uniform(-s, s)
+        row[layout.nq:] += s * rng.standard_normal(width - layout.nq)
+    row[layout.joint_q] = np.clip(row[layout.joint_q], layout.q_mid - layout.q_half, layout.q_mid + layout.q_half)
+    return row
+
+
+def observe(layout: AntLayout, rows: NDArray[np.float64]) -> NDArray[np.float32]:
+    """Observations (N, 27) of state rows (N, nq + nv): the quaternion normalized."""
+    obs = rows[:, layout.obs]
+    quat = obs[:, 1:5]
+    obs[:, 1:5] = quat / np.sqrt(rowwise_dot(quat, quat))[:, None]
+    return obs.astype(np.float32)
+
+
+def step_reward(config: AntConfig, layout: AntLayout, x_before: NDArray[np.float64], rows: NDArray[np.float64],
+                actions: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray]]:
+    """Rewards (N,), terminations (N,) and the info arrays (x_position, forward_progress,
+    torso_height, healthy) of one control step: torso x before it (N,), state rows after it (N,
+    nq + nv), the clipped actions (N, 8)."""
+    cfg, a = config, actions
+    w, qx, qy, qz = rows[:, layout.quat].T
+    n2 = w * w + qx * qx + qy * qy + qz * qz
+    # z-component of the torso's z axis; x-component of its x axis (heading toward the +x target).
+    up_proj = 1.0 - 2.0 * (qx * qx + qy * qy) / n2
+    heading_proj = 1.0 - 2.0 * (qy * qy + qz * qz) / n2
+    height = rows[:, layout.pos[2]]
+    dx = rows[:, layout.pos[0]] - x_before
+    at_limit = np.count_nonzero(np.abs(rows[:, layout.joint_q] - layout.q_mid) > 0.98 * layout.q_half, axis=1)
+    heading = cfg.heading_weight * np.where(heading_proj > 0.8, 1.0, heading_proj / 0.8)
+    rate = (cfg.alive_reward + np.where(up_proj > 0.93, cfg.up_weight, 0.0) + heading
+            - cfg.actions_cost * rowwise_dot(a, a)
+            - cfg.energy_cost * cfg.dof_vel_scale * np.abs(a * rows[:, layout.joint_v]).sum(axis=1)
+            - cfg.joint_limit_cost * at_limit)
+    reward = cfg.progress_weight * dx + cfg.rate_scale * rate
+    unhealthy = height < cfg.termination_height
+    terminated = unhealthy & cfg.terminate_when_unhealthy
+    reward = np.where(terminated, cfg.death_cost, reward)
+    info = {"x_position": rows[:, layout.pos[0]].copy(), "forward_progress": dx, "torso_height": height.copy(),
+            "healthy": ~unhealthy}
+    return reward, terminated, info
 
 
 class AntEnv(PlantAccess, ParamEnv):
@@ -264,32 +402,12 @@ class AntEnv(PlantAccess, ParamEnv):
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._actuation_port = plant.get_actuation_input_port()
         self._nq, self._nv = plant.num_positions(), plant.num_velocities()
-        # Index maps into the plant's q and v (the floating torso: quaternion wxyz, position xyz;
-        # angular then linear velocity, both in the world frame).
-        self._q_joint = np.array([j.position_start() for j in self._joints])
-        self._v_joint = np.array([j.velocity_start() for j in self._joints])
-        fb_q = self._torso.floating_positions_start()
-        fb_v = self._torso.floating_velocities_start_in_v()
-        self._q_quat = np.arange(fb_q, fb_q + 4)
-        self._q_pos = np.arange(fb_q + 4, fb_q + 7)
-        self._v_ang = np.arange(fb_v, fb_v + 3)
-        self._v_lin = np.arange(fb_v + 3, fb_v + 6)
+        # Where the torso (quaternion wxyz, position xyz; angular then linear velocity, both in the
+        # world frame) and the joints sit in the plant's state x = [q; v].
+        model = AntModel(self._torso, tuple(self._joints), tuple(self._actuators), m_torso, ())
+        self._layout = ant_layout(plant, model, np.arange(self._nq + self._nv))
         # The actuation vector is ordered by actuator index; map action i (joint i) onto it.
         self._u_index = np.array([a.input_start() for a in self._actuators])
-        lower = np.array([j.position_lower_limit() for j in self._joints])
-        upper = np.array([j.position_upper_limit() for j in self._joints])
-        self._q_mid, self._q_half = 0.5 * (upper + lower), 0.5 * (upper - lower)
-        self._q_default = np.zeros(len(self._joints))
-        for i, leg in enumerate(LEGS):
-            self._q_default[2 * i + 1] = _ANKLE[leg][1] * INITIAL_ANKLE
-        # Indices into the state x = [q; v] used every step.
-        nq = self._nq
-        self._ix, self._iz = int(self._q_pos[0]), int(self._q_pos[2])
-        self._iquat = self._q_quat.copy()
-        self._x_joint = self._q_joint.copy()
-        self._x_jointvel = nq + self._v_joint
-        self._obs_index = np.concatenate([[self._iz], self._q_quat, self._q_joint, nq + self._v_lin,
-                                          nq + self._v_ang, nq + self._v_joint])
         self._u = np.zeros(plant.num_actuated_dofs())
         self._k = 0  # control steps taken in this episode (time = k * control_dt)
         self._state = np.zeros(self._nq + self._nv)
@@ -308,31 +426,18 @@ class AntEnv(PlantAccess, ParamEnv):
         """Set the torso mass and the (noisy) default pose in the reused Context; time 0."""
         from pydrake.multibody.tree import SpatialInertia
 
-        cfg = self.config
         mass = float(xi[0])
         # Mass and rotational inertia scale together (same unit inertia, same COM).
         self._torso.SetSpatialInertiaInBodyFrame(
             self._plant_context, SpatialInertia(mass, self._com0, self._unit_inertia0))
         self._context.SetTime(0.0)
-        s = cfg.reset_noise_scale
-        rng = self.np_random
-        q = np.zeros(self._nq)
-        v = np.zeros(self._nv)
-        q[self._q_quat] = [1.0, 0.0, 0.0, 0.0]
-        q[self._q_pos] = [0.0, 0.0, cfg.initial_height]
-        q[self._q_joint] = self._q_default
-        if s > 0:
-            q[self._q_joint] += rng.uniform(-s, s, size=len(self._joints))
-            q[self._q_pos[2]] += rng.uniform(-s, s)
-            v += s * rng.standard_normal(self._nv)
-        lo, hi = self._q_mid - self._q_half, self._q_mid + self._q_half
-        q[self._q_joint] = np.clip(q[self._q_joint], lo, hi)
-        self._plant.SetPositionsAndVelocities(self._plant_context, np.concatenate([q, v]))
+        x = initial_row(self.config, self._layout, self._nq + self._nv, self.np_random)
+        self._plant.SetPositionsAndVelocities(self._plant_context, x)
         self._u[:] = 0.0
         self._actuation_port.FixValue(self._plant_context, self._u)
         self._simulator.Initialize()
         self._k = 0
-        self._state = np.concatenate([q, v])
+        self._state = x
 
     def _advance(self, action: NDArray[np.float64], clipped: bool = False) -> NDArray[np.float64]:
         """Apply normalized torques (clipped to [-1, 1]) for one control step; return [q; v]."""
@@ -350,9 +455,7 @@ class AntEnv(PlantAccess, ParamEnv):
         return float("nan") if self._xi is None else float(self._xi[0])
 
     def _observe(self, x: NDArray[np.float64]) -> NDArray[np.float32]:
-        obs = x[self._obs_index]  # one gather: z, quat, joints, v_lin, w, joint rates
-        obs[1:5] /= math.sqrt(float(obs[1:5] @ obs[1:5]))
-        return obs.astype(np.float32)
+        return observe(self._layout, x[None])[0]
 
     # -- ParamEnv -------------------------------------------------------------------------------
 
@@ -362,32 +465,14 @@ class AntEnv(PlantAccess, ParamEnv):
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
-        cfg = self.config
         a = np.clip(action, -1.0, 1.0)
-        x_before = self._state[self._ix]
+        x_before = self._state[self._layout.pos[0]]
         x = self._advance(a, clipped=True)
         self._state = x
-        w, qx, qy, qz = x[self._iquat]
-        n2 = w * w + qx * qx + qy * qy + qz * qz
-        # z-component of the torso's z axis; x-component of its x axis (heading toward the +x target).
-        up_proj = 1.0 - 2.0 * (qx * qx + qy * qy) / n2
-        heading_proj = 1.0 - 2.0 * (qy * qy + qz * qz) / n2
-        height = float(x[self._iz])
-        dx = float(x[self._ix] - x_before)
-        at_limit = int(np.count_nonzero(np.abs(x[self._x_joint] - self._q_mid) > 0.98 * self._q_half))
-        heading = cfg.heading_weight * (1.0 if heading_proj > 0.8 else heading_proj / 0.8)
-        rate = (cfg.alive_reward + (cfg.up_weight if up_proj > 0.93 else 0.0) + heading
-                - cfg.actions_cost * float(a @ a)
-                - cfg.energy_cost * cfg.dof_vel_scale * float(np.abs(a * x[self._x_jointvel]).sum())
-                - cfg.joint_limit_cost * at_limit)
-        reward = cfg.progress_weight * dx + cfg.rate_scale * rate
-        unhealthy = height < cfg.termination_height
-        terminated = unhealthy and cfg.terminate_when_unhealthy
-        if terminated:
-            reward = cfg.death_cost
-        info = {"x_position": float(x[self._ix]), "forward_progress": dx, "torso_height": height,
-                "healthy": not unhealthy}
-        return self._observe(x), float(reward), terminated, info
+        reward, terminated, extra = step_reward(self.config, self._layout, np.array([x_before]), x[None], a[None])
+        info = {key: float(value[0]) for key, value in extra.items()}
+        info["healthy"] = bool(extra["healthy"][0])
+        return self._observe(x), float(reward[0]), bool(terminated[0]), info
 
     # -- benchmark helper ----------------------------------------------------------------------
 

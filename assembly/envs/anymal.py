@@ -44,7 +44,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.base import ParamEnv, SimulationError, quaternion_rotation
+from assembly.envs.base import ParamEnv, SimulationError
+from assembly.envs.batched import rowwise_dot
 from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -52,7 +53,10 @@ from goflow_common.checks import check_choice, check_number
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
 
-__all__ = ["AnymalConfig", "AnymalEnv", "NOMINAL_BASE_MASS", "SEED_J_T", "LEGS", "JOINT_NAMES"]
+__all__ = ["AnymalConfig", "AnymalEnv", "AnymalLayout", "AnymalModel", "FootTimers", "JOINT_NAMES", "LEGS",
+           "NOMINAL_BASE_MASS", "SEED_J_T", "add_anymal", "add_ground", "anymal_layout", "anymal_space", "base_motion",
+           "contact_slots", "contacts", "desired_order", "exclude_self_contact", "hip_damping", "initial_row",
+           "joint_loads", "observe", "plant_config", "reward_terms"]
 
 # -- the seed's task (goflow/environments/anymal/anymal_env.py, agents/GOFLOW.yaml) --------------
 SEED_J_T = 1.5  # paper appendix A.1 and GOFLOW.yaml success_threshold
@@ -174,22 +178,42 @@ class _Mirror:
         return (self.sx * v[0], self.sy * v[1], v[2])
 
 
-def _build(config: AnymalConfig):
-    """The Drake diagram (plant + scene graph) of the robot on a ground plane; returns handles."""
-    from pydrake.geometry import Box, Capsule, CollisionFilterDeclaration, GeometrySet, HalfSpace, Sphere
-    from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, RevoluteJoint
-    from pydrake.systems.framework import DiagramBuilder
+def plant_config(config: AnymalConfig):
+    """The MultibodyPlantConfig of the robot's plant (discrete step, point contact, approximation,
+    sampled output ports)."""
+    from pydrake.multibody.plant import MultibodyPlantConfig
 
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlant(
-        MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
-                             discrete_contact_approximation=config.contact_approximation,
-                             use_sampled_output_ports=True),
-        builder)
-    def props():
-        return point_contact_properties(config.point_stiffness, config.hunt_crossley_dissipation, config.friction)
+    return MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
+                                discrete_contact_approximation=config.contact_approximation,
+                                use_sampled_output_ports=True)
+
+
+@dataclass(frozen=True)
+class AnymalModel:
+    """One robot added to a plant by `add_anymal`."""
+
+    base: Any  # RigidBody (the floating base)
+    joints: tuple[Any, ...]  # RevoluteJoints, JOINT_NAMES order
+    actuators: tuple[Any, ...]  # their PD-controlled JointActuators, same order
+    haa: tuple[Any, ...]  # the four HAA joints, LEGS order
+    base_geometries: tuple[Any, ...]  # collision GeometryIds: the base box
+    thigh_geometries: tuple[Any, ...]  # the four thigh capsules
+    foot_geometries: tuple[Any, ...]  # the four foot spheres
+    geometries: tuple[Any, ...]  # every collision geometry of the robot
+
+
+def _props(config: AnymalConfig):
+    return point_contact_properties(config.point_stiffness, config.hunt_crossley_dissipation, config.friction)
+
+
+def add_anymal(plant, config: AnymalConfig, instance=None) -> AnymalModel:
+    """Add one robot (bodies, joints, PD drives, collision and visual geometry) to an unfinalized
+    plant, in model instance `instance` (default: the plant's default instance), its base free."""
+    from pydrake.geometry import Box, Capsule, Sphere
+    from pydrake.math import RigidTransform, RotationMatrix
+    from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, RevoluteJoint, default_model_instance
+
+    instance = default_model_instance() if instance is None else instance
 
     def segment(body, start, end, radius, name, color):
         """A collision + visual capsule on `body` from `start` to `end` (body frame)."""
@@ -198,20 +222,20 @@ def _build(config: AnymalConfig):
         pose = RigidTransform(RotationMatrix.MakeFromOneVector(axis / np.linalg.norm(axis), 2), 0.5 * (a + b))
         shape = Capsule(radius, float(np.linalg.norm(axis)))
         plant.RegisterVisualGeometry(body, pose, shape, name, color)
-        return plant.RegisterCollisionGeometry(body, pose, shape, name, props())
+        return plant.RegisterCollisionGeometry(body, pose, shape, name, _props(config))
 
-    base = plant.AddRigidBody("base", _inertia(NOMINAL_BASE_MASS, BASE_COM, BASE_INERTIA))
+    base = plant.AddRigidBody("base", instance, _inertia(NOMINAL_BASE_MASS, BASE_COM, BASE_INERTIA))
     base_pose = RigidTransform(np.asarray(BASE_COM))
-    base_geoms = [plant.RegisterCollisionGeometry(base, base_pose, Box(*BASE_BOX), "base", props())]
+    base_geoms = [plant.RegisterCollisionGeometry(base, base_pose, Box(*BASE_BOX), "base", _props(config))]
     plant.RegisterVisualGeometry(base, base_pose, Box(*BASE_BOX), "base", [0.8, 0.1, 0.1, 1])
 
-    joints, actuators, haa, thighs, feet = [], [], [], [], []
+    joints, actuators, haa, thighs, shanks, feet = [], [], [], [], [], []
     for leg in LEGS:
         sx, sy = _LEG_SIGNS[leg]
         mirror = _Mirror(sx, sy)
-        hip = plant.AddRigidBody(f"{leg}_HIP", _inertia(HIP_MASS, mirror(HIP_COM), HIP_INERTIA))
-        thigh = plant.AddRigidBody(f"{leg}_THIGH", _inertia(THIGH_MASS, mirror(THIGH_COM), THIGH_INERTIA))
-        shank = plant.AddRigidBody(f"{leg}_SHANK", _inertia(SHANK_MASS, mirror(SHANK_COM), SHANK_INERTIA))
+        hip = plant.AddRigidBody(f"{leg}_HIP", instance, _inertia(HIP_MASS, mirror(HIP_COM), HIP_INERTIA))
+        thigh = plant.AddRigidBody(f"{leg}_THIGH", instance, _inertia(THIGH_MASS, mirror(THIGH_COM), THIGH_INERTIA))
+        shank = plant.AddRigidBody(f"{leg}_SHANK", instance, _inertia(SHANK_MASS, mirror(SHANK_COM), SHANK_INERTIA))
         lo, hi = HAA_RANGE if sy > 0 else (-HAA_RANGE[1], -HAA_RANGE[0])
         chain = ((f"{leg}_HAA", base, hip, HAA_OFFSET, (1.0, 0.0, 0.0), lo, hi),
                  (f"{leg}_HFE", hip, thigh, HFE_OFFSET, (0.0, 1.0, 0.0), -math.inf, math.inf),
@@ -229,25 +253,262 @@ def _build(config: AnymalConfig):
         knee = mirror(KFE_OFFSET)
         thighs.append(segment(thigh, mirror(THIGH_TOP), knee, THIGH_RADIUS, f"{leg}_thigh", [0.2, 0.2, 0.2, 1]))
         foot = np.asarray(mirror(FOOT_OFFSET))
-        segment(shank, (0.0, 0.0, 0.0), foot, SHANK_RADIUS, f"{leg}_shank", [0.3, 0.3, 0.3, 1])
+        shanks.append(segment(shank, (0.0, 0.0, 0.0), foot, SHANK_RADIUS, f"{leg}_shank", [0.3, 0.3, 0.3, 1]))
         feet.append(plant.RegisterCollisionGeometry(shank, RigidTransform(foot), Sphere(FOOT_RADIUS),
-                                                    f"{leg}_foot", props()))
+                                                    f"{leg}_foot", _props(config)))
         plant.RegisterVisualGeometry(shank, RigidTransform(foot), Sphere(FOOT_RADIUS), f"{leg}_foot",
                                      [0.1, 0.1, 0.1, 1])
+    return AnymalModel(base, tuple(joints), tuple(actuators), tuple(haa), tuple(base_geoms), tuple(thighs),
+                       tuple(feet), tuple(base_geoms + thighs + shanks + feet))
 
-    ground = plant.world_body()
-    plant.RegisterCollisionGeometry(ground, RigidTransform(), HalfSpace(), "ground", props())
-    plant.RegisterVisualGeometry(ground, RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
+
+def add_ground(plant, config: AnymalConfig) -> Any:
+    """The ground: a half space z <= 0 on the world body (and a visual slab); its GeometryId."""
+    from pydrake.geometry import Box, HalfSpace
+    from pydrake.math import RigidTransform
+
+    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
+                                             _props(config))
+    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
                                  [0.5, 0.5, 0.5, 1])
-    plant.Finalize()
+    return ground
 
-    # Only the ground touches the robot: no self-collisions.
-    robot_geoms = [g for b in plant.GetBodyIndices(base.model_instance())
-                   for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
+
+def exclude_self_contact(scene_graph, model: AnymalModel) -> None:
+    """Only the ground touches the robot: no self-collisions."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+
     scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geoms)))
-    diagram = builder.Build()
-    return diagram, plant, base, joints, actuators, haa, base_geoms, thighs, feet
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(list(model.geometries))))
+
+
+def _build(config: AnymalConfig):
+    """The Drake diagram (plant + scene graph) of the robot on a ground plane: (diagram, plant, model)."""
+    from pydrake.multibody.plant import AddMultibodyPlant
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(plant_config(config), builder)
+    model = add_anymal(plant, config)
+    add_ground(plant, config)
+    plant.Finalize()
+    exclude_self_contact(scene_graph, model)
+    return builder.Build(), plant, model
+
+
+# -- per-step math, for N robots at once (AnymalEnv is N = 1) ------------------------------------
+
+@dataclass(frozen=True)
+class AnymalLayout:
+    """Where one robot's coordinates sit in its row of [q; v] (ordered as the single env's plant
+    state) and in the plant's output vectors."""
+
+    nq: int  # positions in the row (velocities follow)
+    quat: NDArray[np.int64]  # base quaternion w, x, y, z
+    pos: NDArray[np.int64]  # base position x, y, z
+    v_ang: NDArray[np.int64]  # base angular velocity (world frame)
+    v_lin: NDArray[np.int64]  # base linear velocity (world frame)
+    joint_q: NDArray[np.int64]  # the 12 joint angles, JOINT_NAMES order
+    joint_v: NDArray[np.int64]  # the 12 joint rates
+    haa_v: NDArray[np.int64]  # the four HAA rates, LEGS order
+
+
+def anymal_layout(plant, model: AnymalModel, columns: NDArray[np.int64]) -> AnymalLayout:
+    """The layout of `model`'s row, for a finalized plant whose state [q; v] the row gathers at
+    `columns` (all of [q; v] for a plant holding one robot)."""
+    nq_plant = plant.num_positions()
+    where = {int(c): k for k, c in enumerate(columns)}
+
+    def rows(plant_indices) -> NDArray[np.int64]:
+        return np.array([where[int(i)] for i in plant_indices], dtype=np.int64)
+
+    fb_q = model.base.floating_positions_start()
+    fb_v = nq_plant + model.base.floating_velocities_start_in_v()
+    return AnymalLayout(sum(1 for c in columns if c < nq_plant), rows(range(fb_q, fb_q + 4)),
+                        rows(range(fb_q + 4, fb_q + 7)), rows(range(fb_v, fb_v + 3)), rows(range(fb_v + 3, fb_v + 6)),
+                        rows(j.position_start() for j in model.joints),
+                        rows(nq_plant + j.velocity_start() for j in model.joints),
+                        rows(nq_plant + j.velocity_start() for j in model.haa))
+
+
+def desired_order(model: AnymalModel) -> NDArray[np.int64]:
+    """Where joint i's target sits in the model instance's desired-state port (ordered by
+    actuator index)."""
+    index = np.array([int(a.index()) for a in model.actuators])
+    return np.argsort(np.argsort(index))
+
+
+def initial_row(config: AnymalConfig, layout: AnymalLayout, width: int,
+                rng: np.random.Generator) -> NDArray[np.float64]:
+    """A robot's reset state row (`width` = its nq + nv): the default pose at initial_height, at
+    rest, with the reset noise drawn from rng (joint angles, then base angular and linear velocity)."""
+    row = np.zeros(width)
+    row[layout.quat] = [1.0, 0.0, 0.0, 0.0]
+    row[layout.pos] = [0.0, 0.0, config.initial_height]
+    row[layout.joint_q] = DEFAULT_POSE
+    s = config.reset_noise_scale
+    if s > 0:
+        row[layout.joint_q] += rng.uniform(-s, s, size=12)
+        row[layout.v_ang] = s * rng.standard_normal(3)
+        row[layout.v_lin] = s * rng.standard_normal(3)
+    return row
+
+
+# Quaternion (w, x, y, z) = columns 0-3: products ww.. as _PROD_I x _PROD_J; entry k of R (row major)
+# is _R_SCALE[k] * (products[_R_A[k]] + _R_SIGN[k] * products[_R_B[k]]) (+ 1 on the diagonal).
+_PROD_I = np.array([1, 2, 3, 1, 0, 1, 0, 2, 0])  # xx yy zz xy wz xz wy yz wx
+_PROD_J = np.array([1, 2, 3, 2, 3, 3, 2, 3, 1])
+_R_A = np.array([1, 3, 5, 3, 0, 7, 5, 7, 0])  # yy xy xz | xy xx yz | xz yz xx
+_R_B = np.array([2, 4, 6, 4, 2, 8, 6, 8, 1])  # zz wz wy | wz zz wx | wy wx yy
+_R_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
+_R_SCALE = np.array([-2.0, 2.0, 2.0, 2.0, -2.0, 2.0, 2.0, 2.0, -2.0])
+
+
+def base_motion(layout: AnymalLayout, rows: NDArray[np.float64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Base linear velocity, angular velocity and projected gravity, (N, 3) each, in the base
+    frame, of state rows (N, nq + nv); `quaternion_rotation` row by row, to the last bit."""
+    q = rows[:, layout.quat]
+    q = q / np.sqrt(rowwise_dot(q, q))[:, None]
+    # R's nine entries as scale * (a + sign b) of quaternion products, the diagonal then plus 1:
+    # the same operations as `quaternion_rotation`'s 1 - 2 (y y + z z), 2 (x y - w z), ...
+    products = q[:, _PROD_I] * q[:, _PROD_J]
+    R = _R_SCALE * (products[:, _R_A] + _R_SIGN * products[:, _R_B])
+    R[:, ::4] += 1.0
+    R = R.reshape(-1, 3, 3)
+    Rt = R.transpose(0, 2, 1)
+    v_b = np.matmul(Rt, rows[:, layout.v_lin][:, :, None])[:, :, 0]
+    w_b = np.matmul(Rt, rows[:, layout.v_ang][:, :, None])[:, :, 0]
+    return v_b, w_b, -R[:, 2]  # R^T (0, 0, -1)
+
+
+def observe(config: AnymalConfig, layout: AnymalLayout, rows: NDArray[np.float64], v_b: NDArray[np.float64],
+            w_b: NDArray[np.float64], g_b: NDArray[np.float64], actions: NDArray[np.float64]) -> NDArray[np.float32]:
+    """Observations (N, 48): v_b, w_b, g_b, the command, joint angles minus the default pose,
+    joint rates, the last clipped actions (N, 12)."""
+    command = np.broadcast_to(np.asarray(config.command), (len(rows), 3))
+    obs = np.concatenate([v_b, w_b, g_b, command, rows[:, layout.joint_q] - np.asarray(DEFAULT_POSE),
+                          rows[:, layout.joint_v], actions], axis=1)
+    return obs.astype(np.float32)
+
+
+def hip_damping(config: AnymalConfig, layout: AnymalLayout, friction: NDArray[np.float64],
+                loads: NDArray[np.float64], rows: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The HAA damping (N, 4) [N m s/rad] that holds each hip's friction for the coming control
+    step: mu (|f| + |tau|) / max(|v|, v_s) of the current load and rate. At |v| >= v_s it opposes
+    the motion with the Coulomb torque of the load; below, it is a stiff viscous regularization.
+    Being a damping, Drake treats it implicitly and it can only dissipate. Meaningful where mu > 0
+    (a joint without friction keeps damping 0)."""
+    speed = np.maximum(np.abs(rows[:, layout.haa_v]), config.friction_speed)
+    return friction * loads / speed
+
+
+def joint_loads(forces: list, joint_index: NDArray[np.int64]) -> NDArray[np.float64]:
+    """|f| + |tau| of the spatial force each joint transmits: `forces` the plant's reaction-force
+    output (one SpatialForce per joint index), `joint_index` (N, 4) the HAA joints' indices."""
+    F = np.array([forces[j].get_coeffs() for j in joint_index.ravel()])  # rotational, translational
+    trans, rot = F[:, 3:], F[:, :3]
+    return (np.sqrt(rowwise_dot(trans, trans)) + np.sqrt(rowwise_dot(rot, rot))).reshape(joint_index.shape)
+
+
+def contact_slots(models: list[AnymalModel]) -> tuple[dict[Any, int], int]:
+    """GeometryId -> slot of the geometries whose contact the task reads, and the slots per robot:
+    robot i's base geometries, then its four thighs, then its four feet."""
+    slots: dict[Any, int] = {}
+    for model in models:
+        for gid in model.base_geometries + model.thigh_geometries + model.foot_geometries:
+            slots[gid] = len(slots)
+    return slots, len(slots) // max(1, len(models))
+
+
+def contacts(results, slots: dict[Any, int], per_robot: int, n: int, threshold: float
+             ) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.bool_]]:
+    """(base in contact (N,), number of thighs in contact (N,), each foot in contact (N, 4)) from
+    the plant's ContactResults: a geometry is in contact when its net contact force exceeds
+    `threshold` [N]."""
+    force = np.zeros((n * per_robot, 3))
+    for k in range(results.num_point_pair_contacts()):
+        info = results.point_pair_contact_info(k)
+        pair = info.point_pair()
+        a, b = slots.get(pair.id_A), slots.get(pair.id_B)
+        if a is None and b is None:
+            continue
+        f = info.contact_force()  # on body B, from A
+        if a is not None:
+            force[a] = force[a] + -1.0 * f
+        if b is not None:
+            force[b] = force[b] + 1.0 * f
+    touching = (np.sqrt(rowwise_dot(force, force)) > threshold).reshape(n, per_robot)
+    nb = per_robot - 8
+    return touching[:, :nb].any(axis=1), touching[:, nb:nb + 4].sum(axis=1), touching[:, nb + 4:]
+
+
+class FootTimers:
+    """Isaac Lab ContactSensor air/contact timers of N robots' four feet, (N, 4) arrays [s]."""
+
+    def __init__(self, n: int) -> None:
+        self.air = np.zeros((n, 4))
+        self.contact = np.zeros((n, 4))
+        self.last_air = np.zeros((n, 4))
+
+    def reset(self, idx) -> None:
+        """Zero robots idx's timers."""
+        self.air[idx] = self.contact[idx] = self.last_air[idx] = 0.0
+
+    def update(self, feet: NDArray[np.bool_], dt: float) -> NDArray[np.float64]:
+        """Advance the timers one control step of dt [s] with the feet in contact `feet` (N, 4);
+        return each robot's air-time reward: the sum of last air time - 0.5 s over feet that
+        touched down within the step."""
+        landed = feet & (self.air > 0.0)
+        self.last_air = np.where(landed, self.air + dt, self.last_air)
+        self.air = np.where(feet, 0.0, self.air + dt)
+        self.contact = np.where(feet, self.contact + dt, 0.0)
+        first = feet & (self.contact < dt + 1e-8)  # first contact within the last step
+        return np.where(first, self.last_air - 0.5, 0.0).sum(axis=1)
+
+
+def reward_terms(config: AnymalConfig, dt: float, v_b: NDArray[np.float64], w_b: NDArray[np.float64],
+                 g_b: NDArray[np.float64], tau: NDArray[np.float64], qdd: NDArray[np.float64],
+                 actions: NDArray[np.float64], last_actions: NDArray[np.float64], air_reward: NDArray[np.float64],
+                 thighs: NDArray[np.int64]) -> dict[str, NDArray[np.float64]]:
+    """The seed's ten reward terms (N,) each, times dt: base motion (N, 3 each), joint torques
+    and accelerations (N, 12), this step's and the last clipped actions (N, 12), the feet's air
+    reward (N,) and the thighs in contact (N,)."""
+    cfg, cmd = config, config.command
+    if math.hypot(cmd[0], cmd[1]) <= 0.1:
+        air_reward = np.zeros_like(air_reward)
+    lin_err = _square(cmd[0] - v_b[:, 0]) + _square(cmd[1] - v_b[:, 1])
+    yaw_err = _square(cmd[2] - w_b[:, 2])
+    change = actions - last_actions
+    terms = {
+        "track_lin_vel_xy_exp": cfg.lin_vel_weight * _exp(-lin_err / 0.25),
+        "track_ang_vel_z_exp": cfg.yaw_rate_weight * _exp(-yaw_err / 0.25),
+        "lin_vel_z_l2": cfg.z_vel_weight * _square(v_b[:, 2]),
+        "ang_vel_xy_l2": cfg.ang_vel_weight * (_square(w_b[:, 0]) + _square(w_b[:, 1])),
+        "dof_torques_l2": cfg.joint_torque_weight * rowwise_dot(tau, tau),
+        "dof_acc_l2": cfg.joint_accel_weight * rowwise_dot(qdd, qdd),
+        "action_rate_l2": cfg.action_rate_weight * rowwise_dot(change, change),
+        "feet_air_time": cfg.feet_air_time_weight * air_reward,
+        "undesired_contacts": cfg.undesired_contact_weight * thighs,
+        "flat_orientation_l2": cfg.flat_orientation_weight * (_square(g_b[:, 0]) + _square(g_b[:, 1])),
+    }
+    return {k: v * dt for k, v in terms.items()}
+
+
+# The single env's scalar math, element by element: numpy's array kernels for exp and x ** 2
+# (SIMD exp, x * x) differ from libm's exp and pow in the last bit of a few values in 1,000.
+def _exp(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.array([math.exp(v) for v in x.tolist()])
+
+
+def _square(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.array([v ** 2 for v in x.tolist()])
+
+
+def anymal_space() -> ParamSpace:
+    """xi's box: the base mass [0, 200] kg, then the LF, RF, LH, RH HAA friction coefficients [0, 0.1]."""
+    return ParamSpace((Param("base_mass", 0.0, 200.0, "kg", nominal=NOMINAL_BASE_MASS),)
+                      + tuple(Param(f"{leg}_HAA_friction", 0.0, 0.1, "1", nominal=0.0) for leg in LEGS))
 
 
 class AnymalEnv(PlantAccess, ParamEnv):
@@ -257,8 +518,7 @@ class AnymalEnv(PlantAccess, ParamEnv):
     def __init__(self, config: AnymalConfig | None = None, *, sampler: Sampler | None = None,
                  **overrides: Any) -> None:
         self.config = cfg = config_with_overrides(AnymalConfig, config, overrides, "AnymalEnv")
-        self.space = ParamSpace((Param("base_mass", 0.0, 200.0, "kg", nominal=NOMINAL_BASE_MASS),)
-                                + tuple(Param(f"{leg}_HAA_friction", 0.0, 0.1, "1", nominal=0.0) for leg in LEGS))
+        self.space = anymal_space()
         super().__init__(self.space, sampler)
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.j_t())
 
@@ -266,53 +526,39 @@ class AnymalEnv(PlantAccess, ParamEnv):
 
         # Silence Drake's "half spaces are not supported for deformable contact" (we have none).
         with quiet_drake():
-            (self._diagram, self._plant, self._base, self._joints, self._actuators, self._haa,
-             base_geoms, thigh_geoms, foot_geoms) = _build(cfg)
+            self._diagram, self._plant, model = _build(cfg)
             self._simulator = Simulator(self._diagram)
             self._simulator.Initialize()
         plant = self._plant
+        self._base, self._joints, self._actuators, self._haa = model.base, model.joints, model.actuators, model.haa
         self._context = self._simulator.get_mutable_context()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._nq, self._nv = plant.num_positions(), plant.num_velocities()
         m_base = self._base.default_spatial_inertia()
         self._base_com = np.asarray(m_base.get_com())
         self._base_unit_inertia = m_base.get_unit_inertia()
-        # Geometry -> contact category: 0 base, 1 thigh, 2 + i foot of leg i.
-        self._geom_kind = {g: 0 for g in base_geoms}
-        self._geom_kind.update({g: 1 for g in thigh_geoms})
-        self._geom_kind.update({g: 2 + i for i, g in enumerate(foot_geoms)})
-        # Index maps into q and v (floating base: quaternion wxyz, position; angular, linear velocity
-        # in the world frame).
-        fb_q = self._base.floating_positions_start()
-        fb_v = self._base.floating_velocities_start_in_v()
-        self._iq_quat = slice(fb_q, fb_q + 4)
-        self._iq_pos = slice(fb_q + 4, fb_q + 7)
-        self._iv_ang = slice(fb_v, fb_v + 3)
-        self._iv_lin = slice(fb_v + 3, fb_v + 6)
-        self._q_joint = np.array([j.position_start() for j in self._joints])
+        self._slots, self._per_robot = contact_slots([model])
+        # Where the base (quaternion wxyz, position; angular, linear velocity in the world frame)
+        # and the joints sit in x = [q; v]; the joint rates in the acceleration output.
+        self._layout = anymal_layout(plant, model, np.arange(self._nq + self._nv))
         self._v_joint = np.array([j.velocity_start() for j in self._joints])
-        self._haa_v = [j.velocity_start() for j in self._haa]
-        self._haa_index = [int(j.index()) for j in self._haa]
-        self._q_default = np.array(DEFAULT_POSE)
+        self._haa_index = np.array([[int(j.index()) for j in self._haa]])
         # Desired-state port: [q_d; v_d] ordered by actuator index; action i is joint i's.
-        self._n_act = plant.num_actuators()
-        self._act_order = np.array([a.input_start() for a in self._actuators])
-        self._desired = np.zeros(2 * self._n_act)
+        self._act_order = desired_order(model)
+        self._desired = np.zeros(24)
         self._desired_input = HeldInput(plant.get_desired_state_input_port(self._base.model_instance()),
                                         self._plant_context, self._desired)
-        self._actuation_input = HeldInput(plant.get_actuation_input_port(), self._plant_context,
-                                          np.zeros(self._n_act))
+        self._actuation_input = HeldInput(plant.get_actuation_input_port(), self._plant_context, np.zeros(12))
         self._net_actuation_port = plant.get_net_actuation_output_port()
         self._accel_port = plant.get_generalized_acceleration_output_port()
         self._contact_port = plant.get_contact_results_output_port()
         self._reaction_port = plant.get_reaction_forces_output_port()
-        self._command = np.array(cfg.command)
         self._k = 0
         self._state = np.zeros(self._nq + self._nv)
         self._action = np.zeros(12)
         self._friction = np.zeros(4)
         self._haa_load = np.zeros(4)
-        self._reset_feet()
+        self._feet = FootTimers(1)
         self.last_reward_terms: dict[str, float] = {}
 
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(48,), dtype=np.float32)
@@ -324,17 +570,10 @@ class AnymalEnv(PlantAccess, ParamEnv):
         """The base mass currently set in the Context [kg]."""
         return float(self._base.get_mass(self._plant_context))
 
-    def _reset_feet(self) -> None:
-        """Isaac Lab ContactSensor air/contact timers of the four feet, zeroed."""
-        self._air_time = [0.0] * 4
-        self._contact_time = [0.0] * 4
-        self._last_air_time = [0.0] * 4
-
     def _set_initial_state(self, xi: NDArray[np.float64]) -> None:
         """Set the base mass, the hip frictions and the default pose in the reused Context; time 0."""
         from pydrake.multibody.tree import SpatialInertia
 
-        cfg = self.config
         # Mass and rotational inertia scale together (same unit inertia, same COM); 0 kg is allowed.
         self._base.SetSpatialInertiaInBodyFrame(
             self._plant_context, SpatialInertia(float(xi[0]), self._base_com, self._base_unit_inertia))
@@ -342,53 +581,30 @@ class AnymalEnv(PlantAccess, ParamEnv):
         for joint in self._haa:
             joint.SetDamping(self._plant_context, 0.0)
         self._context.SetTime(0.0)
-        q = np.zeros(self._nq)
-        v = np.zeros(self._nv)
-        q[self._iq_quat] = [1.0, 0.0, 0.0, 0.0]
-        q[self._iq_pos] = [0.0, 0.0, cfg.initial_height]
-        q[self._q_joint] = self._q_default
-        s = cfg.reset_noise_scale
-        if s > 0:
-            rng = self.np_random
-            q[self._q_joint] += rng.uniform(-s, s, size=12)
-            v[self._iv_ang] = s * rng.standard_normal(3)
-            v[self._iv_lin] = s * rng.standard_normal(3)
-        self._plant.SetPositionsAndVelocities(self._plant_context, np.concatenate([q, v]))
+        x = initial_row(self.config, self._layout, self._nq + self._nv, self.np_random)
+        self._plant.SetPositionsAndVelocities(self._plant_context, x)
         self._action = np.zeros(12)
         self._set_targets(self._action)
         self._simulator.Initialize()
         self._k = 0
-        self._state = np.concatenate([q, v])
+        self._state = x
         self._haa_load[:] = 0.0
-        self._reset_feet()
+        self._feet.reset(0)
 
     def _set_targets(self, action: NDArray[np.float64]) -> None:
         """Joint position targets default + scale x action (zero velocity targets) on the PD drives."""
-        self._desired[self._act_order] = self._q_default + self.config.action_scale * action
+        self._desired[self._act_order] = np.asarray(DEFAULT_POSE) + self.config.action_scale * action
         self._desired_input.set(self._desired)
-
-    def _apply_hip_friction(self, x: NDArray[np.float64]) -> None:
-        """Hold, for the coming control step, each HAA joint's friction as an implicit damping
-        mu (|f| + |tau|) / max(|v|, v_s): at |v| >= v_s it opposes the motion with the Coulomb torque
-        of the current load; below, it is a stiff viscous regularization. Being a damping, Drake
-        treats it implicitly and it can only dissipate."""
-        for joint, mu, load, iv in zip(self._haa, self._friction, self._haa_load, self._haa_v):
-            if mu > 0.0:
-                speed = max(abs(float(x[self._nq + iv])), self.config.friction_speed)
-                joint.SetDamping(self._plant_context, float(mu * load / speed))
-
-    def _read_loads(self) -> None:
-        """|f| + |tau| of the spatial force each HAA joint transmits (the last plant step's)."""
-        forces = self._reaction_port.Eval(self._plant_context)
-        for i, index in enumerate(self._haa_index):
-            F = forces[index]
-            self._haa_load[i] = float(np.linalg.norm(F.translational()) + np.linalg.norm(F.rotational()))
 
     def _advance(self, action: NDArray[np.float64]) -> NDArray[np.float64]:
         """Hold the targets of a clipped action (and the hip friction) for one control step; return [q; v]."""
         self._set_targets(action)
         if self._friction.any():
-            self._apply_hip_friction(self._state)
+            damping = hip_damping(self.config, self._layout, self._friction[None], self._haa_load[None],
+                                  self._state[None])[0]
+            for joint, mu, d in zip(self._haa, self._friction, damping):
+                if mu > 0.0:
+                    joint.SetDamping(self._plant_context, float(d))
         self._k += 1
         advance(self._simulator, self._k * self.control_dt, f"AnymalEnv (xi {self._xi_text()})")
         x = np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
@@ -396,100 +612,39 @@ class AnymalEnv(PlantAccess, ParamEnv):
             raise SimulationError(f"AnymalEnv: non-finite state at t = {self._k * self.control_dt:g} s "
                                   f"(xi {self._xi_text()})")
         if self._friction.any():
-            self._read_loads()
+            self._haa_load = joint_loads(self._reaction_port.Eval(self._plant_context), self._haa_index)[0]
         return x
 
     def _xi_text(self) -> str:
         return "unset" if self._xi is None else str(np.round(self._xi, 4).tolist())
 
-    def _contacts(self) -> tuple[bool, int, list[bool]]:
-        """(base in contact, number of thighs in contact, each foot in contact) after the last plant step:
-        a body is in contact when its net contact force exceeds contact_force_threshold."""
-        results = self._contact_port.Eval(self._plant_context)
-        force = {}
-        for i in range(results.num_point_pair_contacts()):
-            info = results.point_pair_contact_info(i)
-            pair = info.point_pair()
-            f = info.contact_force()
-            for g, sign in ((pair.id_A, -1.0), (pair.id_B, 1.0)):
-                kind = self._geom_kind.get(g)
-                if kind is not None:
-                    key = (kind, g)
-                    force[key] = force.get(key, 0.0) + sign * f
-        threshold = self.config.contact_force_threshold
-        touching = {key for key, f in force.items() if float(np.linalg.norm(f)) > threshold}
-        base = any(kind == 0 for kind, _ in touching)
-        thighs = sum(1 for kind, _ in touching if kind == 1)
-        feet = [any(kind == 2 + i for kind, _ in touching) for i in range(4)]
-        return base, thighs, feet
-
-    def _base_motion(self, x: NDArray[np.float64]
-                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Base linear velocity, angular velocity and projected gravity, all in the base frame."""
-        nq = self._nq
-        R = quaternion_rotation(x[self._iq_quat])
-        v_b = R.T @ x[nq + self._iv_lin.start:nq + self._iv_lin.stop]
-        w_b = R.T @ x[nq + self._iv_ang.start:nq + self._iv_ang.stop]
-        return v_b, w_b, -R[2]  # R^T (0, 0, -1)
-
-    def _observe(self, x: NDArray[np.float64], v_b: NDArray[np.float64], w_b: NDArray[np.float64],
-                 g_b: NDArray[np.float64]) -> NDArray[np.float32]:
-        obs = np.concatenate([v_b, w_b, g_b, self._command, x[self._q_joint] - self._q_default,
-                              x[self._nq + self._v_joint], self._action])
-        return obs.astype(np.float32)
-
     # -- ParamEnv -------------------------------------------------------------------------------
 
     def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
         self._set_initial_state(xi)
-        return self._observe(self._state, *self._base_motion(self._state))
+        x = self._state[None]
+        return observe(self.config, self._layout, x, *base_motion(self._layout, x), self._action[None])[0]
 
     def _step_model(self, action: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         cfg = self.config
-        dt = self.control_dt
         a = np.clip(action, -1.0, 1.0)
         x = self._advance(a)
         self._state = x
-        v_b, w_b, g_b = self._base_motion(x)
-        tau = self._net_actuation_port.Eval(self._plant_context)
-        qdd = self._accel_port.Eval(self._plant_context)[self._v_joint]
-        base_contact, thighs, feet = self._contacts()
-        # Isaac Lab ContactSensor timers, updated once per control step.
-        air_reward = 0.0
-        for i, touching in enumerate(feet):
-            if touching:
-                if self._air_time[i] > 0.0:
-                    self._last_air_time[i] = self._air_time[i] + dt
-                self._air_time[i] = 0.0
-                self._contact_time[i] += dt
-                if self._contact_time[i] < dt + 1e-8:  # first contact within the last step
-                    air_reward += self._last_air_time[i] - 0.5
-            else:
-                self._air_time[i] += dt
-                self._contact_time[i] = 0.0
-        cmd = self._command
-        if math.hypot(cmd[0], cmd[1]) <= 0.1:
-            air_reward = 0.0
-        lin_err = (cmd[0] - v_b[0]) ** 2 + (cmd[1] - v_b[1]) ** 2
-        yaw_err = (cmd[2] - w_b[2]) ** 2
-        terms = {
-            "track_lin_vel_xy_exp": cfg.lin_vel_weight * math.exp(-lin_err / 0.25),
-            "track_ang_vel_z_exp": cfg.yaw_rate_weight * math.exp(-yaw_err / 0.25),
-            "lin_vel_z_l2": cfg.z_vel_weight * v_b[2] ** 2,
-            "ang_vel_xy_l2": cfg.ang_vel_weight * (w_b[0] ** 2 + w_b[1] ** 2),
-            "dof_torques_l2": cfg.joint_torque_weight * float(tau @ tau),
-            "dof_acc_l2": cfg.joint_accel_weight * float(qdd @ qdd),
-            "action_rate_l2": cfg.action_rate_weight * float((a - self._action) @ (a - self._action)),
-            "feet_air_time": cfg.feet_air_time_weight * air_reward,
-            "undesired_contacts": cfg.undesired_contact_weight * thighs,
-            "flat_orientation_l2": cfg.flat_orientation_weight * (g_b[0] ** 2 + g_b[1] ** 2),
-        }
-        self.last_reward_terms = {k: float(v) * dt for k, v in terms.items()}
+        rows = x[None]
+        v_b, w_b, g_b = base_motion(self._layout, rows)
+        tau = np.asarray(self._net_actuation_port.Eval(self._plant_context))[None]
+        qdd = self._accel_port.Eval(self._plant_context)[self._v_joint][None]
+        base_contact, thighs, feet = contacts(self._contact_port.Eval(self._plant_context), self._slots,
+                                              self._per_robot, 1, cfg.contact_force_threshold)
+        air_reward = self._feet.update(feet, self.control_dt)
+        terms = reward_terms(cfg, self.control_dt, v_b, w_b, g_b, tau, qdd, a[None], self._action[None], air_reward,
+                             thighs)
+        self.last_reward_terms = {k: float(v[0]) for k, v in terms.items()}
         reward = sum(self.last_reward_terms.values())
         self._action = a
-        terminated = base_contact and cfg.terminate_on_base_contact
-        obs = self._observe(x, v_b, w_b, g_b)
-        info = {"base_height": float(x[self._iq_pos.start + 2]), "forward_velocity": float(v_b[0]),
-                "base_contact": bool(base_contact)}
+        terminated = bool(base_contact[0]) and cfg.terminate_on_base_contact
+        obs = observe(cfg, self._layout, rows, v_b, w_b, g_b, a[None])[0]
+        info = {"base_height": float(x[self._layout.pos[2]]), "forward_velocity": float(v_b[0, 0]),
+                "base_contact": bool(base_contact[0])}
         return obs, float(reward), bool(terminated), info

@@ -37,10 +37,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
-from goflow_common.checks import check_int
 from goflow_common.errors import InputError, SimulationError
 
-__all__ = ["BatchedEnv", "check_num_envs"]
+__all__ = ["BatchedEnv", "check_num_envs", "instance_state_columns", "rowwise_dot"]
 
 
 def check_num_envs(num_envs: Any, owner: str) -> int:
@@ -48,6 +47,23 @@ def check_num_envs(num_envs: Any, owner: str) -> int:
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
         raise InputError(f"{owner}: num_envs = {num_envs!r}; expected a whole number >= 1 of copies")
     return int(num_envs)
+
+
+def rowwise_dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Row-by-row dot products of two (N, n) arrays, (N,): for each row the same BLAS call (and so
+    the same bits) as the 1-D `a[i] @ b[i]` a single env computes; `(a * b).sum(axis=1)` differs
+    from it in the last bit."""
+    a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
+    return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
+
+
+def instance_state_columns(plant, instance) -> NDArray[np.int64]:
+    """Where a model instance's positions and velocities sit in a finalized plant's state [q; v],
+    each in increasing order: the order a plant holding only that model has them."""
+    nq = plant.num_positions()
+    q = plant.GetPositionsFromArray(instance, np.arange(nq, dtype=float))
+    v = plant.GetVelocitiesFromArray(instance, np.arange(plant.num_velocities(), dtype=float))
+    return np.concatenate((np.sort(q), nq + np.sort(v))).astype(np.int64)
 
 
 class BatchedEnv(VectorEnv):

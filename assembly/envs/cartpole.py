@@ -89,7 +89,8 @@ class CartpoleConfig:
             raise InputError(f"CartpoleConfig.cart_size = {self.cart_size!r}; expected three lengths > 0 [m]")
 
 
-def _proximity(mu: float, cfg: CartpoleConfig):
+def wheel_contact(mu: float, cfg: CartpoleConfig):
+    """ProximityProperties of the wheel and its ground: the config's point contact, Coulomb mu."""
     return point_contact_properties(cfg.contact_stiffness, cfg.contact_dissipation, mu)
 
 
@@ -135,12 +136,12 @@ def add_cartpole(plant, cfg: CartpoleConfig, instance=None, y: float = 0.0) -> C
     hinge = plant.AddJoint(RevoluteJoint("cart_to_pole", cart.body_frame(), pole.body_frame(), [0.0, 1.0, 0.0]))
     actuator = plant.AddJointActuator("slider_force", slider)
     wheel = plant.RegisterCollisionGeometry(cart, RigidTransform([0.0, 0.0, -0.5 * cfg.cart_size[2]]),
-                                            Sphere(cfg.wheel_radius), "wheel", _proximity(0.0, cfg))
+                                            Sphere(cfg.wheel_radius), "wheel", wheel_contact(0.0, cfg))
     # A box, not a HalfSpace (which makes Drake warn about deformable contact).
     name = "ground" if instance == default_model_instance() else f"ground_{plant.GetModelInstanceName(instance)}"
     ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, y, -0.5]),
                                              Box(4.0 * cfg.slider_limit + 2.0, 2.0, 1.0), name,
-                                             _proximity(0.0, cfg))
+                                             wheel_contact(0.0, cfg))
     # SAP with its default "lagged" approximation: it enforces the slider limits, and stays stable
     # for 0.02 kg carts hitting them; TAMSI (~4x faster) ignores joint limits and diverges on stiff
     # end stops, and SAP's "sap"/"similar" approximations make a sliding cart float (normal
@@ -203,7 +204,7 @@ class CartpoleEnv(PlantEnv):
         if mu != self._friction_set:
             source = self._plant.get_source_id()
             for gid in self._geometries:  # equal coefficients combine to the same mu
-                self._scene_graph.AssignRole(self._sg_context, source, gid, _proximity(mu, self.config),
+                self._scene_graph.AssignRole(self._sg_context, source, gid, wheel_contact(mu, self.config),
                                              RoleAssign.kReplace)
             self._friction_set = mu
 

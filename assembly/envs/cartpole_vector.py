@@ -16,7 +16,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs.batched import BatchedEnv, check_num_envs
-from assembly.envs.cartpole import (CARTPOLE_SPACE, CartpoleConfig, _proximity, add_cartpole, cart_height)
+from assembly.envs.cartpole import (CARTPOLE_SPACE, CartpoleConfig, wheel_contact, add_cartpole, cart_height)
 from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
@@ -87,7 +87,7 @@ class CartpoleVectorEnv(BatchedEnv):
             copy.cart.SetMass(self._plant_context, float(cart_mass))
             if mu != self._friction_set[i]:
                 for gid in copy.geometries:
-                    self._scene_graph.AssignRole(self._sg_context, source, gid, _proximity(float(mu), self.config),
+                    self._scene_graph.AssignRole(self._sg_context, source, gid, wheel_contact(float(mu), self.config),
                                                  RoleAssign.kReplace)
                 self._friction_set[i] = mu
 

@@ -125,7 +125,8 @@ def _yaw(R: RotationMatrix) -> float:
     return float(np.arctan2(m[1, 0], m[0, 0]))
 
 
-def _down(p: np.ndarray, yaw: float) -> RigidTransform:
+def tool_down_pose(p: np.ndarray, yaw: float) -> RigidTransform:
+    """The tool pose at position p [m] with its z axis down, turned by yaw [rad] about the world z."""
     return RigidTransform(RotationMatrix.MakeZRotation(yaw) @ RotationMatrix.MakeXRotation(np.pi), p)
 
 
@@ -172,7 +173,7 @@ class GearInsertionEnv(ParamEnv):
         self._sim = _FastSim(c) if c.variant == "fast" else _PandaSim(c)
         self._X_SW = self._sim.X_WS.inverse()
         self._seated, self._start = seated_and_start(c, self._sim.X_WS)
-        self._sim.prepare(_down(self._start[:3], self._start[3]))
+        self._sim.prepare(tool_down_pose(self._start[:3], self._start[3]))
         self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt)
         self._history = PoseHistory(self.law)
 
@@ -318,7 +319,7 @@ class _PandaSim:
         self.simulator.Initialize()
 
     def advance(self, target: np.ndarray, duration: float) -> None:
-        self._target.FixValue(self.context, _down(target[:3], target[3]))
+        self._target.FixValue(self.context, tool_down_pose(target[:3], target[3]))
         t0 = self.context.get_time()
         if self.on_step is None:
             advance(self.simulator, t0 + duration, "GearInsertion")

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from assembly.envs.batched import BatchedEnv, check_num_envs
 from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
-from assembly.envs.gear_insertion import (GearInsertionConfig, _down, grasp_error_space, insertion_reward,
+from assembly.envs.gear_insertion import (GearInsertionConfig, tool_down_pose, grasp_error_space, insertion_reward,
                                           observation_space, seated_and_start)
 from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.insertion_model import (FastInsertionConfig, FastInsertionModel, add_fast_fixtures, add_fast_tool,
@@ -88,7 +88,7 @@ class GearInsertionVectorEnv(BatchedEnv):
         X_WS = self._model.X_WS(c.gear)
         self._X_SW = X_WS.inverse()
         self._seated, self._start_pose = seated_and_start(c, X_WS)
-        self._q_start = self._model.joint_positions_for(_down(self._start_pose[:3], self._start_pose[3]))
+        self._q_start = self._model.joint_positions_for(tool_down_pose(self._start_pose[:3], self._start_pose[3]))
         self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt)
         self._histories = [PoseHistory(self.law) for _ in range(n)]
         self._d = np.zeros(n)

@@ -203,7 +203,7 @@ class MjcfPlant:
 
     def set_pair_friction(self, sg_context: Any, scale: float) -> None:
         """Every robot-floor pair's Coulomb coefficient times `scale`, in the SceneGraph Context."""
-        from pydrake.geometry import AddContactMaterial, ProximityProperties, RoleAssign
+        from pydrake.geometry import ProximityProperties, RoleAssign
         from pydrake.multibody.plant import CoulombFriction
 
         inspector = self.scene_graph.model_inspector()

@@ -6,13 +6,13 @@ Drake simulations scale across processes, not threads: Python-side callbacks hol
 
 from __future__ import annotations
 
-import multiprocessing as mp
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.transition.base import TransitionSim, check_step_args, xi_groups
+from goflow_common.pool import ProcessPool
 
 __all__ = ["ParallelTransitionSim"]
 
@@ -20,15 +20,15 @@ _WORKER_SIM: TransitionSim | None = None
 
 
 def _worker_init(env_id: str, kwargs: dict[str, Any]) -> None:
-    from assembly.transition import make_transition_sim
+    from assembly.transition.registry import make_transition_sim
 
     global _WORKER_SIM
     _WORKER_SIM = make_transition_sim(env_id, **kwargs)
 
 
-def _worker_step(args: tuple[NDArray, NDArray, NDArray]) -> NDArray[np.float64]:
+def _worker_step(states: NDArray, actions: NDArray, xi: NDArray) -> NDArray[np.float64]:
     assert _WORKER_SIM is not None
-    return _WORKER_SIM.step(*args)
+    return _WORKER_SIM.step(states, actions, xi)
 
 
 class ParallelTransitionSim:
@@ -37,7 +37,8 @@ class ParallelTransitionSim:
     Each worker builds its own simulator from the registry (`make_transition_sim`) in a fresh
     ("spawn") process, so `env_id` must be registered when `assembly.transition` is imported. Rows
     are ordered by xi first (`xi_groups`), so each chunk rewrites its model few times. A batch
-    smaller than 2 x `workers` rows is stepped in-process. The result equals the serial one.
+    smaller than 2 x `workers` rows is stepped in-process. The result equals the serial one. The
+    workers are a goflow_common.pool.ProcessPool: a worker that dies is a WorkerError, not a hang.
 
     Arguments:
         env_id: the registry id of the simulator.
@@ -46,7 +47,7 @@ class ParallelTransitionSim:
     """
 
     def __init__(self, env_id: str, workers: int = 1, **kwargs: Any) -> None:
-        from assembly.transition import make_transition_sim
+        from assembly.transition.registry import make_transition_sim
 
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"ParallelTransitionSim: workers must be an integer >= 1, "
@@ -56,8 +57,7 @@ class ParallelTransitionSim:
         self.state_dim, self.action_dim = self._local.state_dim, self._local.action_dim
         self.control_dt = self._local.control_dt
         self.workers = workers
-        self._pool = (mp.get_context("spawn").Pool(workers, _worker_init, (env_id, kwargs))
-                      if workers > 1 else None)
+        self._pool = ProcessPool(workers, _worker_init, (env_id, kwargs)) if workers > 1 else None
 
     def step(self, states: ArrayLike, actions: ArrayLike, xi: ArrayLike) -> NDArray[np.float64]:
         """Step the rows in `workers` contiguous chunks of the xi-grouped order, in parallel.
@@ -97,5 +97,4 @@ class ParallelTransitionSim:
         """Stop the worker processes (idempotent)."""
         if self._pool is not None:
             self._pool.close()
-            self._pool.join()
             self._pool = None

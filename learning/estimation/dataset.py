@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.params import ParamSpace
+from goflow_common.errors import FileFormatError
 
 __all__ = ["DatasetError", "TransitionDataset", "save_dataset", "load_dataset", "load_truth",
            "FORMAT", "VERSION"]
@@ -42,8 +43,8 @@ VERSION = 1
 _ARRAYS = ("states", "actions", "next_states", "episode")
 
 
-class DatasetError(ValueError):
-    """A dataset file is missing, unreadable or malformed."""
+class DatasetError(FileFormatError):
+    """A dataset file is missing, unreadable or malformed (a FileFormatError, hence a ValueError)."""
 
 
 @dataclass
@@ -108,10 +109,17 @@ def _read(path: str | Path) -> tuple[str, dict[str, Any], dict[str, NDArray]]:
     p = str(path)
     if not Path(path).is_file():
         raise _fail(p, "no such file (expected a .npz written by `goflow collect`)")
+    if not zipfile.is_zipfile(path):  # np.load would take it for a pickle and suggest loading it unsafely
+        raise _fail(p, "not a readable .npz archive (truncated or foreign file: not a zip archive); expected one "
+                       "written by `goflow collect`")
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+    except ValueError as exc:
+        if "pickle" in str(exc):
+            raise _fail(p, "refused: it holds pickled objects; expected plain arrays (`goflow collect`)") from None
+        raise _fail(p, f"not a readable .npz archive ({exc})") from exc
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
         raise _fail(p, f"not a readable .npz archive ({exc})") from exc
     missing = [k for k in ("meta", *_ARRAYS, "true_xi") if k not in arrays]
     if missing:

@@ -47,7 +47,7 @@ from assembly.params import ParamSpace
 from assembly.samplers import check_sample_args, check_sampler_args, check_state_dict, check_update_inputs
 from goflow_common.checks import check_int, check_number
 from goflow_common.config import config_to_dict, config_with_overrides
-from learning.samplers.goflow import _config_of, standardize_returns, update_diagnostics
+from learning.samplers.gradient_update import config_from_state, standardize_returns, update_diagnostics
 
 __all__ = ["LSDRConfig", "LSDRSampler"]
 
@@ -333,7 +333,7 @@ class LSDRSampler:
         try:
             mu = np.asarray(state["mu"], dtype=np.float64)
             chol = np.asarray(state["chol"], dtype=np.float64)
-            config = LSDRConfig.from_dict(_config_of(state))
+            config = LSDRConfig.from_dict(config_from_state(state))
             n_updates = int(state["n_updates"])
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"load_state_dict: malformed LSDRSampler state_dict ({exc!r})") from exc
@@ -347,7 +347,7 @@ class LSDRSampler:
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> LSDRSampler:
         """Build a sampler from a `state_dict` alone."""
-        sampler = cls(ParamSpace.from_dict(state["space"]), None, _config_of(state))
+        sampler = cls(ParamSpace.from_dict(state["space"]), None, config_from_state(state))
         sampler.load_state_dict(state)
         return sampler
 

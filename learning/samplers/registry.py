@@ -75,7 +75,7 @@ for _spec in (
     SamplerSpec("lsdr", "learning.samplers.lsdr:LSDRSampler", "learning.samplers.lsdr:LSDRConfig", gradient=True),
     SamplerSpec("doraemon", "learning.samplers.doraemon:DORAEMONSampler",
                 "learning.samplers.doraemon:DORAEMONConfig", threshold=True),
-    SamplerSpec("goflow", "learning.samplers.goflow:GoFlowSampler", "learning.samplers.goflow:GoFlowConfig",
+    SamplerSpec("goflow", "learning.samplers.goflow:GoFlowSampler", "learning.samplers.goflow_config:GoFlowConfig",
                 gradient=True),
     SamplerSpec("estimated", "learning.samplers.estimated:EstimatedSampler",
                 "learning.samplers.estimated:EstimatedSamplerConfig", training=False),

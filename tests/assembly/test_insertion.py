@@ -1,9 +1,8 @@
 """The scripted pick-and-insert seats real gears on real shafts, through `goflow demo`."""
 
+import contextlib
+import io
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
@@ -12,20 +11,20 @@ from assembly.gearset import GEAR_NAMES
 from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL
 from assembly.station import make_meshcat
 
-GOFLOW = Path(sys.executable).parent / "goflow"
-
-
 @pytest.fixture(scope="module")
 def demo_summary(tmp_path_factory):
-    """`goflow demo --scripted --record HTML --json PATH`, run as a user would, into folders that
+    """`goflow demo --scripted --record HTML --json PATH` (in this process), into folders that
     do not exist yet (the one demo run of the suite: the tests below read it)."""
+    from goflow_cli import main
+
     root = tmp_path_factory.mktemp("demo")
     out, record = root / "json" / "missing" / "summary.json", root / "rec" / "missing" / "r.html"
-    proc = subprocess.run([str(GOFLOW), "demo", "--scripted", "--quiet", "--record", str(record), "--json", str(out)],
-                          capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert record.stat().st_size > 0 and f"recording: {record}" in proc.stdout
-    return json.loads(out.read_text()), proc.stdout
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = main(["demo", "--scripted", "--quiet", "--record", str(record), "--json", str(out)])
+    assert code == 0, stdout.getvalue()
+    assert record.stat().st_size > 0 and f"recording: {record}" in stdout.getvalue()
+    return json.loads(out.read_text()), stdout.getvalue()
 
 
 @pytest.mark.slow
@@ -74,11 +73,10 @@ def test_gripper_centres_error_along_closing_direction(tmp_path):
     assert record.stat().st_size > 100_000 and "meshcat" in record.read_text()[:100_000].lower()
 
 
-def test_planned_demo_refuses_bad_input_before_running(tmp_path):
+def test_planned_demo_refuses_bad_input_before_running(tmp_path, run_goflow):
     """`goflow demo` (the planned assembly) names a bad seed or output path at once."""
-    proc = subprocess.run([str(GOFLOW), "demo", "--seed", "-1"], capture_output=True, text=True, timeout=120)
+    proc = run_goflow("demo", "--seed", "-1")
     assert proc.returncode == 2 and "--seed -1" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     (tmp_path / "file").write_text("")
-    proc = subprocess.run([str(GOFLOW), "demo", "--json", str(tmp_path / "file" / "s.json")],
-                          capture_output=True, text=True, timeout=120)
+    proc = run_goflow("demo", "--json", tmp_path / "file" / "s.json")
     assert proc.returncode == 2 and "--json" in proc.stderr

@@ -8,7 +8,7 @@ import pytest
 from assembly.envs.gear_insertion import GearInsertionEnv
 from assembly.insertion_law import InsertionLaw, PoseHistory
 from goflow_common.errors import InputError
-from learning.skills import load_skill
+from learning.skill_file import load_skill
 
 
 def test_env_and_law_agree_step_by_step():

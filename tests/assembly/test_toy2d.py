@@ -9,7 +9,7 @@ from gymnasium.utils.env_checker import check_env
 from scipy import ndimage
 
 import assembly  # noqa: F401  (registers the goflow/ ids)
-from assembly.envs.toy2d import Toy2DConfig, Toy2DEnv
+from assembly.envs.toy2d import Toy2DEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR, NoDR
 

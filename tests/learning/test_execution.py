@@ -86,7 +86,7 @@ def test_make_backend():
 def test_ray_is_imported_only_when_asked_for(monkeypatch):
     """The pool backend and every command work without the `ray` package: nothing imports it until
     a RayBackend starts, and then its absence is a one-line ClusterError saying how to install it."""
-    code = ("import sys, goflow_cli, learning.execution, learning.experiment, learning.sweep, learning.skills; "
+    code = ("import sys, goflow_cli, learning.execution, learning.experiment, learning.sweep, learning.skill_training; "
             "goflow_cli.make_parser(); assert 'ray' not in sys.modules, 'ray was imported'")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
@@ -197,7 +197,7 @@ def test_ray_reports_a_failed_job_and_a_worker_that_keeps_dying(ray_backend):
 # ---------------------------------------------------------------------------------------------
 
 def _tiny_recipe():
-    from learning.skills import SkillRecipe
+    from learning.skill_training import SkillRecipe
     return SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1, refine_steps=0, fit_rounds=0, refit=None,
                        sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
                                        "report_samples": 256},
@@ -207,14 +207,14 @@ def _tiny_recipe():
 @pytest.fixture(scope="module")
 def small_skill(tmp_path_factory):
     """The small gear's tiny skill, trained in this process (`train_skills` of one gear)."""
-    from learning.skills import train_skills
+    from learning.skill_training import train_skills
     runs = tmp_path_factory.mktemp("skills")
     (skill,) = train_skills("insert", ["small"], _tiny_recipe(), runs=runs, progress=False)
     return skill, runs / "insert-small.pt"
 
 
 def test_skill_gears_train_as_jobs_and_match_a_single_run(small_skill, ray_backend, tmp_path):
-    from learning.skills import train_skills
+    from learning.skill_training import train_skills
     skills = train_skills("insert", ["medium", "small"], _tiny_recipe(), runs=tmp_path, backend=ray_backend,
                           progress=False)
     assert [(s.name, s.gear) for s in skills] == [("insert", "medium"), ("insert", "small")]
@@ -228,7 +228,7 @@ def test_skill_gears_train_as_jobs_and_match_a_single_run(small_skill, ray_backe
 
 
 def test_evaluation_split_into_jobs_is_the_same_on_every_backend(small_skill, ray_backend):
-    from learning.skills import evaluate_skill, evaluate_skill_jobs
+    from learning.skill_evaluation import evaluate_skill, evaluate_skill_jobs
     skill, path = small_skill
     args = dict(variant="fast", xi="uniform", episodes=5, seed=2)
 
@@ -269,33 +269,33 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_no_cluster_at_the_address_is_one_line_and_writes_nothing(tmp_path):
+def test_no_cluster_at_the_address_is_one_line_and_writes_nothing(tmp_path, run_goflow):
     address = f"127.0.0.1:{_free_port()}"
     out, results = tmp_path / "runs", tmp_path / "results"
-    line = _one_line_error(_run("experiment", *TINY_CLI, "--ray", address, "--out", str(out), "--results",
+    line = _one_line_error(run_goflow("experiment", *TINY_CLI, "--ray", address, "--runs", str(out), "--results",
                                 str(results)), "experiment")
     assert f"--ray {address}: no Ray cluster answers there" in line and "ray start --head" in line
-    line = _one_line_error(_run("sweep", "--method", "lsdr", "--param", "alpha", "--values", "0.5",
-                                *TINY_CLI[:2], *TINY_CLI[4:], "--ray", address, "--out", str(out), "--results",
+    line = _one_line_error(run_goflow("sweep", "--method", "lsdr", "--param", "alpha", "--values", "0.5",
+                                *TINY_CLI[:2], *TINY_CLI[4:], "--ray", address, "--runs", str(out), "--results",
                                 str(results)), "sweep")
     assert "no Ray cluster answers there" in line
-    line = _one_line_error(_run("evaluate", "--gear", "medium", "--episodes", "2", "--ray", address,
+    line = _one_line_error(run_goflow("evaluate", "--gear", "medium", "--episodes", "2", "--ray", address,
                                 "--json", str(results / "eval.json")), "evaluate")
     assert "no Ray cluster answers there" in line
     assert not out.exists() and not results.exists()
 
 
-def test_malformed_ray_values_are_one_line_errors(tmp_path):
+def test_malformed_ray_values_are_one_line_errors(tmp_path, run_goflow):
     out = tmp_path / "runs"
-    line = _one_line_error(_run("experiment", *TINY_CLI, "--ray", "head-node", "--out", str(out)), "experiment")
+    line = _one_line_error(run_goflow("experiment", *TINY_CLI, "--ray", "head-node", "--runs", str(out)), "experiment")
     assert "ray = 'head-node'; expected 'local'" in line
-    line = _one_line_error(_run("skill", "train", "--gear", "small", "--ray", "ray://head:10001",
+    line = _one_line_error(run_goflow("skill", "train", "--gear", "small", "--ray", "ray://head:10001",
                                 "--runs", str(out)), "skill train")
     assert "a URL is not accepted" in line
-    line = _one_line_error(_run("evaluate", "--gear", "small", "--ray", "head:99999"), "evaluate")
+    line = _one_line_error(run_goflow("evaluate", "--gear", "small", "--ray", "head:99999"), "evaluate")
     assert "--ray = 'head:99999'" in line
-    line = _one_line_error(_run("skill", "show", "--gear", "small", "medium"), "skill show")
-    assert "several gears are for train" in line
+    proc = run_goflow("skill", "show", "--gear", "small", "medium")  # several gears are for train alone
+    assert proc.returncode == 2 and "unrecognized arguments: medium" in proc.stderr
     assert not out.exists()
 
 
@@ -304,7 +304,7 @@ def test_experiment_on_a_local_ray_from_the_command_line(tmp_path):
     states, the results file (the same results as the pool's: test_an_experiment_gives_...)."""
     pytest.importorskip("ray")
     proc = _run("experiment", *TINY_CLI, "--methods", "fulldr", "lsdr", "--name", "tiny", "--workers", "2",
-                "--ray", "local", "--out", str(tmp_path / "runs"), "--results", str(tmp_path / "results"))
+                "--ray", "local", "--runs", str(tmp_path / "runs"), "--results", str(tmp_path / "results"))
     assert proc.returncode == 0, proc.stderr
     assert "running 0, done 2, retried 0, failed 0" in proc.stderr and "Traceback" not in proc.stderr
     summary = json.loads((tmp_path / "results" / "tiny.json").read_text())

@@ -333,7 +333,7 @@ def test_frontier_weights_read_a_stratified_sample_as_the_uniform_one():
 
 def test_frontier_grid_rows_carry_their_cells_labels():
     frontier = _benchmark(FRONTIER)
-    from learning.skills import load_skill
+    from learning.skill_file import load_skill
     feasible = load_skill("insert", gear="small").feasible
     xi, success = frontier.grid_rows(feasible, 2, 0)
     n = len(feasible.points(np.random.default_rng([0, 0]))[0])

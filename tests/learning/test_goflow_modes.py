@@ -12,7 +12,8 @@ import torch
 
 from assembly.params import Param, ParamSpace
 from goflow_common.errors import InputError
-from learning.samplers.goflow import GoFlowConfig, GoFlowSampler
+from learning.samplers.goflow import GoFlowSampler
+from learning.samplers.goflow_config import GoFlowConfig
 
 
 def _unit_box(d: int) -> ParamSpace:

@@ -17,7 +17,9 @@ from scipy.stats import truncnorm
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR, Sampler
 from learning.samplers.goflow import GoFlowSampler
-from learning.samplers.goflow import GoFlowConfig, build_spline_flow, standardize_returns
+from learning.samplers.goflow_config import GoFlowConfig
+from learning.samplers.gradient_update import standardize_returns
+from learning.samplers.spline_flow import build_spline_flow
 
 FAST = GoFlowConfig(entropy_samples=512, kl_samples=512, steps=60, mode="paper")  # the paper's update; modes: test_goflow_modes.py
 SIGMA = GoFlowConfig().base_scale

@@ -18,7 +18,8 @@ from assembly.envs.base import ParamEnv
 from assembly.envs.toy2d import Toy2DEnv
 from assembly.params import Param, ParamSpace
 from assembly.samplers import NoDR
-from learning.ppo import PPO, NonFiniteError, PPOConfig, compute_gae
+from learning.ppo import PPO, PPOConfig, compute_gae
+from learning.vector_env_contract import NonFiniteError
 
 
 @pytest.fixture(autouse=True, scope="module")

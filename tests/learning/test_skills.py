@@ -10,9 +10,9 @@ import torch
 
 from learning.feasible_grid import FeasibleGridConfig, FlowRefitConfig
 from learning.ppo import PPOConfig
-from learning.skills import (
-    SkillRecipe, Skill, describe, evaluate_skill, export_skill, flow_width, load_skill, skill_path, train_skill,
-)
+from learning.skill_evaluation import describe, evaluate_skill, flow_width
+from learning.skill_file import Skill, load_skill, skill_path
+from learning.skill_training import SkillRecipe, train_skill
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +138,7 @@ def test_cli_evaluate_writes_the_issue_schema(tiny_skill, tmp_path):
     from goflow_cli import main
     _, _, path = tiny_skill
     out = tmp_path / "eval.json"
-    assert main(["evaluate", "--gear", "small", "--path", str(path), "--episodes", "2", "--xi", "flow",
+    assert main(["evaluate", "--gear", "small", "--path", str(path), "--episodes", "2", "--xi-from", "flow",
                  "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     assert {"gear", "variant", "xi", "episodes", "success_rate", "mean_return"} <= set(result)
@@ -201,7 +201,8 @@ def test_training_never_overwrites_the_shipped_skills_by_default():
     import inspect
     from pathlib import Path
 
-    from learning.skills import RUNS_SKILL_DIR, SKILL_DIR
+    from learning.skill_file import SKILL_DIR
+    from learning.skill_training import RUNS_SKILL_DIR
 
     assert inspect.signature(train_skill).parameters["runs"].default == RUNS_SKILL_DIR == Path("runs/skills")
     assert skill_path("insert", "small", RUNS_SKILL_DIR) == Path("runs/skills/insert-small.pt")
@@ -213,7 +214,7 @@ def test_a_confirming_variant_keeps_only_cells_that_succeed_in_both(tmp_path):
     variant run again on the full Panda, and each keeps the lower return; a second call resumes
     from the checkpoints without running an episode."""
     from learning.execution import InlineBackend
-    from learning.skills import measure_feasible_set
+    from learning.skill_feasible_set import measure_feasible_set
 
     grid = FeasibleGridConfig(fine_width=(0.002, 0.002, 0.786), fine_cells=(2, 2, 1), coarse_cells=(1, 1, 1))
     path = skill_path("insert", "small")
@@ -251,7 +252,7 @@ def test_a_confirming_variant_keeps_only_cells_that_succeed_in_both(tmp_path):
 def test_a_refit_takes_a_measurement_only_from_the_same_policy(tiny_skill, tmp_path):
     """refit_skill(feasible_from=...) refuses a file that holds no measurement, and one whose
     policy differs (a feasible set holds only for the policy that ran it), before any episode."""
-    from learning.skills import refit_skill
+    from learning.skill_feasible_set import refit_skill
 
     _, _, tiny = tiny_skill
     with pytest.raises(ValueError, match="its policy, environment or box differ"):

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from pydrake.math import RigidTransform
 
 from assembly.cameras import CameraConfig, look_at
 from perception.observation import Observation

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goflow_common.files import read_json
+from perception.calibration import load_result
 from perception.inspect_model import CLOSE_VIEW, close_view_noise, predict_inspection
 from perception.posterior import uniform_posterior
 
@@ -36,8 +36,8 @@ def test_bad_input_is_named():
 def test_close_view_is_what_the_committed_benchmark_measured():
     """CLOSE_VIEW is `close_view_noise` of the held-out benchmark run it cites, so the planner's
     inspect model follows the posteriors as they are shipped."""
-    path = Path(__file__).resolve().parents[2] / "docs" / "results" / "perception_calibration_seed12000.json"
-    assert close_view_noise(read_json(path)["rows"]) == CLOSE_VIEW
+    path = Path(__file__).resolve().parents[2] / "docs" / "results" / "perception_calibration_seed12000_rows.json.gz"
+    assert close_view_noise(load_result(path)["rows"]) == CLOSE_VIEW
 
 
 def test_close_view_noise_needs_a_clean_close_view():

@@ -6,7 +6,8 @@ import numpy as np
 from assembly.world import grasp_with_error
 from planning.grasp import PICK_MODEL, picked_grasp_errors
 from planning.pick import held_grasp_error, simulate_pick
-from learning.skills import load_skill, rollout_return
+from learning.skill_evaluation import rollout_return
+from learning.skill_file import load_skill
 from planning.precondition import best_aim, insert_precondition
 from pydrake.math import RigidTransform, RotationMatrix
 

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from learning.skills import load_skill
+from learning.skill_file import load_skill
 from planning.precondition import InsertPrecondition, PreconditionConfig, insert_precondition, load_value_thresholds
 
 

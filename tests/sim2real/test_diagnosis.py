@@ -229,7 +229,7 @@ def test_cli_diagnose_writes_the_report(tmp_path, nominal_log, capsys):
     log = make_arm_log({"viscous": {"fv": [0.6] * 7}}, RealityConfig(duration=DURATION, seed=5))
     path = save_log(log, tmp_path / "log.npz")
     out = tmp_path / "report"
-    assert main(["diagnose", "--log", str(path), "--out", str(out), "--band", "none"]) == 0
+    assert main(["diagnose", "--log", str(path), "--out-dir", str(out), "--band", "none"]) == 0
     assert {"report.md", "report.json", "where.png", "ranking.png", "before_after.png",
             "residual_vs_velocity.png"} <= {p.name for p in out.iterdir()}
     report = json.loads((out / "report.json").read_text())
@@ -239,15 +239,15 @@ def test_cli_diagnose_writes_the_report(tmp_path, nominal_log, capsys):
 
 def test_cli_make_log_then_diagnose_csv(tmp_path, capsys):
     csv = tmp_path / "log.csv"
-    assert main(["sim2real", "make-log", "--effect", "torque_offset=0.6", "--set", "duration=5",
+    assert main(["sim2real", "make-log", "--effect", "torque_offset=0.6", "--model-kwarg", "duration=5",
                  "--out", str(csv)]) == 0
-    assert main(["diagnose", "--log", str(csv), "--out", str(tmp_path / "r"), "--band", "none"]) == 0
+    assert main(["diagnose", "--log", str(csv), "--out-dir", str(tmp_path / "r"), "--band", "none"]) == 0
     report = json.loads((tmp_path / "r" / "report.json").read_text())
     assert report["selected"][0]["effect"] == "torque_offset"
 
 
 def test_cli_bad_input_is_one_line(tmp_path, capsys):
-    assert main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "r")]) == 2
+    assert main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out-dir", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip()
     assert "missing.npz" in err and len(err.splitlines()) == 1
     assert main(["sim2real", "make-log", "--effect", "coulomb=9", "--out", str(tmp_path / "x.npz")]) == 2
@@ -256,7 +256,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "x.npz").exists()
     assert main(["sim2real", "make-log", "--effect", "friction=1", "--out", str(tmp_path / "x.npz")]) == 2
     assert "friction" in capsys.readouterr().err
-    assert main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "r"), "--band", "x"]) == 2
+    assert main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out-dir", str(tmp_path / "r"), "--band", "x"]) == 2
     assert "--band = 'x'" in capsys.readouterr().err
 
 

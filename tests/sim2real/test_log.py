@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from goflow_common.errors import FileFormatError, InputError
-from sim2real.importers import GAZ_FILES, read_franka_csv, read_gaz_layout, write_franka_csv
+from sim2real.importers import GAZ_FILES, load_log, read_franka_csv, read_gaz_layout, write_franka_csv
 from sim2real.log import (
-    FIELDS, LOG_FORMAT, PHASES, UNITS, RobotLog, load_log, save_log, slice_log, validate_log, with_meta,
+    FIELDS, LOG_FORMAT, PHASES, UNITS, RobotLog, save_log, slice_log, validate_log, with_meta,
 )
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -118,12 +118,12 @@ def test_cli_perception_log_then_diagnose(tmp_path, capsys):
 
     log = tmp_path / "perception.npz"
     assert main(["sim2real", "make-log", "--model", "perception", "--effect", "camera_offset.dx=0.015",
-                 "--set", "scenes=5", "--out", str(log)]) == 0
+                 "--model-kwarg", "scenes=5", "--out", str(log)]) == 0
     out = tmp_path / "report"
-    assert main(["diagnose", "--model", "perception", "--log", str(log), "--out", str(out)]) == 0
+    assert main(["diagnose", "--model", "perception", "--log", str(log), "--out-dir", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["selected"][0]["effect"] == "camera_offset"
     assert report["selected"][0]["params"]["dx"]["value"] == pytest.approx(0.015, abs=0.005)
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    assert main(["diagnose", "--model", "perception", "--log", str(tmp_path / "bad.npz"), "--out", str(out)]) == 2
+    assert main(["diagnose", "--model", "perception", "--log", str(tmp_path / "bad.npz"), "--out-dir", str(out)]) == 2
     assert "bad.npz" in capsys.readouterr().err

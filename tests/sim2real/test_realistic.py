@@ -11,7 +11,8 @@ import pytest
 
 from goflow_common.errors import InputError
 from sim2real.diagnosis import diagnose
-from sim2real.log import load_log, validate_log
+from sim2real.importers import load_log
+from sim2real.log import validate_log
 from sim2real.realistic import RealisticCase, make_case_log, run_realistic
 
 DURATION = 10.0

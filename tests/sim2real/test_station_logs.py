@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from goflow_common.errors import InputError
-from sim2real.log import PHASES, load_log, save_log, validate_log
+from sim2real.importers import load_log
+from sim2real.log import PHASES, save_log, validate_log
 from sim2real.station_logs import (
     check_station_effects, make_insertion_log, phase_residuals, replay_insertion, segment_phases,
     skill_success, station_physics,
@@ -20,7 +21,7 @@ CONTACT, INSERTION = PHASES.index("contact"), PHASES.index("insertion")
 
 @pytest.fixture(scope="module")
 def skill():
-    from learning.skills import load_skill
+    from learning.skill_file import load_skill
     return load_skill("insert", "medium")
 
 

@@ -1,30 +1,21 @@
 """`goflow collect` and `goflow estimate` as a user runs them."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-GOFLOW = Path(sys.executable).parent / "goflow"
 
-
-def _run(*args):
-    return subprocess.run([str(GOFLOW), *args], capture_output=True, text=True, timeout=600)
-
-
-def test_collect_then_estimate_gives_a_sampler_file(tmp_path):
+def test_collect_then_estimate_gives_a_sampler_file(tmp_path, run_goflow):
     data = tmp_path / "pm.npz"
-    proc = _run("collect", "--env", "goflow/PointMass-v0", "--xi", "mixture", "--episodes", "6",
+    proc = run_goflow("collect", "--env", "goflow/PointMass-v0", "--true-xi", "mixture", "--episodes", "6",
                 "--steps", "8", "--seed", "1", "--out", str(data))
     assert proc.returncode == 0, proc.stderr
     from learning.estimation.dataset import load_dataset
     ds = load_dataset(data)
     assert ds.num_episodes == 6 and ds.collection["command"].startswith("goflow collect")
     out = tmp_path / "est.json"
-    proc = _run("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000",
+    proc = run_goflow("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000",
                 "--method-kwarg", "samples=10", "--method-kwarg", "transitions=8", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     from learning.estimation.estimate_file import load_estimate
@@ -34,17 +25,17 @@ def test_collect_then_estimate_gives_a_sampler_file(tmp_path):
     assert json.loads(out.read_text())["env_id"] == "goflow/PointMass-v0"
 
 
-def test_bad_flags_are_explained(tmp_path):
-    proc = _run("collect", "--env", "goflow/Nope-v0", "--xi", "gaussian", "--episodes", "2",
+def test_bad_flags_are_explained(tmp_path, run_goflow):
+    proc = run_goflow("collect", "--env", "goflow/Nope-v0", "--true-xi", "gaussian", "--episodes", "2",
                 "--out", str(tmp_path / "x.npz"))
     assert proc.returncode != 0 and "no step-from-state simulator for env 'goflow/Nope-v0'" in proc.stderr
-    proc = _run("collect", "--env", "goflow/PointMass-v0", "--xi", "uniform", "--episodes", "2",
+    proc = run_goflow("collect", "--env", "goflow/PointMass-v0", "--true-xi", "uniform", "--episodes", "2",
                 "--out", str(tmp_path / "x.npz"))
     assert proc.returncode == 2 and "invalid choice: 'uniform'" in proc.stderr
-    proc = _run("estimate", "--data", str(tmp_path / "missing.npz"), "--method", "nfpde-softmax",
+    proc = run_goflow("estimate", "--data", str(tmp_path / "missing.npz"), "--method", "nfpde-softmax",
                 "--out", str(tmp_path / "e.json"))
     assert proc.returncode != 0 and "no such file" in proc.stderr
-    proc = _run("estimate", "--data", str(tmp_path / "m.npz"), "--method", "mle", "--out", "e.json")
+    proc = run_goflow("estimate", "--data", str(tmp_path / "m.npz"), "--method", "mle", "--out", "e.json")
     assert proc.returncode == 2 and "invalid choice: 'mle'" in proc.stderr
 
 
@@ -62,11 +53,11 @@ def small_data(tmp_path_factory):
     return path, ds
 
 
-def test_budget_below_one_iteration_is_refused_by_the_cli(tmp_path, small_data):
+def test_budget_below_one_iteration_is_refused_by_the_cli(tmp_path, small_data, run_goflow):
     data, _ = small_data
     out = tmp_path / "est.json"
     # DROPO's defaults on 2 parameters: 8 candidates x 32 draws x 16 transitions per generation
-    proc = _run("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000", "--out", str(out))
+    proc = run_goflow("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000", "--out", str(out))
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
@@ -88,11 +79,11 @@ def test_every_method_refuses_a_budget_below_its_minimum_before_simulating(small
         estimate(ds, EstimateConfig(method=method, sim_budget=need - 1), sim=object())  # the sim is never touched
 
 
-def test_one_iteration_budget_gives_strict_json_and_a_progress_bar(tmp_path, small_data):
+def test_one_iteration_budget_gives_strict_json_and_a_progress_bar(tmp_path, small_data, run_goflow):
     data, _ = small_data
     out = tmp_path / "est.json"
     # 8 candidates x 10 draws x 8 transitions = 640 calls: exactly one CMA-ES generation
-    proc = _run("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "640",
+    proc = run_goflow("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "640",
                 METHOD_OPTION, "samples=10", METHOD_OPTION, "transitions=8", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert "estimate dropo" in proc.stderr and "640/640" in proc.stderr  # tqdm bar over simulator calls
@@ -102,12 +93,12 @@ def test_one_iteration_budget_gives_strict_json_and_a_progress_bar(tmp_path, sma
     assert np.isfinite(details["best_objective"])
 
 
-def test_non_finite_method_option_is_one_line(tmp_path, small_data):
+def test_non_finite_method_option_is_one_line(tmp_path, small_data, run_goflow):
     data, _ = small_data
     # beta=nan: the issue's command; epsilon=abc reaches DROPOConfig (it used to fail deep in numpy)
     for method, option in (("nfpde-softmax", "beta=nan"), ("dropo", "epsilon=abc")):
         out = tmp_path / "est.json"
-        proc = _run("estimate", "--data", str(data), "--method", method, METHOD_OPTION, option, "--out", str(out))
+        proc = run_goflow("estimate", "--data", str(data), "--method", method, METHOD_OPTION, option, "--out", str(out))
         assert proc.returncode != 0
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and option.split("=")[0] in lines[0] and "expected" in lines[0], proc.stderr

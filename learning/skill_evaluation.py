@@ -1,0 +1,175 @@
+"""What a skill does: episodes of its deterministic policy (one, or many split into jobs), how
+wide its flow is, and a one-line report of its provenance and measured feasible set.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+
+from goflow_common.checks import check_int
+from learning.execution import Backend, InlineBackend, Job, run_grid
+from learning.feasible_grid import flow_report
+from learning.skill_file import Skill
+
+__all__ = ["SkillEvaluation", "describe", "evaluate_skill", "evaluate_skill_jobs", "feasible_report", "flow_width",
+           "rollout_return"]
+
+@dataclass(frozen=True)
+class SkillEvaluation:
+    """What `evaluate_skill` measured: the success rate (with its binomial standard error) and mean
+    return of the deterministic policy, and where xi came from (the flow or the uniform box)."""
+
+    gear: str
+    variant: str  # the env variant ("fast" or "panda")
+    xi: str  # "flow" or "uniform"
+    episodes: int
+    success_rate: float
+    success_se: float
+    mean_return: float
+    seed: int
+    seconds: float  # wall time
+    xi_mean: list[float]  # mean and std of the episodes' xi (parameter units)
+    xi_std: list[float]
+    jobs: int = 1  # the episodes were split into this many jobs (evaluate_skill_jobs), seeded per job
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain JSON data (the `goflow evaluate --json` file)."""
+        return dataclasses.asdict(self)
+
+
+def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episodes: int = 100, seed: int = 0,
+                   num_envs: int = 4, progress: bool = False) -> SkillEvaluation:
+    """Run `episodes` episodes of the skill's deterministic policy with xi from its flow or uniform
+    over the box, in `num_envs` environments; `progress` shows a bar of the episodes finished."""
+    episodes = check_int(episodes, "episodes", 1)
+    t0 = time.perf_counter()
+    n = max(1, min(int(num_envs), int(episodes)))
+    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
+                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    try:
+        xis, returns, successes = skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed,
+                                                       progress=progress)
+    finally:
+        vec.close()
+    return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes)
+
+
+def _evaluation(gear: str, variant: str, xi: str, seed: int, seconds: float, xis: NDArray[np.float64],
+                returns: NDArray[np.float64], successes: NDArray[np.bool_], jobs: int = 1) -> SkillEvaluation:
+    rate = float(np.mean(successes))
+    return SkillEvaluation(gear=gear, variant=variant, xi=xi, episodes=len(successes), success_rate=rate,
+                           success_se=float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
+                           mean_return=float(np.mean(returns)), seed=int(seed), seconds=seconds,
+                           xi_mean=xis.mean(axis=0).tolist(), xi_std=xis.std(axis=0).tolist(), jobs=jobs)
+
+
+def _evaluate_part(path: str, variant: str, xi: str, episodes: int, seed: int,
+                   num_envs: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """One job of `evaluate_skill_jobs`, in a worker: the skill file's episodes (xi, returns, successes)."""
+    torch.set_num_threads(1)
+    skill = Skill.load(path)
+    n = max(1, min(int(num_envs), int(episodes)))
+    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
+                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    try:
+        return skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
+    finally:
+        vec.close()
+
+
+def evaluate_skill_jobs(path: str | os.PathLike[str], variant: str = "fast", xi: str = "flow", episodes: int = 100,
+                        seed: int = 0, jobs: int = 1, num_envs: int = 4, backend: Backend | None = None,
+                        progress: bool = False) -> SkillEvaluation:
+    """`evaluate_skill` of the skill file at `path` with its episodes split into `jobs` parts run on
+    `backend` (learning.execution; default: this process), each loading the file (a path every
+    worker reaches). Part j runs `episodes // jobs` episodes (one more for the first
+    `episodes % jobs`) seeded with `seed` itself when `jobs` is 1 (the same episodes as
+    `evaluate_skill`), else with a seed drawn from (seed, j): the result depends on `jobs`, never
+    on the backend or the number of workers."""
+    episodes = check_int(episodes, "episodes", 1)
+    jobs = check_int(jobs, "jobs", 1)
+    if jobs > episodes:
+        raise ValueError(f"jobs = {jobs}; expected at most episodes = {episodes}")
+    if xi not in ("flow", "uniform"):
+        raise ValueError(f"xi source {xi!r}; expected 'flow' or 'uniform'")
+    path = Path(path).resolve()
+    skill = Skill.load(path)  # a bad file fails here, before any job
+    t0 = time.perf_counter()
+    sizes = [episodes // jobs + (1 if j < episodes % jobs else 0) for j in range(jobs)]
+    seeds = [int(seed)] if jobs == 1 else [int(np.random.SeedSequence([int(seed), j]).generate_state(1)[0])
+                                           for j in range(jobs)]
+    parts = run_grid([Job(f"episodes {sum(sizes[:j])}-{sum(sizes[:j + 1]) - 1}", _evaluate_part,
+                          (str(path), variant, xi, sizes[j], seeds[j], num_envs)) for j in range(jobs)],
+                     backend or InlineBackend(), progress, f"evaluate {skill.name}-{skill.gear}")
+    xis, returns, successes = (np.concatenate([part[k] for part in parts]) for k in range(3))
+    return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, jobs)
+
+
+def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) -> dict[str, float]:
+    """How wide the skill's flow is: its differential entropy (nats, parameter units), the uniform
+    box's, and the fraction of the box (by volume) where its density exceeds `eps` (the planner's
+    trust threshold, in 1 / parameter-unit volume)."""
+    if not (isinstance(eps, (int, float)) and math.isfinite(eps) and eps >= 0):
+        raise ValueError(f"eps must be a finite number >= 0, got {eps!r}")
+    rng = np.random.default_rng(seed)
+    u = skill.space.low + (skill.space.high - skill.space.low) * rng.random((samples, skill.space.dim))
+    density = skill.density(u)
+    volume = float(np.prod(skill.space.high - skill.space.low))
+    return {"entropy": float(skill.sampler.entropy()), "uniform_entropy": math.log(volume),
+            "eps": float(eps), "eps_uniform_ratio": float(eps * volume),
+            "trusted_fraction": float(np.mean(density > eps))}
+
+
+def describe(skill: Skill) -> str:
+    """One JSON line of a skill's provenance (for the CLI and docs) and, when the file holds a
+    measured feasible set, the flow against it: the set's share of the box, the flow's mass on it
+    and outside it, and the share of it the flow covers at 10 % and 1 % of the uniform-on-set
+    density (learning.feasible_grid.flow_report)."""
+    keep = ("steps", "rounds", "train_seconds", "final_uniform_success", "command", "exported")
+    line = {"skill": skill.name, "gear": skill.gear, "method": skill.method,
+            "mode": getattr(getattr(skill.sampler, "config", None), "mode", None),
+            **{k: skill.provenance.get(k) for k in keep}}
+    if "refit" in skill.provenance:
+        line["refit_command"] = skill.provenance["refit"].get("command")
+    if skill.feasible is not None:
+        line["feasible_set"] = feasible_report(skill)
+    return json.dumps(line)
+
+
+def feasible_report(skill: Skill) -> dict[str, Any] | None:
+    """The skill's measured feasible set (`FeasibleSet.summary`) and its flow against it
+    (`flow_report`) in one plain dict, or None when the file holds no measurement."""
+    if skill.feasible is None:
+        return None
+    return {**skill.feasible.summary(), **flow_report(skill.sampler, skill.feasible)}
+
+
+def rollout_return(skill: Skill, xi: ArrayLike, env: gymnasium.Env | None = None, seed: int = 0) -> float:
+    """The undiscounted return of one episode of the skill's deterministic policy at parameters
+    xi (in `env`, default a new env of the skill's own variant), reset with `seed`. Any object
+    whose `act(obs)` gives the action serves as `skill` when `env` is given."""
+    own = env is None
+    env = skill.make_env() if own else env
+    try:
+        obs, _ = env.reset(seed=seed, options={"xi": np.asarray(xi, np.float64)})
+        total, done = 0.0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(skill.act(obs))
+            total += float(reward)
+            done = terminated or truncated
+    finally:
+        if own:
+            env.close()
+    return total
