@@ -709,7 +709,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------
 
 def _bench_flags(p: argparse.ArgumentParser) -> None:
-    from perception.bench import BenchConfig
+    from perception.speed import BenchConfig
     p.add_argument("target", choices=["perception", "calibration"],
                    help="perception: seconds per posterior; calibration: coverage of the "
                         "posteriors' credible regions on fresh scenes, both views, every "
@@ -739,7 +739,7 @@ def _bench_flags(p: argparse.ArgumentParser) -> None:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.target == "calibration":
         return _bench_calibration(args)
-    from perception.bench import BenchConfig, bench_perception
+    from perception.speed import BenchConfig, bench_perception
     if args.posteriors < 1:
         raise InputError(f"--posteriors {args.posteriors}: expected at least 1")
     json_path = check_output_file(args.json, "--json") if args.json else None
@@ -898,7 +898,7 @@ def _band_option(value: str):
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from sim2real.diagnosis import DiagnosisConfig
-    from sim2real.files import diagnose_file
+    from sim2real.commands import diagnose_file
     from sim2real.replay import ReplayConfig
     config = DiagnosisConfig(effects=tuple(args.effects) if args.effects else None, seed=args.seed,
                              replay=ReplayConfig(torque_filter=args.torque_filter, torque_hold=args.torque_hold),
@@ -942,7 +942,7 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
                                for p in e.params)
             print(f"{e.name} ({e.place}): {e.meaning}\n    {params}")
         return 0
-    from sim2real.files import make_log_file
+    from sim2real.commands import make_log_file
     path = make_log_file(args.effect or [], args.out, key_values(args.model_kwarg, "--model-kwarg"), args.model)
     print(f"log -> {path}")
     return 0

@@ -20,7 +20,7 @@ from assembly.gearset import gear_spec
 from assembly.inspection import run_inspect
 from assembly.world import WorldConfig
 from assembly.cameras import default_scene_camera
-from perception.bench import BenchConfig, bench_posteriors, bench_renderers, close_camera
+from perception.speed import BenchConfig, bench_posteriors, bench_renderers, close_camera
 from perception.drake_scene import DrakeScene, SceneConfig
 from perception.gear_model import gear_model
 from perception.calibration import CalibrationConfig, pose_error, run_calibration

@@ -5,7 +5,7 @@ pose, the calibrated (nominal) pose moved by the catalogue's `camera_offset` (dx
 camera's own frame), while the perception pipeline is handed the CALIBRATED pose: exactly what a
 miscalibrated extrinsic does. The effect lives in the rendering (Drake's RenderEngineVtk renders
 the offset camera); nothing is painted onto the results. The pipeline is the project's own first
-look of the scene camera (perception.calibration / perception.bench): global detection
+look of the scene camera (perception.calibration / perception.speed): global detection
 (`detect_gears`) and the far posterior of every gear found (`estimate_pose` within the detection's
 prior). The log records, per scene and gear, the posterior's mean and std (x, y, yaw), whether the
 gear was seen and whether its posterior is informative, and the true pose (what the robot measures

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.bench import close_camera
+from perception.speed import close_camera
 from perception.drake_scene import DrakeScene, SceneConfig
 
 POSES = {"large": (0.40, -0.15, 0.1), "medium": (0.41, -0.03, 0.7), "small": (0.40, 0.07, 0.3)}

@@ -6,7 +6,7 @@ import pytest
 
 from assembly.cameras import default_scene_camera
 from assembly.gearset import GEAR_BORE_CHAMFER, GEAR_BORE_RADIUS, GEAR_THICKNESS, GEARS
-from perception.bench import close_camera, compare_depth, gear_mask
+from perception.speed import close_camera, compare_depth, gear_mask
 from perception.drake_scene import DrakeScene, SceneConfig
 from perception.gear_model import MARKER_HEIGHT, gear_model
 from perception.renderer import RayCaster, RayCasterConfig, render_image
