@@ -20,8 +20,8 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs import ant
-from assembly.envs.batched import BatchedEnv, check_num_envs, instance_state_columns
-from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies, quiet_drake
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, instance_state_columns
+from assembly.envs.drake_sim import HeldInput, filter_between_copies, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
@@ -41,7 +41,7 @@ class AntVectorEnv(BatchedEnv):
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(ant.AntConfig, config, overrides, self._owner)
         space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))
-        steps = int(round(cfg.t_max / cfg.control_dt)) if max_episode_steps is None else max_episode_steps
+        steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
         super().__init__(n, space, sampler, spaces.Box(-np.inf, np.inf, shape=(27,), dtype=np.float32),
                          spaces.Box(-1.0, 1.0, shape=(8,), dtype=np.float32), cfg.control_dt, steps, cfg.j_t())
         self._build()
@@ -133,12 +133,7 @@ class AntVectorEnv(BatchedEnv):
         x_before = full[self._columns[:, self._layout.pos[0]]]
         self._u[self._u_index] = a * cfg.effort_limit
         self._input.set(self._u)
-        try:
-            advance(self._simulator, (self._k + 1) * cfg.control_dt, self._owner)
-        except Exception:
-            self._context.SetTime(self._k * cfg.control_dt)  # the step can be repeated
-            raise
-        self._k += 1
+        self._advance_period()
         rows = self._get_state(np.arange(self.num_envs))
         reward, terminated, info = ant.step_reward(cfg, self._layout, x_before, rows, a)
         reward[~np.isfinite(rows).all(axis=1)] = np.nan

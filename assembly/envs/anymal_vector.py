@@ -21,8 +21,8 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs import anymal
-from assembly.envs.batched import BatchedEnv, check_num_envs, instance_state_columns
-from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies, quiet_drake
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, instance_state_columns
+from assembly.envs.drake_sim import HeldInput, filter_between_copies, quiet_drake
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
 
@@ -41,7 +41,7 @@ class AnymalVectorEnv(BatchedEnv):
                  sampler: Sampler | None = None, max_episode_steps: int | None = None, **overrides: Any) -> None:
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(anymal.AnymalConfig, config, overrides, self._owner)
-        steps = int(round(cfg.t_max / cfg.control_dt)) if max_episode_steps is None else max_episode_steps
+        steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
         super().__init__(n, anymal.anymal_space(), sampler,
                          spaces.Box(-np.inf, np.inf, shape=(48,), dtype=np.float32),
                          spaces.Box(-1.0, 1.0, shape=(12,), dtype=np.float32), cfg.control_dt, steps, cfg.j_t())
@@ -176,12 +176,7 @@ class AnymalVectorEnv(BatchedEnv):
             damping = anymal.hip_damping(cfg, self._layout, self._friction, self._load, before)
             for i, j in zip(*np.nonzero(self._friction > 0.0)):
                 self._copies[i].haa[j].SetDamping(ctx, float(damping[i, j]))
-        try:
-            advance(self._simulator, (self._k + 1) * cfg.control_dt, self._owner)
-        except Exception:
-            self._context.SetTime(self._k * cfg.control_dt)  # the step can be repeated
-            raise
-        self._k += 1
+        self._advance_period()
         rows = self._rows(np.arange(n))
         if friction:
             self._load = anymal.joint_loads(self._reaction_port.Eval(ctx), self._haa_index)

@@ -66,6 +66,12 @@ def instance_state_columns(plant, instance) -> NDArray[np.int64]:
     return np.concatenate((np.sort(q), nq + np.sort(v))).astype(np.int64)
 
 
+def episode_steps(t_max: float, control_dt: float, max_episode_steps: int | None) -> int:
+    """The time limit in steps: `max_episode_steps` when given (gymnasium.make_vec passes the
+    spec's), else t_max / control_dt, as the single env's."""
+    return int(round(t_max / control_dt)) if max_episode_steps is None else int(max_episode_steps)
+
+
 class BatchedEnv(VectorEnv):
     """Base of the batched vector envs: episode bookkeeping, seeding, xi, autoreset, failures."""
 
@@ -124,6 +130,19 @@ class BatchedEnv(VectorEnv):
     def _set_state(self, idx: NDArray[np.int64], state: NDArray[np.float64]) -> None:
         """The inverse of `_get_state`."""
         raise NotImplementedError
+
+    def _advance_period(self) -> None:
+        """Advance `self._simulator` from control step `self._k` to `self._k + 1` (simulated time
+        k * control_dt, as the single env counts it); a Drake failure (SimulationError) leaves the
+        clock at step k, so that the step can be repeated."""
+        from assembly.envs.drake_sim import advance
+
+        try:
+            advance(self._simulator, (self._k + 1) * self.control_dt, self._owner)
+        except Exception:
+            self._context.SetTime(self._k * self.control_dt)
+            raise
+        self._k += 1
 
     def _rest_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         """`_get_state` rows of copies idx at rest for their current xi (where a failed copy waits

@@ -15,9 +15,9 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.batched import BatchedEnv, check_num_envs
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
 from assembly.envs.cartpole import (CARTPOLE_SPACE, CartpoleConfig, wheel_contact, add_cartpole, cart_height)
-from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
+from assembly.envs.drake_sim import HeldInput, filter_between_copies
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
 
@@ -37,7 +37,7 @@ class CartpoleVectorEnv(BatchedEnv):
         self.config = cfg = config_with_overrides(CartpoleConfig, config, overrides, self._owner)
         self._obs_high = np.array((cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0))
         high = self._obs_high.astype(np.float32)
-        steps = int(round(cfg.t_max / cfg.control_dt)) if max_episode_steps is None else max_episode_steps
+        steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
         super().__init__(n, CARTPOLE_SPACE, sampler, spaces.Box(-high, high, dtype=np.float32),
                          spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32), cfg.control_dt, steps,
                          cfg.success_threshold)
@@ -137,12 +137,7 @@ class CartpoleVectorEnv(BatchedEnv):
         cfg = self.config
         self._forces[:] = cfg.max_force * np.clip(actions[:, 0], -1.0, 1.0)
         self._input.set(self._forces)
-        try:
-            advance(self._simulator, (self._k + 1) * cfg.control_dt, self._owner)
-        except Exception:
-            self._context.SetTime(self._k * cfg.control_dt)  # the step can be repeated
-            raise
-        self._k += 1
+        self._advance_period()
         rows = self._get_state(np.arange(self.num_envs))
         theta = (rows[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
         reward = (cfg.rew_alive + cfg.rew_pole_angle * theta * theta + cfg.rew_cart_vel * np.abs(rows[:, 3])

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.batched import BatchedEnv, check_num_envs
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
 from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
 from assembly.envs.gear_insertion import (GearInsertionConfig, tool_down_pose, grasp_error_space, insertion_reward,
                                           observation_space, seated_and_start)
@@ -44,7 +44,7 @@ class GearInsertionVectorEnv(BatchedEnv):
         if c.variant != "fast":
             raise InputError(f"{self._owner}: variant {c.variant!r} has no batched env; expected 'fast' "
                              "(use vectorization_mode='sync' for the full station)")
-        steps = int(round(c.t_max / c.control_dt)) if max_episode_steps is None else max_episode_steps
+        steps = episode_steps(c.t_max, c.control_dt, max_episode_steps)
         super().__init__(n, grasp_error_space(c), sampler, observation_space(c),
                          spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32), c.control_dt, steps,
                          c.success_threshold)

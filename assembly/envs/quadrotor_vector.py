@@ -16,8 +16,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.batched import BatchedEnv, check_num_envs
-from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
+from assembly.envs.drake_sim import HeldInput, filter_between_copies
 from assembly.envs.quadrotor import QUADROTOR_SPACE, QuadrotorConfig, add_ground, add_propellers, add_quadrotor
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
@@ -36,7 +36,7 @@ class QuadrotorVectorEnv(BatchedEnv):
         self.config = cfg = config_with_overrides(QuadrotorConfig, config, overrides, self._owner)
         self._obs_high = np.array((200.0,) * 3 + (500.0,) * 3 + (1.0,) * 3 + (500.0,) * 3)
         high = self._obs_high.astype(np.float32)
-        steps = int(round(cfg.t_max / cfg.control_dt)) if max_episode_steps is None else max_episode_steps
+        steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
         super().__init__(n, QUADROTOR_SPACE, sampler, spaces.Box(-high, high, dtype=np.float32),
                          spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32), cfg.control_dt, steps,
                          cfg.success_threshold)
@@ -146,12 +146,7 @@ class QuadrotorVectorEnv(BatchedEnv):
         cfg = self.config
         self._thrusts[:] = (0.5 * cfg.max_rotor_thrust * (np.clip(actions, -1.0, 1.0) + 1.0)).ravel()
         self._input.set(self._thrusts)
-        try:
-            advance(self._simulator, (self._k + 1) * cfg.control_dt, self._owner)
-        except Exception:
-            self._context.SetTime(self._k * cfg.control_dt)  # the step can be repeated
-            raise
-        self._k += 1
+        self._advance_period()
         rows = self._plant.GetPositionsAndVelocities(self._plant_context)[self._columns]
         obs, reward = self._observe_and_reward(rows, self._goal)
         limit = cfg.max_angular_rate
