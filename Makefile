@@ -23,10 +23,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
-# The inner loop (under 3 minutes): lint, then the fast tests of the code every change touches
+# The inner loop (under 3 minutes): lint and format check, then the fast tests of the code every change touches
 # (files, configs, layers, the CLI, the batched envs); `make test` runs everything.
 check: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -x -m "not slow" -n auto --maxprocesses 4 --dist loadfile \
 		tests/goflow_common tests/test_layers.py tests/test_benchmarks.py tests/test_cli.py \
 		tests/assembly/test_params.py tests/assembly/test_samplers.py tests/assembly/test_batched.py \

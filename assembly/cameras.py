@@ -6,8 +6,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pydrake.geometry import (
-    ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, FrameId,
-    MakeRenderEngineVtk, RenderCameraCore, RenderEngineVtkParams, SceneGraph,
+    ClippingRange,
+    ColorRenderCamera,
+    DepthRange,
+    DepthRenderCamera,
+    FrameId,
+    MakeRenderEngineVtk,
+    RenderCameraCore,
+    RenderEngineVtkParams,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
@@ -16,8 +23,7 @@ from pydrake.systems.sensors import CameraInfo, RgbdSensor
 RENDERER = "vtk"
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])
-            ) -> RigidTransform:
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> RigidTransform:
     """Pose of a camera at `eye` whose optical axis (+z) points at `target`; image rows (+y) point
     down, i.e. away from `up`."""
     eye, target = np.asarray(eye, float), np.asarray(target, float)
@@ -45,13 +51,14 @@ class CameraConfig:
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"camera {self.name!r}: image size {self.width}x{self.height}; "
-                             "expected positive width and height in pixels")
+            raise ValueError(
+                f"camera {self.name!r}: image size {self.width}x{self.height}; "
+                "expected positive width and height in pixels"
+            )
         if not 0 < self.fov_y < np.pi:
             raise ValueError(f"camera {self.name!r}: fov_y = {self.fov_y}; expected (0, pi) rad")
         if not 0 < self.near < self.far:
-            raise ValueError(f"camera {self.name!r}: near {self.near}, far {self.far}; "
-                             "expected 0 < near < far [m]")
+            raise ValueError(f"camera {self.name!r}: near {self.near}, far {self.far}; expected 0 < near < far [m]")
 
     def info(self) -> CameraInfo:
         return CameraInfo(self.width, self.height, self.fov_y)
@@ -83,10 +90,10 @@ def extrinsic_error(translation_std: float, rotation_std: float, rng: np.random.
     """A random error X_CE of a camera's extrinsics, in the camera frame: a rotation of N(0,
     `rotation_std`) [rad] about each axis and a translation of N(0, `translation_std`) [m] along
     each. The camera's true pose is then X_PC @ X_CE where the robot believes X_PC."""
-    if not (np.isfinite(translation_std) and translation_std >= 0 and np.isfinite(rotation_std)
-            and rotation_std >= 0):
-        raise ValueError(f"extrinsic error std ({translation_std}, {rotation_std}); expected "
-                         "(translation [m], rotation [rad]) >= 0")
+    if not (np.isfinite(translation_std) and translation_std >= 0 and np.isfinite(rotation_std) and rotation_std >= 0):
+        raise ValueError(
+            f"extrinsic error std ({translation_std}, {rotation_std}); expected (translation [m], rotation [rad]) >= 0"
+        )
     return RigidTransform(RollPitchYaw(rng.normal(0.0, rotation_std, 3)), rng.normal(0.0, translation_std, 3))
 
 
@@ -96,8 +103,9 @@ def with_extrinsic_error(config: CameraConfig, X_CE: RigidTransform) -> CameraCo
     return replace(config, X_PC=config.X_PC @ X_CE)
 
 
-def extrinsic_error_on_table(X_WC: RigidTransform, point: np.ndarray, translation_std: float,
-                             rotation_std: float, samples: int = 256) -> np.ndarray:
+def extrinsic_error_on_table(
+    X_WC: RigidTransform, point: np.ndarray, translation_std: float, rotation_std: float, samples: int = 256
+) -> np.ndarray:
     """How far an extrinsic error of the given std moves where the camera believed at X_WC places a
     world `point` on the horizontal plane through it: the point seen by the true camera X_WC @ X_CE
     along the same pixel ray, re-intersected with that plane from the believed camera. Returns the
@@ -112,8 +120,8 @@ def extrinsic_error_on_table(X_WC: RigidTransform, point: np.ndarray, translatio
     shifts = []
     for _ in range(samples):
         X_CE = extrinsic_error(translation_std, rotation_std, rng)
-        ray_C = (X_WC @ X_CE).inverse().multiply(p)        # the pixel's ray in the camera frame
-        ray_W = X_WC.rotation().multiply(ray_C)             # as the robot interprets it
+        ray_C = (X_WC @ X_CE).inverse().multiply(p)  # the pixel's ray in the camera frame
+        ray_W = X_WC.rotation().multiply(ray_C)  # as the robot interprets it
         if abs(ray_W[2]) < 1e-9:
             continue
         s = (p[2] - c[2]) / ray_W[2]
@@ -127,15 +135,18 @@ def add_renderer(scene_graph: SceneGraph) -> None:
         scene_graph.AddRenderer(RENDERER, MakeRenderEngineVtk(RenderEngineVtkParams()))
 
 
-def add_camera(builder: DiagramBuilder, scene_graph: SceneGraph, parent: FrameId,
-               config: CameraConfig) -> RgbdSensor:
+def add_camera(builder: DiagramBuilder, scene_graph: SceneGraph, parent: FrameId, config: CameraConfig) -> RgbdSensor:
     """Add an RgbdSensor named config.name attached to `parent`, rendering with the VTK engine."""
     add_renderer(scene_graph)
-    core = RenderCameraCore(RENDERER, config.info(), ClippingRange(config.near, config.far),
-                            RigidTransform())
-    sensor = builder.AddSystem(RgbdSensor(
-        parent, config.X_PC, ColorRenderCamera(core, False),
-        DepthRenderCamera(core, DepthRange(config.near, config.far))))
+    core = RenderCameraCore(RENDERER, config.info(), ClippingRange(config.near, config.far), RigidTransform())
+    sensor = builder.AddSystem(
+        RgbdSensor(
+            parent,
+            config.X_PC,
+            ColorRenderCamera(core, False),
+            DepthRenderCamera(core, DepthRange(config.near, config.far)),
+        )
+    )
     sensor.set_name(f"camera_{config.name}")
     builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())
     return sensor

@@ -13,7 +13,11 @@ from tqdm import tqdm
 
 from assembly.gearset import gear_spec
 from assembly.scripted_motion import (
-    KeyframePlan, KeyframePlayer, ScriptedInsertionConfig, append_pick_and_insert, append_return,
+    KeyframePlan,
+    KeyframePlayer,
+    ScriptedInsertionConfig,
+    append_pick_and_insert,
+    append_return,
     start_keyframe_plan,
 )
 from assembly.station import Station, StationConfig, build_station, drive_station
@@ -35,8 +39,7 @@ class AssemblyConfig:
         for name in list(self.order) + list(self.belief_offsets):
             gear_spec(name)
             if name not in self.station.world.gears:
-                raise ValueError(f"gear {name!r} is not in the station's gears "
-                                 f"{list(self.station.world.gears)}")
+                raise ValueError(f"gear {name!r} is not in the station's gears {list(self.station.world.gears)}")
         if len(set(self.order)) != len(self.order):
             raise ValueError(f"order {self.order} names a gear twice")
 
@@ -63,17 +66,20 @@ def build_assembly(config: AssemblyConfig, meshcat: Meshcat | None = None) -> As
     for gear in config.order:
         x, y, yaw = world.gear_start_poses[gear]
         dx, dy = config.belief_offsets.get(gear, (0.0, 0.0))
-        append_pick_and_insert(plan, gear, planar_pose(x + dx, y + dy, yaw),
-                               station.models.X_WS(gear), config.motion)
+        append_pick_and_insert(plan, gear, planar_pose(x + dx, y + dy, yaw), station.models.X_WS(gear), config.motion)
     append_return(plan, X_WT0, config.motion)
     simulator = Simulator(drive_station(station, KeyframePlayer(plan)))
     simulator.Initialize()
     return AssemblyRun(station, plan, simulator)
 
 
-def run_assembly(config: AssemblyConfig | None = None, meshcat: Meshcat | None = None,
-                 record: Path | None = None, realtime: bool = False,
-                 progress: bool = True) -> dict:
+def run_assembly(
+    config: AssemblyConfig | None = None,
+    meshcat: Meshcat | None = None,
+    record: Path | None = None,
+    realtime: bool = False,
+    progress: bool = True,
+) -> dict:
     """Run the scripted assembly to the end of its plan; return the per-gear summary
     {"gears": {name: {"inserted", "lateral_error_m", "height_error_m", "time_s"}}, "sim_time_s",
     "wall_time_s"} plus "sim_error" (a string) if a physics step failed."""
@@ -119,8 +125,12 @@ def assembly_summary(run: AssemblyRun, gears: tuple[str, ...]) -> dict:
     for gear in gears:
         err = run.station.insertion_error(run.root_context, gear)
         t0, t1 = run.plan.gear_intervals[gear]
-        out[gear] = {"inserted": bool(err.inserted), "lateral_error_m": err.lateral_m,
-                     "height_error_m": abs(err.height_m), "time_s": float(t1 - t0)}
+        out[gear] = {
+            "inserted": bool(err.inserted),
+            "lateral_error_m": err.lateral_m,
+            "height_error_m": abs(err.height_m),
+            "time_s": float(t1 - t0),
+        }
     return {"gears": out}
 
 
@@ -128,10 +138,14 @@ def format_summary(summary: dict) -> str:
     """A small table of the per-gear outcome."""
     lines = [f"{'gear':<8} {'inserted':<9} {'lateral [mm]':>12} {'height [mm]':>12} {'time [s]':>9}"]
     for name, g in summary["gears"].items():
-        lines.append(f"{name:<8} {str(g['inserted']):<9} {1e3 * g['lateral_error_m']:>12.2f} "
-                     f"{1e3 * g['height_error_m']:>12.2f} {g['time_s']:>9.1f}")
-    lines.append(f"sim {summary['sim_time_s']:.1f} s in {summary['wall_time_s']:.1f} s wall "
-                 f"({summary['sim_time_s'] / max(summary['wall_time_s'], 1e-9):.2f}x real time)")
+        lines.append(
+            f"{name:<8} {str(g['inserted']):<9} {1e3 * g['lateral_error_m']:>12.2f} "
+            f"{1e3 * g['height_error_m']:>12.2f} {g['time_s']:>9.1f}"
+        )
+    lines.append(
+        f"sim {summary['sim_time_s']:.1f} s in {summary['wall_time_s']:.1f} s wall "
+        f"({summary['sim_time_s'] / max(summary['wall_time_s'], 1e-9):.2f}x real time)"
+    )
     if "sim_error" in summary:
         lines.append(f"SIMULATION ERROR: {summary['sim_error']}")
     return "\n".join(lines)

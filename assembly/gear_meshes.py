@@ -158,18 +158,30 @@ class ContactProperties:
 # and for boxes; the hints are written so that a swap to a primitive keeps a sensible resolution.
 GEAR_CONTACT = ContactProperties("rigid", mu_dynamic=0.35, mu_static=0.40, hunt_crossley_dissipation=20.0)
 PLATE_CONTACT = ContactProperties(
-    "compliant", mu_dynamic=0.3, mu_static=0.3, hunt_crossley_dissipation=20.0,
+    "compliant",
+    mu_dynamic=0.3,
+    mu_static=0.3,
+    hunt_crossley_dissipation=20.0,
     # The plate is only touched by flat gear bottoms: a coarse mesh suffices.
-    hydroelastic_modulus=1e7, mesh_resolution_hint=0.01,
+    hydroelastic_modulus=1e7,
+    mesh_resolution_hint=0.01,
 )
 SHAFT_CONTACT = ContactProperties(
-    "compliant", mu_dynamic=0.3, mu_static=0.3, hunt_crossley_dissipation=20.0,
+    "compliant",
+    mu_dynamic=0.3,
+    mu_static=0.3,
+    hunt_crossley_dissipation=20.0,
     # ~1 mm resolution for a 4.5 mm shaft (Drake's 2 cm default is far too coarse; docs/models.md#sources).
-    hydroelastic_modulus=1e7, mesh_resolution_hint=0.001,
+    hydroelastic_modulus=1e7,
+    mesh_resolution_hint=0.001,
 )
 TABLE_CONTACT = ContactProperties(
-    "compliant", mu_dynamic=0.5, mu_static=0.5, hunt_crossley_dissipation=20.0,
-    hydroelastic_modulus=1e7, mesh_resolution_hint=0.05,
+    "compliant",
+    mu_dynamic=0.5,
+    mu_static=0.5,
+    hunt_crossley_dissipation=20.0,
+    hydroelastic_modulus=1e7,
+    mesh_resolution_hint=0.05,
 )
 
 
@@ -234,8 +246,7 @@ def canonical_mesh(vertices: np.ndarray, faces: np.ndarray, decimals: int) -> tu
     out = new_index[faces]
     collapsed = (out[:, 0] == out[:, 1]) | (out[:, 1] == out[:, 2]) | (out[:, 2] == out[:, 0])
     if np.any(collapsed):
-        raise ValueError(f"{int(collapsed.sum())} faces lose a corner when vertices are rounded to "
-                         f"{decimals} decimals")
+        raise ValueError(f"{int(collapsed.sum())} faces lose a corner when vertices are rounded to {decimals} decimals")
     shift = np.argmin(out, axis=1)[:, None]
     out = np.take_along_axis(out, (shift + np.arange(3)) % 3, axis=1)
     out = out[np.lexsort(out.T[::-1])]
@@ -308,8 +319,9 @@ class _MeshBuilder:
         ends = np.cumsum([len(loop) for loop in loops]).astype(np.uint32)
         tris = np.asarray(mapbox_earcut.triangulate_float64(xy, ends), dtype=np.int64).reshape(-1, 3)
         p = xy[tris]
-        area2 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (
-            p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])
+        area2 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (
+            p[:, 2, 0] - p[:, 0, 0]
+        )
         flip = (area2 < 0) if up else (area2 > 0)
         tris[flip] = tris[flip][:, ::-1]
         self._faces.append(idx[tris])
@@ -340,8 +352,12 @@ def _involute_function(pressure_angle: np.ndarray | float) -> np.ndarray:
     return np.tan(pressure_angle) - pressure_angle
 
 
-def involute_outline(spec: GearSpec, flank_samples: int = FLANK_SAMPLES,
-                     tip_points: int = TIP_ARC_POINTS, root_points: int = ROOT_ARC_POINTS) -> np.ndarray:
+def involute_outline(
+    spec: GearSpec,
+    flank_samples: int = FLANK_SAMPLES,
+    tip_points: int = TIP_ARC_POINTS,
+    root_points: int = ROOT_ARC_POINTS,
+) -> np.ndarray:
     """Closed outline (K, 2) of an involute spur gear, counter-clockwise, in the gear frame [m].
 
     Module `gearset.GEAR_MODULE`, 20 degree pressure angle, tooth thickness half the circular pitch on
@@ -352,8 +368,7 @@ def involute_outline(spec: GearSpec, flank_samples: int = FLANK_SAMPLES,
     base_radius = spec.pitch_radius * math.cos(GEAR_PRESSURE_ANGLE)
     tip, root = spec.tip_radius, spec.root_radius
     if not root < spec.pitch_radius < tip:
-        raise ValueError(f"gear {spec.name!r}: need root < pitch < tip radius, got {root}, "
-                         f"{spec.pitch_radius}, {tip}")
+        raise ValueError(f"gear {spec.name!r}: need root < pitch < tip radius, got {root}, {spec.pitch_radius}, {tip}")
     # Flank half-angle from the tooth's centre line at radius r (>= base radius).
     half_at_pitch = np.pi / (2 * spec.teeth) + _involute_function(GEAR_PRESSURE_ANGLE)
 
@@ -362,9 +377,10 @@ def involute_outline(spec: GearSpec, flank_samples: int = FLANK_SAMPLES,
 
     # Sample the involute uniformly in its roll angle (denser where it curves most).
     start = max(base_radius, root)
-    roll = np.linspace(math.sqrt((start / base_radius) ** 2 - 1.0),
-                       math.sqrt((tip / base_radius) ** 2 - 1.0), flank_samples)
-    flank_r = base_radius * np.sqrt(1.0 + roll ** 2)
+    roll = np.linspace(
+        math.sqrt((start / base_radius) ** 2 - 1.0), math.sqrt((tip / base_radius) ** 2 - 1.0), flank_samples
+    )
+    flank_r = base_radius * np.sqrt(1.0 + roll**2)
     flank_half = half_angle(flank_r)
     if flank_half[-1] <= 0.0:
         raise ValueError(f"gear {spec.name!r}: teeth are pointed before the tip circle")
@@ -380,12 +396,14 @@ def involute_outline(spec: GearSpec, flank_samples: int = FLANK_SAMPLES,
     tip_angles = -flank_half[-1] + 2.0 * flank_half[-1] * tip_frac
     root_frac = np.arange(1, root_points + 1) / (root_points + 1)
     root_angles = root_half + (pitch_angle - 2.0 * root_half) * root_frac
-    one_tooth = np.concatenate([
-        _polar(flank_r, -flank_half),  # rising flank (clockwise side of the tooth)
-        _polar(tip, tip_angles),  # tip land
-        _polar(flank_r[::-1], flank_half[::-1]),  # falling flank
-        _polar(root, root_angles),  # root land up to the next tooth
-    ])
+    one_tooth = np.concatenate(
+        [
+            _polar(flank_r, -flank_half),  # rising flank (clockwise side of the tooth)
+            _polar(tip, tip_angles),  # tip land
+            _polar(flank_r[::-1], flank_half[::-1]),  # falling flank
+            _polar(root, root_angles),  # root land up to the next tooth
+        ]
+    )
     teeth = []
     for k in range(spec.teeth):
         c, s = math.cos(k * pitch_angle), math.sin(k * pitch_angle)
@@ -393,8 +411,9 @@ def involute_outline(spec: GearSpec, flank_samples: int = FLANK_SAMPLES,
     return np.concatenate(teeth)
 
 
-def _bored_prism(outer_xy: np.ndarray, bore_sides: int, bore_circumradius: float,
-                 chamfer_circumradius: float, bore_phase: float) -> TriangleMesh:
+def _bored_prism(
+    outer_xy: np.ndarray, bore_sides: int, bore_circumradius: float, chamfer_circumradius: float, bore_phase: float
+) -> TriangleMesh:
     """A prism of height `GEAR_THICKNESS` over the outline `outer_xy`, with a bore: a regular
     `bore_sides`-gon prism of circumradius `bore_circumradius`, widened by 45 degree chamfers to
     `chamfer_circumradius` at both faces (z = 0 and z = GEAR_THICKNESS)."""
@@ -403,8 +422,12 @@ def _bored_prism(outer_xy: np.ndarray, bore_sides: int, bore_circumradius: float
     outer_bottom = builder.ring(outer_xy, 0.0)
     outer_top = builder.ring(outer_xy, h)
     builder.strip(outer_bottom, outer_top, facing_axis=False)
-    bore_profile = [(0.0, chamfer_circumradius), (ch, bore_circumradius),
-                    (h - ch, bore_circumradius), (h, chamfer_circumradius)]
+    bore_profile = [
+        (0.0, chamfer_circumradius),
+        (ch, bore_circumradius),
+        (h - ch, bore_circumradius),
+        (h, chamfer_circumradius),
+    ]
     bore = [builder.ring(_regular_polygon(bore_sides, r, bore_phase), z) for z, r in bore_profile]
     for lower, upper in zip(bore[:-1], bore[1:]):
         builder.strip(lower, upper, facing_axis=True)
@@ -474,8 +497,9 @@ class MassProperties:
     inertia: np.ndarray
 
     @staticmethod
-    def of_mesh(mesh: TriangleMesh | trimesh.Trimesh, density: float,
-                offset: np.ndarray | None = None) -> "MassProperties":
+    def of_mesh(
+        mesh: TriangleMesh | trimesh.Trimesh, density: float, offset: np.ndarray | None = None
+    ) -> "MassProperties":
         """Mass properties of a closed mesh of uniform `density`, translated by `offset`."""
         tm = mesh.to_trimesh() if isinstance(mesh, TriangleMesh) else mesh
         if not tm.is_volume:
@@ -497,8 +521,7 @@ class MassProperties:
         return MassProperties(mass, com, inertia)
 
 
-def _box_mass_properties(size: tuple[float, float, float], density: float,
-                         center: np.ndarray) -> MassProperties:
+def _box_mass_properties(size: tuple[float, float, float], density: float, center: np.ndarray) -> MassProperties:
     return MassProperties.of_mesh(box_mesh(size), density, offset=center)
 
 
@@ -526,8 +549,10 @@ def write_obj(mesh: TriangleMesh, path: pathlib.Path, normals: bool = False) -> 
         `path`.
     """
     mesh = mesh.canonical()
-    lines = [f"# {path.name}: generated by assembly/gear_meshes.py; units: metres",
-             f"# {len(mesh.vertices)} vertices, {len(mesh.faces)} triangles"]
+    lines = [
+        f"# {path.name}: generated by assembly/gear_meshes.py; units: metres",
+        f"# {len(mesh.vertices)} vertices, {len(mesh.faces)} triangles",
+    ]
     lines += ["v " + " ".join(_fixed(c, _OBJ_FLOAT) for c in v) for v in mesh.vertices]
     faces = mesh.faces + 1
     if normals:
@@ -536,8 +561,7 @@ def write_obj(mesh: TriangleMesh, path: pathlib.Path, normals: bool = False) -> 
         for text in normal_text:
             unique.setdefault(text, len(unique) + 1)
         lines += [f"vn {text}" for text in unique]
-        lines += [f"f {a}//{n} {b}//{n} {c}//{n}"
-                  for (a, b, c), n in zip(faces, (unique[t] for t in normal_text))]
+        lines += [f"f {a}//{n} {b}//{n} {c}//{n}" for (a, b, c), n in zip(faces, (unique[t] for t in normal_text))]
     else:
         lines += [f"f {a} {b} {c}" for a, b, c in faces]
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -617,37 +641,36 @@ def _box_geometry(size) -> str:
 
 
 def _visual(name: str, geometry: str, rgba, xyz=(0.0, 0.0, 0.0)) -> str:
-    return (f"""
+    return f"""
       <visual name="{name}">
         {_pose(xyz)}
         <geometry>{geometry}</geometry>
         <material><diffuse>{_vec(rgba)}</diffuse></material>
-      </visual>""")
+      </visual>"""
 
 
 def _collision(name: str, geometry: str, contact: ContactProperties, xyz=(0.0, 0.0, 0.0)) -> str:
     props = [f"<drake:{contact.compliance}_hydroelastic/>"]
     if contact.compliance == "compliant":
-        props.append(f"<drake:hydroelastic_modulus>{_num(contact.hydroelastic_modulus)}"
-                     "</drake:hydroelastic_modulus>")
+        props.append(f"<drake:hydroelastic_modulus>{_num(contact.hydroelastic_modulus)}</drake:hydroelastic_modulus>")
         if contact.mesh_resolution_hint is not None:
-            props.append(f"<drake:mesh_resolution_hint>{_num(contact.mesh_resolution_hint)}"
-                         "</drake:mesh_resolution_hint>")
+            props.append(
+                f"<drake:mesh_resolution_hint>{_num(contact.mesh_resolution_hint)}</drake:mesh_resolution_hint>"
+            )
     props += [
-        f"<drake:hunt_crossley_dissipation>{_num(contact.hunt_crossley_dissipation)}"
-        "</drake:hunt_crossley_dissipation>",
+        f"<drake:hunt_crossley_dissipation>{_num(contact.hunt_crossley_dissipation)}</drake:hunt_crossley_dissipation>",
         f"<drake:mu_dynamic>{_num(contact.mu_dynamic)}</drake:mu_dynamic>",
         f"<drake:mu_static>{_num(contact.mu_static)}</drake:mu_static>",
     ]
     body = "\n          ".join(props)
-    return (f"""
+    return f"""
       <collision name="{name}">
         {_pose(xyz)}
         <geometry>{geometry}</geometry>
         <drake:proximity_properties>
           {body}
         </drake:proximity_properties>
-      </collision>""")
+      </collision>"""
 
 
 def _inertial(props: MassProperties) -> str:
@@ -655,19 +678,21 @@ def _inertial(props: MassProperties) -> str:
     inertia[np.abs(inertia) < 1e-12 * np.trace(inertia)] = 0.0  # numerical noise off the diagonal
     com = np.where(np.abs(props.com) < 1e-12, 0.0, props.com)  # likewise (a symmetric gear: 1e-19 m)
     (ixx, ixy, ixz), (_, iyy, iyz), (_, _, izz) = inertia
-    return (f"""
+    return (
+        f"""
       <inertial>
         {_pose(com)}
         <mass>{_num(props.mass)}</mass>
         <inertia><ixx>{_num(ixx)}</ixx><ixy>{_num(ixy)}</ixy><ixz>{_num(ixz)}</ixz>"""
-            f"<iyy>{_num(iyy)}</iyy><iyz>{_num(iyz)}</iyz><izz>{_num(izz)}</izz></inertia>\n"
-            "      </inertial>")
+        f"<iyy>{_num(iyy)}</iyy><iyz>{_num(iyz)}</iyz><izz>{_num(izz)}</izz></inertia>\n"
+        "      </inertial>"
+    )
 
 
 def _sdf_model(name: str, comment: str, elements: list[str]) -> str:
     """A one-link SDFormat 1.9 model whose link (named like the model) is at the model frame."""
     body = "".join(elements)
-    return (f"""<?xml version="1.0"?>
+    return f"""<?xml version="1.0"?>
 <!-- {comment}
      Generated by assembly/gear_meshes.py: do not edit; regenerate with
      `python -m assembly.gear_meshes`. -->
@@ -677,7 +702,7 @@ def _sdf_model(name: str, comment: str, elements: list[str]) -> str:
     </link>
   </model>
 </sdf>
-""")
+"""
 
 
 def _mesh_uri(filename: str) -> str:
@@ -688,16 +713,24 @@ def _gear_files(spec: GearSpec, out_dir: pathlib.Path) -> list[pathlib.Path]:
     name = gear_body_name(spec.name)
     visual, collision = gear_visual_mesh(spec), gear_collision_mesh(spec)
     visual_file, collision_file = f"{name}_visual.obj", f"{name}_collision.obj"
-    paths = [write_obj(visual, out_dir / _MESH_SUBDIR / visual_file, normals=True),
-             write_obj(collision, out_dir / _MESH_SUBDIR / collision_file)]
-    comment = (f"{spec.name} spur gear: {spec.teeth} teeth, module {gearset.GEAR_MODULE * 1e3:g} mm, "
-               f"tip radius {spec.tip_radius * 1e3:g} mm. Link frame = gear frame G (origin on the bore "
-               "axis at the bottom face, z up); tooth 0 centred on +x.")
-    sdf = _sdf_model(name, comment, [
-        _inertial(MassProperties.of_mesh(visual, gearset.GEAR_DENSITY)),
-        _visual("visual", _mesh_geometry(_mesh_uri(visual_file)), spec.rgba),
-        _collision("collision", _mesh_geometry(_mesh_uri(collision_file)), GEAR_CONTACT),
-    ])
+    paths = [
+        write_obj(visual, out_dir / _MESH_SUBDIR / visual_file, normals=True),
+        write_obj(collision, out_dir / _MESH_SUBDIR / collision_file),
+    ]
+    comment = (
+        f"{spec.name} spur gear: {spec.teeth} teeth, module {gearset.GEAR_MODULE * 1e3:g} mm, "
+        f"tip radius {spec.tip_radius * 1e3:g} mm. Link frame = gear frame G (origin on the bore "
+        "axis at the bottom face, z up); tooth 0 centred on +x."
+    )
+    sdf = _sdf_model(
+        name,
+        comment,
+        [
+            _inertial(MassProperties.of_mesh(visual, gearset.GEAR_DENSITY)),
+            _visual("visual", _mesh_geometry(_mesh_uri(visual_file)), spec.rgba),
+            _collision("collision", _mesh_geometry(_mesh_uri(collision_file)), GEAR_CONTACT),
+        ],
+    )
     sdf_path = out_dir / f"{name}.sdf"
     sdf_path.write_text(sdf, newline="\n")
     return [sdf_path, *paths]
@@ -707,27 +740,34 @@ def _plate_files(out_dir: pathlib.Path) -> list[pathlib.Path]:
     visual_file, collision_file = "shaft_visual.obj", "shaft_collision.obj"
     plate_file = "plate_collision.obj"
     collision = shaft_mesh(SHAFT_COLLISION_SIDES)
-    paths = [write_obj(shaft_mesh(SHAFT_VISUAL_SIDES), out_dir / _MESH_SUBDIR / visual_file, normals=True),
-             write_obj(collision, out_dir / _MESH_SUBDIR / collision_file),
-             write_obj(box_mesh(gearset.PLATE_SIZE), out_dir / _MESH_SUBDIR / plate_file)]
+    paths = [
+        write_obj(shaft_mesh(SHAFT_VISUAL_SIDES), out_dir / _MESH_SUBDIR / visual_file, normals=True),
+        write_obj(collision, out_dir / _MESH_SUBDIR / collision_file),
+        write_obj(box_mesh(gearset.PLATE_SIZE), out_dir / _MESH_SUBDIR / plate_file),
+    ]
     plate_center = np.array([0.0, 0.0, 0.5 * gearset.PLATE_SIZE[2]])
     shafts = {g: gearset.shaft_position_in_plate(g) for g in gearset.GEAR_NAMES}
     inertia = MassProperties.combine(
         [_box_mass_properties(gearset.PLATE_SIZE, _PLATE_DENSITY, plate_center)]
-        + [MassProperties.of_mesh(collision, _SHAFT_DENSITY, offset=p) for p in shafts.values()])
+        + [MassProperties.of_mesh(collision, _SHAFT_DENSITY, offset=p) for p in shafts.values()]
+    )
     elements = [
         _inertial(inertia),
         _visual("plate_visual", _box_geometry(gearset.PLATE_SIZE), _PLATE_RGBA, plate_center),
-        _collision("plate_collision", _mesh_geometry(_mesh_uri(plate_file), convex=True), PLATE_CONTACT,
-                   plate_center),
+        _collision("plate_collision", _mesh_geometry(_mesh_uri(plate_file), convex=True), PLATE_CONTACT, plate_center),
     ]
     for g, p in shafts.items():
         elements.append(_visual(f"shaft_{g}_visual", _mesh_geometry(_mesh_uri(visual_file)), _SHAFT_RGBA, p))
     for g, p in shafts.items():
-        elements.append(_collision(shaft_collision_name(g), _mesh_geometry(_mesh_uri(collision_file), convex=True),
-                                   SHAFT_CONTACT, p))
-    comment = ("Gear plate with its three shafts. Link frame = plate frame P (origin at the centre of the "
-               "bottom face, z up, shafts along +x). Weld it to the world.")
+        elements.append(
+            _collision(
+                shaft_collision_name(g), _mesh_geometry(_mesh_uri(collision_file), convex=True), SHAFT_CONTACT, p
+            )
+        )
+    comment = (
+        "Gear plate with its three shafts. Link frame = plate frame P (origin at the centre of the "
+        "bottom face, z up, shafts along +x). Weld it to the world."
+    )
     sdf_path = out_dir / "gear_plate.sdf"
     sdf_path.write_text(_sdf_model(PLATE_BODY_NAME, comment, elements), newline="\n")
     return [sdf_path, *paths]
@@ -737,13 +777,19 @@ def _table_files(out_dir: pathlib.Path) -> list[pathlib.Path]:
     center = np.array([TABLE_CENTER_X, 0.0, -0.5 * TABLE_SIZE[2]])
     collision_file = "table_collision.obj"
     mesh_path = write_obj(box_mesh(TABLE_SIZE), out_dir / _MESH_SUBDIR / collision_file)
-    comment = (f"Table top {TABLE_SIZE[0]:g} x {TABLE_SIZE[1]:g} x {TABLE_SIZE[2]:g} m, top face at z = 0, "
-               f"centred at x = {TABLE_CENTER_X:g} m. Weld it to the world.")
-    sdf = _sdf_model(TABLE_BODY_NAME, comment, [
-        _inertial(_box_mass_properties(TABLE_SIZE, _TABLE_DENSITY, center)),
-        _visual("visual", _box_geometry(TABLE_SIZE), _TABLE_RGBA, center),
-        _collision("collision", _mesh_geometry(_mesh_uri(collision_file), convex=True), TABLE_CONTACT, center),
-    ])
+    comment = (
+        f"Table top {TABLE_SIZE[0]:g} x {TABLE_SIZE[1]:g} x {TABLE_SIZE[2]:g} m, top face at z = 0, "
+        f"centred at x = {TABLE_CENTER_X:g} m. Weld it to the world."
+    )
+    sdf = _sdf_model(
+        TABLE_BODY_NAME,
+        comment,
+        [
+            _inertial(_box_mass_properties(TABLE_SIZE, _TABLE_DENSITY, center)),
+            _visual("visual", _box_geometry(TABLE_SIZE), _TABLE_RGBA, center),
+            _collision("collision", _mesh_geometry(_mesh_uri(collision_file), convex=True), TABLE_CONTACT, center),
+        ],
+    )
     sdf_path = out_dir / "table.sdf"
     sdf_path.write_text(sdf, newline="\n")
     return [sdf_path, mesh_path]

@@ -74,11 +74,11 @@ def _same_obj_geometry(a: Path, b: Path) -> bool:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=MODELS_DIR, help="models directory")
-    parser.add_argument("--check", action="store_true",
-                        help="regenerate into a temporary folder and list differences from --out")
+    parser.add_argument(
+        "--check", action="store_true", help="regenerate into a temporary folder and list differences from --out"
+    )
     args = parser.parse_args()
     if not args.check:
         paths = generate_all(args.out)

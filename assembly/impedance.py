@@ -36,10 +36,8 @@ class ImpedanceGains:
     """
 
     # [rx, ry, rz, x, y, z] order is Drake's SpatialVelocity order (rotational first).
-    stiffness: np.ndarray = field(
-        default_factory=lambda: np.array([50.0, 50.0, 50.0, 300.0, 300.0, 300.0]))
-    damping: np.ndarray = field(
-        default_factory=lambda: np.array([5.0, 5.0, 5.0, 100.0, 100.0, 100.0]))
+    stiffness: np.ndarray = field(default_factory=lambda: np.array([50.0, 50.0, 50.0, 300.0, 300.0, 300.0]))
+    damping: np.ndarray = field(default_factory=lambda: np.array([5.0, 5.0, 5.0, 100.0, 100.0, 100.0]))
     nullspace_stiffness: float = 10.0
     nullspace_damping: float = 3.0
 
@@ -51,7 +49,8 @@ class ImpedanceGains:
             if value.shape != (6,) or not np.all(np.isfinite(value)) or np.any(value < 0):
                 raise ValueError(
                     f"ImpedanceGains.{name} = {value!r}; expected 6 finite non-negative values "
-                    "ordered [rx, ry, rz, x, y, z]")
+                    "ordered [rx, ry, rz, x, y, z]"
+                )
 
 
 def rotation_error(R_desired: np.ndarray, R_actual: np.ndarray) -> np.ndarray:
@@ -86,8 +85,15 @@ class CartesianImpedanceController(LeafSystem):
     kinematics and gravity; the arm is the model instance `arm` in that plant.
     """
 
-    def __init__(self, plant: MultibodyPlant, arm: ModelInstanceIndex, tool_frame: Frame,
-                 gains: ImpedanceGains, torque_limits: np.ndarray, q_nominal: np.ndarray) -> None:
+    def __init__(
+        self,
+        plant: MultibodyPlant,
+        arm: ModelInstanceIndex,
+        tool_frame: Frame,
+        gains: ImpedanceGains,
+        torque_limits: np.ndarray,
+        q_nominal: np.ndarray,
+    ) -> None:
         super().__init__()
         self._plant = plant
         self._plant_context = plant.CreateDefaultContext()
@@ -101,33 +107,38 @@ class CartesianImpedanceController(LeafSystem):
         self._q_nominal = np.asarray(q_nominal, dtype=float)
         if self._tau_max.shape != (self._n,) or self._q_nominal.shape != (self._n,):
             raise ValueError(f"torque_limits and q_nominal must have {self._n} entries")
-        self._joint_damping = np.concatenate([
-            plant.get_joint(j).default_damping_vector() for j in plant.GetJointIndices(arm)])
+        self._joint_damping = np.concatenate(
+            [plant.get_joint(j).default_damping_vector() for j in plant.GetJointIndices(arm)]
+        )
         # Columns of the full-plant Jacobian that belong to the arm.
-        self._v_idx = np.array([
-            plant.get_joint(j).velocity_start() + k
-            for j in plant.GetJointIndices(arm)
-            for k in range(plant.get_joint(j).num_velocities())])
+        self._v_idx = np.array(
+            [
+                plant.get_joint(j).velocity_start() + k
+                for j in plant.GetJointIndices(arm)
+                for k in range(plant.get_joint(j).num_velocities())
+            ]
+        )
 
         self._state_port = self.DeclareVectorInputPort("arm_state", 2 * self._n)
-        self._pose_port = self.DeclareAbstractInputPort(
-            "X_WT_desired", AbstractValue.Make(RigidTransform()))
+        self._pose_port = self.DeclareAbstractInputPort("X_WT_desired", AbstractValue.Make(RigidTransform()))
         self._velocity_port = self.DeclareVectorInputPort("V_WT_desired", 6)
         self._acceleration_port = self.DeclareVectorInputPort("A_WT_desired", 6)
         cache = self.DeclareCacheEntry(
-            "solution", ValueProducer(allocate=AbstractValue.Make(_Solution(self._n)).Clone,
-                                      calc=self._solve),
-            {self.all_input_ports_ticket()})
+            "solution",
+            ValueProducer(allocate=AbstractValue.Make(_Solution(self._n)).Clone, calc=self._solve),
+            {self.all_input_ports_ticket()},
+        )
         self._cache = cache
         self.DeclareVectorOutputPort(
-            "torque", self._n, lambda c, o: o.SetFromVector(self._get(c).torque),
-            {cache.ticket()})
+            "torque", self._n, lambda c, o: o.SetFromVector(self._get(c).torque), {cache.ticket()}
+        )
         self.DeclareAbstractOutputPort(
-            "X_WT", lambda: AbstractValue.Make(RigidTransform()),
-            lambda c, o: o.set_value(self.tool_pose(self._state_port.Eval(c)[:self._n])),
-            {self._state_port.ticket()})
-        self.DeclareVectorOutputPort(
-            "wrench", 6, lambda c, o: o.SetFromVector(self._get(c).wrench), {cache.ticket()})
+            "X_WT",
+            lambda: AbstractValue.Make(RigidTransform()),
+            lambda c, o: o.set_value(self.tool_pose(self._state_port.Eval(c)[: self._n])),
+            {self._state_port.ticket()},
+        )
+        self.DeclareVectorOutputPort("wrench", 6, lambda c, o: o.SetFromVector(self._get(c).wrench), {cache.ticket()})
 
     @property
     def gains(self) -> ImpedanceGains:
@@ -158,11 +169,15 @@ class CartesianImpedanceController(LeafSystem):
         plant.SetVelocities(pc, self._arm, v)
         X_WT = self._tool.CalcPoseInWorld(pc)
         J = plant.CalcJacobianSpatialVelocity(
-            pc, JacobianWrtVariable.kV, self._tool, np.zeros(3),
-            plant.world_frame(), plant.world_frame())[:, self._v_idx]
+            pc, JacobianWrtVariable.kV, self._tool, np.zeros(3), plant.world_frame(), plant.world_frame()
+        )[:, self._v_idx]
         V = J @ v
-        error = np.concatenate([rotation_error(X_WTd.rotation().matrix(), X_WT.rotation().matrix()),
-                                X_WTd.translation() - X_WT.translation()])
+        error = np.concatenate(
+            [
+                rotation_error(X_WTd.rotation().matrix(), X_WT.rotation().matrix()),
+                X_WTd.translation() - X_WT.translation(),
+            ]
+        )
         g = self._gains
         wrench = g.stiffness * error + g.damping * (self._optional(self._velocity_port, context) - V)
         # Operational-space inertia; the reflected rotor inertia is part of M.
@@ -171,8 +186,8 @@ class CartesianImpedanceController(LeafSystem):
         Lambda = np.linalg.inv(J @ M_inv_JT + 1e-6 * np.eye(6))
         # Desired tool acceleration minus the part J-dot v that joint velocities already produce.
         Jdot_v = plant.CalcBiasSpatialAcceleration(
-            pc, JacobianWrtVariable.kV, self._tool, np.zeros(3),
-            plant.world_frame(), plant.world_frame()).get_coeffs()
+            pc, JacobianWrtVariable.kV, self._tool, np.zeros(3), plant.world_frame(), plant.world_frame()
+        ).get_coeffs()
         A_desired = self._optional(self._acceleration_port, context)
         tau = J.T @ (wrench + Lambda @ (A_desired - Jdot_v))
         # Null-space posture through Khatib's dynamically consistent projector

@@ -21,15 +21,26 @@ from typing import Any
 
 import numpy as np
 from pydrake.geometry import (
-    AddCompliantHydroelasticProperties, AddContactMaterial, Box, Convex, ProximityProperties,
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    Box,
+    Convex,
+    ProximityProperties,
     SceneGraph,
 )
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import (
-    AddMultibodyPlant, CoulombFriction, MultibodyPlant, MultibodyPlantConfig,
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlant,
+    MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import (
-    FixedOffsetFrame, PdControllerGains, PrismaticJoint, RevoluteJoint, SpatialInertia,
+    FixedOffsetFrame,
+    PdControllerGains,
+    PrismaticJoint,
+    RevoluteJoint,
+    SpatialInertia,
     UnitInertia,
 )
 from pydrake.systems.framework import Diagram, DiagramBuilder
@@ -82,17 +93,16 @@ class FastInsertionModel:
     @staticmethod
     def tool_pose_of(q: np.ndarray) -> RigidTransform:
         """Tool pose for joint positions (x, y, z, yaw)."""
-        return RigidTransform(RotationMatrix.MakeZRotation(q[3]) @ RotationMatrix.MakeXRotation(np.pi),
-                              q[:3])
+        return RigidTransform(RotationMatrix.MakeZRotation(q[3]) @ RotationMatrix.MakeXRotation(np.pi), q[:3])
 
 
 def _proximity(contact, compliant: bool) -> ProximityProperties:
     props = ProximityProperties()
-    AddContactMaterial(contact.hunt_crossley_dissipation, None,
-                       CoulombFriction(contact.mu_static, contact.mu_dynamic), props)
+    AddContactMaterial(
+        contact.hunt_crossley_dissipation, None, CoulombFriction(contact.mu_static, contact.mu_dynamic), props
+    )
     if compliant:
-        AddCompliantHydroelasticProperties(contact.mesh_resolution_hint, contact.hydroelastic_modulus,
-                                           props)
+        AddCompliantHydroelasticProperties(contact.mesh_resolution_hint, contact.hydroelastic_modulus, props)
     return props
 
 
@@ -103,12 +113,17 @@ def add_fast_fixtures(plant: MultibodyPlant, config: FastInsertionConfig) -> Rig
     world = plant.world_body()
     plate_props = _proximity(PLATE_CONTACT, compliant=False)
     plant.RegisterCollisionGeometry(
-        world, X_WP @ RigidTransform([0, 0, PLATE_SIZE[2] / 2]), Box(*PLATE_SIZE), "plate", plate_props)
+        world, X_WP @ RigidTransform([0, 0, PLATE_SIZE[2] / 2]), Box(*PLATE_SIZE), "plate", plate_props
+    )
     shaft_mesh = gearset_model_paths()["plate"].parent / "meshes" / "shaft_collision.obj"
     for name in GEAR_NAMES:
         plant.RegisterCollisionGeometry(
-            world, X_WP @ RigidTransform(shaft_position_in_plate(name)), Convex(str(shaft_mesh)),
-            f"shaft_{name}", _proximity(SHAFT_CONTACT, compliant=True))
+            world,
+            X_WP @ RigidTransform(shaft_position_in_plate(name)),
+            Convex(str(shaft_mesh)),
+            f"shaft_{name}",
+            _proximity(SHAFT_CONTACT, compliant=True),
+        )
     return X_WP
 
 
@@ -124,8 +139,9 @@ def add_fast_tool(plant: MultibodyPlant, config: FastInsertionConfig, instance=N
     world = plant.world_body()
     inertia = SpatialInertia(1e-3, np.zeros(3), UnitInertia.SolidSphere(0.01))
     links = [plant.AddRigidBody(f"{n}_link", instance, inertia) for n in JOINT_NAMES[:3]]
-    tool = plant.AddRigidBody("tool", instance, SpatialInertia(
-        TOOL_MASS, np.zeros(3), UnitInertia.SolidBox(0.06, 0.2, 0.06)))
+    tool = plant.AddRigidBody(
+        "tool", instance, SpatialInertia(TOOL_MASS, np.zeros(3), UnitInertia.SolidBox(0.06, 0.2, 0.06))
+    )
     parents = [world] + links
     children = links + [tool]
     axes = [np.array(a, dtype=float) for a in ((1, 0, 0), (0, 1, 0), (0, 0, 1))]
@@ -141,16 +157,20 @@ def add_fast_tool(plant: MultibodyPlant, config: FastInsertionConfig, instance=N
         K = config.gains.stiffness[3 + k] if k < 3 else config.gains.stiffness[2]
         D = config.gains.damping[3 + k] if k < 3 else config.gains.damping[2]
         actuator.set_controller_gains(PdControllerGains(p=float(K), d=float(D)))
-    tcp = plant.AddFrame(FixedOffsetFrame(
-        "tool_tcp", tool.body_frame(), RigidTransform(RotationMatrix.MakeXRotation(np.pi), np.zeros(3))))
+    tcp = plant.AddFrame(
+        FixedOffsetFrame(
+            "tool_tcp", tool.body_frame(), RigidTransform(RotationMatrix.MakeXRotation(np.pi), np.zeros(3))
+        )
+    )
     return tool, add_held_gear(plant, config.gear, tcp, auto_renaming=copy)
 
 
 def fast_plant_config(config: FastInsertionConfig) -> MultibodyPlantConfig:
     """The reduced model's plant: discrete at config.time_step, hydroelastic with point-contact
     fallback, SAP "lagged"."""
-    return MultibodyPlantConfig(time_step=config.time_step, contact_model="hydroelastic_with_fallback",
-                                discrete_contact_approximation="lagged")
+    return MultibodyPlantConfig(
+        time_step=config.time_step, contact_model="hydroelastic_with_fallback", discrete_contact_approximation="lagged"
+    )
 
 
 def build_fast_insertion(config: FastInsertionConfig | None = None) -> FastInsertionModel:
@@ -174,6 +194,5 @@ def build_fast_insertion(config: FastInsertionConfig | None = None) -> FastInser
 
 def gravity_feedforward(model: FastInsertionModel) -> np.ndarray:
     """Constant actuation that holds the tool and gear up against gravity (z joint)."""
-    held_mass = sum(model.plant.get_body(b).default_mass()
-                    for b in model.plant.GetBodyIndices(model.held.instance))
+    held_mass = sum(model.plant.get_body(b).default_mass() for b in model.plant.GetBodyIndices(model.held.instance))
     return np.array([0.0, 0.0, (TOOL_MASS + held_mass + 3e-3) * GRAVITY, 0.0])

@@ -19,8 +19,7 @@ from assembly.panda_model import HAND_TCP_OFFSET
 from assembly.scripted_motion import KeyframePlan, KeyframePlayer, segment_time, start_keyframe_plan
 from assembly.station import Station, StationConfig, build_station, drive_station
 
-__all__ = ["InspectConfig", "InspectRun", "X_HT", "append_inspect", "inspect_tool_pose",
-           "run_inspect"]
+__all__ = ["InspectConfig", "InspectRun", "X_HT", "append_inspect", "inspect_tool_pose", "run_inspect"]
 
 # Tool frame T (panda_hand_tcp) in the hand frame H: HAND_TCP_OFFSET along the hand's z.
 X_HT = RigidTransform([0.0, 0.0, HAND_TCP_OFFSET])
@@ -37,20 +36,25 @@ class InspectConfig:
     settle: float = 0.6
     finger_clearance: float = 0.02  # fingertips (tool frame) above the gears' top faces [m]
     settle_tolerance: float = 0.002  # the picture waits until the tool is this close [m] ...
-    max_wait: float = 4.0            # ... or this long after the planned picture time [s]
+    max_wait: float = 4.0  # ... or this long after the planned picture time [s]
 
     def __post_init__(self) -> None:
         if not 0.03 <= self.camera_height <= 0.6:
-            raise ValueError(f"camera_height = {self.camera_height}; expected 0.03..0.6 m above "
-                             "the gear (closer than the camera's near plane makes no picture)")
-        for name in ("speed", "min_segment", "settle", "finger_clearance", "settle_tolerance",
-                     "max_wait"):
+            raise ValueError(
+                f"camera_height = {self.camera_height}; expected 0.03..0.6 m above "
+                "the gear (closer than the camera's near plane makes no picture)"
+            )
+        for name in ("speed", "min_segment", "settle", "finger_clearance", "settle_tolerance", "max_wait"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"InspectConfig.{name} = {getattr(self, name)}; expected > 0")
 
 
-def inspect_tool_pose(gear_xy: tuple[float, float], camera: CameraConfig | None = None,
-                      config: InspectConfig | None = None, yaw: float = 0.0) -> RigidTransform:
+def inspect_tool_pose(
+    gear_xy: tuple[float, float],
+    camera: CameraConfig | None = None,
+    config: InspectConfig | None = None,
+    yaw: float = 0.0,
+) -> RigidTransform:
     """Tool pose X_WT that puts the wrist camera `config.camera_height` above the gear's top face
     with its optical axis through the gear's axis; the hand points down, turned `yaw` about
     world z. The camera is tilted on the hand, so the hand tilts to make the view vertical."""
@@ -66,26 +70,33 @@ def inspect_tool_pose(gear_xy: tuple[float, float], camera: CameraConfig | None 
     return RigidTransform(R_WT, p_WT)
 
 
-def append_inspect(plan: KeyframePlan, gear: str, gear_xy: tuple[float, float],
-                   camera: CameraConfig | None = None, config: InspectConfig | None = None) -> float:
+def append_inspect(
+    plan: KeyframePlan,
+    gear: str,
+    gear_xy: tuple[float, float],
+    camera: CameraConfig | None = None,
+    config: InspectConfig | None = None,
+) -> float:
     """Append inspect(gear) to `plan` (from its last keyframe): move to the inspection pose above
     the believed gear position `gear_xy` and hold still. Returns the time of the picture."""
     gear_spec(gear)
     config = config or InspectConfig()
     if not plan.keyframes:
-        raise ValueError("plan has no start keyframe; "
-                         "begin it with start_keyframe_plan(X_WT_now, width)")
+        raise ValueError("plan has no start keyframe; begin it with start_keyframe_plan(X_WT_now, width)")
     last = plan.keyframes[-1]
     R = last.X_WT.rotation().matrix()
     current_yaw = float(np.arctan2(R[1, 0], R[0, 0]))
     target = inspect_tool_pose(gear_xy, camera, config, yaw=_camera_yaw(current_yaw, camera))
     low = GEAR_THICKNESS + config.finger_clearance
     if target.translation()[2] < low:
-        raise ValueError(f"camera_height = {config.camera_height} m puts the fingertips at "
-                         f"z = {target.translation()[2]:.3f} m, below {low:.3f} m (the gears' tops "
-                         f"+ finger_clearance); raise camera_height")
-    plan.append(segment_time(last.X_WT, target, config.speed, config.min_segment), target, last.width,
-                f"{gear}: inspect")
+        raise ValueError(
+            f"camera_height = {config.camera_height} m puts the fingertips at "
+            f"z = {target.translation()[2]:.3f} m, below {low:.3f} m (the gears' tops "
+            f"+ finger_clearance); raise camera_height"
+        )
+    plan.append(
+        segment_time(last.X_WT, target, config.speed, config.min_segment), target, last.width, f"{gear}: inspect"
+    )
     plan.append(config.settle, target, last.width, f"{gear}: hold for the picture")
     return plan.end_time
 
@@ -115,8 +126,12 @@ class InspectRun:
         return self.simulator.get_context()
 
 
-def run_inspect(gear: str, gear_xy: tuple[float, float], station_config: StationConfig | None = None,
-                config: InspectConfig | None = None) -> InspectRun:
+def run_inspect(
+    gear: str,
+    gear_xy: tuple[float, float],
+    station_config: StationConfig | None = None,
+    config: InspectConfig | None = None,
+) -> InspectRun:
     """Build a station, play inspect(gear) from the start configuration towards the believed
     `gear_xy` and simulate to the picture time."""
     station_config = station_config or StationConfig()
@@ -133,7 +148,9 @@ def run_inspect(gear: str, gear_xy: tuple[float, float], station_config: Station
     config = config or InspectConfig()
     target = plan.keyframes[-1].X_WT.translation()
     context = simulator.get_context()
-    while (np.linalg.norm(station.tool_pose(context).translation() - target) > config.settle_tolerance
-           and context.get_time() < t + config.max_wait):
+    while (
+        np.linalg.norm(station.tool_pose(context).translation() - target) > config.settle_tolerance
+        and context.get_time() < t + config.max_wait
+    ):
         simulator.AdvanceTo(context.get_time() + 0.1)
     return InspectRun(station, simulator, plan, context.get_time())

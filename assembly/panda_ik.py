@@ -10,26 +10,35 @@ from pydrake.solvers import Solve
 from assembly.panda_model import Q_HOME
 
 
-def solve_tool_ik(X_WT: RigidTransform, q_nominal: np.ndarray | None = None,
-                  position_tol: float = 1e-5, angle_tol: float = 1e-4) -> np.ndarray:
+def solve_tool_ik(
+    X_WT: RigidTransform, q_nominal: np.ndarray | None = None, position_tol: float = 1e-5, angle_tol: float = 1e-4
+) -> np.ndarray:
     """Arm joint positions (7) that put the tool frame at X_WT, closest to q_nominal (Q_HOME by
     default); ValueError if the pose is unreachable."""
     from assembly.station import make_controller_plant  # the controller's arm+hand model
+
     plant, arm, tool = make_controller_plant()
     q_nominal = Q_HOME if q_nominal is None else np.asarray(q_nominal, dtype=float)
     ik = InverseKinematics(plant)
     q = ik.q()
     p = X_WT.translation()
     ik.AddPositionConstraint(tool, np.zeros(3), plant.world_frame(), p - position_tol, p + position_tol)
-    ik.AddOrientationConstraint(tool, X_WT.rotation().inverse() @ X_WT.rotation(),
-                                plant.world_frame(), X_WT.rotation(), angle_tol)
-    arm_idx = np.array([plant.get_joint(j).position_start() for j in plant.GetJointIndices(arm)
-                        if plant.get_joint(j).num_positions() == 1])
+    ik.AddOrientationConstraint(
+        tool, X_WT.rotation().inverse() @ X_WT.rotation(), plant.world_frame(), X_WT.rotation(), angle_tol
+    )
+    arm_idx = np.array(
+        [
+            plant.get_joint(j).position_start()
+            for j in plant.GetJointIndices(arm)
+            if plant.get_joint(j).num_positions() == 1
+        ]
+    )
     guess = plant.GetPositions(plant.CreateDefaultContext()).copy()
     guess[arm_idx] = q_nominal
     ik.prog().AddQuadraticErrorCost(np.eye(len(arm_idx)), q_nominal, q[arm_idx])
     result = Solve(ik.prog(), guess)
     if not result.is_success():
-        raise ValueError(f"tool pose {np.round(p, 4).tolist()} has no inverse-kinematics solution "
-                         "within the Panda's joint limits")
+        raise ValueError(
+            f"tool pose {np.round(p, 4).tolist()} has no inverse-kinematics solution within the Panda's joint limits"
+        )
     return result.GetSolution(q)[arm_idx]

@@ -112,22 +112,22 @@ class _Inertial:
 # Link 0 is not identified in the paper: its values are franka_ros's inertial.yaml ones (it is
 # welded to the world, so they only matter for completeness).
 _ARM_INERTIALS: tuple[_Inertial, ...] = (
-    _Inertial(0.629769, (-0.041018, -0.00014, 0.049974),
-              (0.00315, 8.2904e-07, 0.00015, 0.00388, 8.2299e-06, 0.004285)),
-    _Inertial(4.970684, (0.003875, 0.002081, -0.04762),
-              (0.70337, -0.000139, 0.006772, 0.70661, 0.019169, 0.009117)),
-    _Inertial(0.646926, (-0.003141, -0.02872, 0.003495),
-              (0.007962, -0.003925, 0.010254, 0.02811, 0.000704, 0.025995)),
-    _Inertial(3.228604, (0.027518, 0.039252, -0.066502),
-              (0.037242, -0.004761, -0.011396, 0.036155, -0.012805, 0.01083)),
-    _Inertial(3.587895, (-0.05317, 0.104419, 0.027454),
-              (0.025853, 0.007796, -0.001332, 0.019552, 0.008641, 0.028323)),
-    _Inertial(1.225946, (-0.011953, 0.041065, -0.038437),
-              (0.035549, -0.002117, -0.004037, 0.029474, 0.000229, 0.008627)),
-    _Inertial(1.666555, (0.060149, -0.014117, -0.010517),
-              (0.001964, 0.000109, -0.001158, 0.004354, 0.000341, 0.005433)),
-    _Inertial(0.735522, (0.010517, -0.004252, 0.061597),
-              (0.012516, -0.000428, -0.001196, 0.010027, -0.000741, 0.004815)),
+    _Inertial(0.629769, (-0.041018, -0.00014, 0.049974), (0.00315, 8.2904e-07, 0.00015, 0.00388, 8.2299e-06, 0.004285)),
+    _Inertial(4.970684, (0.003875, 0.002081, -0.04762), (0.70337, -0.000139, 0.006772, 0.70661, 0.019169, 0.009117)),
+    _Inertial(0.646926, (-0.003141, -0.02872, 0.003495), (0.007962, -0.003925, 0.010254, 0.02811, 0.000704, 0.025995)),
+    _Inertial(
+        3.228604, (0.027518, 0.039252, -0.066502), (0.037242, -0.004761, -0.011396, 0.036155, -0.012805, 0.01083)
+    ),
+    _Inertial(3.587895, (-0.05317, 0.104419, 0.027454), (0.025853, 0.007796, -0.001332, 0.019552, 0.008641, 0.028323)),
+    _Inertial(
+        1.225946, (-0.011953, 0.041065, -0.038437), (0.035549, -0.002117, -0.004037, 0.029474, 0.000229, 0.008627)
+    ),
+    _Inertial(
+        1.666555, (0.060149, -0.014117, -0.010517), (0.001964, 0.000109, -0.001158, 0.004354, 0.000341, 0.005433)
+    ),
+    _Inertial(
+        0.735522, (0.010517, -0.004252, 0.061597), (0.012516, -0.000428, -0.001196, 0.010027, -0.000741, 0.004815)
+    ),
 )
 ARM_MASS: float = float(sum(link.mass for link in _ARM_INERTIALS))
 
@@ -151,8 +151,7 @@ def _viscous_equivalent(speed: float) -> np.ndarray:
 
     def tau_f(v: float) -> np.ndarray:
         sig = lambda x: 1.0 / (1.0 + np.exp(-x))  # noqa: E731
-        return _FRICTION_A * (sig(_FRICTION_ALPHA * (v + _FRICTION_V0))
-                              - sig(_FRICTION_ALPHA * _FRICTION_V0))
+        return _FRICTION_A * (sig(_FRICTION_ALPHA * (v + _FRICTION_V0)) - sig(_FRICTION_ALPHA * _FRICTION_V0))
 
     return (np.abs(tau_f(speed)) + np.abs(tau_f(-speed))) / (2.0 * speed)
 
@@ -209,8 +208,7 @@ def _ring(a: Vec3, b: Vec3, r: float) -> _Part:
     return _Part("cylinder", a, b, r, "dark", False)
 
 
-def _box(center: Vec3, extents: Vec3, rounding: float, color: Color = "white",
-         collide: bool = True) -> _Part:
+def _box(center: Vec3, extents: Vec3, rounding: float, color: Color = "white", collide: bool = True) -> _Part:
     return _Part("box", center, extents, rounding, color, collide)
 
 
@@ -393,8 +391,7 @@ def _rounded_box(extents: Vec3, rounding: float) -> trimesh.Trimesh:
     """
     half = np.asarray(extents, float) / 2 - rounding
     if not rounding > 0 or np.any(half <= 0):
-        raise ValueError(f"rounding = {rounding}; expected 0 < rounding < half of every extent "
-                         f"{extents}")
+        raise ValueError(f"rounding = {rounding}; expected 0 < rounding < half of every extent {extents}")
     n = _BOX_EDGE_SEGMENTS
     slopes = np.tan(np.linspace(-math.pi / 4, 0.0, n + 1))
     slopes[0], slopes[-1] = -1.0, 0.0
@@ -419,8 +416,7 @@ def _rounded_box(extents: Vec3, rounding: float) -> trimesh.Trimesh:
             base = len(vertices) * m * m
             vertices.append((offset + rounding * direction).reshape(-1, 3))
             p00, p10, p11, p01 = (base + q for q in quads)
-            faces += [np.stack([p00, p10, p11], -1).reshape(-1, 3),
-                      np.stack([p00, p11, p01], -1).reshape(-1, 3)]
+            faces += [np.stack([p00, p10, p11], -1).reshape(-1, 3), np.stack([p00, p11, p01], -1).reshape(-1, 3)]
     return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
 
 
@@ -432,10 +428,8 @@ def _part_mesh(part: _Part) -> trimesh.Trimesh:
         return mesh
     tf, length = _segment_transform(part.a, part.b)
     if part.kind == "cylinder":
-        return trimesh.creation.cylinder(radius=part.r, height=length, sections=_SECTIONS,
-                                         transform=tf)
-    return trimesh.creation.capsule(height=length, radius=part.r, count=list(_CAPSULE_COUNT),
-                                    transform=tf)
+        return trimesh.creation.cylinder(radius=part.r, height=length, sections=_SECTIONS, transform=tf)
+    return trimesh.creation.capsule(height=length, radius=part.r, count=list(_CAPSULE_COUNT), transform=tf)
 
 
 def _canonical_part_mesh(part: _Part, rotation_z: float = 0.0) -> trimesh.Trimesh:
@@ -516,8 +510,9 @@ def _proximity_xml(props: dict[str, float] | None, compliance: str | None) -> li
     return out
 
 
-def _collision_xml(part: _Part, name: str, props: dict[str, float] | None = None,
-                   compliance: str | None = None) -> list[str]:
+def _collision_xml(
+    part: _Part, name: str, props: dict[str, float] | None = None, compliance: str | None = None
+) -> list[str]:
     """URDF <collision> for a primitive (a rounded box collides as a plain box)."""
     if part.kind == "box":
         xyz, rpy = np.asarray(part.a, float), np.zeros(3)
@@ -542,8 +537,9 @@ def _dh_joint_origin(row: int) -> tuple[np.ndarray, np.ndarray]:
     return _clean(xyz), _clean(np.array([alpha, 0.0, 0.0]))
 
 
-def _transmission_xml(name: str, joint: str, actuator: str, rotor_inertia: float | None = None,
-                      gear_ratio: float | None = None) -> list[str]:
+def _transmission_xml(
+    name: str, joint: str, actuator: str, rotor_inertia: float | None = None, gear_ratio: float | None = None
+) -> list[str]:
     extra = []
     if rotor_inertia is not None:
         extra.append(f'      <drake:rotor_inertia value="{_f(rotor_inertia)}"/>')
@@ -573,8 +569,7 @@ def _header(robot: str) -> list[str]:
     ]
 
 
-def _link_visuals(stem: str, parts: Sequence[_Part], rotation_z: float = 0.0
-                  ) -> tuple[list[str], dict[str, str]]:
+def _link_visuals(stem: str, parts: Sequence[_Part], rotation_z: float = 0.0) -> tuple[list[str], dict[str, str]]:
     """Visual XML and {mesh file: OBJ text} for a link: one mesh per colour."""
     xml: list[str] = []
     meshes: dict[str, str] = {}
@@ -626,8 +621,13 @@ def _arm_urdf() -> tuple[str, dict[str, str]]:
                 "  </joint>",
             ]
     for row, joint in enumerate(ARM_JOINT_NAMES):
-        lines += _transmission_xml(f"panda_tran{row + 1}", joint, f"panda_motor{row + 1}",
-                                   rotor_inertia=float(REFLECTED_INERTIA[row]), gear_ratio=1.0)
+        lines += _transmission_xml(
+            f"panda_tran{row + 1}",
+            joint,
+            f"panda_motor{row + 1}",
+            rotor_inertia=float(REFLECTED_INERTIA[row]),
+            gear_ratio=1.0,
+        )
     # Links 5 and 7 (two apart across the wrist) touch only through our simplified shapes
     # (in ~9% of uniformly drawn configurations): filter that pair.
     for a, b in (("panda_link5", "panda_link7"),):
@@ -662,8 +662,7 @@ def _finger_link(name: str, sign: int) -> list[str]:
         f'  <link name="{name}">',
         *_inertial_xml(inertial),
         *_visual_xml("finger_dark.obj", "dark", (0.0, 0.0, math.pi if sign < 0 else 0.0)),
-        *_collision_xml(body, f"{name}_body", {"mu_dynamic": HAND_FRICTION,
-                                               "mu_static": HAND_FRICTION}, "rigid"),
+        *_collision_xml(body, f"{name}_body", {"mu_dynamic": HAND_FRICTION, "mu_static": HAND_FRICTION}, "rigid"),
         *_collision_xml(pad, f"{name}_pad", pad_props, "compliant"),
         "  </link>",
     ]
@@ -680,8 +679,7 @@ def _hand_urdf() -> tuple[str, dict[str, str]]:
         '  <link name="panda_hand">',
         *_inertial_xml(_HAND_INERTIAL),
         *visual,
-        *_collision_xml(palm, "panda_hand_palm", {"mu_dynamic": HAND_FRICTION,
-                                                  "mu_static": HAND_FRICTION}, "rigid"),
+        *_collision_xml(palm, "panda_hand_palm", {"mu_dynamic": HAND_FRICTION, "mu_static": HAND_FRICTION}, "rigid"),
         "  </link>",
         *_finger_link("panda_leftfinger", +1),
         *_finger_link("panda_rightfinger", -1),
@@ -692,8 +690,7 @@ def _hand_urdf() -> tuple[str, dict[str, str]]:
         '    <child link="panda_hand_tcp"/>',
         "  </joint>",
     ]
-    for joint, child, axis in zip(FINGER_JOINT_NAMES, ("panda_leftfinger", "panda_rightfinger"),
-                                  ("0 1 0", "0 -1 0")):
+    for joint, child, axis in zip(FINGER_JOINT_NAMES, ("panda_leftfinger", "panda_rightfinger"), ("0 1 0", "0 -1 0")):
         lines += [
             f'  <joint name="{joint}" type="prismatic">',
             f'    <origin xyz="0 0 {_f(FINGER_JOINT_Z)}" rpy="0 0 0"/>',

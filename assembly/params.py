@@ -47,12 +47,16 @@ class Param:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"Param name must be a non-empty string, got {self.name!r}")
         if not isinstance(self.unit, str):
-            raise ValueError(f"Param {self.name!r}: unit must be a string (use '1' if dimensionless), got {self.unit!r}")
+            raise ValueError(
+                f"Param {self.name!r}: unit must be a string (use '1' if dimensionless), got {self.unit!r}"
+            )
         low = _finite_float(self.low, f"Param {self.name!r}: low")
         high = _finite_float(self.high, f"Param {self.name!r}: high")
         if not low < high:
             raise ValueError(f"Param {self.name!r}: need low < high, got low={low:g}, high={high:g} {self.unit}")
-        nominal = 0.5 * (low + high) if self.nominal is None else _finite_float(self.nominal, f"Param {self.name!r}: nominal")
+        nominal = (
+            0.5 * (low + high) if self.nominal is None else _finite_float(self.nominal, f"Param {self.name!r}: nominal")
+        )
         if not low <= nominal <= high:
             raise ValueError(
                 f"Param {self.name!r}: nominal {nominal:g} {self.unit} is outside its bounds [{low:g}, {high:g}] {self.unit}"
@@ -138,8 +142,7 @@ class ParamSpace:
     def _shape_error(self, shape: tuple[int, ...], what: str) -> ValueError:
         """The ValueError for an array of the wrong shape."""
         return ValueError(
-            f"{what} has shape {shape}, expected shape ({self.dim},) or (n, {self.dim}) "
-            f"for parameters {self.names}"
+            f"{what} has shape {shape}, expected shape ({self.dim},) or (n, {self.dim}) for parameters {self.names}"
         )
 
     def _shaped(self, xi: ArrayLike, what: str) -> tuple[NDArray[np.float64], bool]:
@@ -210,7 +213,9 @@ class ParamSpace:
     def from_dict(cls, d: Mapping[str, Any]) -> ParamSpace:
         """Rebuild a ParamSpace from `to_dict` output, raising ValueError if it is malformed."""
         if not isinstance(d, Mapping) or "params" not in d:
-            raise ValueError(f"ParamSpace dict must have a 'params' list, got keys {list(d) if isinstance(d, Mapping) else d!r}")
+            raise ValueError(
+                f"ParamSpace dict must have a 'params' list, got keys {list(d) if isinstance(d, Mapping) else d!r}"
+            )
         params = []
         for i, entry in enumerate(d["params"]):
             if not isinstance(entry, Mapping):

@@ -126,7 +126,9 @@ def check_update_inputs(
 def check_state_dict(space: ParamSpace, state: Mapping[str, Any], expected_type: str) -> None:
     """Raise ValueError unless `state` is a state_dict of `expected_type` over exactly `space`."""
     if not isinstance(state, Mapping) or "type" not in state or "space" not in state:
-        raise ValueError(f"load_state_dict: expected a {expected_type} state_dict with 'type' and 'space' keys, got {state!r}")
+        raise ValueError(
+            f"load_state_dict: expected a {expected_type} state_dict with 'type' and 'space' keys, got {state!r}"
+        )
     if state["type"] != expected_type:
         raise ValueError(f"load_state_dict: state_dict is for {state['type']!r}, this sampler is {expected_type!r}")
     saved = ParamSpace.from_dict(state["space"])
@@ -172,8 +174,13 @@ class NoDR:
             are its fields, applied last.
     """
 
-    def __init__(self, space: ParamSpace, success_threshold: float | None = None,
-                 config: NoDRConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        space: ParamSpace,
+        success_threshold: float | None = None,
+        config: NoDRConfig | Mapping[str, Any] | None = None,
+        **overrides: Any,
+    ) -> None:
         self.success_threshold = check_sampler_args(space, success_threshold, "NoDR")
         self.space = space
         self.config = config_with_overrides(NoDRConfig, config, overrides, "NoDR")
@@ -225,8 +232,13 @@ class FullDR:
 
     Arguments: as every sampler (`space`, `success_threshold`, `config`: FullDRConfig, empty)."""
 
-    def __init__(self, space: ParamSpace, success_threshold: float | None = None,
-                 config: FullDRConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        space: ParamSpace,
+        success_threshold: float | None = None,
+        config: FullDRConfig | Mapping[str, Any] | None = None,
+        **overrides: Any,
+    ) -> None:
         self.success_threshold = check_sampler_args(space, success_threshold, "FullDR")
         self.space = space
         self.config = config_with_overrides(FullDRConfig, config, overrides, "FullDR")

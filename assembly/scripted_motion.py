@@ -26,9 +26,24 @@ from assembly.gearset import GEAR_THICKNESS, SHAFT_HEIGHT, gear_spec
 from assembly.panda_model import FINGER_MAX_WIDTH
 from assembly.world import nominal_grasp, validate_tool_target
 
-__all__ = ["Keyframe", "KeyframePlan", "KeyframePlayer", "ScriptedInsertionConfig", "append_move",
-           "append_pick", "append_pick_and_insert", "append_place", "append_return", "carry_height",
-           "down_pose", "grasp_tool_pose", "gripper_widths", "min_jerk", "sample_plan", "start_keyframe_plan"]
+__all__ = [
+    "Keyframe",
+    "KeyframePlan",
+    "KeyframePlayer",
+    "ScriptedInsertionConfig",
+    "append_move",
+    "append_pick",
+    "append_pick_and_insert",
+    "append_place",
+    "append_return",
+    "carry_height",
+    "down_pose",
+    "grasp_tool_pose",
+    "gripper_widths",
+    "min_jerk",
+    "sample_plan",
+    "start_keyframe_plan",
+]
 
 
 @dataclass
@@ -53,8 +68,7 @@ class ScriptedInsertionConfig:
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             if not np.isfinite(value) or value < 0:
-                raise ValueError(f"ScriptedInsertionConfig.{name} = {value}; "
-                                 "expected a finite value >= 0")
+                raise ValueError(f"ScriptedInsertionConfig.{name} = {value}; expected a finite value >= 0")
         for name in ("speed", "insert_speed", "gripper_time"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"ScriptedInsertionConfig.{name} must be > 0")
@@ -94,8 +108,9 @@ class KeyframePlan:
 TURN_RATE = 1.0
 
 
-def segment_time(X_from: RigidTransform, X_to: RigidTransform, speed: float, min_segment: float,
-                 turn_rate: float = TURN_RATE) -> float:
+def segment_time(
+    X_from: RigidTransform, X_to: RigidTransform, speed: float, min_segment: float, turn_rate: float = TURN_RATE
+) -> float:
     """The duration of a free-space move [s]: the longer of distance / `speed` [m/s] and turn
     angle / `turn_rate` [rad/s], at least `min_segment`."""
     d = float(np.linalg.norm(X_to.translation() - X_from.translation()))
@@ -103,8 +118,9 @@ def segment_time(X_from: RigidTransform, X_to: RigidTransform, speed: float, min
     return max(d / speed, angle / turn_rate, min_segment)
 
 
-def append_move(plan: KeyframePlan, target: RigidTransform, width: float, label: str, speed: float,
-                min_segment: float) -> None:
+def append_move(
+    plan: KeyframePlan, target: RigidTransform, width: float, label: str, speed: float, min_segment: float
+) -> None:
     """A free-space move to `target` at mean tool speed `speed` [m/s] and turn rate TURN_RATE,
     at least `min_segment` [s] (segment_time)."""
     plan.append(segment_time(plan.keyframes[-1].X_WT, target, speed, min_segment), target, width, label)
@@ -128,8 +144,7 @@ def gripper_widths(gear: str, config: ScriptedInsertionConfig) -> tuple[float, f
     """(open, closed) finger widths commanded for `gear`: open clears its tip circle by
     open_margin, closed squeezes it by `squeeze` (which sets the grasp force)."""
     spec = gear_spec(gear)
-    return (min(2 * spec.tip_radius + config.open_margin, FINGER_MAX_WIDTH),
-            2 * spec.tip_radius - config.squeeze)
+    return (min(2 * spec.tip_radius + config.open_margin, FINGER_MAX_WIDTH), 2 * spec.tip_radius - config.squeeze)
 
 
 def grasp_tool_pose(gear: str, X_WG: RigidTransform, yaw: float, config: ScriptedInsertionConfig) -> RigidTransform:
@@ -138,13 +153,18 @@ def grasp_tool_pose(gear: str, X_WG: RigidTransform, yaw: float, config: Scripte
     return down_pose(X_WG.translation() + [0, 0, grasp_z], yaw)
 
 
-def append_pick(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, yaw: float,
-                carry_z: float, config: ScriptedInsertionConfig) -> None:
+def append_pick(
+    plan: KeyframePlan,
+    gear: str,
+    X_WG_believed: RigidTransform,
+    yaw: float,
+    carry_z: float,
+    config: ScriptedInsertionConfig,
+) -> None:
     """Append a pick of `gear` believed at X_WG_believed with the tool heading `yaw`: approach
     from above, descend, close the fingers, lift to tool height `carry_z`."""
     if not plan.keyframes:
-        raise ValueError("plan has no start keyframe; "
-                         "begin it with start_keyframe_plan(X_WT_now, width)")
+        raise ValueError("plan has no start keyframe; begin it with start_keyframe_plan(X_WT_now, width)")
     c = config
     open_w, closed_w = gripper_widths(gear, c)
     p_G = X_WG_believed.translation()
@@ -160,25 +180,43 @@ def append_pick(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, ya
     append_move(plan, lifted, closed_w, f"{gear}: lift", c.speed, c.min_segment)
 
 
-def append_place(plan: KeyframePlan, gear: str, X_WT_place: RigidTransform, carry_z: float,
-                 config: ScriptedInsertionConfig) -> None:
+def append_place(
+    plan: KeyframePlan, gear: str, X_WT_place: RigidTransform, carry_z: float, config: ScriptedInsertionConfig
+) -> None:
     """Append putting a held `gear` down with the tool at X_WT_place (e.g. where append_pick held
     it, so the gear lands where it lay): straight up to tool height `carry_z`, across, down,
     open the fingers, up clear of the gear."""
     if not plan.keyframes:
-        raise ValueError("plan has no start keyframe; "
-                         "begin it with start_keyframe_plan(X_WT_now, width)")
+        raise ValueError("plan has no start keyframe; begin it with start_keyframe_plan(X_WT_now, width)")
     c = config
     open_w, closed_w = gripper_widths(gear, c)
     here, p = plan.keyframes[-1].X_WT, X_WT_place.translation()
-    append_move(plan, RigidTransform(here.rotation(), [*here.translation()[:2], carry_z]), closed_w,
-                f"{gear}: lift", c.speed, c.min_segment)
-    append_move(plan, RigidTransform(X_WT_place.rotation(), [p[0], p[1], carry_z]), closed_w,
-                f"{gear}: carry back", c.speed, c.min_segment)
+    append_move(
+        plan,
+        RigidTransform(here.rotation(), [*here.translation()[:2], carry_z]),
+        closed_w,
+        f"{gear}: lift",
+        c.speed,
+        c.min_segment,
+    )
+    append_move(
+        plan,
+        RigidTransform(X_WT_place.rotation(), [p[0], p[1], carry_z]),
+        closed_w,
+        f"{gear}: carry back",
+        c.speed,
+        c.min_segment,
+    )
     append_move(plan, X_WT_place, closed_w, f"{gear}: put down", c.speed, c.min_segment)
     plan.append(c.gripper_time, X_WT_place, open_w, f"{gear}: release")
-    append_move(plan, RigidTransform(X_WT_place.rotation(), p + [0, 0, GEAR_THICKNESS + c.approach_height]),
-                open_w, f"{gear}: clear", c.speed, c.min_segment)
+    append_move(
+        plan,
+        RigidTransform(X_WT_place.rotation(), p + [0, 0, GEAR_THICKNESS + c.approach_height]),
+        open_w,
+        f"{gear}: clear",
+        c.speed,
+        c.min_segment,
+    )
 
 
 def carry_height(gear: str, X_WS: RigidTransform, config: ScriptedInsertionConfig) -> float:
@@ -187,16 +225,16 @@ def carry_height(gear: str, X_WS: RigidTransform, config: ScriptedInsertionConfi
     return float(X_WS.translation()[2] + SHAFT_HEIGHT + config.transport_clearance + grasp_z)
 
 
-def append_pick_and_insert(plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform,
-                           X_WS: RigidTransform, config: ScriptedInsertionConfig) -> None:
+def append_pick_and_insert(
+    plan: KeyframePlan, gear: str, X_WG_believed: RigidTransform, X_WS: RigidTransform, config: ScriptedInsertionConfig
+) -> None:
     """Append one pick-and-insert of `gear` to `plan`, starting from its last keyframe.
 
     X_WG_believed: where the script believes the gear is (frame G at the bore axis, bottom face).
     X_WS: the shaft frame (on the axis at the plate top).
     """
     if not plan.keyframes:
-        raise ValueError("plan has no start keyframe; "
-                         "begin it with start_keyframe_plan(X_WT_now, width)")
+        raise ValueError("plan has no start keyframe; begin it with start_keyframe_plan(X_WT_now, width)")
     c = config
     start = plan.end_time
     yaw = _grasp_yaw(plan.keyframes[-1].X_WT)
@@ -237,12 +275,12 @@ def start_keyframe_plan(X_WT_now: RigidTransform, width_now: float) -> KeyframeP
 def min_jerk(tau: float) -> tuple[float, float, float]:
     """Minimum-jerk progress s(tau) and its first two derivatives on [0, 1] (rest at both ends)."""
     tau = min(max(tau, 0.0), 1.0)
-    return (tau ** 3 * (10 - 15 * tau + 6 * tau ** 2), 30 * tau ** 2 * (1 - tau) ** 2,
-            60 * tau * (1 - tau) * (1 - 2 * tau))
+    return (tau**3 * (10 - 15 * tau + 6 * tau**2), 30 * tau**2 * (1 - tau) ** 2, 60 * tau * (1 - tau) * (1 - 2 * tau))
 
 
-def sample_plan(plan: KeyframePlan, t: float, times: np.ndarray | None = None
-                ) -> tuple[RigidTransform, np.ndarray, np.ndarray, float]:
+def sample_plan(
+    plan: KeyframePlan, t: float, times: np.ndarray | None = None
+) -> tuple[RigidTransform, np.ndarray, np.ndarray, float]:
     """Desired tool pose, spatial velocity and acceleration ([w; v], [alpha; a] in W) and gripper
     width of `plan` at time t: a minimum-jerk move (straight line, slerp for rotation) between
     keyframes, at rest at each; the last keyframe is held. `times`: the keyframes' times, if
@@ -260,7 +298,7 @@ def sample_plan(plan: KeyframePlan, t: float, times: np.ndarray | None = None
     w = a.X_WT.rotation() @ (aa.axis() * aa.angle())
     twist = np.concatenate([w, dp])
     width = a.width + min(max((t - a.t) / duration, 0.0), 1.0) * (b.width - a.width)
-    return RigidTransform(R, p), twist * ds / duration, twist * dds / duration ** 2, width
+    return RigidTransform(R, p), twist * ds / duration, twist * dds / duration**2, width
 
 
 class KeyframePlayer(LeafSystem):
@@ -277,14 +315,10 @@ class KeyframePlayer(LeafSystem):
         self._times = np.array([k.t for k in plan.keyframes])
         if np.any(np.diff(self._times) <= 0):
             raise ValueError("KeyframePlan keyframe times must increase strictly")
-        self.DeclareAbstractOutputPort(
-            "X_WT_desired", lambda: AbstractValue.Make(RigidTransform()), self._calc_pose)
-        self.DeclareVectorOutputPort(
-            "V_WT_desired", 6, lambda c, o: o.SetFromVector(self.sample(c.get_time())[1]))
-        self.DeclareVectorOutputPort(
-            "A_WT_desired", 6, lambda c, o: o.SetFromVector(self.sample(c.get_time())[2]))
-        self.DeclareVectorOutputPort(
-            "gripper_width", 1, lambda c, o: o.SetFromVector([self.sample(c.get_time())[3]]))
+        self.DeclareAbstractOutputPort("X_WT_desired", lambda: AbstractValue.Make(RigidTransform()), self._calc_pose)
+        self.DeclareVectorOutputPort("V_WT_desired", 6, lambda c, o: o.SetFromVector(self.sample(c.get_time())[1]))
+        self.DeclareVectorOutputPort("A_WT_desired", 6, lambda c, o: o.SetFromVector(self.sample(c.get_time())[2]))
+        self.DeclareVectorOutputPort("gripper_width", 1, lambda c, o: o.SetFromVector([self.sample(c.get_time())[3]]))
 
     def sample(self, t: float) -> tuple[RigidTransform, np.ndarray, np.ndarray, float]:
         """Desired tool pose, spatial velocity and acceleration ([w; v], [alpha; a] in W) and

@@ -17,12 +17,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.geometry import (
-    Meshcat, MeshcatParams, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph,
+    Meshcat,
+    MeshcatParams,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    Role,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import (
-    AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig,
+    AddMultibodyPlant,
+    MultibodyPlant,
+    MultibodyPlantConfig,
 )
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.sensors import RgbdSensor
@@ -33,9 +40,16 @@ from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
 from assembly.impedance import CartesianImpedanceController, ImpedanceGains
 from assembly.panda_model import Q_HOME, TAU_MAX
 from assembly.world import (
-    GraspHold, WorldConfig, WorldModels, add_panda, add_world, gear_body, insertion_error, is_seated, tool_frame,
+    GraspHold,
+    WorldConfig,
+    WorldModels,
+    add_panda,
+    add_world,
+    gear_body,
+    insertion_error,
+    is_seated,
+    tool_frame,
 )
-
 
 
 @dataclass
@@ -59,8 +73,9 @@ class StationConfig:
             raise ValueError(f"contact_model = {self.contact_model!r}; expected one of {allowed}")
         approx = ("lagged", "similar", "sap", "tamsi")
         if self.discrete_contact_approximation not in approx:
-            raise ValueError(f"discrete_contact_approximation = "
-                             f"{self.discrete_contact_approximation!r}; expected one of {approx}")
+            raise ValueError(
+                f"discrete_contact_approximation = {self.discrete_contact_approximation!r}; expected one of {approx}"
+            )
 
 
 @dataclass
@@ -105,8 +120,7 @@ class Station:
 
     def insertion_error(self, root: Context, gear: str) -> InsertionError:
         """Lateral and height error of a gear's frame from its seated pose on its shaft."""
-        return InsertionError(*insertion_error(self.models.X_WS(gear).inverse(),
-                                               self.gear_pose(root, gear)))
+        return InsertionError(*insertion_error(self.models.X_WS(gear).inverse(), self.gear_pose(root, gear)))
 
     def tool_pose(self, root: Context) -> RigidTransform:
         """Measured pose X_WT of the hand's tool frame."""
@@ -151,8 +165,7 @@ class GraspAnchor(LeafSystem):
         self._state = self.DeclareVectorInputPort("hold_state", 6)
         self.DeclareDiscreteState(3)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self.DeclareVectorOutputPort("desired_state", 6, self._calc,
-                                     prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareVectorOutputPort("desired_state", 6, self._calc, prerequisites_of_calc={self.xd_ticket()})
 
     def _update(self, context: Context, xd) -> None:
         q = self._state.Eval(context)[:3]
@@ -177,8 +190,10 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
     config = config or StationConfig()
     builder = DiagramBuilder()
     plant_config = MultibodyPlantConfig(
-        time_step=config.time_step, contact_model=config.contact_model,
-        discrete_contact_approximation=config.discrete_contact_approximation)
+        time_step=config.time_step,
+        contact_model=config.contact_model,
+        discrete_contact_approximation=config.discrete_contact_approximation,
+    )
     plant, scene_graph = AddMultibodyPlant(plant_config, builder)
     plant.set_name("plant")
     models = add_world(plant, scene_graph, config.world)
@@ -186,8 +201,9 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
     plant.Finalize()
 
     ctrl_plant, ctrl_arm, ctrl_tool = make_controller_plant()
-    controller = builder.AddSystem(CartesianImpedanceController(
-        ctrl_plant, ctrl_arm, ctrl_tool, config.gains, TAU_MAX, Q_HOME))
+    controller = builder.AddSystem(
+        CartesianImpedanceController(ctrl_plant, ctrl_arm, ctrl_tool, config.gains, TAU_MAX, Q_HOME)
+    )
     controller.set_name("impedance_controller")
     builder.Connect(plant.get_state_output_port(models.arm), controller.get_input_port(0))
     builder.Connect(controller.GetOutputPort("torque"), plant.get_actuation_input_port(models.arm))
@@ -215,8 +231,10 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
 
     cameras: dict[str, RgbdSensor] = {}
     hand_body = plant.GetBodyByName("panda_hand", models.hand)
-    for cam, parent in ((config.cameras.scene, scene_graph.world_frame_id()),
-                        (config.cameras.wrist, plant.GetBodyFrameIdOrThrow(hand_body.index()))):
+    for cam, parent in (
+        (config.cameras.scene, scene_graph.world_frame_id()),
+        (config.cameras.wrist, plant.GetBodyFrameIdOrThrow(hand_body.index())),
+    ):
         if cam is None:
             continue
         sensor = add_camera(builder, scene_graph, parent, cam)
@@ -228,7 +246,8 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
     visualizer = None
     if meshcat is not None:
         visualizer = MeshcatVisualizer.AddToBuilder(
-            builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+            builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration)
+        )
     diagram = builder.Build()
     diagram.set_name("station")
     return Station(diagram, plant, scene_graph, models, controller, cameras, config, visualizer, anchor)
@@ -241,8 +260,10 @@ def drive_station(station: Station, source: LeafSystem) -> Diagram:
     """A Diagram of `station` commanded by `source`: each of the station's command inputs
     (COMMAND_PORTS) is connected to the source's output port of the same name, if it has one."""
     if not source.HasOutputPort("X_WT_desired") or not source.HasOutputPort("gripper_width"):
-        raise ValueError(f"{source.get_name()!r} must output 'X_WT_desired' and 'gripper_width' "
-                         f"(optionally 'V_WT_desired', 'A_WT_desired') to drive the station")
+        raise ValueError(
+            f"{source.get_name()!r} must output 'X_WT_desired' and 'gripper_width' "
+            f"(optionally 'V_WT_desired', 'A_WT_desired') to drive the station"
+        )
     builder = DiagramBuilder()
     builder.AddSystem(station.diagram)
     builder.AddSystem(source)

@@ -10,23 +10,42 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.geometry import (
-    CollisionFilterDeclaration, GeometrySet, ProximityProperties, RoleAssign, SceneGraph,
+    CollisionFilterDeclaration,
+    GeometrySet,
+    ProximityProperties,
+    RoleAssign,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import (
-    FixedOffsetFrame, Frame, ModelInstanceIndex, PdControllerGains, PrismaticJoint, RevoluteJoint,
-    RigidBody, SpatialInertia,
+    FixedOffsetFrame,
+    Frame,
+    ModelInstanceIndex,
+    PdControllerGains,
+    PrismaticJoint,
+    RevoluteJoint,
+    RigidBody,
+    SpatialInertia,
 )
 
 from assembly.gear_meshes import gearset_model_paths
 from assembly.gearset import (
-    GEAR_NAMES, GEAR_THICKNESS, PLATE_SIZE, SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL, gear_spec,
+    GEAR_NAMES,
+    GEAR_THICKNESS,
+    PLATE_SIZE,
+    SEATED_HEIGHT_TOL,
+    SEATED_LATERAL_TOL,
+    gear_spec,
     shaft_position_in_plate,
 )
 from assembly.panda_model import (
-    FINGER_MAX_WIDTH, HAND_FLANGE_YAW, HAND_TCP_OFFSET, Q_HOME, panda_model_paths,
+    FINGER_MAX_WIDTH,
+    HAND_FLANGE_YAW,
+    HAND_TCP_OFFSET,
+    Q_HOME,
+    panda_model_paths,
 )
 
 # Table top extents in W [m] (the table model is 1.2 x 1.0 m centred at x = 0.35).
@@ -86,8 +105,10 @@ class ContactOverrides:
         for name in ("mu", "modulus_scale", "dissipation"):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and (v > 0 if name != "dissipation" else v >= 0)):
-                raise ValueError(f"ContactOverrides.{name} = {v!r}; expected a finite number "
-                                 f"{'>= 0' if name == 'dissipation' else '> 0'}")
+                raise ValueError(
+                    f"ContactOverrides.{name} = {v!r}; expected a finite number "
+                    f"{'>= 0' if name == 'dissipation' else '> 0'}"
+                )
 
 
 @dataclass(frozen=True)
@@ -111,8 +132,14 @@ class GraspHold:
     rotational_damping: float = 0.05  # [N m s/rad]
 
     def __post_init__(self) -> None:
-        for name in ("force_limit", "torque_limit", "stiffness", "damping", "rotational_stiffness",
-                     "rotational_damping"):
+        for name in (
+            "force_limit",
+            "torque_limit",
+            "stiffness",
+            "damping",
+            "rotational_stiffness",
+            "rotational_damping",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"GraspHold.{name} = {v!r}; expected a finite number > 0")
@@ -131,11 +158,13 @@ class WorldConfig:
     """Where things stand on the table. Poses are (x [m], y [m], yaw [rad]) in W."""
 
     plate_pose: tuple[float, float, float] = (0.55, 0.0, np.pi / 2)
-    gear_start_poses: dict[str, tuple[float, float, float]] = field(default_factory=lambda: {
-        "large": (0.40, -0.15, 0.0),
-        "medium": (0.40, -0.03, 0.0),
-        "small": (0.40, 0.07, 0.0),
-    })
+    gear_start_poses: dict[str, tuple[float, float, float]] = field(
+        default_factory=lambda: {
+            "large": (0.40, -0.15, 0.0),
+            "medium": (0.40, -0.03, 0.0),
+            "small": (0.40, 0.07, 0.0),
+        }
+    )
     gears: tuple[str, ...] = GEAR_NAMES
     # A gear already in the hand (welded to a grasp frame on the tool frame whose pose is a
     # Context parameter: Station.set_grasp). It must not also be in `gears`.
@@ -151,22 +180,28 @@ class WorldConfig:
         if self.held_gear is not None:
             gear_spec(self.held_gear)
             if self.held_gear in self.gears:
-                raise ValueError(f"held_gear {self.held_gear!r} is also in gears {self.gears}; a gear "
-                                 "is either on the table or in the hand")
+                raise ValueError(
+                    f"held_gear {self.held_gear!r} is also in gears {self.gears}; a gear "
+                    "is either on the table or in the hand"
+                )
         if self.grasp_hold is not None and self.held_gear is None:
             raise ValueError("grasp_hold is set but held_gear is None; a hold needs a gear in the hand")
         for name in self.gears:
             gear_spec(name)
             if name not in self.gear_start_poses:
-                raise ValueError(f"gear {name!r} has no start pose; gear_start_poses has "
-                                 f"{sorted(self.gear_start_poses)}")
+                raise ValueError(
+                    f"gear {name!r} has no start pose; gear_start_poses has {sorted(self.gear_start_poses)}"
+                )
         for name in self.gear_start_poses:
             gear_spec(name)
         validate_plate_pose(self.plate_pose)
         for name in self.gears:
-            validate_gear_pose(name, self.gear_start_poses[name], self.plate_pose,
-                               {k: v for k, v in self.gear_start_poses.items()
-                                if k != name and k in self.gears})
+            validate_gear_pose(
+                name,
+                self.gear_start_poses[name],
+                self.plate_pose,
+                {k: v for k, v in self.gear_start_poses.items() if k != name and k in self.gears},
+            )
 
 
 def _in_reach(x: float, y: float) -> bool:
@@ -178,46 +213,61 @@ def validate_plate_pose(pose: tuple[float, float, float]) -> None:
     x, y, yaw = _finite_pose("plate_pose", pose)
     half = 0.5 * np.hypot(PLATE_SIZE[0], PLATE_SIZE[1])
     if not (TABLE_X[0] + half <= x <= TABLE_X[1] - half and TABLE_Y[0] + half <= y <= TABLE_Y[1] - half):
-        raise ValueError(f"plate_pose {tuple(pose)} puts the plate off the table; expected x in "
-                         f"[{TABLE_X[0] + half:.3f}, {TABLE_X[1] - half:.3f}] and y in "
-                         f"[{TABLE_Y[0] + half:.3f}, {TABLE_Y[1] - half:.3f}] m")
+        raise ValueError(
+            f"plate_pose {tuple(pose)} puts the plate off the table; expected x in "
+            f"[{TABLE_X[0] + half:.3f}, {TABLE_X[1] - half:.3f}] and y in "
+            f"[{TABLE_Y[0] + half:.3f}, {TABLE_Y[1] - half:.3f}] m"
+        )
     for g in GEAR_NAMES:
         p = planar_pose(x, y, yaw) @ shaft_position_in_plate(g)
         if not _in_reach(p[0], p[1]):
-            raise ValueError(f"plate_pose {tuple(pose)} puts the {g} shaft at distance "
-                             f"{np.hypot(p[0], p[1]):.3f} m from the robot base; expected "
-                             f"{REACH_RADIUS[0]}..{REACH_RADIUS[1]} m")
+            raise ValueError(
+                f"plate_pose {tuple(pose)} puts the {g} shaft at distance "
+                f"{np.hypot(p[0], p[1]):.3f} m from the robot base; expected "
+                f"{REACH_RADIUS[0]}..{REACH_RADIUS[1]} m"
+            )
 
 
-def validate_gear_pose(name: str, pose: tuple[float, float, float],
-                       plate_pose: tuple[float, float, float],
-                       others: dict[str, tuple[float, float, float]] | None = None) -> None:
+def validate_gear_pose(
+    name: str,
+    pose: tuple[float, float, float],
+    plate_pose: tuple[float, float, float],
+    others: dict[str, tuple[float, float, float]] | None = None,
+) -> None:
     """ValueError unless gear `name` at `pose` lies on the table, within reach, clear of the plate
     and of the other gears."""
     spec = gear_spec(name)
     x, y, _ = _finite_pose(f"{name} gear pose", pose)
     r = spec.tip_radius
     if not (TABLE_X[0] + r <= x <= TABLE_X[1] - r and TABLE_Y[0] + r <= y <= TABLE_Y[1] - r):
-        raise ValueError(f"{name} gear pose {tuple(pose)} is outside the table; expected x in "
-                         f"[{TABLE_X[0] + r:.3f}, {TABLE_X[1] - r:.3f}] and y in "
-                         f"[{TABLE_Y[0] + r:.3f}, {TABLE_Y[1] - r:.3f}] m")
+        raise ValueError(
+            f"{name} gear pose {tuple(pose)} is outside the table; expected x in "
+            f"[{TABLE_X[0] + r:.3f}, {TABLE_X[1] - r:.3f}] and y in "
+            f"[{TABLE_Y[0] + r:.3f}, {TABLE_Y[1] - r:.3f}] m"
+        )
     if not _in_reach(x, y):
-        raise ValueError(f"{name} gear pose {tuple(pose)} is {np.hypot(x, y):.3f} m from the robot "
-                         f"base; expected {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m (the Panda's reach)")
+        raise ValueError(
+            f"{name} gear pose {tuple(pose)} is {np.hypot(x, y):.3f} m from the robot "
+            f"base; expected {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m (the Panda's reach)"
+        )
     # Clearance to the plate: distance from the gear centre to the plate rectangle > radius + gripper.
     X_WP = planar_pose(*plate_pose)
     p_P = X_WP.inverse() @ np.array([x, y, 0.0])
     dx = max(abs(p_P[0]) - PLATE_SIZE[0] / 2, 0.0)
     dy = max(abs(p_P[1]) - PLATE_SIZE[1] / 2, 0.0)
     if np.hypot(dx, dy) < r + 0.02:
-        raise ValueError(f"{name} gear pose {tuple(pose)} overlaps the gear plate; keep the gear "
-                         f"at least {r + 0.02:.3f} m (radius + 2 cm) from the plate's edge")
+        raise ValueError(
+            f"{name} gear pose {tuple(pose)} overlaps the gear plate; keep the gear "
+            f"at least {r + 0.02:.3f} m (radius + 2 cm) from the plate's edge"
+        )
     for other, q in (others or {}).items():
         d = np.hypot(x - q[0], y - q[1])
         need = r + gear_spec(other).tip_radius + 0.05
         if d < need:
-            raise ValueError(f"{name} gear pose {tuple(pose)} is {d:.3f} m from the {other} gear; "
-                             f"expected at least {need:.3f} m so the open gripper fits between")
+            raise ValueError(
+                f"{name} gear pose {tuple(pose)} is {d:.3f} m from the {other} gear; "
+                f"expected at least {need:.3f} m so the open gripper fits between"
+            )
 
 
 def insertion_error(X_SW: RigidTransform, X_WG: RigidTransform) -> tuple[float, float]:
@@ -239,9 +289,11 @@ def validate_tool_target(X_WT: RigidTransform) -> None:
         raise ValueError(f"tool target position {p} is not finite")
     r = np.hypot(p[0], p[1])
     if not (REACH_RADIUS[0] <= r <= REACH_RADIUS[1] and REACH_HEIGHT[0] <= p[2] <= REACH_HEIGHT[1]):
-        raise ValueError(f"tool target {np.round(p, 4).tolist()} is outside the workspace; expected "
-                         f"radial distance {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m from the base and "
-                         f"height {REACH_HEIGHT[0]}..{REACH_HEIGHT[1]} m relative to the table top")
+        raise ValueError(
+            f"tool target {np.round(p, 4).tolist()} is outside the workspace; expected "
+            f"radial distance {REACH_RADIUS[0]}..{REACH_RADIUS[1]} m from the base and "
+            f"height {REACH_HEIGHT[0]}..{REACH_HEIGHT[1]} m relative to the table top"
+        )
 
 
 def _finite_pose(what: str, pose) -> np.ndarray:
@@ -251,18 +303,21 @@ def _finite_pose(what: str, pose) -> np.ndarray:
     return arr
 
 
-def random_gear_poses(rng: np.random.Generator,
-                      plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
-                      gears: tuple[str, ...] = GEAR_NAMES, max_tries: int = 1000
-                      ) -> dict[str, tuple[float, float, float]]:
+def random_gear_poses(
+    rng: np.random.Generator,
+    plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
+    gears: tuple[str, ...] = GEAR_NAMES,
+    max_tries: int = 1000,
+) -> dict[str, tuple[float, float, float]]:
     """Random start poses (x, y, yaw) for `gears`, placed one after the other in the given order:
     x, y uniform in PLACEMENT_X x PLACEMENT_Y, yaw uniform in [-pi, pi), drawn again until
     `validate_gear_pose` accepts the gear against the plate at `plate_pose` and the gears already
     placed. Deterministic for a given generator state. ValueError on a bad rng, gear name or
     max_tries; RuntimeError if a gear finds no valid pose in `max_tries` draws."""
     if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng is {type(rng).__name__}; expected a numpy.random.Generator "
-                         "(np.random.default_rng(seed))")
+        raise ValueError(
+            f"rng is {type(rng).__name__}; expected a numpy.random.Generator (np.random.default_rng(seed))"
+        )
     if isinstance(max_tries, bool) or not isinstance(max_tries, (int, np.integer)) or max_tries < 1:
         raise ValueError(f"max_tries = {max_tries!r}; expected an integer >= 1")
     for name in gears:
@@ -272,8 +327,11 @@ def random_gear_poses(rng: np.random.Generator,
     poses: dict[str, tuple[float, float, float]] = {}
     for name in gears:
         for _ in range(max_tries):
-            pose = (float(rng.uniform(*PLACEMENT_X)), float(rng.uniform(*PLACEMENT_Y)),
-                    float(rng.uniform(-np.pi, np.pi)))
+            pose = (
+                float(rng.uniform(*PLACEMENT_X)),
+                float(rng.uniform(*PLACEMENT_Y)),
+                float(rng.uniform(-np.pi, np.pi)),
+            )
             try:
                 validate_gear_pose(name, pose, plate_pose, poses)
             except ValueError:
@@ -281,9 +339,11 @@ def random_gear_poses(rng: np.random.Generator,
             poses[name] = pose
             break
         else:
-            raise RuntimeError(f"no valid pose for the {name} gear in {max_tries} draws from the "
-                               f"placement region x {PLACEMENT_X}, y {PLACEMENT_Y} m (plate at "
-                               f"{tuple(plate_pose)}, already placed: {sorted(poses)})")
+            raise RuntimeError(
+                f"no valid pose for the {name} gear in {max_tries} draws from the "
+                f"placement region x {PLACEMENT_X}, y {PLACEMENT_Y} m (plate at "
+                f"{tuple(plate_pose)}, already placed: {sorted(poses)})"
+            )
     return poses
 
 
@@ -313,12 +373,12 @@ def grasp_with_error(gear: str, x: float, y: float, yaw: float) -> RigidTransfor
     """X_TG of a grasp off the nominal one by (x, y) along the tool's x and y axes [m] and by yaw
     about the gear's axis [rad]."""
     X = nominal_grasp(gear)
-    return RigidTransform(X.rotation() @ RotationMatrix.MakeZRotation(yaw),
-                          X.translation() + np.array([x, y, 0.0]))
+    return RigidTransform(X.rotation() @ RotationMatrix.MakeZRotation(yaw), X.translation() + np.array([x, y, 0.0]))
 
 
-def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame, hold: GraspHold | None = None,
-                  auto_renaming: bool = False) -> HeldGear:
+def add_held_gear(
+    plant: MultibodyPlant, gear: str, tool: Frame, hold: GraspHold | None = None, auto_renaming: bool = False
+) -> HeldGear:
     """Add gear `gear` welded to a new grasp frame on `tool` (initially the nominal grasp), or
     hanging from `tool` on the joints of `hold` (GraspHold). With auto_renaming, the gear's model
     instance is numbered when the plant already holds one (copies in one plant)."""
@@ -331,12 +391,12 @@ def add_held_gear(plant: MultibodyPlant, gear: str, tool: Frame, hold: GraspHold
     held = plant.AddModelInstance(f"grasp_hold_{gear}")
     tiny = SpatialInertia.SolidSphereWithMass(1e-4, 1e-3)  # massless links would leave M singular
     links = [plant.AddRigidBody(f"grasp_hold_link{i}", held, tiny) for i in (1, 2)]
-    grasp = plant.AddFrame(FixedOffsetFrame(f"grasp_{gear}", plant.get_body(index).body_frame(),
-                                            nominal_grasp(gear).inverse(), held))
+    grasp = plant.AddFrame(
+        FixedOffsetFrame(f"grasp_{gear}", plant.get_body(index).body_frame(), nominal_grasp(gear).inverse(), held)
+    )
     joints = [
         plant.AddJoint(RevoluteJoint("grasp_tilt", tool, links[0].body_frame(), [0.0, 1.0, 0.0])),
-        plant.AddJoint(PrismaticJoint("grasp_slide_x", links[0].body_frame(), links[1].body_frame(),
-                                      [1.0, 0.0, 0.0])),
+        plant.AddJoint(PrismaticJoint("grasp_slide_x", links[0].body_frame(), links[1].body_frame(), [1.0, 0.0, 0.0])),
         plant.AddJoint(PrismaticJoint("grasp_slide_z", links[1].body_frame(), grasp, [0.0, 0.0, 1.0])),
     ]
     damping = (hold.rotational_damping, hold.damping, hold.damping)
@@ -363,17 +423,16 @@ class WorldModels:
         return self.X_WP @ RigidTransform(shaft_position_in_plate(gear))
 
 
-def add_panda(plant: MultibodyPlant, X_WBase: RigidTransform | None = None
-              ) -> tuple[ModelInstanceIndex, ModelInstanceIndex]:
+def add_panda(
+    plant: MultibodyPlant, X_WBase: RigidTransform | None = None
+) -> tuple[ModelInstanceIndex, ModelInstanceIndex]:
     """Add the Panda arm (welded at X_WBase) and its hand (welded to the flange); returns both."""
     arm_urdf, hand_urdf = panda_model_paths()
     parser = model_parser(plant)
     arm = parser.AddModels(str(arm_urdf))[0]
     hand = parser.AddModels(str(hand_urdf))[0]
-    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", arm),
-                     X_WBase or RigidTransform())
-    plant.WeldFrames(plant.GetFrameByName("panda_link8", arm),
-                     plant.GetFrameByName("panda_hand", hand), X_FLANGE_HAND)
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", arm), X_WBase or RigidTransform())
+    plant.WeldFrames(plant.GetFrameByName("panda_link8", arm), plant.GetFrameByName("panda_hand", hand), X_FLANGE_HAND)
     return arm, hand
 
 
@@ -411,14 +470,11 @@ def add_world(plant: MultibodyPlant, scene_graph: SceneGraph | None, config: Wor
     return WorldModels(arm=arm, hand=hand, table=table, plate=plate, gears=gears, X_WP=X_WP, held=held)
 
 
-def _set_default_joint_positions(plant: MultibodyPlant, instance: ModelInstanceIndex,
-                                 q: np.ndarray) -> None:
+def _set_default_joint_positions(plant: MultibodyPlant, instance: ModelInstanceIndex, q: np.ndarray) -> None:
     """Default positions of an instance's one-dof joints, in joint order (works pre-finalize)."""
-    joints = [plant.get_joint(j) for j in plant.GetJointIndices(instance)
-              if plant.get_joint(j).num_positions() == 1]
+    joints = [plant.get_joint(j) for j in plant.GetJointIndices(instance) if plant.get_joint(j).num_positions() == 1]
     if len(q) != len(joints):
-        raise ValueError(f"{len(q)} positions given for {len(joints)} joints "
-                         f"{[j.name() for j in joints]}")
+        raise ValueError(f"{len(q)} positions given for {len(joints)} joints {[j.name() for j in joints]}")
     for joint, value in zip(joints, q):
         joint.set_default_positions([float(value)])
 
@@ -429,8 +485,7 @@ def gear_body(plant: MultibodyPlant, instance: ModelInstanceIndex) -> RigidBody:
     return plant.get_body(index)
 
 
-def _override_contact(plant: MultibodyPlant, scene_graph: SceneGraph, instances,
-                      overrides: ContactOverrides) -> None:
+def _override_contact(plant: MultibodyPlant, scene_graph: SceneGraph, instances, overrides: ContactOverrides) -> None:
     """Rewrite the proximity properties of the instances' collision geometries (ContactOverrides)."""
     inspector = scene_graph.model_inspector()
     for inst in instances:
@@ -438,14 +493,16 @@ def _override_contact(plant: MultibodyPlant, scene_graph: SceneGraph, instances,
             for gid in plant.GetCollisionGeometriesForBody(plant.get_body(b)):
                 props = ProximityProperties(inspector.GetProximityProperties(gid))
                 if overrides.mu is not None:
-                    props.UpdateProperty("material", "coulomb_friction",
-                                         CoulombFriction(float(overrides.mu), float(overrides.mu)))
+                    props.UpdateProperty(
+                        "material", "coulomb_friction", CoulombFriction(float(overrides.mu), float(overrides.mu))
+                    )
                 if overrides.dissipation is not None:
                     props.UpdateProperty("material", "hunt_crossley_dissipation", float(overrides.dissipation))
                 if overrides.modulus_scale != 1.0 and props.HasProperty("hydroelastic", "hydroelastic_modulus"):
                     modulus = props.GetProperty("hydroelastic", "hydroelastic_modulus")
-                    props.UpdateProperty("hydroelastic", "hydroelastic_modulus",
-                                         float(modulus * overrides.modulus_scale))
+                    props.UpdateProperty(
+                        "hydroelastic", "hydroelastic_modulus", float(modulus * overrides.modulus_scale)
+                    )
                 scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
 
 
@@ -453,6 +510,7 @@ def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, ge
     """No robot self-collision (a held gear counts as part of the robot: its grasp is ideal);
     gears never touch each other (two rigid meshes: Drake's hydroelastic contact does not support
     rigid-rigid pairs; docs/models.md#sources)."""
+
     def geometries(instances) -> GeometrySet:
         ids = []
         for inst in instances:
@@ -466,9 +524,27 @@ def _filter_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, robot, ge
 
 
 __all__ = [
-    "ContactOverrides", "GraspHold", "HAND_TCP_OFFSET", "HeldGear", "WorldConfig", "WorldModels",
-    "add_held_gear", "add_world",
-    "add_panda", "gear_body", "insertion_error", "is_seated", "model_parser", "grasp_with_error", "nominal_grasp",
-    "planar_pose", "tool_frame", "validate_gear_pose", "validate_plate_pose", "validate_tool_target",
-    "PLACEMENT_X", "PLACEMENT_Y", "random_gear_poses",
+    "ContactOverrides",
+    "GraspHold",
+    "HAND_TCP_OFFSET",
+    "HeldGear",
+    "WorldConfig",
+    "WorldModels",
+    "add_held_gear",
+    "add_world",
+    "add_panda",
+    "gear_body",
+    "insertion_error",
+    "is_seated",
+    "model_parser",
+    "grasp_with_error",
+    "nominal_grasp",
+    "planar_pose",
+    "tool_frame",
+    "validate_gear_pose",
+    "validate_plate_pose",
+    "validate_tool_target",
+    "PLACEMENT_X",
+    "PLACEMENT_Y",
+    "random_gear_poses",
 ]

@@ -60,29 +60,48 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
         from assembly.world import WorldConfig
 
         poses = random_gear_poses(np.random.default_rng(seed))
-        s = run_assembly(AssemblyConfig(station=StationConfig(world=WorldConfig(gear_start_poses=poses))),
-                         progress=False)
+        s = run_assembly(
+            AssemblyConfig(station=StationConfig(world=WorldConfig(gear_start_poses=poses))), progress=False
+        )
         executed, replans, status = [], 0, "done" if "sim_error" not in s else "sim_error"
     else:
         from planning.assembly import PlannedAssemblyConfig, run_planned_assembly
         from planning.domain import PlannerConfig
         from planning.system import PlannerSystemConfig
 
-        planner = {"map": PlannerConfig(blind=True, max_inspections=0),
-                   "inspect": PlannerConfig(min_inspections=1, eta=eta),
-                   "eq6": PlannerConfig(eps=None, eta=eta), "eq7": PlannerConfig(eta=eta)}[variant]
-        s = run_planned_assembly(PlannedAssemblyConfig(
-            seed=seed, planner=planner, camera_error=camera_error,
-            system=PlannerSystemConfig(scene_extrinsic_std=camera_error)))
+        planner = {
+            "map": PlannerConfig(blind=True, max_inspections=0),
+            "inspect": PlannerConfig(min_inspections=1, eta=eta),
+            "eq6": PlannerConfig(eps=None, eta=eta),
+            "eq7": PlannerConfig(eta=eta),
+        }[variant]
+        s = run_planned_assembly(
+            PlannedAssemblyConfig(
+                seed=seed,
+                planner=planner,
+                camera_error=camera_error,
+                system=PlannerSystemConfig(scene_extrinsic_std=camera_error),
+            )
+        )
         executed, replans, status = s["executed"], s["replans"], s["status"]
     gears = s["gears"]
-    return {"variant": variant, "seed": seed, "camera_error": list(camera_error), "eta": eta, "status": status,
-            "inserted": sum(g["inserted"] for g in gears.values()),
-            "all_inserted": all(g["inserted"] for g in gears.values()),
-            "inspections": sum(e["skill"] == "inspect" for e in executed), "replans": replans,
-            "outcomes": [[e["skill"], e["gear"], e["outcome"]] for e in executed],
-            "reason": s.get("reason", ""), "sim_error": s.get("sim_error", ""),
-            "sim_time_s": s["sim_time_s"], "wall_time_s": time.perf_counter() - t0, "gears": gears}
+    return {
+        "variant": variant,
+        "seed": seed,
+        "camera_error": list(camera_error),
+        "eta": eta,
+        "status": status,
+        "inserted": sum(g["inserted"] for g in gears.values()),
+        "all_inserted": all(g["inserted"] for g in gears.values()),
+        "inspections": sum(e["skill"] == "inspect" for e in executed),
+        "replans": replans,
+        "outcomes": [[e["skill"], e["gear"], e["outcome"]] for e in executed],
+        "reason": s.get("reason", ""),
+        "sim_error": s.get("sim_error", ""),
+        "sim_time_s": s["sim_time_s"],
+        "wall_time_s": time.perf_counter() - t0,
+        "gears": gears,
+    }
 
 
 def summarize(rows: list[dict]) -> list[dict]:
@@ -92,29 +111,49 @@ def summarize(rows: list[dict]) -> list[dict]:
         if not rs:
             continue
         ok = np.array([r["all_inserted"] for r in rs], float)
-        out.append({"variant": variant, "seeds": len(rs), "all_inserted": float(ok.mean()),
-                    "all_inserted_se": float(np.sqrt(max(ok.mean() * (1 - ok.mean()), 1e-12) / len(rs))),
-                    "gears_inserted": float(np.mean([r["inserted"] for r in rs])),
-                    "inspections": float(np.mean([r["inspections"] for r in rs])),
-                    "replans": float(np.mean([r["replans"] for r in rs])),
-                    "failed_inserts": (float(np.mean([sum(o[0] == "insert" and o[2] != "seated" for o in r["outcomes"])
-                                                      for r in rs if "outcomes" in r]))
-                                       if any("outcomes" in r for r in rs) else None),
-                    "wall_s_median": float(np.median([r["wall_time_s"] for r in rs])),
-                    "wall_s_max": float(np.max([r["wall_time_s"] for r in rs]))})
+        out.append(
+            {
+                "variant": variant,
+                "seeds": len(rs),
+                "all_inserted": float(ok.mean()),
+                "all_inserted_se": float(np.sqrt(max(ok.mean() * (1 - ok.mean()), 1e-12) / len(rs))),
+                "gears_inserted": float(np.mean([r["inserted"] for r in rs])),
+                "inspections": float(np.mean([r["inspections"] for r in rs])),
+                "replans": float(np.mean([r["replans"] for r in rs])),
+                "failed_inserts": (
+                    float(
+                        np.mean(
+                            [
+                                sum(o[0] == "insert" and o[2] != "seated" for o in r["outcomes"])
+                                for r in rs
+                                if "outcomes" in r
+                            ]
+                        )
+                    )
+                    if any("outcomes" in r for r in rs)
+                    else None
+                ),
+                "wall_s_median": float(np.median([r["wall_time_s"] for r in rs])),
+                "wall_s_max": float(np.max([r["wall_time_s"] for r in rs])),
+            }
+        )
     return out
 
 
 def table(summary: list[dict]) -> str:
-    lines = ["| variant | seeds | all 3 inserted | gears inserted / 3 | inspections | failed inserts | replans "
-             "| wall s median / max |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| variant | seeds | all 3 inserted | gears inserted / 3 | inspections | failed inserts | replans "
+        "| wall s median / max |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for s in summary:
-        lines.append(f"| {s['variant']} | {s['seeds']} | {s['all_inserted']:.2f} +- {s['all_inserted_se']:.2f} | "
-                     f"{s['gears_inserted']:.2f} | {s['inspections']:.2f} | "
-                     f"{'n/a' if s['failed_inserts'] is None else format(s['failed_inserts'], '.2f')} | "
-                     f"{s['replans']:.2f} | "
-                     f"{s['wall_s_median']:.0f} / {s['wall_s_max']:.0f} |")
+        lines.append(
+            f"| {s['variant']} | {s['seeds']} | {s['all_inserted']:.2f} +- {s['all_inserted_se']:.2f} | "
+            f"{s['gears_inserted']:.2f} | {s['inspections']:.2f} | "
+            f"{'n/a' if s['failed_inserts'] is None else format(s['failed_inserts'], '.2f')} | "
+            f"{s['replans']:.2f} | "
+            f"{s['wall_s_median']:.0f} / {s['wall_s_max']:.0f} |"
+        )
     return "\n".join(lines)
 
 
@@ -125,10 +164,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--out", type=Path, default=Path("runs/assembly/rows.jsonl"), help="rows (resumable)")
     p.add_argument("--json", type=Path, help="write the summary and every row")
-    p.add_argument("--camera-error", type=float, nargs=2, default=(0.0, 0.0), metavar=("MM", "DEG"),
-                   help="std of the scene camera's extrinsic error: translation [mm], rotation [deg]")
-    p.add_argument("--eta", type=float, default=0.9,
-                   help="the precondition's bar (PlannerConfig.eta) for inspect, eq6, eq7; map has none")
+    p.add_argument(
+        "--camera-error",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("MM", "DEG"),
+        help="std of the scene camera's extrinsic error: translation [mm], rotation [deg]",
+    )
+    p.add_argument(
+        "--eta",
+        type=float,
+        default=0.9,
+        help="the precondition's bar (PlannerConfig.eta) for inspect, eq6, eq7; map has none",
+    )
     args = p.parse_args(argv)
     first, end = args.seeds
     if first < 0 or end <= first or args.workers < 1:
@@ -144,8 +193,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         check_output_file(args.json, "--json")
     rows = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
-    rows = [r for r in rows if np.allclose(r.get("camera_error", (0.0, 0.0)), camera_error)
-            and (r["variant"] in ("scripted", "map") or np.isclose(r.get("eta", 0.9), args.eta))]
+    rows = [
+        r
+        for r in rows
+        if np.allclose(r.get("camera_error", (0.0, 0.0)), camera_error)
+        and (r["variant"] in ("scripted", "map") or np.isclose(r.get("eta", 0.9), args.eta))
+    ]
     done = {(r["variant"], r["seed"]) for r in rows}
     todo = [(v, s) for s in range(first, end) for v in args.variants if (v, s) not in done]
     print(f"{len(todo)} runs to do ({len(done)} already in {args.out})", flush=True)
@@ -155,23 +208,44 @@ def main(argv: list[str] | None = None) -> int:
             variant, seed = todo[k]
             if isinstance(row, WorkerError):  # a crashed run is a failed row, reported, and the grid goes on
                 e = row.__cause__ or row
-                row = {"variant": variant, "seed": seed, "camera_error": list(camera_error), "eta": args.eta,
-                       "status": "error", "inserted": 0, "all_inserted": False,
-                       "inspections": 0, "replans": 0, "reason": f"{type(e).__name__}: {e}", "sim_error": "",
-                       "sim_time_s": 0.0, "wall_time_s": 0.0, "gears": {}}
+                row = {
+                    "variant": variant,
+                    "seed": seed,
+                    "camera_error": list(camera_error),
+                    "eta": args.eta,
+                    "status": "error",
+                    "inserted": 0,
+                    "all_inserted": False,
+                    "inspections": 0,
+                    "replans": 0,
+                    "reason": f"{type(e).__name__}: {e}",
+                    "sim_error": "",
+                    "sim_time_s": 0.0,
+                    "wall_time_s": 0.0,
+                    "gears": {},
+                }
             rows.append(row)
             with args.out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
-            print(f"{row['variant']:<8} seed {row['seed']:>3}: {row['inserted']}/3 {row['status']} "
-                  f"inspections {row['inspections']} replans {row['replans']} {row['wall_time_s']:.0f} s", flush=True)
+            print(
+                f"{row['variant']:<8} seed {row['seed']:>3}: {row['inserted']}/3 {row['status']} "
+                f"inspections {row['inspections']} replans {row['replans']} {row['wall_time_s']:.0f} s",
+                flush=True,
+            )
     summary = summarize([r for r in rows if first <= r["seed"] < end and r["variant"] in args.variants])
     print(table(summary))
     if args.json:
-        write_json(args.json, {"command": " ".join(sys.argv), "seeds": [first, end],
-                               "camera_error": {"translation_m": camera_error[0], "rotation_rad": camera_error[1]},
-                               "eta": args.eta,
-                               "summary": summary,
-                               "rows": [r for r in rows if first <= r["seed"] < end]})
+        write_json(
+            args.json,
+            {
+                "command": " ".join(sys.argv),
+                "seeds": [first, end],
+                "camera_error": {"translation_m": camera_error[0], "rotation_rad": camera_error[1]},
+                "eta": args.eta,
+                "summary": summary,
+                "rows": [r for r in rows if first <= r["seed"] < end],
+            },
+        )
     return 0
 
 

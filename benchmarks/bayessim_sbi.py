@@ -64,8 +64,9 @@ def import_sbi() -> Any:
         import sbi.neural_nets  # noqa: F401
         import sbi.utils  # noqa: F401
     except ImportError:
-        raise SystemExit('bayessim_sbi: sbi is not installed; install it with .venv/bin/pip install -e ".[sbi]"'
-                         ) from None
+        raise SystemExit(
+            'bayessim_sbi: sbi is not installed; install it with .venv/bin/pip install -e ".[sbi]"'
+        ) from None
     if sbi.__version__ != SBI_VERSION:
         print(f"bayessim_sbi: note: sbi {sbi.__version__} is installed; the recorded results used {SBI_VERSION}")
     return sbi
@@ -92,8 +93,9 @@ class _NoTracker:
         pass
 
 
-def fit_sbi(sbi: Any, sims: BayesSimSimulations, config: BayesSimConfig, seed: int, training: str
-            ) -> tuple[GaussianMixtureAggregate, dict]:
+def fit_sbi(
+    sbi: Any, sims: BayesSimSimulations, config: BayesSimConfig, seed: int, training: str
+) -> tuple[GaussianMixtureAggregate, dict]:
     """sbi's NPE with its MDN (diagonal precisions) on the simulations; its posteriors of the logged
     segments averaged. `training`: "sbi" (sbi's defaults) or "ours" (config's batch, lr, epochs)."""
     import torch
@@ -101,8 +103,13 @@ def fit_sbi(sbi: Any, sims: BayesSimSimulations, config: BayesSimConfig, seed: i
     d = sims.u.shape[1]
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     prior = sbi.utils.BoxUniform(torch.zeros(d), torch.ones(d))
-    build_full = sbi.neural_nets.posterior_nn("mdn", z_score_theta="transform_to_unconstrained", x_dist=prior,
-                                              hidden_features=64, num_components=config.components)
+    build_full = sbi.neural_nets.posterior_nn(
+        "mdn",
+        z_score_theta="transform_to_unconstrained",
+        x_dist=prior,
+        hidden_features=64,
+        num_components=config.components,
+    )
 
     def build_diagonal(batch_theta: torch.Tensor, batch_x: torch.Tensor) -> Any:
         estimator = build_full(batch_theta, batch_x)
@@ -114,18 +121,27 @@ def fit_sbi(sbi: Any, sims: BayesSimSimulations, config: BayesSimConfig, seed: i
             upper.requires_grad_(False)
         return estimator
 
-    train_kwargs = {} if training == "sbi" else {
-        "training_batch_size": config.batch_size, "learning_rate": config.lr,
-        "max_num_epochs": config.epochs, "stop_after_epochs": config.epochs}
+    train_kwargs = (
+        {}
+        if training == "sbi"
+        else {
+            "training_batch_size": config.batch_size,
+            "learning_rate": config.lr,
+            "max_num_epochs": config.epochs,
+            "stop_after_epochs": config.epochs,
+        }
+    )
     with torch.random.fork_rng():
         torch.manual_seed(seed)
         # sbi's warnings (e.g. on outliers of the statistics) go into the details, not on the screen
         with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            inference = sbi.inference.NPE(prior=prior, density_estimator=build_diagonal, show_progress_bars=False,
-                                          tracker=_NoTracker())
-            inference.append_simulations(torch.as_tensor(sims.u, dtype=torch.float32),
-                                         torch.as_tensor(sims.stats, dtype=torch.float32))
+            inference = sbi.inference.NPE(
+                prior=prior, density_estimator=build_diagonal, show_progress_bars=False, tracker=_NoTracker()
+            )
+            inference.append_simulations(
+                torch.as_tensor(sims.u, dtype=torch.float32), torch.as_tensor(sims.stats, dtype=torch.float32)
+            )
             estimator = inference.train(**train_kwargs)
     estimator.eval()
     with torch.no_grad():
@@ -139,11 +155,13 @@ def fit_sbi(sbi: Any, sims: BayesSimSimulations, config: BayesSimConfig, seed: i
     dist = GaussianMixtureAggregate(weights.double().numpy(), mog.means.double().numpy(), stds.numpy())
     train_wall, train_cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
     summary = inference.summary
-    return dist, {"epochs": int(summary["epochs_trained"][-1]),
-                  "best_validation_loss": float(summary["best_validation_loss"][-1]),
-                  "train_seconds": train_wall, "train_cpu_seconds": train_cpu,
-                  "sbi_warnings": sorted({str(w.message) for w in caught
-                                          if "max_num_epochs" not in str(w.message)})}  # ours: no early stop
+    return dist, {
+        "epochs": int(summary["epochs_trained"][-1]),
+        "best_validation_loss": float(summary["best_validation_loss"][-1]),
+        "train_seconds": train_wall,
+        "train_cpu_seconds": train_cpu,
+        "sbi_warnings": sorted({str(w.message) for w in caught if "max_num_epochs" not in str(w.message)}),
+    }  # ours: no early stop
 
 
 def simulate(ds: Any, budget_calls: int, config: BayesSimConfig, seed: int) -> tuple[BayesSimSimulations, dict]:
@@ -161,9 +179,14 @@ def simulate(ds: Any, budget_calls: int, config: BayesSimConfig, seed: int) -> t
         budget.close()
         if hasattr(sim, "close"):
             sim.close()
-    return sims, {"sim_calls": budget.calls, "simulations": sims.simulations, "valid_simulations": len(sims.u),
-                  "observed_segments": len(sims.observed), "sim_seconds": time.perf_counter() - t_wall,
-                  "sim_cpu_seconds": time.process_time() - t_cpu}
+    return sims, {
+        "sim_calls": budget.calls,
+        "simulations": sims.simulations,
+        "valid_simulations": len(sims.u),
+        "observed_segments": len(sims.observed),
+        "sim_seconds": time.perf_counter() - t_wall,
+        "sim_cpu_seconds": time.process_time() - t_cpu,
+    }
 
 
 def recorded_ots(path: str | None) -> dict:
@@ -183,10 +206,15 @@ def summarize(runs: list[dict], oracle: dict) -> list[dict]:
                 if not sel:
                     continue
                 ot = np.array([r["ot"] for r in sel])
-                row = {"env": env, "target": target, "method": method, "seeds": len(sel),
-                       "ot_mean": float(ot.mean()),
-                       "ot_se": float(ot.std(ddof=1) / np.sqrt(len(ot))) if len(ot) > 1 else 0.0,
-                       "ot_per_seed": [round(float(x), 4) for x in ot]}
+                row = {
+                    "env": env,
+                    "target": target,
+                    "method": method,
+                    "seeds": len(sel),
+                    "ot_mean": float(ot.mean()),
+                    "ot_se": float(ot.std(ddof=1) / np.sqrt(len(ot))) if len(ot) > 1 else 0.0,
+                    "ot_per_seed": [round(float(x), 4) for x in ot],
+                }
                 for key in ("train_seconds", "train_cpu_seconds", "sim_seconds", "sim_cpu_seconds", "epochs"):
                     row[f"{key}_mean"] = float(np.mean([r[key] for r in sel]))
                 row["oracle_ot_mean"] = float(np.mean([oracle[f"{env}|{target}|{r['seed']}"] for r in sel]))
@@ -201,14 +229,18 @@ def summarize(runs: list[dict], oracle: dict) -> list[dict]:
 
 def print_rows(rows: list[dict]) -> None:
     """The summary as a text table."""
-    print(f"\n{'env':<20} {'target':<9} {'MDN':<21} {'OT mean +- se':<16} {'OT per seed':<22} "
-          f"{'recorded per seed':<22} {'train wall':>10} {'train CPU':>9} {'epochs':>6}")
+    print(
+        f"\n{'env':<20} {'target':<9} {'MDN':<21} {'OT mean +- se':<16} {'OT per seed':<22} "
+        f"{'recorded per seed':<22} {'train wall':>10} {'train CPU':>9} {'epochs':>6}"
+    )
     for r in rows:
         rec = ", ".join(f"{x:.4f}" for x in r.get("recorded_ot_per_seed", [])) or "-"
-        print(f"{r['env'].split('/')[-1]:<20} {r['target']:<9} {r['method']:<21} "
-              f"{r['ot_mean']:.4f} +- {r['ot_se']:.4f} {', '.join(f'{x:.4f}' for x in r['ot_per_seed']):<22} "
-              f"{rec:<22} {r['train_seconds_mean']:9.1f}s {r['train_cpu_seconds_mean']:8.1f}s "
-              f"{r['epochs_mean']:6.0f}")
+        print(
+            f"{r['env'].split('/')[-1]:<20} {r['target']:<9} {r['method']:<21} "
+            f"{r['ot_mean']:.4f} +- {r['ot_se']:.4f} {', '.join(f'{x:.4f}' for x in r['ot_per_seed']):<22} "
+            f"{rec:<22} {r['train_seconds_mean']:9.1f}s {r['train_cpu_seconds_mean']:8.1f}s "
+            f"{r['epochs_mean']:6.0f}"
+        )
 
 
 def main() -> int:
@@ -218,26 +250,40 @@ def main() -> int:
     p.add_argument("--seeds", type=int, default=3, help="seeds 0 .. SEEDS-1 (dataset and estimator seed)")
     p.add_argument("--budget", type=int, default=80_000, help="simulator calls per run (the table's 80000)")
     p.add_argument("--episodes", type=int, default=48)
-    p.add_argument("--sbi-training", nargs="*", default=["sbi"], choices=list(LABELS),
-                   help="sbi's MDN trained with sbi's defaults (sbi -> sbi-mdn) and/or with ours "
-                        "(ours -> sbi-mdn-our-training); none: only our MDN")
+    p.add_argument(
+        "--sbi-training",
+        nargs="*",
+        default=["sbi"],
+        choices=list(LABELS),
+        help="sbi's MDN trained with sbi's defaults (sbi -> sbi-mdn) and/or with ours "
+        "(ours -> sbi-mdn-our-training); none: only our MDN",
+    )
     p.add_argument("--no-ours", action="store_true", help="skip our MDN")
-    p.add_argument("--recorded", default=None, metavar="RUNS.json",
-                   help="earlier runs to put beside the new ones (docs/results/bayessim_sbi_runs.json)")
+    p.add_argument(
+        "--recorded",
+        default=None,
+        metavar="RUNS.json",
+        help="earlier runs to put beside the new ones (docs/results/bayessim_sbi_runs.json)",
+    )
     p.add_argument("--json", default="runs/results/bayessim_sbi.json", help="output file")
     args = p.parse_args()
     sbi = import_sbi() if args.sbi_training else None
 
     import torch
+
     torch.set_num_threads(1)  # as `goflow estimate` trains (small networks)
     torch.optim.Adam([torch.zeros(1, requires_grad=True)])  # pay torch._dynamo's import here, not in a fit
 
     config = BayesSimConfig()  # the table's BayesSim
     recorded = recorded_ots(args.recorded)
-    doc: dict = {"command": "python -m benchmarks.bayessim_sbi " + " ".join(sys.argv[1:]),
-                 "versions": {"sbi": getattr(sbi, "__version__", None), "torch": torch.__version__},
-                 "bayessim_config": dataclasses.asdict(config), "runs": [], "oracle": {}}
-    fits = ([("ours", lambda sims, seed: fit_mdn(sims, config, seed))] if not args.no_ours else [])
+    doc: dict = {
+        "command": "python -m benchmarks.bayessim_sbi " + " ".join(sys.argv[1:]),
+        "versions": {"sbi": getattr(sbi, "__version__", None), "torch": torch.__version__},
+        "bayessim_config": dataclasses.asdict(config),
+        "runs": [],
+        "oracle": {},
+    }
+    fits = [("ours", lambda sims, seed: fit_mdn(sims, config, seed))] if not args.no_ours else []
     fits += [(LABELS[t], lambda sims, seed, t=t: fit_sbi(sbi, sims, config, seed, t)) for t in args.sbi_training]
     if not fits:
         raise SystemExit("bayessim_sbi: nothing to fit (--no-ours and no --sbi-training)")
@@ -252,18 +298,29 @@ def main() -> int:
                 for label, fit in fits:
                     dist, details = fit(sims, seed)
                     _, ot = score(EstimatedSampler.of(ds.space, dist), u_true, seed)
-                    run = {"env": env, "target": target, "method": label, "seed": seed, "sim_budget": args.budget,
-                           "ot": ot, **sim_info, **details}
+                    run = {
+                        "env": env,
+                        "target": target,
+                        "method": label,
+                        "seed": seed,
+                        "sim_budget": args.budget,
+                        "ot": ot,
+                        **sim_info,
+                        **details,
+                    }
                     run.setdefault("epochs", config.epochs)
                     rec = recorded.get((env, target, label, seed))
                     if rec is not None:
                         run["recorded_ot"] = rec
                     doc["runs"].append(run)
                     write_json(args.json, {**doc, "rows": summarize(doc["runs"], doc["oracle"])})
-                    print(f"{env} {target} seed {seed} {label}: OT {ot:.4f}"
-                          + (f" (recorded {rec:.4f}, diff {ot - rec:+.4f})" if rec is not None else "")
-                          + f", train {details['train_seconds']:.1f} s wall / {details['train_cpu_seconds']:.1f} s CPU, "
-                          f"epochs {run['epochs']}; simulation {sim_info['sim_seconds']:.1f} s", flush=True)
+                    print(
+                        f"{env} {target} seed {seed} {label}: OT {ot:.4f}"
+                        + (f" (recorded {rec:.4f}, diff {ot - rec:+.4f})" if rec is not None else "")
+                        + f", train {details['train_seconds']:.1f} s wall / {details['train_cpu_seconds']:.1f} s CPU, "
+                        f"epochs {run['epochs']}; simulation {sim_info['sim_seconds']:.1f} s",
+                        flush=True,
+                    )
     doc["wall_seconds"] = time.perf_counter() - t_start
     doc["rows"] = summarize(doc["runs"], doc["oracle"])
     write_json(args.json, doc)

@@ -43,8 +43,9 @@ def lqr_gain(env: CartpoleEnv, pole_mass: float, cart_mass: float, control_weigh
     mass_matrix_inv = np.linalg.inv(np.array([[pole_mass + cart_mass, pole_mass * l], [pole_mass * l, inertia]]))
     a = np.zeros((4, 4))
     a[0, 2] = a[1, 3] = 1.0
-    a[2:, :] = mass_matrix_inv @ np.array([[0.0, 0.0, -cfg.slider_damping, 0.0],
-                                           [0.0, pole_mass * GRAVITY * l, 0.0, 0.0]])
+    a[2:, :] = mass_matrix_inv @ np.array(
+        [[0.0, 0.0, -cfg.slider_damping, 0.0], [0.0, pole_mass * GRAVITY * l, 0.0, 0.0]]
+    )
     b = np.zeros((4, 1))
     b[2:, 0] = mass_matrix_inv @ np.array([1.0, 0.0])
     q, r = np.diag([1.0, 100.0, 1.0, 1.0]), np.array([[control_weight]])
@@ -90,10 +91,14 @@ def main() -> None:
     threshold = env.config.success_threshold
     success = (returns >= threshold).any(axis=1)
     n = args.episodes
-    rows = [("any controller", success)] + [(f"R = {w:g}, {'with' if c else 'without'} friction compensation",
-                                             returns[:, j] >= threshold) for j, (w, c) in enumerate(controllers)]
-    print(f"goflow/Cartpole-v0, {n} uniform episodes (seed {args.seed}); cart immovable "
-          f"(mu (m_pole + m_cart) g >= {env.config.max_force:g} N) on {immovable.mean():.3f} of the box")
+    rows = [("any controller", success)] + [
+        (f"R = {w:g}, {'with' if c else 'without'} friction compensation", returns[:, j] >= threshold)
+        for j, (w, c) in enumerate(controllers)
+    ]
+    print(
+        f"goflow/Cartpole-v0, {n} uniform episodes (seed {args.seed}); cart immovable "
+        f"(mu (m_pole + m_cart) g >= {env.config.max_force:g} N) on {immovable.mean():.3f} of the box"
+    )
     print(f"{'controller':52} {'success on the box':>20}")
     for name, ok in rows:
         print(f"{name:52} {ok.mean():>11.3f} +- {ok.std(ddof=1) / math.sqrt(n):.3f}")
@@ -102,17 +107,33 @@ def main() -> None:
     by_band = []
     for lo, hi in bands:
         m = (friction_force >= lo) & (friction_force < hi)
-        by_band.append({"low_N": lo, "high_N": hi, "share_of_box": float(m.mean()),
-                        "success": float(success[m].mean()) if m.any() else None})
-        print(f"  [{lo:g}, {hi:g}): {m.mean():.3f} of the box, success {success[m].mean() if m.any() else float('nan'):.3f}")
+        by_band.append(
+            {
+                "low_N": lo,
+                "high_N": hi,
+                "share_of_box": float(m.mean()),
+                "success": float(success[m].mean()) if m.any() else None,
+            }
+        )
+        print(
+            f"  [{lo:g}, {hi:g}): {m.mean():.3f} of the box, success {success[m].mean() if m.any() else float('nan'):.3f}"
+        )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        write_json(args.json, {
-            "env": "goflow/Cartpole-v0", "episodes": n, "seed": args.seed, "success_threshold": threshold,
-            "success_any": float(success.mean()), "success_any_se": float(success.std(ddof=1) / math.sqrt(n)),
-            "immovable_share": float(immovable.mean()),
-            "controllers": {name: float(ok.mean()) for name, ok in rows[1:]}, "by_friction_bound": by_band,
-        })
+        write_json(
+            args.json,
+            {
+                "env": "goflow/Cartpole-v0",
+                "episodes": n,
+                "seed": args.seed,
+                "success_threshold": threshold,
+                "success_any": float(success.mean()),
+                "success_any_se": float(success.std(ddof=1) / math.sqrt(n)),
+                "immovable_share": float(immovable.mean()),
+                "controllers": {name: float(ok.mean()) for name, ok in rows[1:]},
+                "by_friction_bound": by_band,
+            },
+        )
 
 
 if __name__ == "__main__":

@@ -56,8 +56,15 @@ NAME = "classifier_frontier"
 TARGET_MASS, TARGET_COVERAGE, COVERAGE_LEVEL = 0.99, 0.95, 0.1
 
 
-def read_levels(p_hat: np.ndarray, in_f: np.ndarray, p_inside: np.ndarray, levels: Sequence[float],
-                share: float, delta: float, weights: np.ndarray | None = None) -> list[dict[str, float]]:
+def read_levels(
+    p_hat: np.ndarray,
+    in_f: np.ndarray,
+    p_inside: np.ndarray,
+    levels: Sequence[float],
+    share: float,
+    delta: float,
+    weights: np.ndarray | None = None,
+) -> list[dict[str, float]]:
     """Mass, cov10 and recall of (1 - delta) U(F-hat) + delta U(rest) for F-hat = {P >= level}:
     `p_hat` and `in_f` at points of the box, uniform or with importance `weights` to uniform,
     `p_inside` at points uniform on F."""
@@ -80,8 +87,16 @@ def read_levels(p_hat: np.ndarray, in_f: np.ndarray, p_inside: np.ndarray, level
     return rows
 
 
-def run(layout: Layout, seed: int, memory: int, rounds: Sequence[int], levels: Sequence[float], batch: int,
-        points: int, boundary_memory: int = 0) -> list[dict[str, Any]]:
+def run(
+    layout: Layout,
+    seed: int,
+    memory: int,
+    rounds: Sequence[int],
+    levels: Sequence[float],
+    batch: int,
+    points: int,
+    boundary_memory: int = 0,
+) -> list[dict[str, Any]]:
     """The frontier of one (layout, seed, memory, boundary_memory) at each round of `rounds` (ascending)."""
     cfg = GoFlowConfig(mode="constrained")
     d = layout.dim
@@ -101,10 +116,19 @@ def run(layout: Layout, seed: int, memory: int, rounds: Sequence[int], levels: S
             classifier.fit_evidence(evidence, steps=cfg.classifier_steps, batch=cfg.fit_batch, gen=gen)
         if r in rounds:
             p_hat, p_inside = classifier.probability(u), classifier.probability(inside)
-            out.append({"layout": layout.name, "seed": seed, "memory": memory, "boundary_memory": boundary_memory,
-                        "round": r, "rows": len(evidence), "kept": evidence.kept,
-                        "successes": int(evidence.signal.sum()),
-                        "levels": read_levels(p_hat, in_f, p_inside, levels, layout.share, cfg.delta)})
+            out.append(
+                {
+                    "layout": layout.name,
+                    "seed": seed,
+                    "memory": memory,
+                    "boundary_memory": boundary_memory,
+                    "round": r,
+                    "rows": len(evidence),
+                    "kept": evidence.kept,
+                    "successes": int(evidence.signal.sum()),
+                    "levels": read_levels(p_hat, in_f, p_inside, levels, layout.share, cfg.delta),
+                }
+            )
     return out
 
 
@@ -120,13 +144,16 @@ def skill_feasible_set(gear: str) -> FeasibleSet:
     """The measured feasible set of the shipped insert skill for `gear` (InputError without one)."""
     feasible = load_skill("insert", gear=gear).feasible
     if feasible is None:
-        raise InputError(f"--skills: the shipped {gear} skill has no measured feasible set; "
-                         f"expected one (goflow skill refit --gear {gear})")
+        raise InputError(
+            f"--skills: the shipped {gear} skill has no measured feasible set; "
+            f"expected one (goflow skill refit --gear {gear})"
+        )
     return feasible
 
 
-def run_skill(gear: str, feasible: FeasibleSet, seed: int, per_cell: int, levels: Sequence[float],
-              points: int) -> dict[str, Any]:
+def run_skill(
+    gear: str, feasible: FeasibleSet, seed: int, per_cell: int, levels: Sequence[float], points: int
+) -> dict[str, Any]:
     """The frontier of `gear`'s measured feasible set, fitted once from `per_cell` labelled points
     per cell (module docstring)."""
     cfg, refit = GoFlowConfig(mode="constrained"), FlowRefitConfig()
@@ -135,8 +162,9 @@ def run_skill(gear: str, feasible: FeasibleSet, seed: int, per_cell: int, levels
     evidence = Evidence(d, len(xi), cfg.neighbours, (0.0, 1.0))
     evidence.add(xi, success)
     classifier = SuccessClassifier(d, cfg.classifier_layers(d), seed)
-    classifier.fit_evidence(evidence, steps=refit.classifier_steps, batch=cfg.fit_batch,
-                            gen=torch.Generator().manual_seed(seed))
+    classifier.fit_evidence(
+        evidence, steps=refit.classifier_steps, batch=cfg.fit_batch, gen=torch.Generator().manual_seed(seed)
+    )
     check = np.random.default_rng([seed, 2])
     width = space.high - space.low
     fine_low, fine_high = (feasible.fine_low - space.low) / width, (feasible.fine_high - space.low) / width
@@ -148,9 +176,15 @@ def run_skill(gear: str, feasible: FeasibleSet, seed: int, per_cell: int, levels
     inside, share = feasible.sample_box(points, check)
     in_f = feasible.contains(space.low + width * u)
     p_hat, p_inside = classifier.probability(u), classifier.probability((inside - space.low) / width)
-    return {"layout": f"{gear} gear", "seed": seed, "per_cell": per_cell, "rows": len(xi),
-            "successes": int(success.sum()), "share": share,
-            "levels": read_levels(p_hat, in_f, p_inside, levels, share, refit.delta, weights)}
+    return {
+        "layout": f"{gear} gear",
+        "seed": seed,
+        "per_cell": per_cell,
+        "rows": len(xi),
+        "successes": int(success.sum()),
+        "share": share,
+        "levels": read_levels(p_hat, in_f, p_inside, levels, share, refit.delta, weights),
+    }
 
 
 def meets(level_row: dict[str, float]) -> bool:
@@ -163,8 +197,11 @@ def table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
     groups: dict[tuple[str, int, int, int], list[dict[str, Any]]] = {}
     for rec in records:
         groups.setdefault((rec["layout"], rec["memory"], rec.get("boundary_memory", 0), rec["round"]), []).append(rec)
-    head = ("| layout | memory | boundary | round | successes | " + " | ".join(f"{lv:g}" for lv in levels)
-            + " | seeds meeting both |")
+    head = (
+        "| layout | memory | boundary | round | successes | "
+        + " | ".join(f"{lv:g}" for lv in levels)
+        + " | seeds meeting both |"
+    )
     lines = [head, "|" + "---|" * (len(levels) + 6)]
     for (name, memory, boundary, r), recs in groups.items():
         cells = []
@@ -174,8 +211,11 @@ def table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
             cells.append(f"{mass:.3f} / {cov:.3f}")
         good = sum(any(meets(lv) for lv in rec["levels"]) for rec in recs)
         successes = np.mean([rec["successes"] for rec in recs])
-        lines.append(f"| {name} | {memory} | {boundary} | {r} | {successes:.0f} | " + " | ".join(cells)
-                     + f" | {good} of {len(recs)} |")
+        lines.append(
+            f"| {name} | {memory} | {boundary} | {r} | {successes:.0f} | "
+            + " | ".join(cells)
+            + f" | {good} of {len(recs)} |"
+        )
     return "\n".join(lines)
 
 
@@ -185,32 +225,52 @@ def skill_table(records: list[dict[str, Any]], levels: Sequence[float]) -> str:
     groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
     for rec in records:
         groups.setdefault((rec["layout"], rec["per_cell"]), []).append(rec)
-    head = "| measured set | share | points per cell | rows | " + " | ".join(f"{lv:g}" for lv in levels) + \
-        " | seeds meeting both |"
+    head = (
+        "| measured set | share | points per cell | rows | "
+        + " | ".join(f"{lv:g}" for lv in levels)
+        + " | seeds meeting both |"
+    )
     lines = [head, "|" + "---|" * (len(levels) + 5)]
     for (name, per_cell), recs in groups.items():
-        cells = [" / ".join(f"{np.mean([rec['levels'][i][k] for rec in recs]):.3f}" for k in ("mass", "cov10", "recall"))
-                 for i in range(len(levels))]
+        cells = [
+            " / ".join(f"{np.mean([rec['levels'][i][k] for rec in recs]):.3f}" for k in ("mass", "cov10", "recall"))
+            for i in range(len(levels))
+        ]
         good = sum(any(meets(lv) for lv in rec["levels"]) for rec in recs)
-        lines.append(f"| {name} | {recs[0]['share']:.4%} | {per_cell} | {recs[0]['rows']} | " + " | ".join(cells)
-                     + f" | {good} of {len(recs)} |")
+        lines.append(
+            f"| {name} | {recs[0]['share']:.4%} | {per_cell} | {recs[0]['rows']} | "
+            + " | ".join(cells)
+            + f" | {good} of {len(recs)} |"
+        )
     return "\n".join(lines)
 
 
 def make_parser() -> argparse.ArgumentParser:
     """The benchmark's flags."""
     p = InputErrorParser(prog="benchmarks/classifier_frontier.py", description=__doc__.splitlines()[0])
-    p.add_argument("--layouts", nargs="+", default=None,
-                   help=f"some of {list(LAYOUTS)} (default: tiny, or none with --skills)")
-    p.add_argument("--skills", nargs="+", default=[], help=f"shipped insert skills' measured sets: some of {list(GEARS)}")
-    p.add_argument("--per-cell", nargs="+", type=int, default=[1],
-                   help="with --skills: labelled points drawn in each measured cell")
+    p.add_argument(
+        "--layouts", nargs="+", default=None, help=f"some of {list(LAYOUTS)} (default: tiny, or none with --skills)"
+    )
+    p.add_argument(
+        "--skills", nargs="+", default=[], help=f"shipped insert skills' measured sets: some of {list(GEARS)}"
+    )
+    p.add_argument(
+        "--per-cell",
+        nargs="+",
+        type=int,
+        default=[1],
+        help="with --skills: labelled points drawn in each measured cell",
+    )
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    p.add_argument("--rounds", nargs="+", type=int, default=[100, 200, 300],
-                   help="rounds at which F-hat is read")
+    p.add_argument("--rounds", nargs="+", type=int, default=[100, 200, 300], help="rounds at which F-hat is read")
     p.add_argument("--memory", nargs="+", type=int, default=[GoFlowConfig.memory], help="Evidence rows kept")
-    p.add_argument("--boundary-memory", nargs="+", type=int, default=[GoFlowConfig.boundary_memory],
-                   help="boundary rows kept beyond the window (0: none)")
+    p.add_argument(
+        "--boundary-memory",
+        nargs="+",
+        type=int,
+        default=[GoFlowConfig.boundary_memory],
+        help="boundary rows kept beyond the window (0: none)",
+    )
     p.add_argument("--levels", nargs="+", type=float, default=[0.3, 0.5, 0.6, 0.7, 0.8, 0.9])
     p.add_argument("--batch", type=int, default=256, help="uniform points per round")
     p.add_argument("--points", type=int, default=1_000_000, help="uniform points of the box, and points on F")
@@ -269,11 +329,19 @@ def main(argv: list[str] | None = None) -> int:
             print("mass / cov10 / recall at each level:")
             print(skill_table(skill_records, levels))
         if args.json is not None:
-            write_json(args.json, {"benchmark": NAME, "command": "benchmarks/classifier_frontier.py " +
-                                   " ".join(argv if argv is not None else sys.argv[1:]),
-                                   "targets": {"mass": TARGET_MASS, "cov10": TARGET_COVERAGE},
-                                   "batch": args.batch, "points": args.points, "records": records,
-                                   "skill_records": skill_records})
+            write_json(
+                args.json,
+                {
+                    "benchmark": NAME,
+                    "command": "benchmarks/classifier_frontier.py "
+                    + " ".join(argv if argv is not None else sys.argv[1:]),
+                    "targets": {"mass": TARGET_MASS, "cov10": TARGET_COVERAGE},
+                    "batch": args.batch,
+                    "points": args.points,
+                    "records": records,
+                    "skill_records": skill_records,
+                },
+            )
             print(f"{NAME}: -> {args.json}")
         return 0
     except GoflowError as exc:

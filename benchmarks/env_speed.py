@@ -144,8 +144,10 @@ def overhead(name: str, kwargs: dict, steps: int, seed: int) -> float | None:
 
 def sync_speed(env_id: str, kwargs: dict, n: int, steps: int, seed: int) -> float:
     """Env steps/s (summed over envs) of a SyncVectorEnv of n single envs at the nominal xi."""
-    vec = gymnasium.vector.SyncVectorEnv([lambda: make_nominal(env_id, kwargs) for _ in range(n)],
-                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    vec = gymnasium.vector.SyncVectorEnv(
+        [lambda: make_nominal(env_id, kwargs) for _ in range(n)],
+        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP,
+    )
     return _vector_speed(vec, env_id, steps, seed)
 
 
@@ -223,8 +225,11 @@ def batched_table(copies: list[int], steps: int, seed: int, only: list[str] | No
     """Print and return the --batched table (see the module docstring)."""
     from assembly.envs import VECTOR_ENVS
 
-    header = (f"{'env':<26} {'sync x16':>9} " + " ".join(f"{f'N={n}':>8} {'x':>5}" for n in copies)
-              + f" {'AdvanceTo':>9} {'MuJoCo':>8} {f'rollout N={copies[-1]}':>14}")
+    header = (
+        f"{'env':<26} {'sync x16':>9} "
+        + " ".join(f"{f'N={n}':>8} {'x':>5}" for n in copies)
+        + f" {'AdvanceTo':>9} {'MuJoCo':>8} {f'rollout N={copies[-1]}':>14}"
+    )
     print(header)
     print("-" * len(header))
     rows = []
@@ -244,9 +249,11 @@ def batched_table(copies: list[int], steps: int, seed: int, only: list[str] | No
         mj_roll = mujoco_rollout_speed(env_id, copies[-1], max(steps, 4 * copies[-1]), seed)
         row.update(mujoco_steps_per_s=mj, mujoco_rollout_steps_per_s=mj_roll)
         share = row["batched"][str(copies[-1])]["advance_share"]
-        print(f"{env_id:<26} {today:>9.0f} " + " ".join(cells) + f" {100 * share:>8.0f}%"
-              f" {'n/a' if mj is None else f'{mj:.0f}':>8} {'n/a' if mj_roll is None else f'{mj_roll:.0f}':>14}",
-              flush=True)
+        print(
+            f"{env_id:<26} {today:>9.0f} " + " ".join(cells) + f" {100 * share:>8.0f}%"
+            f" {'n/a' if mj is None else f'{mj:.0f}':>8} {'n/a' if mj_roll is None else f'{mj_roll:.0f}':>14}",
+            flush=True,
+        )
         rows.append(row)
     return rows
 
@@ -259,8 +266,9 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", help="names from ENVS to run")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--batched", action="store_true", help="the batched vector envs' table instead")
-    parser.add_argument("--copies", type=int, nargs="+", default=[1, 16, 64, 256],
-                        help="copies N of the batched envs (with --batched)")
+    parser.add_argument(
+        "--copies", type=int, nargs="+", default=[1, 16, 64, 256], help="copies N of the batched envs (with --batched)"
+    )
     args = parser.parse_args()
     if args.json:
         check_output_file(args.json)
@@ -269,12 +277,20 @@ def main() -> None:
             parser.error(f"--copies {args.copies}: expected whole numbers >= 1")
         rows = batched_table(args.copies, args.steps, args.seed, args.only)
         if args.json:
-            write_json(args.json, {"command": "benchmarks/env_speed.py --batched", "copies": args.copies,
-                                   "steps": args.steps, "rows": rows})
+            write_json(
+                args.json,
+                {
+                    "command": "benchmarks/env_speed.py --batched",
+                    "copies": args.copies,
+                    "steps": args.steps,
+                    "rows": rows,
+                },
+            )
         return
     rows = []
-    header = (f"{'env':<32} {'steps/s':>9} {'RTF':>7} {f'steps/s x{args.workers}':>12} "
-              f"{'overhead':>9} {'MuJoCo steps/s':>15}")
+    header = (
+        f"{'env':<32} {'steps/s':>9} {'RTF':>7} {f'steps/s x{args.workers}':>12} {'overhead':>9} {'MuJoCo steps/s':>15}"
+    )
     print(header)
     print("-" * len(header))
     for name, kwargs in ENVS.items():
@@ -289,9 +305,17 @@ def main() -> None:
         vps = vectorized(name, kwargs, steps, args.workers, args.seed)
         ovh = overhead(name, kwargs, steps, args.seed)
         mj = mujoco_speed(name, steps, args.seed)
-        rows.append({"env": name, "steps_per_s": sps, "real_time_factor": rtf,
-                     "vector_workers": args.workers, "vector_steps_per_s": vps,
-                     "wrapper_overhead": ovh, "mujoco_steps_per_s": mj})
+        rows.append(
+            {
+                "env": name,
+                "steps_per_s": sps,
+                "real_time_factor": rtf,
+                "vector_workers": args.workers,
+                "vector_steps_per_s": vps,
+                "wrapper_overhead": ovh,
+                "mujoco_steps_per_s": mj,
+            }
+        )
         ovh_text = "n/a" if ovh is None else f"{100 * ovh:.1f}%"
         mj_text = "n/a" if mj is None else f"{mj:.1f}"
         print(f"{name:<32} {sps:>9.1f} {rtf:>7.1f} {vps:>12.1f} {ovh_text:>9} {mj_text:>15}", flush=True)

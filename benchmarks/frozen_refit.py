@@ -36,8 +36,9 @@ def success_rate(agent, env, xi: np.ndarray, threshold: float, repeats: int) -> 
     """The deterministic policy's success rate (return >= threshold) at each row of xi over
     `repeats` episodes, reset with seeds 0 .. repeats - 1."""
     policy = SimpleNamespace(act=lambda obs: agent.act(obs, deterministic=True))
-    return np.array([np.mean([rollout_return(policy, x, env, seed=r) >= threshold for r in range(repeats)])
-                     for x in xi])
+    return np.array(
+        [np.mean([rollout_return(policy, x, env, seed=r) >= threshold for r in range(repeats)]) for x in xi]
+    )
 
 
 def main() -> None:
@@ -56,12 +57,15 @@ def main() -> None:
         raise SystemExit(f"--cells and --repeats must be >= 1, got {args.cells} and {args.repeats}")
     if not 0.0 < args.level <= 1.0:
         raise SystemExit(f"--level must lie in (0, 1], got {args.level}")
-    refit = FlowRefitConfig(rounds=args.rounds, episodes=args.episodes, steps=args.steps,
-                            classifier_steps=args.classifier_steps)
+    refit = FlowRefitConfig(
+        rounds=args.rounds, episodes=args.episodes, steps=args.steps, classifier_steps=args.classifier_steps
+    )
     torch.set_num_threads(1)
     rows = []
-    print(f"{'run':48} {'F_pi':>6} {'F':>6} {'mass F_pi before/after':>23} {'cover F_pi':>11} "
-          f"{'mass F before/after':>20} {'cover F before/after':>21} {'s':>5}")
+    print(
+        f"{'run':48} {'F_pi':>6} {'F':>6} {'mass F_pi before/after':>23} {'cover F_pi':>11} "
+        f"{'mass F before/after':>20} {'cover F before/after':>21} {'s':>5}"
+    )
     for run in args.runs:
         t0 = time.perf_counter()
         loaded = load_run(run)
@@ -69,25 +73,40 @@ def main() -> None:
         if not hasattr(env, "feasible_set"):
             raise SystemExit(f"{loaded.config.env} has no feasible_set(points) to compare with")
         space = loaded.space
-        plan = FeasibleGridConfig(fine_width=tuple(space.high - space.low), fine_cells=args.cells, coarse_cells=1,
-                                  centre=tuple(space.center())).plan(space, space.center())
+        plan = FeasibleGridConfig(
+            fine_width=tuple(space.high - space.low),
+            fine_cells=args.cells,
+            coarse_cells=1,
+            centre=tuple(space.center()),
+        ).plan(space, space.center())
         threshold = loaded.state["log"]["success_threshold"]
         # a cell's value is its success rate, F_pi = {rate >= level}
-        feasible = plan.feasible_set(success_rate(loaded.agent, env, plan.points(), threshold, args.repeats),
-                                     args.level, "own")
-        before = (flow_report(loaded.sampler, feasible), report_on(loaded.sampler, env.feasible_set, space,
-                                                                    np.random.default_rng(1)))
-        sampler, records = refit_flow(loaded.sampler, feasible,
-                                      lambda xi, update: success_rate(loaded.agent, env, xi, threshold, 1), refit)
+        feasible = plan.feasible_set(
+            success_rate(loaded.agent, env, plan.points(), threshold, args.repeats), args.level, "own"
+        )
+        before = (
+            flow_report(loaded.sampler, feasible),
+            report_on(loaded.sampler, env.feasible_set, space, np.random.default_rng(1)),
+        )
+        sampler, records = refit_flow(
+            loaded.sampler, feasible, lambda xi, update: success_rate(loaded.agent, env, xi, threshold, 1), refit
+        )
         after = (flow_report(sampler, feasible), report_on(sampler, env.feasible_set, space, np.random.default_rng(1)))
-        row = {"run": str(run), "policy_set": {"before": before[0], "after": after[0]},
-               "env_set": {"before": before[1], "after": after[1]}, "updates": records,
-               "seconds": time.perf_counter() - t0}
+        row = {
+            "run": str(run),
+            "policy_set": {"before": before[0], "after": after[0]},
+            "env_set": {"before": before[1], "after": after[1]},
+            "updates": records,
+            "seconds": time.perf_counter() - t0,
+        }
         rows.append(row)
-        print(f"{str(run)[-48:]:48} {after[0]['share']:6.3f} {after[1]['share']:6.3f} "
-              f"{before[0]['mass_on']:>11.3f} / {after[0]['mass_on']:.3f} {after[0]['coverage10']:>11.3f} "
-              f"{before[1]['mass_on']:>8.3f} / {after[1]['mass_on']:.3f} "
-              f"{before[1]['coverage10']:>9.3f} / {after[1]['coverage10']:.3f} {row['seconds']:5.0f}", flush=True)
+        print(
+            f"{str(run)[-48:]:48} {after[0]['share']:6.3f} {after[1]['share']:6.3f} "
+            f"{before[0]['mass_on']:>11.3f} / {after[0]['mass_on']:.3f} {after[0]['coverage10']:>11.3f} "
+            f"{before[1]['mass_on']:>8.3f} / {after[1]['mass_on']:.3f} "
+            f"{before[1]['coverage10']:>9.3f} / {after[1]['coverage10']:.3f} {row['seconds']:5.0f}",
+            flush=True,
+        )
         if args.json:
             write_json(args.json, {"cells": args.cells, "refit": refit.to_dict(), "rows": rows})
 

@@ -47,15 +47,21 @@ def pick_summary(rows: list[dict], gears: list[str]) -> list[dict]:
         held = np.array([r["xi_held"] for r in rs]).reshape(-1, 3)
         aimed = np.array([r["xi_aimed"] for r in rs]).reshape(-1, 3)
         n = sum(r["gear"] == gear for r in rows)
-        summary.append({"gear": gear, "picks": n, "lifted": len(rs),
-                        "closing_mean_m": float(held[:, 1].mean()) if len(rs) else None,
-                        "closing_std_m": float(held[:, 1].std()) if len(rs) else None,
-                        "closing_max_abs_m": float(np.abs(held[:, 1]).max()) if len(rs) else None,
-                        "along_mean_m": float((held[:, 0] - aimed[:, 0]).mean()) if len(rs) else None,
-                        "along_std_m": float((held[:, 0] - aimed[:, 0]).std()) if len(rs) else None,
-                        "yaw_mean_rad": float((held[:, 2] - aimed[:, 2]).mean()) if len(rs) else None,
-                        "yaw_std_rad": float((held[:, 2] - aimed[:, 2]).std()) if len(rs) else None,
-                        "aimed_closing_std_m": float(aimed[:, 1].std()) if len(rs) else None})
+        summary.append(
+            {
+                "gear": gear,
+                "picks": n,
+                "lifted": len(rs),
+                "closing_mean_m": float(held[:, 1].mean()) if len(rs) else None,
+                "closing_std_m": float(held[:, 1].std()) if len(rs) else None,
+                "closing_max_abs_m": float(np.abs(held[:, 1]).max()) if len(rs) else None,
+                "along_mean_m": float((held[:, 0] - aimed[:, 0]).mean()) if len(rs) else None,
+                "along_std_m": float((held[:, 0] - aimed[:, 0]).std()) if len(rs) else None,
+                "yaw_mean_rad": float((held[:, 2] - aimed[:, 2]).mean()) if len(rs) else None,
+                "yaw_std_rad": float((held[:, 2] - aimed[:, 2]).std()) if len(rs) else None,
+                "aimed_closing_std_m": float(aimed[:, 1].std()) if len(rs) else None,
+            }
+        )
     return summary
 
 
@@ -69,7 +75,8 @@ def pick_model(summary: list[dict]) -> dict[str, dict[str, list[float]]]:
         model[s["gear"]] = {
             "closing": [round(s["closing_mean_m"], ROUNDING["m"]), round(s["closing_std_m"], ROUNDING["m"])],
             "along": [round(s["along_mean_m"], ROUNDING["m"]), round(s["along_std_m"], ROUNDING["m"])],
-            "yaw": [round(s["yaw_mean_rad"], ROUNDING["rad"]), round(s["yaw_std_rad"], ROUNDING["rad"])]}
+            "yaw": [round(s["yaw_mean_rad"], ROUNDING["rad"]), round(s["yaw_std_rad"], ROUNDING["rad"])],
+        }
     return model
 
 
@@ -83,10 +90,18 @@ def simulate_picks(gears: list[str], picks: int, offset_std: float, seed: int) -
             truth = np.array(random_gear_poses(rng, gears=(gear,))[gear])
             believed = truth + [*rng.normal(0.0, offset_std, 2), 0.0]
             r = simulate_pick(gear, tuple(truth), tuple(believed))
-            rows.append({"gear": gear, "truth": truth.tolist(), "believed": believed.tolist(),
-                         "tool": r.tool.tolist(), "xi_aimed": r.xi_aimed.tolist(),
-                         "xi_held": None if r.xi_held is None else r.xi_held.tolist(),
-                         "lifted": r.lifted, "sim_error": r.sim_error})
+            rows.append(
+                {
+                    "gear": gear,
+                    "truth": truth.tolist(),
+                    "believed": believed.tolist(),
+                    "tool": r.tool.tolist(),
+                    "xi_aimed": r.xi_aimed.tolist(),
+                    "xi_held": None if r.xi_held is None else r.xi_held.tolist(),
+                    "lifted": r.lifted,
+                    "sim_error": r.sim_error,
+                }
+            )
     return rows
 
 
@@ -97,14 +112,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gears", nargs="+", default=list(GEAR_NAMES), choices=list(GEAR_NAMES))
     p.add_argument("--json", type=Path, help="write the picks and their summary")
-    p.add_argument("--from", dest="source", type=Path, metavar="JSON",
-                   help="the picks of an earlier --json instead of simulating them")
-    p.add_argument("--model", type=Path, metavar="PATH",
-                   help="write the pick model the planner loads (planning/data/pick_model.json)")
+    p.add_argument(
+        "--from",
+        dest="source",
+        type=Path,
+        metavar="JSON",
+        help="the picks of an earlier --json instead of simulating them",
+    )
+    p.add_argument(
+        "--model",
+        type=Path,
+        metavar="PATH",
+        help="write the pick model the planner loads (planning/data/pick_model.json)",
+    )
     args = p.parse_args(argv)
     if args.picks < 1 or not (np.isfinite(args.offset_std) and 0 <= args.offset_std <= 0.005):
-        p.error(f"--picks {args.picks}, --offset-std {args.offset_std}: expected >= 1 and [0, 0.005] m "
-                "(the open fingers clear the gear by 6 mm a side)")
+        p.error(
+            f"--picks {args.picks}, --offset-std {args.offset_std}: expected >= 1 and [0, 0.005] m "
+            "(the open fingers clear the gear by 6 mm a side)"
+        )
     for path in (args.json, args.model):
         if path:
             check_output_file(path)
@@ -116,18 +142,24 @@ def main(argv: list[str] | None = None) -> int:
         rows, measured_by = recorded["rows"], f"{recorded.get('command')} (read from {args.source})"
         args.gears = [g for g in args.gears if any(r["gear"] == g for r in rows)]
     else:
-        rows, measured_by = simulate_picks(args.gears, args.picks, args.offset_std, args.seed), command(
-            "grasp_map", argv)
+        rows, measured_by = (
+            simulate_picks(args.gears, args.picks, args.offset_std, args.seed),
+            command("grasp_map", argv),
+        )
     summary = pick_summary(rows, args.gears)
-    print("| gear | picks lifted | closing axis (tool y) held: mean / std / max abs [mm] | tool x held - aimed: mean / std [mm] | yaw held - aimed: mean / std [mrad] |")
+    print(
+        "| gear | picks lifted | closing axis (tool y) held: mean / std / max abs [mm] | tool x held - aimed: mean / std [mm] | yaw held - aimed: mean / std [mrad] |"
+    )
     print("|---|---|---|---|---|")
     for s in summary:
         if s["lifted"]:
-            print(f"| {s['gear']} | {s['lifted']} of {s['picks']} | {1e3 * s['closing_mean_m']:.3f} / "
-                  f"{1e3 * s['closing_std_m']:.3f} / {1e3 * s['closing_max_abs_m']:.3f} "
-                  f"(aimed std {1e3 * s['aimed_closing_std_m']:.2f}) | "
-                  f"{1e3 * s['along_mean_m']:.3f} / {1e3 * s['along_std_m']:.3f} | "
-                  f"{1e3 * s['yaw_mean_rad']:.2f} / {1e3 * s['yaw_std_rad']:.2f} |")
+            print(
+                f"| {s['gear']} | {s['lifted']} of {s['picks']} | {1e3 * s['closing_mean_m']:.3f} / "
+                f"{1e3 * s['closing_std_m']:.3f} / {1e3 * s['closing_max_abs_m']:.3f} "
+                f"(aimed std {1e3 * s['aimed_closing_std_m']:.2f}) | "
+                f"{1e3 * s['along_mean_m']:.3f} / {1e3 * s['along_std_m']:.3f} | "
+                f"{1e3 * s['yaw_mean_rad']:.2f} / {1e3 * s['yaw_std_rad']:.2f} |"
+            )
     print(f"{len(rows)} picks in {time.perf_counter() - t0:.0f} s")
     if args.json:
         write_json(args.json, {"command": measured_by, "summary": summary, "rows": rows})
@@ -136,13 +168,18 @@ def main(argv: list[str] | None = None) -> int:
             model = pick_model(summary)
         except ValueError as exc:
             p.error(str(exc))
-        write_json(args.model, {
-            "what": "the real-finger pick per gear (planning.grasp.PICK_MODEL): (mean, std) of the residual "
-                    "along the fingers' closing axis (tool y) [m], of the push along tool x [m] and of the "
-                    "yaw change [rad]",
-            **provenance("grasp_map", argv), "picks_measured_by": measured_by,
-            "rounding": {"m": 10.0 ** -ROUNDING["m"], "rad": 10.0 ** -ROUNDING["rad"]},
-            "pick_model": model})
+        write_json(
+            args.model,
+            {
+                "what": "the real-finger pick per gear (planning.grasp.PICK_MODEL): (mean, std) of the residual "
+                "along the fingers' closing axis (tool y) [m], of the push along tool x [m] and of the "
+                "yaw change [rad]",
+                **provenance("grasp_map", argv),
+                "picks_measured_by": measured_by,
+                "rounding": {"m": 10.0 ** -ROUNDING["m"], "rad": 10.0 ** -ROUNDING["rad"]},
+                "pick_model": model,
+            },
+        )
     return 0
 
 

@@ -23,8 +23,15 @@ def action_sequences(steps: int, rng: np.random.Generator) -> dict[str, np.ndarr
     down = np.tile([0.0, 0.0, -1.0, 0.0], (steps, 1))
     t = np.arange(steps)
     radius = np.minimum(t / steps, 1.0) * 0.6
-    spiral = np.stack([radius * np.cos(0.6 * t), radius * np.sin(0.6 * t), -0.5 * np.ones(steps),
-                       0.3 * np.sin(0.2 * t + rng.uniform(0, 2 * np.pi))], axis=1)
+    spiral = np.stack(
+        [
+            radius * np.cos(0.6 * t),
+            radius * np.sin(0.6 * t),
+            -0.5 * np.ones(steps),
+            0.3 * np.sin(0.2 * t + rng.uniform(0, 2 * np.pi)),
+        ],
+        axis=1,
+    )
     return {"down": down, "spiral": spiral}
 
 
@@ -37,8 +44,12 @@ def rollout(env: GearInsertionEnv, xi: np.ndarray, actions: np.ndarray) -> dict:
         if terminated or truncated:
             break
     lateral, height = env.insertion_error()
-    return {"return": total, "success": bool(info.get("success", False)),
-            "lateral_mm": 1e3 * lateral, "height_mm": 1e3 * height}
+    return {
+        "return": total,
+        "success": bool(info.get("success", False)),
+        "lateral_mm": 1e3 * lateral,
+        "height_mm": 1e3 * height,
+    }
 
 
 def main() -> None:
@@ -50,12 +61,16 @@ def main() -> None:
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     envs = {v: GearInsertionEnv(gear=args.gear, variant=v) for v in ("fast", "panda")}
-    boxes = {"near (+-3 mm, +-0.2 rad)": np.array([0.003, 0.003, 0.2]),
-             "seed box (+-5 cm, +-0.393 rad)": envs["fast"].space.high}
+    boxes = {
+        "near (+-3 mm, +-0.2 rad)": np.array([0.003, 0.003, 0.2]),
+        "seed box (+-5 cm, +-0.393 rad)": envs["fast"].space.high,
+    }
     sequences = action_sequences(envs["fast"].max_episode_steps, rng)
     rows = []
-    print(f"{'xi box':<32} {'actions':<7} {'n':>3} {'success agree':>13} {'fast succ':>9} "
-          f"{'panda succ':>10} {'|dR| mean':>9} {'|d lat| mm':>10}")
+    print(
+        f"{'xi box':<32} {'actions':<7} {'n':>3} {'success agree':>13} {'fast succ':>9} "
+        f"{'panda succ':>10} {'|dR| mean':>9} {'|d lat| mm':>10}"
+    )
     for box_name, half in boxes.items():
         xis = rng.uniform(-half, half, size=(args.episodes, 3))
         for seq_name, actions in sequences.items():
@@ -68,18 +83,27 @@ def main() -> None:
                     wall[v] += time.perf_counter() - t0
             f, p = runs["fast"], runs["panda"]
             row = {
-                "box": box_name, "actions": seq_name, "episodes": len(xis),
+                "box": box_name,
+                "actions": seq_name,
+                "episodes": len(xis),
                 "success_agreement": float(np.mean([a["success"] == b["success"] for a, b in zip(f, p)])),
                 "fast_success": float(np.mean([a["success"] for a in f])),
                 "panda_success": float(np.mean([b["success"] for b in p])),
                 "mean_abs_return_diff": float(np.mean([abs(a["return"] - b["return"]) for a, b in zip(f, p)])),
-                "mean_abs_lateral_diff_mm": float(np.mean([abs(a["lateral_mm"] - b["lateral_mm"]) for a, b in zip(f, p)])),
-                "sim_seconds_per_wall_second": {v: len(xis) * envs[v].max_episode_steps * envs[v].control_dt / wall[v] for v in envs},
+                "mean_abs_lateral_diff_mm": float(
+                    np.mean([abs(a["lateral_mm"] - b["lateral_mm"]) for a, b in zip(f, p)])
+                ),
+                "sim_seconds_per_wall_second": {
+                    v: len(xis) * envs[v].max_episode_steps * envs[v].control_dt / wall[v] for v in envs
+                },
             }
             rows.append(row)
-            print(f"{box_name:<32} {seq_name:<7} {len(xis):>3} {row['success_agreement']:>13.2f} "
-                  f"{row['fast_success']:>9.2f} {row['panda_success']:>10.2f} "
-                  f"{row['mean_abs_return_diff']:>9.2f} {row['mean_abs_lateral_diff_mm']:>10.2f}", flush=True)
+            print(
+                f"{box_name:<32} {seq_name:<7} {len(xis):>3} {row['success_agreement']:>13.2f} "
+                f"{row['fast_success']:>9.2f} {row['panda_success']:>10.2f} "
+                f"{row['mean_abs_return_diff']:>9.2f} {row['mean_abs_lateral_diff_mm']:>10.2f}",
+                flush=True,
+            )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         write_json(args.json, {"gear": args.gear, "rows": rows})

@@ -58,21 +58,33 @@ def compare(env_id: str, episodes: int, rollouts: int, overrides: dict) -> dict:
     t = time.perf_counter()
     r_ref, l_ref = random_action_episodes(ref, episodes, 0)
     t_ref = time.perf_counter() - t
-    row.update(return_ours=r_ours.mean(), return_ours_se=r_ours.std(ddof=1) / np.sqrt(episodes),
-               return_ref=r_ref.mean(), return_ref_se=r_ref.std(ddof=1) / np.sqrt(episodes),
-               length_ours=l_ours.mean(), length_ref=l_ref.mean(),
-               steps_per_s_ours=l_ours.sum() / t_ours, steps_per_s_ref=l_ref.sum() / t_ref)
+    row.update(
+        return_ours=r_ours.mean(),
+        return_ours_se=r_ours.std(ddof=1) / np.sqrt(episodes),
+        return_ref=r_ref.mean(),
+        return_ref_se=r_ref.std(ddof=1) / np.sqrt(episodes),
+        length_ours=l_ours.mean(),
+        length_ref=l_ref.mean(),
+        steps_per_s_ours=l_ours.sum() / t_ours,
+        steps_per_s_ref=l_ref.sum() / t_ref,
+    )
     s_ours, s_ref = step_rewards(ours, 2000, 1, nominal), step_rewards(ref, 2000, 1)
-    row.update(step_reward_ours=[s_ours.mean(), s_ours.std()], step_reward_ref=[s_ref.mean(), s_ref.std()],
-               step_reward_ks=ks_statistic(s_ours, s_ref))
+    row.update(
+        step_reward_ours=[s_ours.mean(), s_ours.std()],
+        step_reward_ref=[s_ref.mean(), s_ref.std()],
+        step_reward_ks=ks_statistic(s_ours, s_ref),
+    )
     dt = ours.control_dt
     n01, n1 = max(1, int(round(0.1 / dt))), int(round(1.0 / dt))
     for mode in ("zero", "random"):
         d01, d1 = [], []
         for s in range(rollouts):
             shape = (n1, ours.action_space.shape[0])
-            actions = (np.zeros(shape) if mode == "zero" else
-                       np.random.default_rng(100 + s).uniform(ours.action_space.low, ours.action_space.high, shape))
+            actions = (
+                np.zeros(shape)
+                if mode == "zero"
+                else np.random.default_rng(100 + s).uniform(ours.action_space.low, ours.action_space.high, shape)
+            )
             p = paired_rollout(ours, ref, actions, seed=100 + s)
             d01.append(p.divergence(n01))
             d1.append(p.divergence(n1))
@@ -104,22 +116,34 @@ def main() -> None:
         except ValueError:
             overrides[key] = value
     rows = []
-    print(f"{'env':<22} {'return ours':>16} {'return MuJoCo':>16} {'diff':>6} {'len ours':>8} {'len MuJoCo':>10} "
-          f"{'diff':>6} {'KS':>5} {'div0.1 z/r':>12} {'div1 z/r':>12} {'steps/s':>13}")
+    print(
+        f"{'env':<22} {'return ours':>16} {'return MuJoCo':>16} {'diff':>6} {'len ours':>8} {'len MuJoCo':>10} "
+        f"{'diff':>6} {'KS':>5} {'div0.1 z/r':>12} {'div1 z/r':>12} {'steps/s':>13}"
+    )
     for env_id in args.envs:
         r = compare(env_id, args.episodes, args.rollouts, overrides)
         rows.append(r)
         dr = (r["return_ours"] - r["return_ref"]) / abs(r["return_ref"])
         dl = (r["length_ours"] - r["length_ref"]) / r["length_ref"]
-        print(f"{env_id:<22} {r['return_ours']:9.1f}+-{r['return_ours_se']:<5.1f} {r['return_ref']:9.1f}+-"
-              f"{r['return_ref_se']:<5.1f} {100 * dr:5.0f}% {r['length_ours']:8.1f} {r['length_ref']:10.1f} "
-              f"{100 * dl:5.0f}% {r['step_reward_ks']:5.2f} "
-              f"{r['divergence_zero_0.1s']:5.3f}/{r['divergence_random_0.1s']:<6.3f}"
-              f"{r['divergence_zero_1s']:5.2f}/{r['divergence_random_1s']:<6.2f} "
-              f"{r['steps_per_s_ours']:5.0f}/{r['steps_per_s_ref']:<6.0f}", flush=True)
+        print(
+            f"{env_id:<22} {r['return_ours']:9.1f}+-{r['return_ours_se']:<5.1f} {r['return_ref']:9.1f}+-"
+            f"{r['return_ref_se']:<5.1f} {100 * dr:5.0f}% {r['length_ours']:8.1f} {r['length_ref']:10.1f} "
+            f"{100 * dl:5.0f}% {r['step_reward_ks']:5.2f} "
+            f"{r['divergence_zero_0.1s']:5.3f}/{r['divergence_random_0.1s']:<6.3f}"
+            f"{r['divergence_zero_1s']:5.2f}/{r['divergence_random_1s']:<6.2f} "
+            f"{r['steps_per_s_ours']:5.0f}/{r['steps_per_s_ref']:<6.0f}",
+            flush=True,
+        )
     if args.json:
-        write_json(args.json, {"command": "benchmarks/mujoco_fidelity.py", "episodes": args.episodes,
-                               "rollouts": args.rollouts, "rows": rows})
+        write_json(
+            args.json,
+            {
+                "command": "benchmarks/mujoco_fidelity.py",
+                "episodes": args.episodes,
+                "rollouts": args.rollouts,
+                "rows": rows,
+            },
+        )
 
 
 if __name__ == "__main__":

@@ -43,8 +43,9 @@ ROOT = Path(__file__).resolve().parents[1]
 CARTPOLE = "goflow/Cartpole-v0"
 #: The L of the table's mixture moved to the balanceable corner of Cartpole's box (unit-box coordinates:
 #: pole and cart mass 0.05 -> 1.0 kg, 0.2 -> 4.0 kg; slider friction 0.05 +- 0.02).
-FEASIBLE_MIXTURE = TargetConfig(kind="mixture", mean=0.05, std=0.02, l_std=0.03,
-                                l_means=((0.05, 0.2), (0.05, 0.05), (0.2, 0.05)))
+FEASIBLE_MIXTURE = TargetConfig(
+    kind="mixture", mean=0.05, std=0.02, l_std=0.03, l_means=((0.05, 0.2), (0.05, 0.05), (0.2, 0.05))
+)
 TARGET_CONFIGS = {**{kind: TargetConfig(kind=kind) for kind in TARGETS}, "feasible-mixture": FEASIBLE_MIXTURE}
 TRAIN_ON = ("true", "fulldr", "nfpde-softmax", "dropo")
 
@@ -65,14 +66,18 @@ def main() -> int:
     p.add_argument("--algos", nargs="+", default=["ppo"], choices=list(ALGOS))
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
-    p.add_argument("--iterations", type=int, default=20, help="PPO iterations (Cartpole 1920, locomotion 2048 env steps each)")
+    p.add_argument(
+        "--iterations", type=int, default=20, help="PPO iterations (Cartpole 1920, locomotion 2048 env steps each)"
+    )
     p.add_argument("--eval-every", type=int, default=5, help="PPO iterations between evaluations")
     p.add_argument("--sac-steps", type=int, default=SACConfig.steps, help="SAC env steps")
     p.add_argument("--sac-eval-every", type=int, default=SACConfig.eval_every, help="SAC env steps between evaluations")
     p.add_argument("--eval-episodes", type=int, default=None, help="episodes per evaluation (Cartpole 32, else 10)")
     p.add_argument("--episodes", type=int, default=None, help="dataset trajectories (Cartpole 48, else 10)")
     p.add_argument("--budget", type=int, default=100_000, help="simulator calls per estimate")
-    p.add_argument("--train-on", nargs="+", default=list(TRAIN_ON), choices=list(TRAIN_ON), help="samplers to train with")
+    p.add_argument(
+        "--train-on", nargs="+", default=list(TRAIN_ON), choices=list(TRAIN_ON), help="samplers to train with"
+    )
     p.add_argument("--out", default=str(ROOT / "docs" / "results"))
     p.add_argument("--estimates", default=str(ROOT / "runs" / "nfpde_policy"), help="estimate files")
     args = p.parse_args()
@@ -81,9 +86,14 @@ def main() -> int:
         p.error(f"--target feasible-mixture is Cartpole's; for {args.env} use one of {list(TARGETS)}")
     try:
         sac = SACConfig(steps=args.sac_steps, eval_every=args.sac_eval_every)
-        base = TransferConfig(env=args.env, iterations=args.iterations, eval_every=args.eval_every,
-                              eval_episodes=args.eval_episodes or (32 if cartpole else 10),
-                              ppo=ppo_config(args.env), sac=sac)
+        base = TransferConfig(
+            env=args.env,
+            iterations=args.iterations,
+            eval_every=args.eval_every,
+            eval_episodes=args.eval_episodes or (32 if cartpole else 10),
+            ppo=ppo_config(args.env),
+            sac=sac,
+        )
     except ValueError as exc:
         p.error(str(exc))
     try:
@@ -125,7 +135,8 @@ def main() -> int:
             raise SystemExit(
                 f"nfpde_policy: the {method} estimate {where} has OT {ot:.4f}, but the runs in {res_path} were "
                 f"trained on one with OT {recorded:.4f}; refusing to mix two estimates in one figure. Put that "
-                f"estimate's file back in --estimates, or start a new figure with another --out")
+                f"estimate's file back in --estimates, or start a new figure with another --out"
+            )
         if fitted is not None:  # kept only once it is the figure's estimate
             save_estimate(path, sampler, method, args.env, fitted)
             doc["estimates"][method] = {"seconds": fitted["seconds"], "sim_calls": fitted["sim_calls"]}
@@ -144,8 +155,11 @@ def main() -> int:
                 doc.setdefault("commands", []).append(command)
                 merge_with_file(res_path, doc)
                 write_json(res_path, doc)  # atomic: an interrupted run keeps every finished one
-                print(f"{algo} on {name:<14} seed {seed}: return on the truth {res['final_mean_return']:.1f}, "
-                      f"success {res['final_success']:.2f} ({res['seconds']:.0f} s)", flush=True)
+                print(
+                    f"{algo} on {name:<14} seed {seed}: return on the truth {res['final_mean_return']:.1f}, "
+                    f"success {res['final_success']:.2f} ({res['seconds']:.0f} s)",
+                    flush=True,
+                )
 
     doc.pop("command", None)
     merge_with_file(res_path, doc)
@@ -153,8 +167,10 @@ def main() -> int:
     write_json(res_path, doc)
     plot(doc["runs"], out / f"nfpde-policy-{stem}{args.target}.png", f"{args.env}, {args.target} target")
     for key, s in doc["summary"].items():
-        print(f"{key:<20} final {s['final_return_mean']:8.1f} +- {s['final_return_se']:.1f}, over the curve "
-              f"{s['curve_return_mean']:8.1f} +- {s['curve_return_se']:.1f} ({s['seeds']} seeds)")
+        print(
+            f"{key:<20} final {s['final_return_mean']:8.1f} +- {s['final_return_se']:.1f}, over the curve "
+            f"{s['curve_return_mean']:8.1f} +- {s['curve_return_se']:.1f} ({s['seeds']} seeds)"
+        )
     return 0
 
 
@@ -184,6 +200,7 @@ def _groups(runs: list[dict]) -> dict[tuple[str, str], list[dict]]:
 def summarize(runs: list[dict]) -> dict[str, dict]:
     """Per "<algo>/<train_on>", mean and standard error over seeds of the final return on the truth
     and of the mean return over the curve's evaluations (how soon a policy is good)."""
+
     def mean_se(values: list[float]) -> tuple[float, float]:
         se = float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
         return float(np.mean(values)), se
@@ -192,17 +209,23 @@ def summarize(runs: list[dict]) -> dict[str, dict]:
     for (algo, name), group in _groups(runs).items():
         final, final_se = mean_se([r["final_mean_return"] for r in group])
         area, area_se = mean_se([float(np.mean([pt[1] for pt in r["curve"]])) for r in group])
-        summary[f"{algo}/{name}"] = {"final_return_mean": final, "final_return_se": final_se,
-                                     "curve_return_mean": area, "curve_return_se": area_se,
-                                     "seeds": len(group)}
+        summary[f"{algo}/{name}"] = {
+            "final_return_mean": final,
+            "final_return_se": final_se,
+            "curve_return_mean": area,
+            "curve_return_se": area_se,
+            "seeds": len(group),
+        }
     return summary
 
 
 def plot(runs: list[dict], path: Path, title: str) -> None:
     """Learning curves on the truth, mean +- standard error over seeds, one panel per learner."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     groups = _groups(runs)
     algos = [a for a in ALGOS if any(k[0] == a for k in groups)]
     fig, axes = plt.subplots(1, len(algos), figsize=(6 * len(algos), 4), squeeze=False)

@@ -64,12 +64,14 @@ def converge_seconds(trace: list[dict]) -> float:
 
 
 def parse_variant(text: str) -> tuple[str, str, dict]:
-    """"LABEL=METHOD[:KEY=VALUE,...]" -> (label, method, options); values parsed as JSON when they are."""
+    """ "LABEL=METHOD[:KEY=VALUE,...]" -> (label, method, options); values parsed as JSON when they are."""
     label, eq, rest = text.partition("=")
     method, _, opts = rest.partition(":")
     if not eq or not label or method not in ESTIMATORS:
-        raise SystemExit(f"nfpde_table: --variant {text!r}: expected LABEL=METHOD[:KEY=VALUE,...] with METHOD one "
-                         f"of {list(ESTIMATORS)}")
+        raise SystemExit(
+            f"nfpde_table: --variant {text!r}: expected LABEL=METHOD[:KEY=VALUE,...] with METHOD one "
+            f"of {list(ESTIMATORS)}"
+        )
     options = {}
     for pair in filter(None, opts.split(",")):
         key, eq, value = pair.partition("=")
@@ -101,22 +103,44 @@ def score(sampler, u_true: np.ndarray, seed: int) -> tuple[np.ndarray, float]:
     return final_u, ot_cost(final_u, u_true)
 
 
-def run_one(env: str, target: str, method: str, seed: int, budget: int, episodes: int, data_cache: dict,
-            options: dict | None = None, label: str | None = None) -> dict:
+def run_one(
+    env: str,
+    target: str,
+    method: str,
+    seed: int,
+    budget: int,
+    episodes: int,
+    data_cache: dict,
+    options: dict | None = None,
+    label: str | None = None,
+) -> dict:
     """One estimation run, scored along its trace (recorded under `label`, default the method)."""
     ds, u_true = dataset(env, target, seed, episodes, data_cache)
     cpu0 = time.process_time()
-    sampler, info, budget_state = estimate(ds, EstimateConfig(method=method, seed=seed, sim_budget=budget,
-                                                              options=dict(options or {})))
+    sampler, info, budget_state = estimate(
+        ds, EstimateConfig(method=method, seed=seed, sim_budget=budget, options=dict(options or {}))
+    )
     cpu = time.process_time() - cpu0
     trace = [{"calls": t["calls"], "seconds": t["seconds"], "ot": ot_cost(t["u"], u_true)} for t in budget_state.trace]
     final_u, final_ot = score(sampler, u_true, seed)
-    return {"env": env, "target": target, "method": label or method, "estimator": method,
-            "options": dict(options or {}), "seed": seed, "sim_budget": budget,
-            "ot": final_ot, "seconds_total": info["seconds"], "cpu_seconds": cpu,
-            "sim_calls": info["sim_calls"],
-            "seconds_converge": converge_seconds(trace), "trace": trace, "details": info["details"],
-            "samples_u": final_u[:300].round(4).tolist(), "true_u": u_true.round(4).tolist()}
+    return {
+        "env": env,
+        "target": target,
+        "method": label or method,
+        "estimator": method,
+        "options": dict(options or {}),
+        "seed": seed,
+        "sim_budget": budget,
+        "ot": final_ot,
+        "seconds_total": info["seconds"],
+        "cpu_seconds": cpu,
+        "sim_calls": info["sim_calls"],
+        "seconds_converge": converge_seconds(trace),
+        "trace": trace,
+        "details": info["details"],
+        "samples_u": final_u[:300].round(4).tolist(),
+        "true_u": u_true.round(4).tolist(),
+    }
 
 
 def oracle_ot(env: str, target: str, seed: int, data_cache: dict) -> float:
@@ -129,10 +153,12 @@ def oracle_ot(env: str, target: str, seed: int, data_cache: dict) -> float:
 _CACHE: dict = {}  # datasets of the cells this process has collected (each is seeded: the same in every process)
 
 
-def run_cell(env: str, target: str, method: str, seed: int, budget: int, episodes: int, options: dict,
-             label: str) -> tuple[dict, float, float]:
+def run_cell(
+    env: str, target: str, method: str, seed: int, budget: int, episodes: int, options: dict, label: str
+) -> tuple[dict, float, float]:
     """One run as a grid job: (the run, the cell's oracle OT, wall seconds with scoring)."""
     import torch
+
     torch.optim.Adam([torch.zeros(1, requires_grad=True)])  # torch._dynamo's import (~3 s) outside the timing
     t0 = time.perf_counter()
     run = run_one(env, target, method, seed, budget, episodes, _CACHE, options, label)
@@ -155,23 +181,41 @@ def summarize(runs: list[dict], oracle: dict) -> dict:
                 if not sel:
                     continue
                 ot = np.array([r["ot"] for r in sel])
-                rows.append({"env": env, "target": target, "method": method,
-                             "ot_mean": float(ot.mean()),
-                             "ot_se": float(ot.std(ddof=1) / np.sqrt(len(ot))) if len(ot) > 1 else 0.0,
-                             "seconds_mean": float(np.mean([converge_seconds(r["trace"]) for r in sel])),
-                             "seconds_total_mean": float(np.mean([r["seconds_total"] for r in sel])),
-                             **({"cpu_seconds_mean": float(np.mean([r["cpu_seconds"] for r in sel]))}
-                                if all("cpu_seconds" in r for r in sel) else {}),
-                             "sim_calls_mean": float(np.mean([r["sim_calls"] for r in sel])),
-                             "seeds": len(sel),
-                             "oracle_ot_mean": float(np.mean([oracle[f"{env}|{target}|{r['seed']}"] for r in sel
-                                                              if f"{env}|{target}|{r['seed']}" in oracle] or [np.nan]))})
+                rows.append(
+                    {
+                        "env": env,
+                        "target": target,
+                        "method": method,
+                        "ot_mean": float(ot.mean()),
+                        "ot_se": float(ot.std(ddof=1) / np.sqrt(len(ot))) if len(ot) > 1 else 0.0,
+                        "seconds_mean": float(np.mean([converge_seconds(r["trace"]) for r in sel])),
+                        "seconds_total_mean": float(np.mean([r["seconds_total"] for r in sel])),
+                        **(
+                            {"cpu_seconds_mean": float(np.mean([r["cpu_seconds"] for r in sel]))}
+                            if all("cpu_seconds" in r for r in sel)
+                            else {}
+                        ),
+                        "sim_calls_mean": float(np.mean([r["sim_calls"] for r in sel])),
+                        "seeds": len(sel),
+                        "oracle_ot_mean": float(
+                            np.mean(
+                                [
+                                    oracle[f"{env}|{target}|{r['seed']}"]
+                                    for r in sel
+                                    if f"{env}|{target}|{r['seed']}" in oracle
+                                ]
+                                or [np.nan]
+                            )
+                        ),
+                    }
+                )
     return {"rows": rows}
 
 
 def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
     """Per env: samples (first two params) per method and target; OT vs seconds and vs calls."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -179,8 +223,9 @@ def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
     for env in dict.fromkeys(r["env"] for r in runs):
         stem = env.split("/")[-1].split("-v")[0].lower()
         targets = [t for t in TARGETS if any((r["env"], r["target"]) == (env, t) for r in runs)]
-        fig, axs = plt.subplots(len(targets), len(labels), figsize=(3.2 * len(labels), 3.2 * len(targets)),
-                                squeeze=False)
+        fig, axs = plt.subplots(
+            len(targets), len(labels), figsize=(3.2 * len(labels), 3.2 * len(targets)), squeeze=False
+        )
         for i, target in enumerate(targets):
             for j, method in enumerate(labels):
                 ax = axs[i, j]
@@ -207,8 +252,15 @@ def plot(runs: list[dict], out: Path, name: str = "nfpde") -> None:
                         x = [t[xkey] for t in r["trace"]]
                         y = [t["ot"] for t in r["trace"]]
                         color = f"C{labels.index(method)}"
-                        ax.plot(x, y, "-o" if len(x) == 1 else "-", color=color, ms=4, alpha=0.7,
-                                label=method if k == 0 else None)
+                        ax.plot(
+                            x,
+                            y,
+                            "-o" if len(x) == 1 else "-",
+                            color=color,
+                            ms=4,
+                            alpha=0.7,
+                            label=method if k == 0 else None,
+                        )
                 ax.set_xlabel(label)
                 ax.set_ylabel("OT cost (unit box)")
                 ax.set_title(f"{env} / {target}")
@@ -223,8 +275,13 @@ def main() -> int:
     p.add_argument("--envs", nargs="+", default=["goflow/Cartpole-v0"])
     p.add_argument("--targets", nargs="+", default=["gaussian", "mixture"], choices=TARGETS)
     p.add_argument("--methods", nargs="*", default=list(ESTIMATORS), choices=ESTIMATORS)
-    p.add_argument("--variant", action="append", default=[], metavar="LABEL=METHOD[:KEY=VALUE,...]",
-                   help="also run METHOD with these options, recorded as LABEL")
+    p.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="LABEL=METHOD[:KEY=VALUE,...]",
+        help="also run METHOD with these options, recorded as LABEL",
+    )
     p.add_argument("--name", default="nfpde", help="stem of the result files")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--seeds", type=int, default=3)
@@ -253,9 +310,14 @@ def main() -> int:
         done = {_key(r) for r in doc["runs"]}
         doc["command"] = "python -m benchmarks.nfpde_table " + " ".join(sys.argv[1:])
         doc.setdefault("commands", []).append(doc["command"])  # every invocation on this runs file
-        cells = [(env, target, method, seed, args.budget, args.episodes, options, label)
-                 for env in args.envs for target in args.targets for seed in range(args.seeds)
-                 for label, method, options in runs_to_do if (env, target, label, seed) not in done]
+        cells = [
+            (env, target, method, seed, args.budget, args.episodes, options, label)
+            for env in args.envs
+            for target in args.targets
+            for seed in range(args.seeds)
+            for label, method, options in runs_to_do
+            if (env, target, label, seed) not in done
+        ]
 
         def save(index: int, result: tuple[dict, float, float]) -> None:
             run, oracle, seconds = result
@@ -263,15 +325,22 @@ def main() -> int:
             doc["oracle"][f"{env}|{target}|{seed}"] = oracle
             doc["runs"].append(run)
             write_json(runs_path, doc, indent=None)
-            print(f"{env} {target} seed {seed} {run['method']}: OT {run['ot']:.3f}, converged "
-                  f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s, cpu {run['cpu_seconds']:.1f} s "
-                  f"({seconds:.0f} s with scoring)", flush=True)
+            print(
+                f"{env} {target} seed {seed} {run['method']}: OT {run['ot']:.3f}, converged "
+                f"{run['seconds_converge']:.1f} s of {run['seconds_total']:.1f} s, cpu {run['cpu_seconds']:.1f} s "
+                f"({seconds:.0f} s with scoring)",
+                flush=True,
+            )
 
         failed = None
         try:
-            run_grid([Job(f"{c[0]} {c[1]} seed {c[3]} {c[7]}", run_cell, c) for c in cells], backend,
-                     progress=not isinstance(backend, InlineBackend), desc="nfpde",
-                     on_result=save)
+            run_grid(
+                [Job(f"{c[0]} {c[1]} seed {c[3]} {c[7]}", run_cell, c) for c in cells],
+                backend,
+                progress=not isinstance(backend, InlineBackend),
+                desc="nfpde",
+                on_result=save,
+            )
         except GridError as exc:  # the other runs are saved; the summary below covers them
             failed = exc
     summary = summarize(doc["runs"], doc["oracle"])
@@ -281,9 +350,11 @@ def main() -> int:
     if not args.no_plots:
         plot(doc["runs"], out, args.name)
     for r in summary["rows"]:
-        print(f"{r['env']:<22} {r['target']:<9} {r['method']:<16} OT {r['ot_mean']:.3f} +- {r['ot_se']:.3f}  "
-              f"converge {r['seconds_mean']:6.1f} s  total {r['seconds_total_mean']:6.1f} s  "
-              f"(oracle {r['oracle_ot_mean']:.3f})")
+        print(
+            f"{r['env']:<22} {r['target']:<9} {r['method']:<16} OT {r['ot_mean']:.3f} +- {r['ot_se']:.3f}  "
+            f"converge {r['seconds_mean']:6.1f} s  total {r['seconds_total_mean']:6.1f} s  "
+            f"(oracle {r['oracle_ot_mean']:.3f})"
+        )
     if failed is not None:
         print(f"nfpde_table: {failed}", file=sys.stderr)
         return 1

@@ -53,8 +53,11 @@ def close_rows(paths: list[Path]) -> list[dict]:
     their group's), pooled; InputError if a file is not one or holds none."""
     rows = []
     for r in result_rows(paths):
-        if r.get("view") == "inspect" and r.get("informative") and all(
-                k in r for k in ("level", "gsd", "gear", "shape", "group")):
+        if (
+            r.get("view") == "inspect"
+            and r.get("informative")
+            and all(k in r for k in ("level", "gsd", "gear", "shape", "group"))
+        ):
             g = row_brightness(r)
             if g is not None:
                 rows.append({**r, "brightness": g})
@@ -81,13 +84,18 @@ def fit_gear(rows: list[dict]) -> tuple[float, float, float]:
     nominal = np.abs(log_g) < np.log1p(NOMINAL)
     if not nominal.any():
         raise InputError(f"the {rows[0]['gear']} gear has no close views under the nominal light to fit a on")
-    a = min(AMPLITUDES, key=lambda x: _loss(log_q[nominal], shape[nominal], np.full(nominal.sum(), np.log(x)),
-                                            groups[nominal]))
+    a = min(
+        AMPLITUDES,
+        key=lambda x: _loss(log_q[nominal], shape[nominal], np.full(nominal.sum(), np.log(x)), groups[nominal]),
+    )
     exponents = []
     for side in (log_g < 0, log_g > 0):
         m = side & ~nominal
-        exponents.append(0.0 if not m.any() else float(min(
-            EXPONENTS, key=lambda c: _loss(log_q[m], shape[m], np.log(a) + c * log_g[m], groups[m]))))
+        exponents.append(
+            0.0
+            if not m.any()
+            else float(min(EXPONENTS, key=lambda c: _loss(log_q[m], shape[m], np.log(a) + c * log_g[m], groups[m])))
+        )
     return float(a), exponents[0], exponents[1]
 
 
@@ -122,8 +130,15 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     print(f"close_reshaping (a, c_dim, c_bright) on top of the rows' own: {fits}")
     if out is not None:
-        write_json(out, {"close_reshaping": fits, "posteriors": len(rows),
-                         "results": [str(x) for x in args.results], "table": lines})
+        write_json(
+            out,
+            {
+                "close_reshaping": fits,
+                "posteriors": len(rows),
+                "results": [str(x) for x in args.results],
+                "table": lines,
+            },
+        )
     return 0
 
 

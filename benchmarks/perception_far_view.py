@@ -66,8 +66,13 @@ def result_rows(paths: list[Path]) -> list[dict]:
 def scene_rows(paths: list[Path]) -> list[dict]:
     """The informative scene-view rows of calibration results, pooled (InputError if a file is
     not one or holds none)."""
-    rows = [r for r in result_rows(paths) if r.get("view") == "scene" and r.get("informative")
-            and all(k in r for k in ("level", "gsd", "pixels", "gear", "shape", "group"))]
+    rows = [
+        r
+        for r in result_rows(paths)
+        if r.get("view") == "scene"
+        and r.get("informative")
+        and all(k in r for k in ("level", "gsd", "pixels", "gear", "shape", "group"))
+    ]
     if not rows:
         raise InputError(f"{[str(p) for p in paths]}: no informative scene-view rows with levels")
     return rows
@@ -77,7 +82,7 @@ def moved_levels(levels: np.ndarray, shape: np.ndarray, factor: np.ndarray) -> n
     """The truth levels after multiplying each posterior's reshaping factor by `factor` (its
     deficit scaled before the shape exponent `shape`), read as a 3-D Gaussian truth's."""
     q = chi2.ppf(np.clip(levels, 1e-12, 1 - 1e-12), 3)
-    return chi2.cdf(factor ** shape * q, 3)
+    return chi2.cdf(factor**shape * q, 3)
 
 
 def far_factors(gsd: np.ndarray, pixels: np.ndarray, a: float, b: float) -> np.ndarray:
@@ -113,7 +118,7 @@ def fit_gear(rows: list[dict]) -> tuple[float, float]:
     log_q, log_ratio = np.log(q), np.log(pixels / FAR_REFERENCE_PIXELS)
     thresholds = np.log(chi2.ppf(FIT_LEVELS, 3))
     cells = [m for m in _cells(rows) if m.any()]
-    weights = np.array([1.0] * (len(cells) - BINS) + [2.0] * BINS)[-len(cells):]
+    weights = np.array([1.0] * (len(cells) - BINS) + [2.0] * BINS)[-len(cells) :]
     member = np.array(cells, dtype=float)  # (cells, rows)
     sizes = member.sum(axis=1)
     best = (np.inf, 1.0, 0.0)
@@ -141,9 +146,11 @@ def report(rows: list[dict], a: float, b: float) -> list[str]:
         for k in range(BINS):
             m = bins == k
             before, after = coverage(levels[m], np.array([0.5, 0.9])), coverage(moved[m], np.array([0.5, 0.9]))
-            out.append(f"| {rows[0]['gear']} | {name} {unit * values[m].min():.3g}-{unit * values[m].max():.3g} | "
-                       f"{m.sum()} | {100 * before[0]:.0f} / {100 * before[1]:.0f} | "
-                       f"{100 * after[0]:.0f} / {100 * after[1]:.0f} |")
+            out.append(
+                f"| {rows[0]['gear']} | {name} {unit * values[m].min():.3g}-{unit * values[m].max():.3g} | "
+                f"{m.sum()} | {100 * before[0]:.0f} / {100 * before[1]:.0f} | "
+                f"{100 * after[0]:.0f} / {100 * after[1]:.0f} |"
+            )
     return out
 
 
@@ -151,8 +158,9 @@ def fit_parser(doc: str) -> argparse.ArgumentParser:
     """The command line of a fit from calibration results: --results (pooled) and --json; the
     description is `doc`'s first line."""
     p = argparse.ArgumentParser(description=doc.splitlines()[0])
-    p.add_argument("--results", type=Path, nargs="+", required=True,
-                   help="goflow bench calibration results (JSON), pooled")
+    p.add_argument(
+        "--results", type=Path, nargs="+", required=True, help="goflow bench calibration results (JSON), pooled"
+    )
     p.add_argument("--json", type=Path, default=None, help="write the fit and the table here")
     return p
 
@@ -174,8 +182,16 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     print(f"far_reshaping (a, b) on top of the rows' own: {fits}")
     if out is not None:
-        write_json(out, {"far_reshaping": fits, "reference_pixels": FAR_REFERENCE_PIXELS, "posteriors": len(rows),
-                         "results": [str(x) for x in args.results], "table": lines})
+        write_json(
+            out,
+            {
+                "far_reshaping": fits,
+                "reference_pixels": FAR_REFERENCE_PIXELS,
+                "posteriors": len(rows),
+                "results": [str(x) for x in args.results],
+                "table": lines,
+            },
+        )
     return 0
 
 

@@ -54,8 +54,9 @@ def raw_deficits(levels: np.ndarray, factor: np.ndarray, shape: np.ndarray) -> n
     return u ** (1.0 / shape) / factor
 
 
-def shape_levels(levels: np.ndarray, factor0: np.ndarray, shape0: np.ndarray,
-                 factor1: np.ndarray, shape1: np.ndarray) -> np.ndarray:
+def shape_levels(
+    levels: np.ndarray, factor0: np.ndarray, shape0: np.ndarray, factor1: np.ndarray, shape1: np.ndarray
+) -> np.ndarray:
     """The truth levels of posteriors reshaped with (factor0, shape0) once reshaped with
     (factor1, shape1) instead, read as a 3-D Gaussian truth's (module docstring)."""
     return gammainc(1.5 / shape1, (factor1 * raw_deficits(levels, factor0, shape0)) ** shape1)
@@ -64,8 +65,7 @@ def shape_levels(levels: np.ndarray, factor0: np.ndarray, shape0: np.ndarray,
 def shape_rows(paths: list[Path]) -> list[dict]:
     """The informative rows of calibration results that recorded their reshaping, pooled
     (InputError if a file is not one or holds none)."""
-    rows = [r for r in result_rows(paths) if r.get("informative")
-            and all(r.get(k) is not None for k in KEYS)]
+    rows = [r for r in result_rows(paths) if r.get("informative") and all(r.get(k) is not None for k in KEYS)]
     if not rows:
         raise InputError(f"{[str(p) for p in paths]}: no informative rows with their reshaping")
     return rows
@@ -84,18 +84,23 @@ class Reading:
 
     def __init__(self, rows: list[dict], base: LikelihoodConfig) -> None:
         self.rows, self.base = rows, base
-        self.deficits = raw_deficits(np.array([r["level"] for r in rows]),
-                                     np.array([r["posterior_factor"] for r in rows], float),
-                                     np.array([r["shape"] for r in rows], float))
+        self.deficits = raw_deficits(
+            np.array([r["level"] for r in rows]),
+            np.array([r["posterior_factor"] for r in rows], float),
+            np.array([r["shape"] for r in rows], float),
+        )
         self.resolved = np.array([teeth_resolved(r["gsd"]) for r in rows])
         self.held = held_factors(rows, base)
         self.cells = [f"{r['group']}/{r['view']}" for r in rows]
 
     def at(self, side: int = 1, factor: float | None = None, exponent: float | None = None) -> np.ndarray:
         """Every row's truth level with side `side`'s pair (factor, exponent) (`base`'s if None)."""
-        cfg = with_pair(self.base, side,
-                        self.base.posterior_factor[side] if factor is None else factor,
-                        self.base.shape_exponent[side] if exponent is None else exponent)
+        cfg = with_pair(
+            self.base,
+            side,
+            self.base.posterior_factor[side] if factor is None else factor,
+            self.base.shape_exponent[side] if exponent is None else exponent,
+        )
         f1, g1 = blend_reshaping(cfg.posterior_factor, cfg.shape_exponent, self.resolved)
         return gammainc(1.5 / g1, (f1 * self.held * self.deficits) ** g1)
 
@@ -107,8 +112,10 @@ class Exact:
     def __init__(self, paths: list[Path], base: LikelihoodConfig) -> None:
         rows, factors, shapes = load_rows(paths)
         if shapes is None:
-            raise InputError(f"{[str(p) for p in paths]}: no shaped levels (collect them with "
-                             "perception_tempering.py, every file at the same shape exponents)")
+            raise InputError(
+                f"{[str(p) for p in paths]}: no shaped levels (collect them with "
+                "perception_tempering.py, every file at the same shape exponents)"
+            )
         self.data, self.base = Rows(rows, factors, shapes), base
         self.rows = rows
         self.cells = [f"{r['group']}/{r['view']}" for r in rows]
@@ -118,19 +125,22 @@ class Exact:
     def at(self, side: int = 1, factor: float | None = None, exponent: float | None = None) -> np.ndarray:
         """Every row's exact truth level with side `side`'s pair (`base`'s if None), interpolated
         between the recorded factors and shape exponents."""
-        cfg = with_pair(self.base, side,
-                        self.base.posterior_factor[side] if factor is None else factor,
-                        self.base.shape_exponent[side] if exponent is None else exponent)
+        cfg = with_pair(
+            self.base,
+            side,
+            self.base.posterior_factor[side] if factor is None else factor,
+            self.base.shape_exponent[side] if exponent is None else exponent,
+        )
         f1, g1 = blend_reshaping(cfg.posterior_factor, cfg.shape_exponent, self.resolved)
         return self.data.levels(f1 * self.held, shape=g1)
 
 
-def fit_pair(data: Reading | Exact, side: int, factors: np.ndarray = FACTORS,
-             exponents: np.ndarray = EXPONENTS) -> tuple[float, float, float]:
+def fit_pair(
+    data: Reading | Exact, side: int, factors: np.ndarray = FACTORS, exponents: np.ndarray = EXPONENTS
+) -> tuple[float, float, float]:
     """(loss, factor, exponent): side `side`'s pair from the grid `factors` x `exponents` whose
     levels are closest to uniform in every perturbation group x view cell (`cell_loss`)."""
-    return min((cell_loss(data.at(side, f, e), data.cells), float(f), float(e))
-               for f in factors for e in exponents)
+    return min((cell_loss(data.at(side, f, e), data.cells), float(f), float(e)) for f in factors for e in exponents)
 
 
 def report(data: Reading | Exact, columns: dict[str, np.ndarray]) -> list[str]:
@@ -142,20 +152,33 @@ def report(data: Reading | Exact, columns: dict[str, np.ndarray]) -> list[str]:
     for view in dict.fromkeys(views):
         for group in ("all", *dict.fromkeys(groups)):
             m = (views == view) & ((groups == group) | (group == "all"))
-            out.append(f"| {view} | {group} | {m.sum()} | "
-                       f"{' | '.join(fmt(m, x) for x in columns.values())} |")
+            out.append(f"| {view} | {group} | {m.sum()} | {' | '.join(fmt(m, x) for x in columns.values())} |")
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
     p = fit_parser(__doc__)
-    p.add_argument("--side", choices=tuple(SIDES), default="resolved",
-                   help="the reshaping pair to fit (default: resolved, the close view's)")
-    p.add_argument("--tuning-rows", type=Path, nargs="+", default=None,
-                   help="perception_tempering.py rows with shaped levels (exact), pooled")
-    p.add_argument("--sets", type=int, nargs="+", default=[],
-                   help="also the mean cells within +-5 of sets of these many scenes resampled from "
-                        "the calibration results, under the shipped pairs (e.g. 150 300 600)")
+    p.add_argument(
+        "--side",
+        choices=tuple(SIDES),
+        default="resolved",
+        help="the reshaping pair to fit (default: resolved, the close view's)",
+    )
+    p.add_argument(
+        "--tuning-rows",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="perception_tempering.py rows with shaped levels (exact), pooled",
+    )
+    p.add_argument(
+        "--sets",
+        type=int,
+        nargs="+",
+        default=[],
+        help="also the mean cells within +-5 of sets of these many scenes resampled from "
+        "the calibration results, under the shipped pairs (e.g. 150 300 600)",
+    )
     args = p.parse_args(argv)
     side = SIDES[args.side]
     if any(n < 1 for n in args.sets):
@@ -180,8 +203,10 @@ def main(argv: list[str] | None = None) -> int:
         losses = ", ".join(f"{k.split(' (')[0]} {cell_loss(x, data.cells):.4f}" for k, x in columns.items())
         lines += ["", f"{name}, {len(data.rows)} posteriors; loss: {losses}", *report(data, columns)]
     print("\n".join(lines))
-    summary = {name: {"posterior_factor": f, "shape_exponent": e, "loss": round(loss, 5)}
-               for name, (loss, f, e) in fits.items()}
+    summary = {
+        name: {"posterior_factor": f, "shape_exponent": e, "loss": round(loss, 5)}
+        for name, (loss, f, e) in fits.items()
+    }
     print(f"{args.side} reshaping (factor, shape exponent): shipped {shipped}, fits {summary}")
     resampled = {}
     if args.sets:
@@ -189,13 +214,23 @@ def main(argv: list[str] | None = None) -> int:
         shipped_rows = [{**r, "level": float(x)} for r, x in zip(read.rows, read.at(side))]  # once for every size
         resampled = {n: resampled_set_count(shipped_rows, n) for n in args.sets}
     if resampled:
-        print("cells within +-5 of sets resampled from the calibration results, shipped pairs: "
-              + ", ".join(f"{n} scenes {c:.1f}" for n, c in resampled.items()))
+        print(
+            "cells within +-5 of sets resampled from the calibration results, shipped pairs: "
+            + ", ".join(f"{n} scenes {c:.1f}" for n, c in resampled.items())
+        )
     if out is not None:
-        write_json(out, {"side": args.side, "shipped": list(shipped), "fits": summary,
-                         "results": [str(x) for x in args.results],
-                         "tuning_rows": [str(x) for x in args.tuning_rows or []], "table": lines,
-                         "resampled_sets": {str(n): c for n, c in resampled.items()}})
+        write_json(
+            out,
+            {
+                "side": args.side,
+                "shipped": list(shipped),
+                "fits": summary,
+                "results": [str(x) for x in args.results],
+                "tuning_rows": [str(x) for x in args.tuning_rows or []],
+                "table": lines,
+                "resampled_sets": {str(n): c for n, c in resampled.items()},
+            },
+        )
     return 0
 
 

@@ -31,9 +31,11 @@ from goflow_common.files import write_json
 
 
 def _renderer_table(rows: list[dict]) -> str:
-    head = ("| gear | view | Drake full [hyp/s] | Drake crop [hyp/s] (px) | ours, all crop pixels "
-            "[hyp/s] (px) | ours, search's sparse pixels [hyp/s] (px) | depth within 1 mm, "
-            "off edges | within 1 mm, all both-gear px | max off-edge error [mm] |")
+    head = (
+        "| gear | view | Drake full [hyp/s] | Drake crop [hyp/s] (px) | ours, all crop pixels "
+        "[hyp/s] (px) | ours, search's sparse pixels [hyp/s] (px) | depth within 1 mm, "
+        "off edges | within 1 mm, all both-gear px | max off-edge error [mm] |"
+    )
     lines = [head, "|" + "---|" * 9]
     for r in rows:
         lines.append(
@@ -42,7 +44,8 @@ def _renderer_table(rows: list[dict]) -> str:
             f"{r['ours_all_hypotheses_per_second']:.1f} ({r['ours_all_pixels']}) | "
             f"{r['ours_sparse_hypotheses_per_second']:.0f} ({r['ours_sparse_pixels']}) | "
             f"{100 * r['within_1mm_interior']:.2f} % | {100 * r['within_1mm_all']:.2f} % | "
-            f"{1e3 * r['max_error_interior_m']:.2f} |")
+            f"{1e3 * r['max_error_interior_m']:.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -57,8 +60,12 @@ def _inspect_figures(out: Path, gear: str = "medium") -> dict:
         post = estimate_pose(observe(run.station, run.root_context, camera), gear, prior)
         post.plot(out / f"perception_posterior_{name}.png", truth=truth)
         d, e = pose_error(post.map_pose, truth, gear_spec(gear).tooth_pitch_angle)
-        result[name] = {**post.summary(), "xy_error_m": d, "yaw_error_deg": float(np.degrees(e)),
-                        "truth_in_90": post.contains(truth, 0.9)}
+        result[name] = {
+            **post.summary(),
+            "xy_error_m": d,
+            "yaw_error_deg": float(np.degrees(e)),
+            "truth_in_90": post.contains(truth, 0.9),
+        }
     return result
 
 
@@ -71,19 +78,32 @@ def _symmetry(gear: str = "medium") -> list[dict]:
     pitch = 2 * np.pi / teeth
     rows = []
     for marked in (False, True):
-        scene = DrakeScene(SceneConfig(gears={gear: truth}, marked=(gear,) if marked else (),
-                                       plate_pose=(0.55, 0.0, np.pi / 2)))
+        scene = DrakeScene(
+            SceneConfig(gears={gear: truth}, marked=(gear,) if marked else (), plate_pose=(0.55, 0.0, np.pi / 2))
+        )
         for view, camera in (("far", default_scene_camera()), ("close", close_camera(truth[0], truth[1]))):
             post = estimate_pose(scene.render(camera, camera.X_PC), gear_model(gear, marked), prior)
-            m = np.array([post.probability(yaw=(truth[2] + (k - 0.5) * pitch, truth[2] + (k + 0.5) * pitch))
-                          for k in range(teeth)])
+            m = np.array(
+                [
+                    post.probability(yaw=(truth[2] + (k - 0.5) * pitch, truth[2] + (k + 0.5) * pitch))
+                    for k in range(teeth)
+                ]
+            )
             p = m[m > 0] / m.sum()
-            rows.append({"gear": gear, "marked": marked, "view": view, "teeth": teeth,
-                         "effective_repeats": float(np.exp(-(p * np.log(p)).sum())),
-                         "true_repeat_mass": float(m[0]), "min_repeat_mass_x_teeth": float(m.min() * teeth),
-                         "max_repeat_mass_x_teeth": float(m.max() * teeth),
-                         "entropy": {d: post.marginal_entropy(d) for d in ("x", "y", "yaw")},
-                         "seconds": post.info["seconds"]})
+            rows.append(
+                {
+                    "gear": gear,
+                    "marked": marked,
+                    "view": view,
+                    "teeth": teeth,
+                    "effective_repeats": float(np.exp(-(p * np.log(p)).sum())),
+                    "true_repeat_mass": float(m[0]),
+                    "min_repeat_mass_x_teeth": float(m.min() * teeth),
+                    "max_repeat_mass_x_teeth": float(m.max() * teeth),
+                    "entropy": {d: post.marginal_entropy(d) for d in ("x", "y", "yaw")},
+                    "seconds": post.info["seconds"],
+                }
+            )
     return rows
 
 
@@ -93,16 +113,14 @@ def _sweep_correlation_length(values: list[float], scenes: int, out: Path) -> No
     rows = []
     for length in values:
         search = SearchConfig(likelihood=LikelihoodConfig(correlation_length=length))
-        calib = run_calibration(CalibrationConfig(scenes=scenes, seed=0, groups=("clean",),
-                                                  search=search))
+        calib = run_calibration(CalibrationConfig(scenes=scenes, seed=0, groups=("clean",), search=search))
         rows += [{"correlation_length_m": length, **s} for s in calib["summary"]]
     write_json(out / "perception_correlation_length.json", rows)
     print("| correlation length [mm] | view | coverage 50/68/80/90/95 [%] | median std x-y [mm] |")
     print("|---|---|---|---|")
     for r in rows:
         cov = "/".join(f"{100 * c:.0f}" for c in r["coverage"].values())
-        print(f"| {1e3 * r['correlation_length_m']:.2f} | {r['view']} | {cov} | "
-              f"{r['std_xy_mm']['median']:.3f} |")
+        print(f"| {1e3 * r['correlation_length_m']:.2f} | {r['view']} | {cov} | {r['std_xy_mm']['median']:.3f} |")
 
 
 def main() -> None:
@@ -111,10 +129,15 @@ def main() -> None:
     parser.add_argument("--posteriors", type=int, default=5)
     parser.add_argument("--scenes", type=int, default=30)
     parser.add_argument("--out", default="runs/bench/perception")
-    parser.add_argument("--sweep-correlation-length", type=float, nargs="+", metavar="METRES",
-                        help="only run the clean calibration (tuning seed 0) for each correlation "
-                             "length of the tempering and print coverage and widths (writes "
-                             "perception_correlation_length.json)")
+    parser.add_argument(
+        "--sweep-correlation-length",
+        type=float,
+        nargs="+",
+        metavar="METRES",
+        help="only run the clean calibration (tuning seed 0) for each correlation "
+        "length of the tempering and print coverage and widths (writes "
+        "perception_correlation_length.json)",
+    )
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -125,8 +148,13 @@ def main() -> None:
     posteriors = bench_posteriors(BenchConfig(posteriors=args.posteriors))
     figures = _inspect_figures(out)
     symmetry = _symmetry()
-    bench = {"cores": len(os.sched_getaffinity(0)), "renderers": renderers,
-             "posteriors": posteriors, "inspect_medium": figures, "symmetry": symmetry}
+    bench = {
+        "cores": len(os.sched_getaffinity(0)),
+        "renderers": renderers,
+        "posteriors": posteriors,
+        "inspect_medium": figures,
+        "symmetry": symmetry,
+    }
     write_json(out / "perception_bench.json", bench)
 
     print(_renderer_table(renderers))
@@ -135,21 +163,29 @@ def main() -> None:
     print("|---|---|---|---|")
     for r in posteriors["rows"]:
         print(f"| {r['gear']} | {r['seconds']:.3f} | {r['hypotheses']} | {1e3 * r['xy_error_m']:.3f} |")
-    print(f"\nmean {posteriors['seconds_per_posterior']:.3f} s per posterior, "
-          f"{posteriors['hypotheses_per_second']:.0f} hypotheses/s on {bench['cores']} core(s)")
+    print(
+        f"\nmean {posteriors['seconds_per_posterior']:.3f} s per posterior, "
+        f"{posteriors['hypotheses_per_second']:.0f} hypotheses/s on {bench['cores']} core(s)"
+    )
     for name, f in figures.items():
-        print(f"inspect medium, {name}: MAP error {1e3 * f['xy_error_m']:.2f} mm, "
-              f"{f['yaw_error_deg']:.2f} deg (mod tooth pitch); std x,y "
-              f"{1e3 * f['std'][0]:.3f}, {1e3 * f['std'][1]:.3f} mm; entropy x,y "
-              f"{f['entropy']['x']:.2f}, {f['entropy']['y']:.2f} nats; truth in 90 %: {f['truth_in_90']}")
-    print("\n| gear | marked | view | effective repeats (of teeth) | mass on true repeat | "
-          "min, max repeat mass x teeth | entropy x, y, yaw [nats] | s |")
+        print(
+            f"inspect medium, {name}: MAP error {1e3 * f['xy_error_m']:.2f} mm, "
+            f"{f['yaw_error_deg']:.2f} deg (mod tooth pitch); std x,y "
+            f"{1e3 * f['std'][0]:.3f}, {1e3 * f['std'][1]:.3f} mm; entropy x,y "
+            f"{f['entropy']['x']:.2f}, {f['entropy']['y']:.2f} nats; truth in 90 %: {f['truth_in_90']}"
+        )
+    print(
+        "\n| gear | marked | view | effective repeats (of teeth) | mass on true repeat | "
+        "min, max repeat mass x teeth | entropy x, y, yaw [nats] | s |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for r in symmetry:
         e = r["entropy"]
-        print(f"| {r['gear']} | {r['marked']} | {r['view']} | {r['effective_repeats']:.1f} of {r['teeth']} | "
-              f"{r['true_repeat_mass']:.3f} | {r['min_repeat_mass_x_teeth']:.2f}, {r['max_repeat_mass_x_teeth']:.2f} | "
-              f"{e['x']:.2f}, {e['y']:.2f}, {e['yaw']:.2f} | {r['seconds']:.2f} |")
+        print(
+            f"| {r['gear']} | {r['marked']} | {r['view']} | {r['effective_repeats']:.1f} of {r['teeth']} | "
+            f"{r['true_repeat_mass']:.3f} | {r['min_repeat_mass_x_teeth']:.2f}, {r['max_repeat_mass_x_teeth']:.2f} | "
+            f"{e['x']:.2f}, {e['y']:.2f}, {e['yaw']:.2f} | {r['seconds']:.2f} |"
+        )
 
 
 if __name__ == "__main__":

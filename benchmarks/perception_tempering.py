@@ -66,16 +66,28 @@ SHAPE_GRID = np.round(np.arange(0.9, 1.601, 0.05), 2)  # ... and searched (inter
 RESHAPE_FACTORS = np.round(np.geomspace(0.5, 2.0, 25), 4)  # the reshaping's factors searched
 
 
-def collect(scenes: int, seed: int, workers: int, groups: tuple[str, ...] | None = None,
-            likelihood: LikelihoodConfig | None = None) -> dict:
+def collect(
+    scenes: int,
+    seed: int,
+    workers: int,
+    groups: tuple[str, ...] | None = None,
+    likelihood: LikelihoodConfig | None = None,
+) -> dict:
     """The calibration pipeline's rows on tuning scenes (of `groups`, every perturbation group if
     None), with each posterior's scaled levels, under `likelihood` (the shipped one if None)."""
     if seed + scenes > HELD_OUT_SEED:
-        raise InputError(f"--seed {seed} with --scenes {scenes} reaches the benchmark's scenes "
-                         f"(seeds from {HELD_OUT_SEED}); tune on seeds below it")
-    config = CalibrationConfig(scenes=scenes, seed=seed, workers=workers, tempering_factors=FACTORS,
-                               shape_exponents=SHAPES,
-                               search=SearchConfig(likelihood=likelihood or LikelihoodConfig()))
+        raise InputError(
+            f"--seed {seed} with --scenes {scenes} reaches the benchmark's scenes "
+            f"(seeds from {HELD_OUT_SEED}); tune on seeds below it"
+        )
+    config = CalibrationConfig(
+        scenes=scenes,
+        seed=seed,
+        workers=workers,
+        tempering_factors=FACTORS,
+        shape_exponents=SHAPES,
+        search=SearchConfig(likelihood=likelihood or LikelihoodConfig()),
+    )
     if groups:
         config = replace(config, groups=tuple(groups))
     result = run_calibration(config, progress=True)
@@ -103,8 +115,7 @@ class Rows:
         if self.shapes is not None:
             self.shaped = np.array([r["shaped_levels"] for r in rows])  # (rows, shapes, factors)
 
-    def levels(self, scale: np.ndarray, mask: np.ndarray | None = None,
-               shape: np.ndarray | None = None) -> np.ndarray:
+    def levels(self, scale: np.ndarray, mask: np.ndarray | None = None, shape: np.ndarray | None = None) -> np.ndarray:
         """Each row's (of `mask`'s) truth level with its tempering multiplied by scale[i]
         (interpolated in log factor between the recorded ones, clipped to their range) and, when
         `shape` is given, its shape exponent shape[i] (interpolated between the recorded ones)."""
@@ -124,26 +135,33 @@ class Rows:
 
     def tempering_ratio(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the search's tempering `config` gives it over the one it was recorded with."""
-        return np.array([config.tempering_for(r["gear"], r["gsd"])
-                         * config.evidence_factor(r["gsd"], r["inlier_fraction"],
-                                                   r.get("pixel_noise", r["depth_noise"]),
-                                                   r.get("light") is not None)
-                         / r["tempering"] for r in self.rows])
+        return np.array(
+            [
+                config.tempering_for(r["gear"], r["gsd"])
+                * config.evidence_factor(
+                    r["gsd"], r["inlier_fraction"], r.get("pixel_noise", r["depth_noise"]), r.get("light") is not None
+                )
+                / r["tempering"]
+                for r in self.rows
+            ]
+        )
 
     def scale(self, config: LikelihoodConfig) -> np.ndarray:
         """Per row: the factor on its recorded posterior's tempering under `config`: the search's
         tempering ratio times the reshaping's factor (the levels are recorded before it)."""
         # an oblique row made before the brightness was recorded: the nominal light's
-        factor = np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], row_brightness(r, 1.0))[0]
-                           for r in self.rows])
+        factor = np.array(
+            [config.reshaping_for(r["gsd"], r["gear"], r["pixels"], row_brightness(r, 1.0))[0] for r in self.rows]
+        )
         return self.tempering_ratio(config) * factor
 
     def shape(self, config: LikelihoodConfig) -> np.ndarray | None:
         """Per row: the shape exponent `config` gives it (None without shaped levels)."""
         if self.shapes is None:
             return None
-        return np.array([config.reshaping_for(r["gsd"], r["gear"], r["pixels"], row_brightness(r, 1.0))[1]
-                         for r in self.rows])
+        return np.array(
+            [config.reshaping_for(r["gsd"], r["gear"], r["pixels"], row_brightness(r, 1.0))[1] for r in self.rows]
+        )
 
     def at(self, config: LikelihoodConfig) -> np.ndarray:
         """Every row's truth level under `config`."""
@@ -153,36 +171,47 @@ class Rows:
 def cell_loss(levels: np.ndarray, keys: list[str]) -> float:
     """Squared coverage error at FIT_LEVELS, summed over the cells each row's key names."""
     keys = np.asarray(keys)
-    return float(sum(((coverage(levels[keys == k], FIT_LEVELS) - FIT_LEVELS) ** 2).sum()
-                     for k in np.unique(keys)))
+    return float(sum(((coverage(levels[keys == k], FIT_LEVELS) - FIT_LEVELS) ** 2).sum() for k in np.unique(keys)))
 
 
-def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
-        noise: np.ndarray = NOISE, lamp: np.ndarray = LAMP) -> LikelihoodConfig:
+def fit(
+    data: Rows,
+    base: LikelihoodConfig,
+    occlusion: np.ndarray = OCCLUSION,
+    noise: np.ndarray = NOISE,
+    lamp: np.ndarray = LAMP,
+) -> LikelihoodConfig:
     """`base` with the occlusion and noise exponents and the fitted lamp's discount (from the grids
     `occlusion`, `noise`, `lamp`) and, for each, every gear's (A, B) (grids AMPLITUDES x
     EXPONENTS): the set whose truth levels are closest to uniform in every perturbation group x
     view cell, on the levels before the reshaping (the returned config has it off: fit it
     after, with `fit_reshaping`, on rows collected under the new tempering)."""
-    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0), far_reshaping={},
-                   close_reshaping={})
+    base = replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0), far_reshaping={}, close_reshaping={})
     g0 = base.reference_gsd
     views = [r["view"] for r in data.rows]
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
     gears = np.array([r["gear"] for r in data.rows])
     best = (np.inf, base)
     for gamma, eta, discount in itertools.product(occlusion, noise, lamp):
-        cfg = replace(base, gear_tempering={}, occlusion_exponent=float(gamma),
-                      noise_exponent=float(eta), lamp_discount=float(discount))
+        cfg = replace(
+            base,
+            gear_tempering={},
+            occlusion_exponent=float(gamma),
+            noise_exponent=float(eta),
+            lamp_discount=float(discount),
+        )
         scale, shape = data.scale(cfg), data.shape(cfg)
         per_gear = {}
         for gear in np.unique(gears):
             m = gears == gear
             sub = [v for v, k in zip(views, m) if k]
-            ratio = (data.gsd[m] / g0)
+            ratio = data.gsd[m] / g0
             sh = None if shape is None else shape[m]
-            options = [(cell_loss(data.levels(scale[m] * a * ratio ** b, m, sh), sub), a, b)
-                       for a in AMPLITUDES for b in EXPONENTS]
+            options = [
+                (cell_loss(data.levels(scale[m] * a * ratio**b, m, sh), sub), a, b)
+                for a in AMPLITUDES
+                for b in EXPONENTS
+            ]
             _, a, b = min(options)
             per_gear[str(gear)] = (float(a), float(b))
         cfg = replace(cfg, gear_tempering=per_gear)
@@ -195,13 +224,23 @@ def fit(data: Rows, base: LikelihoodConfig, occlusion: np.ndarray = OCCLUSION,
 def held_factors(rows: list[dict], base: LikelihoodConfig) -> np.ndarray:
     """Per row: `base`'s per-gear far- and close-view factors on its reshaping (held by the fits
     of the shared pairs)."""
-    return np.array([base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
-                     * base.close_factor_for(r["gsd"], r["gear"], row_brightness(r, 1.0)) for r in rows])
+    return np.array(
+        [
+            base.far_factor_for(r["gsd"], r["gear"], r["pixels"])
+            * base.close_factor_for(r["gsd"], r["gear"], row_brightness(r, 1.0))
+            for r in rows
+        ]
+    )
 
 
-def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESHAPE_FACTORS,
-                  shapes: np.ndarray = SHAPE_GRID, rounds: int = 2,
-                  sides: tuple[int, ...] = (1, 0)) -> LikelihoodConfig:
+def fit_reshaping(
+    data: Rows,
+    base: LikelihoodConfig,
+    factors: np.ndarray = RESHAPE_FACTORS,
+    shapes: np.ndarray = SHAPE_GRID,
+    rounds: int = 2,
+    sides: tuple[int, ...] = (1, 0),
+) -> LikelihoodConfig:
     """`base` with the posterior's reshaping fitted, the search's tempering held: the
     (posterior_factor, shape_exponent) pair of each of `sides` (1: resolved teeth, 0: unresolved;
     the other side keeps `base`'s), each from the grid `factors` x `shapes`, `rounds` times in
@@ -209,8 +248,9 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
     `base`'s far- and close-view factors per gear held (`far_reshaping`, `close_reshaping`). The reshaping moves no cell, so the rows' levels under it are the
     pipeline's (docs/perception.md, Tempering, item 7)."""
     if data.shapes is None:
-        raise InputError("the rows hold no shaped levels; collect them with this script "
-                         "(every file at the same shape exponents)")
+        raise InputError(
+            "the rows hold no shaped levels; collect them with this script (every file at the same shape exponents)"
+        )
     cells = [f"{r['group']}/{r['view']}" for r in data.rows]
     ratio = data.tempering_ratio(base) * held_factors(data.rows, base)
     w = np.array([teeth_resolved(g) for g in data.gsd])
@@ -222,11 +262,13 @@ def fit_reshaping(data: Rows, base: LikelihoodConfig, factors: np.ndarray = RESH
                 fs, gs = list(factor), list(shape)
                 fs[side], gs[side] = float(f), float(g)
                 rows_f, rows_g = blend_reshaping(fs, gs, w)
-                options.append((cell_loss(data.levels(ratio * rows_f, shape=rows_g), cells),
-                                float(f), float(g)))
+                options.append((cell_loss(data.levels(ratio * rows_f, shape=rows_g), cells), float(f), float(g)))
             _, factor[side], shape[side] = min(options)
-    return replace(base, posterior_factor=(round(factor[0], 4), round(factor[1], 4)),
-                   shape_exponent=(round(shape[0], 4), round(shape[1], 4)))
+    return replace(
+        base,
+        posterior_factor=(round(factor[0], 4), round(factor[1], 4)),
+        shape_exponent=(round(shape[0], 4), round(shape[1], 4)),
+    )
 
 
 def _table(data: Rows, today: np.ndarray, fitted: np.ndarray, key) -> list[str]:
@@ -237,8 +279,10 @@ def _table(data: Rows, today: np.ndarray, fitted: np.ndarray, key) -> list[str]:
     out = []
     for k in dict.fromkeys(keys):
         m = np.array([x == k for x in keys])
-        out.append(f"| {' | '.join(k)} | {m.sum()} | {fmt(coverage(today[m], nominal))} | "
-                   f"{fmt(coverage(fitted[m], nominal))} |")
+        out.append(
+            f"| {' | '.join(k)} | {m.sum()} | {fmt(coverage(today[m], nominal))} | "
+            f"{fmt(coverage(fitted[m], nominal))} |"
+        )
     return out
 
 
@@ -260,8 +304,7 @@ def load_rows(paths: list[Path]) -> tuple[list[dict], np.ndarray, np.ndarray | N
         for group in result["config"]["groups"]:
             rows[result["config"]["seed"], group] = [r for r in usable if r["group"] == group]
     same = len(set(shapes)) == 1 and shapes[0]
-    return ([r for group in rows.values() for r in group], factors,
-            np.asarray(shapes[0]) if same else None)
+    return ([r for group in rows.values() for r in group], factors, np.asarray(shapes[0]) if same else None)
 
 
 def fit_rows(result: dict) -> list[dict]:
@@ -274,24 +317,43 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenes", type=int, default=30)
     p.add_argument("--seed", type=int, default=400, help=f"first tuning scene seed (< {HELD_OUT_SEED})")
     p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--groups", nargs="+", default=None, metavar="GROUP",
-                   help="collect these perturbation groups only (default: all); pooled with --rows "
-                        "files of the same seed, they replace those groups' rows")
-    p.add_argument("--rows", type=Path, nargs="+", default=None,
-                   help="store the rows here (one path), or read them from existing files, pooled (a "
-                        "later file's groups replace an earlier one's of the same seed)")
+    p.add_argument(
+        "--groups",
+        nargs="+",
+        default=None,
+        metavar="GROUP",
+        help="collect these perturbation groups only (default: all); pooled with --rows "
+        "files of the same seed, they replace those groups' rows",
+    )
+    p.add_argument(
+        "--rows",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="store the rows here (one path), or read them from existing files, pooled (a "
+        "later file's groups replace an earlier one's of the same seed)",
+    )
     p.add_argument("--json", type=Path, default=None, help="write the fit and the tables here")
-    p.add_argument("--resolved-only", action="store_true",
-                   help="on rows with shaped levels, fit the reshaping where the teeth are resolved "
-                        "(the close view) only, the other side held at the shipped values")
-    p.add_argument("--likelihood", nargs="+", default=None, metavar="KEY=VALUE",
-                   help="LikelihoodConfig fields to collect and fit under instead of the shipped "
-                        "ones, e.g. colour_scale_factor=[1,2]")
+    p.add_argument(
+        "--resolved-only",
+        action="store_true",
+        help="on rows with shaped levels, fit the reshaping where the teeth are resolved "
+        "(the close view) only, the other side held at the shipped values",
+    )
+    p.add_argument(
+        "--likelihood",
+        nargs="+",
+        default=None,
+        metavar="KEY=VALUE",
+        help="LikelihoodConfig fields to collect and fit under instead of the shipped "
+        "ones, e.g. colour_scale_factor=[1,2]",
+    )
     args = p.parse_args(argv)
     try:
         out = check_output_file(args.json, "--json") if args.json else None
-        base = config_with_overrides(LikelihoodConfig, key_values(args.likelihood, "--likelihood"),
-                                     owner="--likelihood")
+        base = config_with_overrides(
+            LikelihoodConfig, key_values(args.likelihood, "--likelihood"), owner="--likelihood"
+        )
         if args.rows and all(path.exists() for path in args.rows):
             rows, factors, shapes = load_rows(args.rows)
         else:
@@ -314,8 +376,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.resolved_only:
             config = fit_reshaping(data, base, sides=(1,), rounds=1)
         else:
-            config = fit_reshaping(data, replace(base, posterior_factor=(1.0, 1.0),
-                                                 shape_exponent=(1.0, 1.0)))
+            config = fit_reshaping(data, replace(base, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0)))
     fitted = data.at(config)
     head = "| {} | n | as collected 50/68/80/90/95 | fitted |"
     lines = [head.format("gear | view"), "|---|---|---|---|---|"]
@@ -323,11 +384,15 @@ def main(argv: list[str] | None = None) -> int:
     lines += ["", head.format("group | view"), "|---|---|---|---|---|"]
     lines += _table(data, today, fitted, lambda r: (r["group"], r["view"]))
     print("\n".join(lines))
-    fits = {"gear_tempering": {g: [round(a, 4), round(b, 4)] for g, (a, b) in config.gear_tempering.items()},
-            "occlusion_exponent": config.occlusion_exponent, "noise_exponent": config.noise_exponent,
-            "lamp_discount": config.lamp_discount, "posterior_factor": list(config.posterior_factor),
-            "shape_exponent": list(config.shape_exponent),
-            "posteriors": len(rows)}
+    fits = {
+        "gear_tempering": {g: [round(a, 4), round(b, 4)] for g, (a, b) in config.gear_tempering.items()},
+        "occlusion_exponent": config.occlusion_exponent,
+        "noise_exponent": config.noise_exponent,
+        "lamp_discount": config.lamp_discount,
+        "posterior_factor": list(config.posterior_factor),
+        "shape_exponent": list(config.shape_exponent),
+        "posteriors": len(rows),
+    }
     print(f"fitted: {fits}")
     if out is not None:
         write_json(out, {"fit": fits, "table": lines})

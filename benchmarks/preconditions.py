@@ -53,26 +53,38 @@ def measure(gear: str, episodes: int, spread: float, seed: int) -> dict:
         tnr = float(np.mean(~passed[~cal.success])) if (~cal.success).any() else float("nan")
         return {"tpr": tpr, "tnr": tnr}
 
-    return {"gear": gear, "episodes": episodes, "spread_m": spread, "seed": seed,
-            "seconds": time.perf_counter() - t0, "success_rate": float(cal.success.mean()),
-            "value_threshold": cal.threshold, "balanced_accuracy_value": cal.balanced_accuracy,
-            "eq6": rates(value_ok),
-            "flow": {f"{e:g}": rates(density > e) for e in EPS},
-            "eq7": {f"{e:g}": rates(value_ok & (density > e)) for e in EPS},
-            "value_success_pct": np.percentile(cal.value[cal.success], [5, 50, 95]).tolist()
-            if cal.success.any() else [],
-            "value_failure_pct": np.percentile(cal.value[~cal.success], [5, 50, 95]).tolist()
-            if (~cal.success).any() else []}
+    return {
+        "gear": gear,
+        "episodes": episodes,
+        "spread_m": spread,
+        "seed": seed,
+        "seconds": time.perf_counter() - t0,
+        "success_rate": float(cal.success.mean()),
+        "value_threshold": cal.threshold,
+        "balanced_accuracy_value": cal.balanced_accuracy,
+        "eq6": rates(value_ok),
+        "flow": {f"{e:g}": rates(density > e) for e in EPS},
+        "eq7": {f"{e:g}": rates(value_ok & (density > e)) for e in EPS},
+        "value_success_pct": np.percentile(cal.value[cal.success], [5, 50, 95]).tolist() if cal.success.any() else [],
+        "value_failure_pct": np.percentile(cal.value[~cal.success], [5, 50, 95]).tolist()
+        if (~cal.success).any()
+        else [],
+    }
 
 
 def table(rows: list[dict]) -> str:
-    head = ("| gear | success | V_T | Eq. 6 TPR / TNR | " +
-            " | ".join(f"Eq. 7 eps={e:g} TPR / TNR" for e in (1.0, 10.0, 100.0)) + " |")
+    head = (
+        "| gear | success | V_T | Eq. 6 TPR / TNR | "
+        + " | ".join(f"Eq. 7 eps={e:g} TPR / TNR" for e in (1.0, 10.0, 100.0))
+        + " |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         cells = [f"{r['eq7'][f'{e:g}']['tpr']:.2f} / {r['eq7'][f'{e:g}']['tnr']:.2f}" for e in (1.0, 10.0, 100.0)]
-        lines.append(f"| {r['gear']} | {r['success_rate']:.2f} of {r['episodes']} | {r['value_threshold']:.3f} | "
-                     f"{r['eq6']['tpr']:.2f} / {r['eq6']['tnr']:.2f} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {r['gear']} | {r['success_rate']:.2f} of {r['episodes']} | {r['value_threshold']:.3f} | "
+            f"{r['eq6']['tpr']:.2f} / {r['eq6']['tnr']:.2f} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines)
 
 
@@ -87,8 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--thresholds", type=Path, help="write {thresholds: {gear: V_T}} for the planner")
     args = p.parse_args(argv)
     if args.episodes < 4 or args.workers < 1 or not np.isfinite(args.spread) or args.spread < 0:
-        p.error(f"--episodes {args.episodes}, --workers {args.workers}, --spread {args.spread}: "
-                "expected >= 4, >= 1 and >= 0")
+        p.error(
+            f"--episodes {args.episodes}, --workers {args.workers}, --spread {args.spread}: "
+            "expected >= 4, >= 1 and >= 0"
+        )
     for path in (args.json, args.thresholds):
         if path is not None:
             check_output_file(path)
@@ -97,8 +111,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         write_json(args.json, {"command": " ".join(sys.argv), "rows": rows})
     if args.thresholds:
-        write_json(args.thresholds, {"command": " ".join(sys.argv),
-                                     "thresholds": {r["gear"]: r["value_threshold"] for r in rows}})
+        write_json(
+            args.thresholds,
+            {"command": " ".join(sys.argv), "thresholds": {r["gear"]: r["value_threshold"] for r in rows}},
+        )
     return 0
 
 

@@ -32,9 +32,11 @@ def provenance(module: str, argv: list[str] | None = None) -> dict[str, str | No
     commit = _git("rev-parse", "HEAD")
     if commit and _git("status", "--porcelain", "--untracked-files=no"):
         commit += "+dirty"
-    return {"command": command(module, argv),
-            "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
-            "commit": commit}
+    return {
+        "command": command(module, argv),
+        "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
+        "commit": commit,
+    }
 
 
 __all__ = ["command", "provenance"]

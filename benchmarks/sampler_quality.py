@@ -71,8 +71,7 @@ from goflow_common.errors import GoflowError, InputError
 from goflow_common.files import check_output_dir, check_output_file, read_json, to_strict_json, write_json
 from learning.execution import Job, add_ray_flag, make_backend, run_grid
 from learning.samplers.goflow_config import GoFlowConfig
-from learning.feasible_sets import (LAYOUTS, Layout, coverage, describe, kl_to_optimum,
-                                    mass_on, optimum_mass)
+from learning.feasible_sets import LAYOUTS, Layout, coverage, describe, kl_to_optimum, mass_on, optimum_mass
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -80,7 +79,9 @@ NAME = "sampler_quality"
 PROTOCOLS = ("uniform", "own")
 SCHEDULE = (0, 10, 20, 50, 100, 200, 300, 400, 500)
 J_T = 0.5  # ADR's t+ and DORAEMON's success threshold on the [0, 1] signal
-DELTA = GoFlowConfig().delta  # the constrained objective's delta (GoFlow's default), and the KL reference of every non-entropy method
+DELTA = (
+    GoFlowConfig().delta
+)  # the constrained objective's delta (GoFlow's default), and the KL reference of every non-entropy method
 GRID = 64  # cells per side of the stored 2-D density
 LEVELS = {"cov10": 0.1, "cov1": 0.01}
 METRICS = ("mass", "cov10", "cov1", "entropy", "kl", "update_s")
@@ -106,12 +107,18 @@ def _methods() -> dict[str, Method]:
     unit = (0.0, 1.0)
     methods = [Method("goflow-paper", "goflow", {"mode": "paper", "alpha": 0.5, "beta": 0.0})]
     for alpha in (0.1, 0.3, 1.0, 3.0):
-        methods.append(Method(f"goflow-entropy-{alpha:g}", "goflow",
-                              {"mode": "entropy", "alpha": alpha, "beta": 0.0, "signal_range": unit},
-                              objective=("entropy", alpha)))
+        methods.append(
+            Method(
+                f"goflow-entropy-{alpha:g}",
+                "goflow",
+                {"mode": "entropy", "alpha": alpha, "beta": 0.0, "signal_range": unit},
+                objective=("entropy", alpha),
+            )
+        )
     methods += [
-        Method("goflow-constrained", "goflow", {"mode": "constrained", "beta": 0.0, "signal_range": unit},
-               signal="success"),
+        Method(
+            "goflow-constrained", "goflow", {"mode": "constrained", "beta": 0.0, "signal_range": unit}, signal="success"
+        ),
         Method("lsdr", "lsdr"),
         Method("doraemon", "doraemon"),
         Method("adr", "adr", own_only=True),
@@ -122,8 +129,10 @@ def _methods() -> dict[str, Method]:
 
 #: The benchmarked methods by name; `--methods goflow-entropy` means every goflow-entropy-<alpha>.
 METHODS: dict[str, Method] = _methods()
-GROUPS = {"goflow-entropy": [m for m in METHODS if m.startswith("goflow-entropy-")],
-          "goflow": [m for m in METHODS if m.startswith("goflow-")]}
+GROUPS = {
+    "goflow-entropy": [m for m in METHODS if m.startswith("goflow-entropy-")],
+    "goflow": [m for m in METHODS if m.startswith("goflow-")],
+}
 
 
 @dataclass(frozen=True)
@@ -161,12 +170,14 @@ def to_plain(obj: Any) -> Any:
 # -- one run ------------------------------------------------------------------------------------
 
 
-def sampler_config(method: Method, protocol: str, seed: int,
-                   overrides: Sequence[tuple[str, Any]] = ()) -> dict[str, Any]:
+def sampler_config(
+    method: Method, protocol: str, seed: int, overrides: Sequence[tuple[str, Any]] = ()
+) -> dict[str, Any]:
     """The config `method`'s sampler gets under `protocol` with run seed `seed`: its own options,
     DORAEMON's proposal for uniform batches, `seed` where the config has a seed field, and the
     `--sampler` `overrides` last."""
     from learning.samplers.registry import sampler_config as registered_config
+
     fields = {f.name for f in dataclasses.fields(registered_config(method.sampler, None))}
     config = dict(method.config)
     if method.sampler == "doraemon" and protocol == "uniform":
@@ -194,6 +205,7 @@ def _config_data(sampler: str, options: dict[str, Any] | None) -> dict[str, Any]
     """The registered config of `sampler` with `options` (None: its defaults), as JSON data."""
     from goflow_common.config import config_to_dict
     from learning.samplers.registry import sampler_config as registered_config
+
     return to_plain(config_to_dict(registered_config(sampler, options)))
 
 
@@ -203,10 +215,12 @@ def _signal(layout: Layout, method: Method, xi: np.ndarray) -> np.ndarray:
     return layout.reward(xi)
 
 
-def measure(sampler: Any, layout: Layout, method: Method, inside: np.ndarray, draws: int,
-            rng: np.random.Generator) -> dict[str, float]:
+def measure(
+    sampler: Any, layout: Layout, method: Method, inside: np.ndarray, draws: int, rng: np.random.Generator
+) -> dict[str, float]:
     """Mass, coverage at each level, entropy and KL to the method's optimum of `sampler` now."""
     from learning.samplers.adr import ADRSampler
+
     own = sampler.sample(draws, rng)
     density = own
     if isinstance(sampler, ADRSampler):  # log_prob is uniform on its intervals, without the boundary atoms
@@ -262,8 +276,11 @@ def _check_settings(path: Path, record: dict[str, Any], task: Task) -> None:
     diff = [f"{k} {have[k]!r} (want {want[k]!r})" for k in ("rounds", "batch", "draws") if have[k] != want[k]]
     if have["config"] != want["config"]:
         old, new, absent = have["config"] or {}, want["config"], "absent"
-        diff += [f"config.{k} {old.get(k, absent)!r} (want {new.get(k, absent)!r})"
-                 for k in sorted({*old, *new}) if k not in old or k not in new or old[k] != new[k]]
+        diff += [
+            f"config.{k} {old.get(k, absent)!r} (want {new.get(k, absent)!r})"
+            for k in sorted({*old, *new})
+            if k not in old or k not in new or old[k] != new[k]
+        ]
     raise InputError(f"{path} holds a run with other settings: {', '.join(diff)}; delete it or choose another --out")
 
 
@@ -276,6 +293,7 @@ def run_task(task: Task, out: Path | None = None, checkpoint_every: int = 0) -> 
     one there resumes from it: the rows are those of an uninterrupted run."""
     import torch
     from learning.samplers.registry import make_sampler
+
     torch.set_num_threads(1)
     torch.manual_seed(task.seed)
     t_start = time.perf_counter()
@@ -300,14 +318,28 @@ def run_task(task: Task, out: Path | None = None, checkpoint_every: int = 0) -> 
             raise InputError(f"{partial}: not a checkpoint of this run ({exc!r}); delete it to start over") from exc
     for k in range(start, task.rounds + 1):
         if partial is not None and k > start and k % checkpoint_every == 0 and k < task.rounds:
-            write_json(partial, to_strict_json({
-                "benchmark": NAME, **task.settings(), "round": k, "rows": rows, "update_s": seconds,
-                "wall_s": wall_before + time.perf_counter() - t_start, "sampler": sampler.state_dict(),
-                "batch_rng": batch_rng.bit_generator.state, "torch_rng": torch.get_rng_state().tolist()}))
+            write_json(
+                partial,
+                to_strict_json(
+                    {
+                        "benchmark": NAME,
+                        **task.settings(),
+                        "round": k,
+                        "rows": rows,
+                        "update_s": seconds,
+                        "wall_s": wall_before + time.perf_counter() - t_start,
+                        "sampler": sampler.state_dict(),
+                        "batch_rng": batch_rng.bit_generator.state,
+                        "torch_rng": torch.get_rng_state().tolist(),
+                    }
+                ),
+            )
         if k in plan:
-            row = {"round": k, **measure(sampler, layout, method, inside, task.draws,
-                                         np.random.default_rng([task.seed, 1, k]))}
-            since = seconds[len(seconds) - (k - rows[-1]["round"]):] if rows else []
+            row = {
+                "round": k,
+                **measure(sampler, layout, method, inside, task.draws, np.random.default_rng([task.seed, 1, k])),
+            }
+            since = seconds[len(seconds) - (k - rows[-1]["round"]) :] if rows else []
             row["update_s"] = float(np.median(since)) if since else None
             rows.append(row)
         if k == task.rounds:
@@ -318,13 +350,19 @@ def run_task(task: Task, out: Path | None = None, checkpoint_every: int = 0) -> 
         t0 = time.perf_counter()
         sampler.update(xi, signal)
         seconds.append(time.perf_counter() - t0)
-    record = {"benchmark": NAME, **dataclasses.asdict(task), "overrides": dict(task.overrides),
-              "sampler": method.sampler,
-              "config": resolved_config(task),
-              "objective": list(method.objective), "signal": method.signal, "rows": rows,
-              "update_s": [round(s, 5) for s in seconds],
-              "update_s_median": float(np.median(seconds)) if seconds else None,
-              "wall_s": wall_before + time.perf_counter() - t_start}
+    record = {
+        "benchmark": NAME,
+        **dataclasses.asdict(task),
+        "overrides": dict(task.overrides),
+        "sampler": method.sampler,
+        "config": resolved_config(task),
+        "objective": list(method.objective),
+        "signal": method.signal,
+        "rows": rows,
+        "update_s": [round(s, 5) for s in seconds],
+        "update_s_median": float(np.median(seconds)) if seconds else None,
+        "wall_s": wall_before + time.perf_counter() - t_start,
+    }
     if layout.dim == 2:
         record["density"] = {"grid": GRID, "log_prob": density_grid(sampler)}
     return to_strict_json(record)  # as stored: a non-finite number is null (see INFINITE)
@@ -342,6 +380,7 @@ def run_and_save(task: Task, out: Path, checkpoint_every: int = 0) -> dict[str, 
 def run_job(task: Task, out: Path, checkpoint_every: int = 0) -> dict[str, Any]:
     """`run_and_save` on one torch thread (the grid's job: one CPU each)."""
     import torch
+
     torch.set_num_threads(1)
     return run_and_save(task, out, checkpoint_every)
 
@@ -391,13 +430,16 @@ def parse_overrides(pairs: Sequence[str] | None, methods: Sequence[str]) -> tupl
     the goflow config of every method (`config_with_overrides`); InputError naming the pair otherwise."""
     from goflow_common.config import config_with_overrides, key_values
     from goflow_common.errors import UnknownOptionError
+
     values = key_values(pairs, "--sampler")
     if not values:
         return ()
     others = [m for m in methods if METHODS[m].sampler != "goflow"]
     if others:
-        raise InputError(f"--sampler sets GoFlowConfig fields of the goflow-* methods only; also selected: {others} "
-                         "(choose --methods among the goflow-* ones)")
+        raise InputError(
+            f"--sampler sets GoFlowConfig fields of the goflow-* methods only; also selected: {others} "
+            "(choose --methods among the goflow-* ones)"
+        )
     fixed = {"seed": "--seeds sets it", "mode": "the method's name sets it"}
     if any(METHODS[m].objective[0] == "entropy" for m in methods):
         fixed["alpha"] = "a goflow-entropy-<alpha> method's name sets it"
@@ -428,9 +470,14 @@ def plan(args: argparse.Namespace) -> list[Task]:
     draws = check_int(args.draws, "--draws", 16)
     check_int(args.workers, "--workers", 1)
     overrides = parse_overrides(args.sampler, methods)
-    tasks = [Task(layout, method, protocol, seed, rounds, batch, draws, overrides)
-             for layout in layouts for method in methods for protocol in protocols for seed in seeds
-             if not (METHODS[method].own_only and protocol != "own")]
+    tasks = [
+        Task(layout, method, protocol, seed, rounds, batch, draws, overrides)
+        for layout in layouts
+        for method in methods
+        for protocol in protocols
+        for seed in seeds
+        if not (METHODS[method].own_only and protocol != "own")
+    ]
     if not tasks:
         raise InputError(f"no runs: {methods} under protocols {protocols} (ADR runs only under --protocols own)")
     return tasks
@@ -474,13 +521,22 @@ def summarize(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
         rounds = [row["round"] for row in runs[0]["rows"]]
         metrics = {}
         for metric in METRICS:
-            stats = [_mean_se([run["rows"][i][metric] for run in runs], INFINITE.get(metric))
-                     for i in range(len(rounds))]
+            stats = [
+                _mean_se([run["rows"][i][metric] for run in runs], INFINITE.get(metric)) for i in range(len(rounds))
+            ]
             metrics[metric] = {"mean": [s[0] for s in stats], "se": [s[1] for s in stats]}
-        rows.append({"layout": layout, "method": method, "protocol": protocol,
-                     "seeds": sorted(run["seed"] for run in runs), "rounds": rounds, "metrics": metrics,
-                     "update_s_median": _mean_se([run["update_s_median"] for run in runs])[0],
-                     "wall_s_per_run": _mean_se([run["wall_s"] for run in runs])[0]})
+        rows.append(
+            {
+                "layout": layout,
+                "method": method,
+                "protocol": protocol,
+                "seeds": sorted(run["seed"] for run in runs),
+                "rounds": rounds,
+                "metrics": metrics,
+                "update_s_median": _mean_se([run["update_s_median"] for run in runs])[0],
+                "wall_s_per_run": _mean_se([run["wall_s"] for run in runs])[0],
+            }
+        )
     return rows
 
 
@@ -494,8 +550,10 @@ def _cell(mean: float | None, se: float | None, digits: int = 3) -> str:
 
 def table(rows: list[dict[str, Any]]) -> str:
     """The printed table: per row, the final round and round 100 (when measured and not final)."""
-    head = (f"{'layout':<12} {'method':<20} {'protocol':<8} {'n':>2} {'round':>5} {'mass':>13} {'cov10':>13} "
-            f"{'cov1':>13} {'kl':>13} {'update[s]':>9} {'run[s]':>7}")
+    head = (
+        f"{'layout':<12} {'method':<20} {'protocol':<8} {'n':>2} {'round':>5} {'mass':>13} {'cov10':>13} "
+        f"{'cov1':>13} {'kl':>13} {'update[s]':>9} {'run[s]':>7}"
+    )
     lines = [head, "-" * len(head)]
     for row in rows:
         final = len(row["rounds"]) - 1
@@ -504,9 +562,11 @@ def table(rows: list[dict[str, Any]]) -> str:
             m = row["metrics"]
             cells = [_cell(m[k]["mean"][i], m[k]["se"][i]) for k in ("mass", "cov10", "cov1", "kl")]
             upd = m["update_s"]["mean"][i]
-            lines.append(f"{row['layout']:<12} {row['method']:<20} {row['protocol']:<8} {len(row['seeds']):>2} "
-                         f"{row['rounds'][i]:>5} {cells[0]:>13} {cells[1]:>13} {cells[2]:>13} {cells[3]:>13} "
-                         f"{'-' if upd is None else f'{upd:.4f}':>9} {row['wall_s_per_run']:>7.1f}")
+            lines.append(
+                f"{row['layout']:<12} {row['method']:<20} {row['protocol']:<8} {len(row['seeds']):>2} "
+                f"{row['rounds'][i]:>5} {cells[0]:>13} {cells[1]:>13} {cells[2]:>13} {cells[3]:>13} "
+                f"{'-' if upd is None else f'{upd:.4f}':>9} {row['wall_s_per_run']:>7.1f}"
+            )
     return "\n".join(lines)
 
 
@@ -517,14 +577,17 @@ def plot_quality(rows: list[dict[str, Any]], path: Path) -> None:
     """Mass and coverage at 10 % against rounds: a row of panels per layout, one column per
     (metric, protocol), a line per method (mean; the band is +- one standard error)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     layouts = list(dict.fromkeys(r["layout"] for r in rows))
     protocols = [p for p in PROTOCOLS if any(r["protocol"] == p for r in rows)]
     columns = [(metric, p) for metric in ("mass", "cov10") for p in protocols]
     colours = {m: plt.cm.tab10(i % 10) for i, m in enumerate(METHODS)}
-    fig, axes = plt.subplots(len(layouts), len(columns), figsize=(3.2 * len(columns), 2.4 * len(layouts)),
-                             squeeze=False, sharex=True)
+    fig, axes = plt.subplots(
+        len(layouts), len(columns), figsize=(3.2 * len(columns), 2.4 * len(layouts)), squeeze=False, sharex=True
+    )
     for i, layout in enumerate(layouts):
         for j, (metric, protocol) in enumerate(columns):
             ax = axes[i, j]
@@ -549,14 +612,17 @@ def plot_quality(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def plot_densities(records: list[dict[str, Any]], path: Path,
-                   methods: Sequence[str] = ("goflow-constrained", "goflow-paper")) -> bool:
+def plot_densities(
+    records: list[dict[str, Any]], path: Path, methods: Sequence[str] = ("goflow-constrained", "goflow-paper")
+) -> bool:
     """The final density exp(log_prob) of `methods` on each 2-D layout, the feasible set's outline
     on top (the GoFlow paper's Fig. 2 view), first seed of each run; the colour scale runs from 0 to
     twice the uniform-on-F density. False when there is nothing to draw."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     picked: dict[tuple[str, str, str], dict[str, Any]] = {}
     for r in sorted(records, key=lambda r: r["seed"]):
         if "density" in r and r["method"] in methods:
@@ -565,8 +631,9 @@ def plot_densities(records: list[dict[str, Any]], path: Path,
         return False
     layouts = list(dict.fromkeys(k[0] for k in picked))
     columns = [(m, p) for m in methods for p in PROTOCOLS if any(k[1:] == (m, p) for k in picked)]
-    fig, axes = plt.subplots(len(layouts), len(columns) + 1, figsize=(2.6 * (len(columns) + 1), 2.6 * len(layouts)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(layouts), len(columns) + 1, figsize=(2.6 * (len(columns) + 1), 2.6 * len(layouts)), squeeze=False
+    )
     c = (np.arange(200) + 0.5) / 200
     gx, gy = np.meshgrid(c, c)
     for i, layout in enumerate(layouts):
@@ -607,18 +674,32 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", nargs="+", default=["5"], help="a count N (seeds 0..N-1) or a list (0,3 or 0 3)")
     p.add_argument("--rounds", type=int, default=500, help="updates per run")
     p.add_argument("--batch", type=int, default=256, help="points per update")
-    p.add_argument("--draws", type=int, default=4096, help="draws per measurement (mass, KL) and points on F (coverage)")
+    p.add_argument(
+        "--draws", type=int, default=4096, help="draws per measurement (mass, KL) and points on F (coverage)"
+    )
     p.add_argument("--workers", type=int, default=1, help="processes (one torch thread each)")
-    p.add_argument("--checkpoint-every", type=int, default=50, metavar="ROUNDS",
-                   help="write each run's state every ROUNDS rounds, and resume a run from it (0: never)")
-    p.add_argument("--sampler", action="append", metavar="KEY=VALUE",
-                   help="a GoFlowConfig field for the goflow-* methods, e.g. leak_target=0.008 (repeatable; value "
-                        "as JSON, else a string); refused with any non-goflow method, and for seed, mode (and alpha "
-                        "of goflow-entropy-<alpha>); the KL keeps the method's default objective. Part of each "
-                        "run's stored config: a stored run with other overrides is refused, never reused")
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=50,
+        metavar="ROUNDS",
+        help="write each run's state every ROUNDS rounds, and resume a run from it (0: never)",
+    )
+    p.add_argument(
+        "--sampler",
+        action="append",
+        metavar="KEY=VALUE",
+        help="a GoFlowConfig field for the goflow-* methods, e.g. leak_target=0.008 (repeatable; value "
+        "as JSON, else a string); refused with any non-goflow method, and for seed, mode (and alpha "
+        "of goflow-entropy-<alpha>); the KL keeps the method's default objective. Part of each "
+        "run's stored config: a stored run with other overrides is refused, never reused",
+    )
     add_ray_flag(p)
-    p.add_argument("--existing", action="store_true",
-                   help="run nothing: summarize (and plot) the runs of the grid already stored in --out")
+    p.add_argument(
+        "--existing",
+        action="store_true",
+        help="run nothing: summarize (and plot) the runs of the grid already stored in --out",
+    )
     p.add_argument("--out", type=Path, default=ROOT / "runs" / NAME, help="folder of the per-run JSON files")
     p.add_argument("--json", type=Path, default=None, help="summary file (default <out>/summary.json)")
     p.add_argument("--plot", type=Path, default=None, help="figure PNG; the densities go to <stem>_density.png")
@@ -650,49 +731,82 @@ def main(argv: list[str] | None = None) -> int:
         skipped = len(done)
         # checkpoints with other settings are refused before any run starts
         resuming = sum(checkpoint(t, out) is not None for t in todo) if every else 0
-        print(f"{NAME}: {len(tasks)} runs, {skipped} already in {out}, {len(todo)} to run ({resuming} from a "
-              f"checkpoint), {args.workers} worker(s)")
+        print(
+            f"{NAME}: {len(tasks)} runs, {skipped} already in {out}, {len(todo)} to run ({resuming} from a "
+            f"checkpoint), {args.workers} worker(s)"
+        )
         for task in todo:  # sampler configs are checked before any run starts
             resolved_config(task)
 
         def report(record: dict[str, Any]) -> None:
             done.append(record)
-            print(f"[{len(done) - skipped}/{len(todo)}] {record['layout']} {record['method']} {record['protocol']} "
-                  f"seed{record['seed']}: {record['rounds']} rounds in {record['wall_s']:.1f} s, update median "
-                  f"{record['update_s_median']:.4f} s, final mass {record['rows'][-1]['mass']:.3f}, "
-                  f"cov10 {record['rows'][-1]['cov10']:.3f}", flush=True)
+            print(
+                f"[{len(done) - skipped}/{len(todo)}] {record['layout']} {record['method']} {record['protocol']} "
+                f"seed{record['seed']}: {record['rounds']} rounds in {record['wall_s']:.1f} s, update median "
+                f"{record['update_s_median']:.4f} s, final mass {record['rows'][-1]['mass']:.3f}, "
+                f"cov10 {record['rows'][-1]['cov10']:.3f}",
+                flush=True,
+            )
 
         jobs = [Job(f"{t.layout}/{t.method}/{t.protocol}/seed{t.seed}", run_job, (t, out, every)) for t in todo]
-        run_grid(jobs, make_backend(args.ray, args.workers, inline=True), progress=False, desc=NAME,
-                 on_result=lambda _, record: report(record))
+        run_grid(
+            jobs,
+            make_backend(args.ray, args.workers, inline=True),
+            progress=False,
+            desc=NAME,
+            on_result=lambda _, record: report(record),
+        )
 
         order = {(t.layout, t.method, t.protocol, t.seed): i for i, t in enumerate(tasks)}
         done.sort(key=lambda r: order[(r["layout"], r["method"], r["protocol"], r["seed"])])
         rows = summarize(done)
         print(table(rows))
         layouts = list(dict.fromkeys(t.layout for t in tasks))
-        write_json(summary_path, {
-            "benchmark": NAME, "command": "benchmarks/sampler_quality.py " + " ".join(argv or sys.argv[1:]),
-            "settings": {"rounds": tasks[0].rounds, "batch": tasks[0].batch, "draws": tasks[0].draws,
-                         "seeds": sorted({t.seed for t in tasks}), "j_t": J_T, "delta": DELTA, "levels": LEVELS,
-                         "sampler_overrides": dict(tasks[0].overrides)},
-            "layouts": {name: {**describe(LAYOUTS[name]),
-                               "optimum_mass": {m: optimum_mass(LAYOUTS[name], METHODS[m].objective)
-                                                for m in dict.fromkeys(t.method for t in tasks)}}
-                        for name in layouts},
-            "methods": {m: dataclasses.asdict(METHODS[m]) for m in dict.fromkeys(t.method for t in tasks)},
-            "rows": rows})
+        write_json(
+            summary_path,
+            {
+                "benchmark": NAME,
+                "command": "benchmarks/sampler_quality.py " + " ".join(argv or sys.argv[1:]),
+                "settings": {
+                    "rounds": tasks[0].rounds,
+                    "batch": tasks[0].batch,
+                    "draws": tasks[0].draws,
+                    "seeds": sorted({t.seed for t in tasks}),
+                    "j_t": J_T,
+                    "delta": DELTA,
+                    "levels": LEVELS,
+                    "sampler_overrides": dict(tasks[0].overrides),
+                },
+                "layouts": {
+                    name: {
+                        **describe(LAYOUTS[name]),
+                        "optimum_mass": {
+                            m: optimum_mass(LAYOUTS[name], METHODS[m].objective)
+                            for m in dict.fromkeys(t.method for t in tasks)
+                        },
+                    }
+                    for name in layouts
+                },
+                "methods": {m: dataclasses.asdict(METHODS[m]) for m in dict.fromkeys(t.method for t in tasks)},
+                "rows": rows,
+            },
+        )
         print(f"{NAME}: summary -> {summary_path}")
         if args.plot is not None:
             plot_quality(rows, args.plot)
             density = args.plot.with_name(args.plot.stem + "_density.png")
             drawn = plot_densities(done, density)
-            print(f"{NAME}: figures -> {args.plot}" + (f", {density}" if drawn else " (no 2-D GoFlow run to draw "
-                                                                                  "densities of)"))
+            print(
+                f"{NAME}: figures -> {args.plot}"
+                + (f", {density}" if drawn else " (no 2-D GoFlow run to draw densities of)")
+            )
         return 0
     except KeyboardInterrupt:
-        print(f"{NAME}: interrupted; {len(done)} of {len(tasks)} runs are saved in {out}; rerun the same command "
-              "to resume", file=sys.stderr)
+        print(
+            f"{NAME}: interrupted; {len(done)} of {len(tasks)} runs are saved in {out}; rerun the same command "
+            "to resume",
+            file=sys.stderr,
+        )
         return 130
     except (GoflowError, ValueError, TypeError, OSError) as exc:
         print(f"{NAME}: {' '.join(str(exc).split())}", file=sys.stderr)

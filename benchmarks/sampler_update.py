@@ -66,19 +66,36 @@ def main() -> None:
     ours = goflow_module.build_spline_flow
     for d in args.dims:
         for method in METHODS:
-            variants = [("", ours, {})] if method != "goflow" else [
-                (" (entropy)", ours, {"mode": "entropy"}), (" (constrained)", ours, {"mode": "constrained"}),
-                (" (constrained, k-NN, flow alone)", ours,
-                 {"mode": "constrained", "feasible_model": "knn", "feasible_level": 0.8, "truncate": False}),
-                (" (paper)", ours, {"mode": "paper"}), (" (paper, zuko NSF class)", _zuko_nsf, {"mode": "paper"})]
+            variants = (
+                [("", ours, {})]
+                if method != "goflow"
+                else [
+                    (" (entropy)", ours, {"mode": "entropy"}),
+                    (" (constrained)", ours, {"mode": "constrained"}),
+                    (
+                        " (constrained, k-NN, flow alone)",
+                        ours,
+                        {"mode": "constrained", "feasible_model": "knn", "feasible_level": 0.8, "truncate": False},
+                    ),
+                    (" (paper)", ours, {"mode": "paper"}),
+                    (" (paper, zuko NSF class)", _zuko_nsf, {"mode": "paper"}),
+                ]
+            )
             for suffix, builder, config in variants:
                 goflow_module.build_spline_flow = builder
                 try:
                     seconds = time_update(method, d, args.batch, args.repeats, config)
                 finally:
                     goflow_module.build_spline_flow = ours
-                rows.append({"method": method + suffix, "dim": d, "batch": args.batch, "update_s": seconds,
-                             "round_for_5pct_s": 19.0 * seconds})
+                rows.append(
+                    {
+                        "method": method + suffix,
+                        "dim": d,
+                        "batch": args.batch,
+                        "update_s": seconds,
+                        "round_for_5pct_s": 19.0 * seconds,
+                    }
+                )
     print(f"{'method':<28} {'d':>2} {'update [s]':>11} {'round for 5 % [s]':>18}")
     for r in rows:
         print(f"{r['method']:<28} {r['dim']:>2} {r['update_s']:>11.3f} {r['round_for_5pct_s']:>18.2f}")

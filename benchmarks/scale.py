@@ -34,8 +34,16 @@ PPO = PPOConfig(num_envs=4, num_steps=64, num_minibatches=2, update_epochs=2, le
 
 
 def grid(out: Path, seeds: int, steps: int) -> ExperimentConfig:
-    return ExperimentConfig(env="goflow/Toy2D-v0", methods=("fulldr", "lsdr"), seeds=seeds, total_steps=steps,
-                            iterations_per_round=2, eval_episodes=64, ppo=PPO, out=out)
+    return ExperimentConfig(
+        env="goflow/Toy2D-v0",
+        methods=("fulldr", "lsdr"),
+        seeds=seeds,
+        total_steps=steps,
+        iterations_per_round=2,
+        eval_episodes=64,
+        ppo=PPO,
+        out=out,
+    )
 
 
 def measure(label: str, backend: Backend, workers: int, config: ExperimentConfig) -> dict:
@@ -50,9 +58,17 @@ def measure(label: str, backend: Backend, workers: int, config: ExperimentConfig
     task = [o.seconds for o in outcomes]
     overhead = (workers * wall - sum(task)) / len(task)
     mean_task = sum(task) / len(task)
-    return {"backend": label, "workers": workers, "runs": len(task), "wall_s": wall, "task_sum_s": sum(task),
-            "task_mean_s": mean_task, "overhead_per_task_s": overhead, "overhead_share": overhead / mean_task,
-            "curves": [o.value["curve"] for o in outcomes]}
+    return {
+        "backend": label,
+        "workers": workers,
+        "runs": len(task),
+        "wall_s": wall,
+        "task_sum_s": sum(task),
+        "task_mean_s": mean_task,
+        "overhead_per_task_s": overhead,
+        "overhead_share": overhead / mean_task,
+        "curves": [o.value["curve"] for o in outcomes],
+    }
 
 
 def measure_noop(label: str, backend: Backend, tasks: int) -> dict:
@@ -96,27 +112,42 @@ def main() -> int:
     by = {(r["backend"], r["workers"]): r for r in rows}
     scaling = by[("ray warm", 1)]["wall_s"] / by[("ray warm", 2)]["wall_s"]
     load = os.getloadavg()
-    print(f"grid: Toy2D, {rows[0]['runs']} runs of {args.steps} steps; {os.cpu_count()} CPUs, 1-minute load average "
-          f"{load_start[0]:.2f} at the start, {load[0]:.2f} at the end")
-    print("| backend | workers | Ray start [s] | grid wall [s] | sum of runs [s] | mean run [s] | overhead per task [s] "
-          "| overhead / mean run |")
+    print(
+        f"grid: Toy2D, {rows[0]['runs']} runs of {args.steps} steps; {os.cpu_count()} CPUs, 1-minute load average "
+        f"{load_start[0]:.2f} at the start, {load[0]:.2f} at the end"
+    )
+    print(
+        "| backend | workers | Ray start [s] | grid wall [s] | sum of runs [s] | mean run [s] | overhead per task [s] "
+        "| overhead / mean run |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         start = f"{r['start_s']:.1f}" if "start_s" in r else "-"
-        print(f"| {r['backend']} | {r['workers']} | {start} | {r['wall_s']:.1f} | {r['task_sum_s']:.1f} | "
-              f"{r['task_mean_s']:.2f} | {r['overhead_per_task_s']:.2f} | {100 * r['overhead_share']:.1f} % |")
+        print(
+            f"| {r['backend']} | {r['workers']} | {start} | {r['wall_s']:.1f} | {r['task_sum_s']:.1f} | "
+            f"{r['task_mean_s']:.2f} | {r['overhead_per_task_s']:.2f} | {100 * r['overhead_share']:.1f} % |"
+        )
     for r in noops:
-        print(f"{r['backend']}: {r['runs']} on 1 worker in {r['wall_s']:.2f} s, {1000 * r['overhead_per_task_s']:.1f} ms "
-              "per task")
+        print(
+            f"{r['backend']}: {r['runs']} on 1 worker in {r['wall_s']:.2f} s, {1000 * r['overhead_per_task_s']:.1f} ms "
+            "per task"
+        )
     print(f"scaling, Ray warm, 1 -> 2 workers: {scaling:.2f}x (ideal 2.00 on 2 idle cores)")
     print(f"results identical on every backend: {'yes' if same else 'NO'}")
     if args.json:
-        write_json(args.json, {"command": "python -m benchmarks.scale " + " ".join(sys.argv[1:]),
-                               "steps": args.steps, "cpus": os.cpu_count(),
-                               "load_average_1min": [load_start[0], load[0]],
-                               "scaling_warm_1_to_2": scaling, "identical": same,
-                               "rows": [{k: v for k, v in r.items() if k != "curves"} for r in rows],
-                               "empty_tasks": noops})
+        write_json(
+            args.json,
+            {
+                "command": "python -m benchmarks.scale " + " ".join(sys.argv[1:]),
+                "steps": args.steps,
+                "cpus": os.cpu_count(),
+                "load_average_1min": [load_start[0], load[0]],
+                "scaling_warm_1_to_2": scaling,
+                "identical": same,
+                "rows": [{k: v for k, v in r.items() if k != "curves"} for r in rows],
+                "empty_tasks": noops,
+            },
+        )
     return 0 if same else 1
 
 

@@ -57,9 +57,16 @@ def compare(duration: float = 21.0, seed: int = 0) -> dict[str, Any]:
     real = log_statistics(load_log(REAL_LOG))
     sim_log = make_arm_log({}, RealityConfig(duration=duration, end_effector="none", sensors="panda", seed=seed))
     sim = log_statistics(sim_log)
-    return {"real_log": str(REAL_LOG.relative_to(ROOT)), "duration": duration, "seed": seed,
-            "logger": config_to_dict(PANDA_LOGGER), "real": real, "simulated": sim, "rows": rows(real, sim),
-            "seconds": time.perf_counter() - start}
+    return {
+        "real_log": str(REAL_LOG.relative_to(ROOT)),
+        "duration": duration,
+        "seed": seed,
+        "logger": config_to_dict(PANDA_LOGGER),
+        "real": real,
+        "simulated": sim,
+        "rows": rows(real, sim),
+        "seconds": time.perf_counter() - start,
+    }
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -71,8 +78,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     result = compare(args.duration, args.seed)
     print(f"{'statistic':<24} {'joint':>5} {'real':>11} {'simulated':>11} {'ratio':>7}")
     for row in result["rows"]:
-        print(f"{row['statistic']:<24} {row['joint']:>5} {row['real']:>11.4g} {row['simulated']:>11.4g} "
-              f"{row['ratio']:>7.3f}")
+        print(
+            f"{row['statistic']:<24} {row['joint']:>5} {row['real']:>11.4g} {row['simulated']:>11.4g} "
+            f"{row['ratio']:>7.3f}"
+        )
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1, allow_nan=True) + "\n")
     print(f"wrote {args.json} ({result['seconds']:.1f} s)")

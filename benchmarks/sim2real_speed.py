@@ -36,9 +36,11 @@ def main(argv: list[str] | None = None) -> int:
     logs = {
         "real Panda (Gaz et al.), tau only": load_log(ROOT / "data" / "panda-gaz2019" / "log.npz"),
         "simulated 20 s, Panda logger, tau only (link_inertia at SNR 8)": make_case_log(
-            RealisticCase("speed", ("link_inertia",), "single", 8.0, 0, "gaz"), 20.0)[0],
+            RealisticCase("speed", ("link_inertia",), "single", 8.0, 0, "gaz"), 20.0
+        )[0],
         "simulated 20 s, ideal sensors, tau + tau_cmd + control law": make_arm_log(
-            {"coulomb": {"fc": 0.5}, "payload": {"dm": 0.5, "com_z": 0.05}}, RealityConfig(duration=20.0)),
+            {"coulomb": {"fc": 0.5}, "payload": {"dm": 0.5, "com_z": 0.05}}, RealityConfig(duration=20.0)
+        ),
     }
     print("| log | samples | wall [s] (best of %d) | CPU [s] | verdict |" % args.repeat)
     print("|---|---|---|---|---|")

@@ -38,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _realistic_job(case, duration: float, path: str) -> dict:
     """One realistic case, or its saved result when made with the same log length and settings."""
     from sim2real.diagnosis import DiagnosisConfig
+
     settings = {"duration": duration, "config": repr(DiagnosisConfig())}
     if Path(path).is_file():
         saved = read_json(path, "validation case")
@@ -56,9 +57,13 @@ def _run_realistic(args, argv) -> int:
     jobs = [Job(c.name, _realistic_job, (c, args.duration, str(out / f"{c.name}.json"))) for c in grid]
     with make_backend(None, args.workers) as backend:
         results = run_grid(jobs, backend, desc="sim2real realistic validation")
-    summary = {"command": "benchmarks/sim2real_validation.py " + " ".join(argv or sys.argv[1:]),
-               "duration": args.duration, "seeds": args.seeds, "summary": summarize_realistic(results),
-               "cases": results}
+    summary = {
+        "command": "benchmarks/sim2real_validation.py " + " ".join(argv or sys.argv[1:]),
+        "duration": args.duration,
+        "seeds": args.seeds,
+        "summary": summarize_realistic(results),
+        "cases": results,
+    }
     write_json(summary_path, summary)
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
     print("| group | cases | named right | where right | explained / unexplained / no gap | diagnosis [s] |")
@@ -67,8 +72,10 @@ def _run_realistic(args, argv) -> int:
         if group in ("per_effect", "floor_check"):
             continue
         v = row["verdicts"]
-        print(f"| {group} | {row['cases']} | {pct(row['right'])} | {pct(row['where_right'])} | "
-              f"{v['explained']} / {v['unexplained']} / {v['no gap']} | {row['diagnose_s_median']:.1f} |")
+        print(
+            f"| {group} | {row['cases']} | {pct(row['right'])} | {pct(row['where_right'])} | "
+            f"{v['explained']} / {v['unexplained']} / {v['no gap']} | {row['diagnose_s_median']:.1f} |"
+        )
     fc = summary["summary"].get("floor_check")
     if fc:
         print(f"\nfloor check ({fc['logs']} noise-only logs), predicted / observed in-band residual per joint:")
@@ -84,6 +91,7 @@ def _run_realistic(args, argv) -> int:
 def _case_job(case, duration: float, path: str, torque_filter: str = "matched", band: bool = False) -> dict:
     """One case, or its saved result when that was made with the same log length and filter."""
     from sim2real.diagnosis import DiagnosisConfig
+
     c = DiagnosisConfig()
     settings = {"duration": duration, "torque_filter": torque_filter, "structure": [c.structure, c.structure_rest]}
     if band:
@@ -93,8 +101,10 @@ def _case_job(case, duration: float, path: str, torque_filter: str = "matched", 
         if saved.get("settings") == settings:
             return saved
     from sim2real.replay import ReplayConfig
-    result = run_case(case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter),
-                                                      band=c.band if band else None))
+
+    result = run_case(
+        case, duration, DiagnosisConfig(replay=ReplayConfig(torque_filter=torque_filter), band=c.band if band else None)
+    )
     result["settings"] = settings
     write_json(path, result)
     return result
@@ -111,20 +121,28 @@ def _contact_job(path: str, episodes: int) -> dict:
     log = with_sensor_noise(log)  # the "real" log's sensors
     d = diagnose_insertion(log, episodes=episodes, truth_success=lambda: downstream(CONTACT_CASE, "medium", episodes))
     s = d.summary()
-    out = {"case": "contact shaft_friction mu=1.0", "selected": [r["effect"] for r in s["selected"]],
-           "fitted": {r["effect"]: {k: v["value"] for k, v in r["params"].items()} for r in s["selected"]},
-           "dominant_phase": s["where"]["dominant_phase"],
-           "phase_excess_per_sample": {k: v["excess"] / v["samples"] for k, v in s["where"]["phases"].items()},
-           "closed": s["how_far"]["closed_total"], "verdict": s["verdict"]["label"],
-           "downstream": s.get("downstream")}
+    out = {
+        "case": "contact shaft_friction mu=1.0",
+        "selected": [r["effect"] for r in s["selected"]],
+        "fitted": {r["effect"]: {k: v["value"] for k, v in r["params"].items()} for r in s["selected"]},
+        "dominant_phase": s["where"]["dominant_phase"],
+        "phase_excess_per_sample": {k: v["excess"] / v["samples"] for k, v in s["where"]["phases"].items()},
+        "closed": s["how_far"]["closed_total"],
+        "verdict": s["verdict"]["label"],
+        "downstream": s.get("downstream"),
+    }
     write_json(path, out)
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--grid", choices=["realistic", "easy"], default="realistic",
-                   help="realistic: torque-only logs with the Panda's logger; easy: white noise, every channel")
+    p.add_argument(
+        "--grid",
+        choices=["realistic", "easy"],
+        default="realistic",
+        help="realistic: torque-only logs with the Panda's logger; easy: white noise, every channel",
+    )
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default: 0 1 2 (realistic), 0 1 (easy)")
     p.add_argument("--duration", type=float, default=None, help="seconds per log (default: 20 realistic, 10 easy)")
     p.add_argument("--workers", type=int, default=2)
@@ -132,56 +150,86 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, default=None, help="summary JSON (default <out>/summary.json)")
     p.add_argument("--no-contact", action="store_true", help="skip the station contact case")
     p.add_argument("--episodes", type=int, default=10, help="episodes per success rate of the contact case")
-    p.add_argument("--torque-filter", default="matched", choices=["none", "matched"],
-                   help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)")
-    p.add_argument("--band", choices=["none", "auto"], default="none",
-                   help="easy grid: judge every sample against the broadband floor (none, default: these logs' "
-                        "in-band noise is under the simulated reality's own misfit) or in the band (auto)")
-    p.add_argument("--effects", nargs="+", choices=sorted(set(MAGNITUDES) | set(UNIT_SETTINGS)), metavar="NAME",
-                   help="only these effects' cases and the effects outside the catalogue (default: the whole grid)")
+    p.add_argument(
+        "--torque-filter",
+        default="matched",
+        choices=["none", "matched"],
+        help="the replay's torque filter (sim2real.replay.ReplayConfig.torque_filter)",
+    )
+    p.add_argument(
+        "--band",
+        choices=["none", "auto"],
+        default="none",
+        help="easy grid: judge every sample against the broadband floor (none, default: these logs' "
+        "in-band noise is under the simulated reality's own misfit) or in the band (auto)",
+    )
+    p.add_argument(
+        "--effects",
+        nargs="+",
+        choices=sorted(set(MAGNITUDES) | set(UNIT_SETTINGS)),
+        metavar="NAME",
+        help="only these effects' cases and the effects outside the catalogue (default: the whole grid)",
+    )
     args = p.parse_args(argv)
     realistic = args.grid == "realistic"
     args.seeds = args.seeds or ([0, 1, 2] if realistic else [0, 1])
     args.duration = args.duration or (20.0 if realistic else 10.0)
     if realistic:
         if args.effects and not set(args.effects) <= set(UNIT_SETTINGS):
-            p.error(f"--effects {sorted(set(args.effects) - set(UNIT_SETTINGS))}: not shown by a torque-only log; "
-                    f"expected some of {sorted(UNIT_SETTINGS)}")
+            p.error(
+                f"--effects {sorted(set(args.effects) - set(UNIT_SETTINGS))}: not shown by a torque-only log; "
+                f"expected some of {sorted(UNIT_SETTINGS)}"
+            )
         if args.out == ROOT / "runs" / "sim2real_validation":
             args.out = ROOT / "runs" / "sim2real_realistic"
         return _run_realistic(args, argv)
     if args.effects and not set(args.effects) <= set(MAGNITUDES):
-        p.error(f"--effects {sorted(set(args.effects) - set(MAGNITUDES))}: not in the easy grid; expected some of "
-                f"{sorted(MAGNITUDES)}")
+        p.error(
+            f"--effects {sorted(set(args.effects) - set(MAGNITUDES))}: not in the easy grid; expected some of "
+            f"{sorted(MAGNITUDES)}"
+        )
     out = check_output_dir(args.out, "--out")
     summary_path = check_output_file(args.json or out / "summary.json", "--json")
-    grid = cases(seeds=tuple(args.seeds), effects=tuple(args.effects) if args.effects else None,
-                 pairs=not args.effects)
-    jobs = [Job(c.name, _case_job, (c, args.duration, str(out / f"{c.name}.json"), args.torque_filter,
-                                    args.band == "auto")) for c in grid]
+    grid = cases(seeds=tuple(args.seeds), effects=tuple(args.effects) if args.effects else None, pairs=not args.effects)
+    jobs = [
+        Job(c.name, _case_job, (c, args.duration, str(out / f"{c.name}.json"), args.torque_filter, args.band == "auto"))
+        for c in grid
+    ]
     if not args.no_contact:
         jobs.append(Job("contact", _contact_job, (str(out / "contact.json"), args.episodes)))
     with make_backend(None, args.workers) as backend:
         results = run_grid(jobs, backend, desc="sim2real validation")
     arm = [r for r in results if "magnitude" in r]
-    summary = {"command": "benchmarks/sim2real_validation.py " + " ".join(argv or sys.argv[1:]),
-               "torque_filter": args.torque_filter, "duration": args.duration, "seeds": args.seeds, "summary": summarize(arm), "cases": arm}
+    summary = {
+        "command": "benchmarks/sim2real_validation.py " + " ".join(argv or sys.argv[1:]),
+        "torque_filter": args.torque_filter,
+        "duration": args.duration,
+        "seeds": args.seeds,
+        "summary": summarize(arm),
+        "cases": arm,
+    }
     if not args.no_contact:
         summary["contact"] = results[-1]
     write_json(summary_path, summary)
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
     no_gap = lambda row: f"{row['no_gap']}" + (f" ({row['inactive']} never acted)" if row["inactive"] else "")  # noqa: E731
-    print("| group | cases | top-1 | located | verdict explained | no gap above the floor | closed (median) | closed >= 80 % |")
+    print(
+        "| group | cases | top-1 | located | verdict explained | no gap above the floor | closed (median) | closed >= 80 % |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for group, row in summary["summary"].items():
         if group == "per_effect":
             continue
-        print(f"| {group} | {row['cases']} | {pct(row['top1'])} | {pct(row['located'])} | {pct(row['explained'])} | {no_gap(row)} | "
-              f"{pct(row['closed_median'])} | {pct(row['closed_ge_80'])} |")
+        print(
+            f"| {group} | {row['cases']} | {pct(row['top1'])} | {pct(row['located'])} | {pct(row['explained'])} | {no_gap(row)} | "
+            f"{pct(row['closed_median'])} | {pct(row['closed_ge_80'])} |"
+        )
     print("\n| effect (magnitude) | n | top-1 | located | no gap | closed (mean) |\n|---|---|---|---|---|---|")
     for name, row in summary["summary"]["per_effect"].items():
-        print(f"| {name} | {row['n']} | {pct(row['top1'])} | {pct(row['located'])} | {no_gap(row)} | "
-              f"{pct(row['closed'])} |")
+        print(
+            f"| {name} | {row['n']} | {pct(row['top1'])} | {pct(row['located'])} | {no_gap(row)} | "
+            f"{pct(row['closed'])} |"
+        )
     if not args.no_contact:
         print("\ncontact:", summary["contact"])
     return 0

@@ -28,9 +28,12 @@ INSERTION = ("steady above shaft", "insert", "settle")
 
 def measure(contact_model: str, time_step: float, approximation: str, gear: str = "medium") -> dict:
     """Real-time factors of one configuration over the phases of a single-gear insertion."""
-    config = AssemblyConfig(station=StationConfig(
-        time_step=time_step, contact_model=contact_model,
-        discrete_contact_approximation=approximation), order=(gear,))
+    config = AssemblyConfig(
+        station=StationConfig(
+            time_step=time_step, contact_model=contact_model, discrete_contact_approximation=approximation
+        ),
+        order=(gear,),
+    )
     run = build_assembly(config)
     buckets = {"free": [0.0, 0.0], "insertion": [0.0, 0.0]}
     error = None
@@ -49,40 +52,53 @@ def measure(contact_model: str, time_step: float, approximation: str, gear: str 
             buckets[bucket][1] += wall
     err = run.station.insertion_error(run.root_context, gear)
     return {
-        "contact_model": contact_model, "time_step": time_step, "approximation": approximation,
+        "contact_model": contact_model,
+        "time_step": time_step,
+        "approximation": approximation,
         "rtf_free": buckets["free"][0] / max(buckets["free"][1], 1e-9),
         "rtf_insertion": buckets["insertion"][0] / max(buckets["insertion"][1], 1e-9),
-        "seated": bool(err.inserted), "lateral_mm": 1e3 * err.lateral_m,
-        "height_mm": 1e3 * err.height_m, "error": error,
+        "seated": bool(err.inserted),
+        "lateral_mm": 1e3 * err.lateral_m,
+        "height_mm": 1e3 * err.height_m,
+        "error": error,
     }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sweep", action="store_true",
-                        help="also sweep time steps {1, 2, 4, 5, 8} ms and approximations")
+    parser.add_argument(
+        "--sweep", action="store_true", help="also sweep time steps {1, 2, 4, 5, 8} ms and approximations"
+    )
     parser.add_argument("--json", type=Path, help="write the rows as JSON")
     args = parser.parse_args()
     default = StationConfig()
-    configs = [("hydroelastic_with_fallback", default.time_step, default.discrete_contact_approximation),
-               ("point", default.time_step, default.discrete_contact_approximation)]
+    configs = [
+        ("hydroelastic_with_fallback", default.time_step, default.discrete_contact_approximation),
+        ("point", default.time_step, default.discrete_contact_approximation),
+    ]
     if args.sweep:
-        configs += [("hydroelastic_with_fallback", dt, approx)
-                    for approx in ("lagged", "similar", "sap")
-                    for dt in (0.001, 0.002, 0.004, 0.005, 0.008)
-                    if (dt, approx) != (default.time_step, default.discrete_contact_approximation)]
+        configs += [
+            ("hydroelastic_with_fallback", dt, approx)
+            for approx in ("lagged", "similar", "sap")
+            for dt in (0.001, 0.002, 0.004, 0.005, 0.008)
+            if (dt, approx) != (default.time_step, default.discrete_contact_approximation)
+        ]
     rows = []
-    header = (f"{'contact':<27} {'dt [ms]':>7} {'approx':<8} {'RTF free':>9} {'RTF insert':>10} "
-              f"{'seated':<6} {'lat [mm]':>8} {'h [mm]':>7}")
+    header = (
+        f"{'contact':<27} {'dt [ms]':>7} {'approx':<8} {'RTF free':>9} {'RTF insert':>10} "
+        f"{'seated':<6} {'lat [mm]':>8} {'h [mm]':>7}"
+    )
     print(header)
     print("-" * len(header))
     for contact, dt, approx in configs:
         row = measure(contact, dt, approx)
         rows.append(row)
-        print(f"{contact:<27} {1e3 * dt:>7.1f} {approx:<8} {row['rtf_free']:>9.2f} "
-              f"{row['rtf_insertion']:>10.2f} {str(row['seated']):<6} {row['lateral_mm']:>8.2f} "
-              f"{row['height_mm']:>7.2f}" + (f"  FAILED: {row['error']}" if row["error"] else ""),
-              flush=True)
+        print(
+            f"{contact:<27} {1e3 * dt:>7.1f} {approx:<8} {row['rtf_free']:>9.2f} "
+            f"{row['rtf_insertion']:>10.2f} {str(row['seated']):<6} {row['lateral_mm']:>8.2f} "
+            f"{row['height_mm']:>7.2f}" + (f"  FAILED: {row['error']}" if row["error"] else ""),
+            flush=True,
+        )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         write_json(args.json, {"rows": rows})

@@ -64,11 +64,14 @@ def successes(skill: Skill, xi: np.ndarray, variants: list[str], store: Path, la
                 if key not in done:
                     env = env or skill.make_env(variant)
                     t0 = time.perf_counter()
-                    done[key] = [rollout_return(skill, x, env) for x in xi[rows[start:start + part]]]
+                    done[key] = [rollout_return(skill, x, env) for x in xi[rows[start : start + part]]]
                     write_json(store, done)
-                    print(f"{NAME}: {skill.gear} {label} {variant} rows {start}-{start + part} of {len(rows)} "
-                          f"({time.perf_counter() - t0:.0f} s)", flush=True)
-                returns[rows[start:start + part]] = done[key]
+                    print(
+                        f"{NAME}: {skill.gear} {label} {variant} rows {start}-{start + part} of {len(rows)} "
+                        f"({time.perf_counter() - t0:.0f} s)",
+                        flush=True,
+                    )
+                returns[rows[start : start + part]] = done[key]
         finally:
             if env is not None:
                 env.close()
@@ -87,8 +90,10 @@ def measure(gear: str, draws: int, uniform: int, seed: int, out: Path, part: int
     skill = load_skill("insert", gear=gear)
     feasible = skill.feasible
     if feasible is None:
-        raise InputError(f"--gear {gear}: the shipped skill holds no measured feasible set; expected one "
-                         f"(goflow skill refit --gear {gear})")
+        raise InputError(
+            f"--gear {gear}: the shipped skill holds no measured feasible set; expected one "
+            f"(goflow skill refit --gear {gear})"
+        )
     variants = feasible.variant.split("+")
     space = feasible.space
     volume = float(np.prod(space.high - space.low))
@@ -103,20 +108,36 @@ def measure(gear: str, draws: int, uniform: int, seed: int, out: Path, part: int
     rate, rate_se = binomial(int(ok_fine.sum()), uniform)
     share = fine_share * rate
     inside = xi_fine[ok_fine]
-    row: dict[str, Any] = {"gear": gear, "variants": feasible.variant, "draws": draws, "uniform": uniform,
-                           "seed": seed, "grid": flow_report(skill.sampler, feasible)}
+    row: dict[str, Any] = {
+        "gear": gear,
+        "variants": feasible.variant,
+        "draws": draws,
+        "uniform": uniform,
+        "seed": seed,
+        "grid": flow_report(skill.sampler, feasible),
+    }
     mass, mass_se = binomial(int(ok_draws.sum()), draws)
-    row["episodes"] = {"mass_on": mass, "mass_on_se": mass_se, "share": share, "share_se": fine_share * rate_se,
-                       "successes_uniform": int(ok_fine.sum())}
+    row["episodes"] = {
+        "mass_on": mass,
+        "mass_on_se": mass_se,
+        "share": share,
+        "share_se": fine_share * rate_se,
+        "successes_uniform": int(ok_fine.sum()),
+    }
     for name, level in (("coverage10", 0.1), ("coverage1", 0.01)):
         value = coverage(skill.sampler.log_prob, inside, share, level, volume) if len(inside) else 0.0
-        row["episodes"][name], row["episodes"][f"{name}_se"] = value, binomial(round(value * len(inside)), len(inside))[1]
+        row["episodes"][name], row["episodes"][f"{name}_se"] = (
+            value,
+            binomial(round(value * len(inside)), len(inside))[1],
+        )
     # the grid against the episodes at the same points: how far its staircase is from the policy
     in_grid = feasible.contains(xi_fine)
-    row["grid_vs_episodes"] = {"episodes_in_grid_set": float(in_grid[ok_fine].mean()) if ok_fine.any() else None,
-                               "grid_set_succeeds": float(ok_fine[in_grid].mean()) if in_grid.any() else None,
-                               "draws_in_grid_set": float(feasible.contains(xi_draws).mean()),
-                               "coarse_successes": int(feasible.coarse_success.sum())}
+    row["grid_vs_episodes"] = {
+        "episodes_in_grid_set": float(in_grid[ok_fine].mean()) if ok_fine.any() else None,
+        "grid_set_succeeds": float(ok_fine[in_grid].mean()) if in_grid.any() else None,
+        "draws_in_grid_set": float(feasible.contains(xi_draws).mean()),
+        "coarse_successes": int(feasible.coarse_success.sum()),
+    }
     return row
 
 
@@ -149,11 +170,13 @@ def main(argv: list[str] | None = None) -> int:
         row = measure(args.gear, args.draws, args.uniform, args.seed, args.out, args.part)
         row["command"] = "benchmarks/skill_feasible_mc.py " + " ".join(argv if argv is not None else sys.argv[1:])
         g, e = row["grid"], row["episodes"]
-        print(f"| gear | F share (grid / episodes) | mass on F (grid / episodes) | coverage 10 % (grid / episodes) "
-              f"| coverage 1 % (grid / episodes) |\n|---|---|---|---|---|\n"
-              f"| {args.gear} | {g['share']:.4%} / {e['share']:.4%} +- {e['share_se']:.4%} | {g['mass_on']:.3f} / "
-              f"{e['mass_on']:.3f} +- {e['mass_on_se']:.3f} | {g['coverage10']:.3f} / {e['coverage10']:.3f} +- "
-              f"{e['coverage10_se']:.3f} | {g['coverage1']:.3f} / {e['coverage1']:.3f} +- {e['coverage1_se']:.3f} |")
+        print(
+            f"| gear | F share (grid / episodes) | mass on F (grid / episodes) | coverage 10 % (grid / episodes) "
+            f"| coverage 1 % (grid / episodes) |\n|---|---|---|---|---|\n"
+            f"| {args.gear} | {g['share']:.4%} / {e['share']:.4%} +- {e['share_se']:.4%} | {g['mass_on']:.3f} / "
+            f"{e['mass_on']:.3f} +- {e['mass_on_se']:.3f} | {g['coverage10']:.3f} / {e['coverage10']:.3f} +- "
+            f"{e['coverage10_se']:.3f} | {g['coverage1']:.3f} / {e['coverage1']:.3f} +- {e['coverage1_se']:.3f} |"
+        )
         print(f"{NAME}: grid against episodes: {row['grid_vs_episodes']}")
         if args.json is not None:
             write_json(args.json, row)

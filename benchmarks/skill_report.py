@@ -25,14 +25,27 @@ def main() -> None:
     parser.add_argument("--gears", nargs="+", default=["small", "medium", "large"])
     parser.add_argument("--episodes", type=int, default=100, help="episodes per row, fast variant")
     parser.add_argument("--panda-episodes", type=int, default=100, help="episodes per row, panda variant")
-    parser.add_argument("--eps-ratio", type=float, nargs="+", default=[1.0, 10.0, 100.0],
-                        help="trust thresholds as multiples of the uniform density")
-    parser.add_argument("--xi", nargs="+", default=["flow", "uniform"], choices=["flow", "uniform"],
-                        help="where the episodes' grasp errors come from")
+    parser.add_argument(
+        "--eps-ratio",
+        type=float,
+        nargs="+",
+        default=[1.0, 10.0, 100.0],
+        help="trust thresholds as multiples of the uniform density",
+    )
+    parser.add_argument(
+        "--xi",
+        nargs="+",
+        default=["flow", "uniform"],
+        choices=["flow", "uniform"],
+        help="where the episodes' grasp errors come from",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path)
-    parser.add_argument("--skill-dir", type=Path, help="skill files insert-<gear>.pt to report on "
-                        "instead of the shipped ones (e.g. another recipe's exports)")
+    parser.add_argument(
+        "--skill-dir",
+        type=Path,
+        help="skill files insert-<gear>.pt to report on instead of the shipped ones (e.g. another recipe's exports)",
+    )
     args = parser.parse_args()
     rows = []
     print(f"{'gear':<7} {'variant':<6} {'xi':<8} {'success':>8} {'+-':>6} {'return':>7} {'seconds':>8}")
@@ -50,18 +63,26 @@ def main() -> None:
                 result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed).to_json()
                 result["flow"] = widths
                 result["feasible_set"] = feasible
-                result["provenance"] = {k: skill.provenance.get(k) for k in
-                                        ("command", "steps", "train_seconds", "final_uniform_success")}
+                result["provenance"] = {
+                    k: skill.provenance.get(k) for k in ("command", "steps", "train_seconds", "final_uniform_success")
+                }
                 rows.append(result)
-                print(f"{gear:<7} {variant:<6} {xi:<8} {result['success_rate']:8.3f} {result['success_se']:6.3f} "
-                      f"{result['mean_return']:7.2f} {result['seconds']:8.0f}", flush=True)
+                print(
+                    f"{gear:<7} {variant:<6} {xi:<8} {result['success_rate']:8.3f} {result['success_se']:6.3f} "
+                    f"{result['mean_return']:7.2f} {result['seconds']:8.0f}",
+                    flush=True,
+                )
         for w in widths:
-            print(f"{gear:<7} flow entropy {w['entropy']:.2f} nats (uniform {w['uniform_entropy']:.2f}); density > "
-                  f"{w['eps_uniform_ratio']:g} x uniform on {100 * w['trusted_fraction']:.2f} % of the box")
+            print(
+                f"{gear:<7} flow entropy {w['entropy']:.2f} nats (uniform {w['uniform_entropy']:.2f}); density > "
+                f"{w['eps_uniform_ratio']:g} x uniform on {100 * w['trusted_fraction']:.2f} % of the box"
+            )
         if feasible is not None:
-            print(f"{gear:<7} measured feasible set: {100 * feasible['share']:.3f} % of the box; "
-                  f"flow mass on it {feasible['mass_on']:.3f}, coverage {feasible['coverage10']:.3f} (10 %) "
-                  f"{feasible['coverage1']:.3f} (1 %)")
+            print(
+                f"{gear:<7} measured feasible set: {100 * feasible['share']:.3f} % of the box; "
+                f"flow mass on it {feasible['mass_on']:.3f}, coverage {feasible['coverage10']:.3f} (10 %) "
+                f"{feasible['coverage1']:.3f} (1 %)"
+            )
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             write_json(args.json, {"rows": rows})

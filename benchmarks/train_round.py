@@ -68,8 +68,10 @@ def main() -> None:
         parser.error(f"--rounds {args.rounds}: expected >= 1")
     if args.json:
         check_output_file(args.json)
-    header = (f"{'env':<26} {'vectorization':<13} {'round s':>8} {'collect':>8} {'update':>8} "
-              f"{'evaluate':>9} {'other':>7} {'update share':>13}")
+    header = (
+        f"{'env':<26} {'vectorization':<13} {'round s':>8} {'collect':>8} {'update':>8} "
+        f"{'evaluate':>9} {'other':>7} {'update share':>13}"
+    )
     print(header)
     print("-" * len(header))
     rows = []
@@ -78,13 +80,17 @@ def main() -> None:
             spent = timed_round(env, vectorization, args.rounds, args.method)
             per = {k: v / args.rounds for k, v in spent.items()}
             share = per["update"] / per["total"]
-            rows.append({"env": env, "vectorization": vectorization, "seconds_per_round": per,
-                         "update_share": share})
-            print(f"{env:<26} {vectorization:<13} {per['total']:>8.1f} {per['collect']:>8.1f} {per['update']:>8.1f} "
-                  f"{per['evaluate']:>9.1f} {per['other']:>7.1f} {100 * share:>12.0f}%", flush=True)
+            rows.append({"env": env, "vectorization": vectorization, "seconds_per_round": per, "update_share": share})
+            print(
+                f"{env:<26} {vectorization:<13} {per['total']:>8.1f} {per['collect']:>8.1f} {per['update']:>8.1f} "
+                f"{per['evaluate']:>9.1f} {per['other']:>7.1f} {100 * share:>12.0f}%",
+                flush=True,
+            )
     if args.json:
-        write_json(args.json, {"command": "benchmarks/train_round.py", "rounds": args.rounds,
-                               "method": args.method, "rows": rows})
+        write_json(
+            args.json,
+            {"command": "benchmarks/train_round.py", "rounds": args.rounds, "method": args.method, "rows": rows},
+        )
 
 
 if __name__ == "__main__":

@@ -20,21 +20,31 @@ __all__ = ["check_int", "check_number", "check_choice", "check_finite_array", "I
 def check_int(value: Any, name: str, minimum: int | None = None) -> int:
     """`value` as an int; InputError unless it is an integer (not a bool) >= `minimum`."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise InputError(f"{name} = {value!r}; expected an integer" +
-                         (f" >= {minimum}" if minimum is not None else ""))
+        raise InputError(f"{name} = {value!r}; expected an integer" + (f" >= {minimum}" if minimum is not None else ""))
     if minimum is not None and value < minimum:
         raise InputError(f"{name} = {value!r}; expected an integer >= {minimum}")
     return int(value)
 
 
-def check_number(value: Any, name: str, low: float | None = None, high: float | None = None, *,
-                 low_open: bool = False, high_open: bool = False, allow_inf: bool = False) -> float:
+def check_number(
+    value: Any,
+    name: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    allow_inf: bool = False,
+) -> float:
     """`value` as a float; InputError unless it is a real number (not a bool), finite unless
     `allow_inf`, and inside [low, high] (an open end where `low_open` / `high_open`)."""
     lb = "(" if low_open or low is None else "["
     ub = ")" if high_open or high is None else "]"
-    bounds = "" if low is None and high is None else (
-        f" in {lb}{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}{ub}")
+    bounds = (
+        ""
+        if low is None and high is None
+        else (f" in {lb}{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}{ub}")
+    )
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise InputError(f"{name} = {value!r}; expected a number{bounds}")
     v = float(value)
@@ -55,29 +65,40 @@ def check_choice(value: Any, choices: Iterable[Any], name: str) -> Any:
     return value
 
 
-def check_finite_array(value: ArrayLike, name: str, shape: Sequence[int | None] | None = None,
-                       low: float | None = None, high: float | None = None) -> NDArray[np.float64]:
+def check_finite_array(
+    value: ArrayLike,
+    name: str,
+    shape: Sequence[int | None] | None = None,
+    low: float | None = None,
+    high: float | None = None,
+) -> NDArray[np.float64]:
     """`value` as a float64 array; InputError unless it is numeric, finite, of `shape` (None entries
     match any length) and inside [low, high] elementwise."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} = {value!r}; expected an array of numbers") from exc
-    if shape is not None and (arr.ndim != len(shape)
-                              or any(s is not None and a != s for a, s in zip(arr.shape, shape))):
+    if shape is not None and (
+        arr.ndim != len(shape) or any(s is not None and a != s for a, s in zip(arr.shape, shape))
+    ):
         want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
         raise InputError(f"{name} has shape {arr.shape}; expected {want}")
     if not np.all(np.isfinite(arr)):
         bad = np.flatnonzero(~np.isfinite(arr.ravel()))
-        raise InputError(f"{name} must be finite; {len(bad)} entries are not (first: flat index {bad[0]} = "
-                         f"{arr.ravel()[bad[0]]})")
-    for bound, outside, word in ((low, arr < (low if low is not None else 0), "below"),
-                                 (high, arr > (high if high is not None else 0), "above")):
+        raise InputError(
+            f"{name} must be finite; {len(bad)} entries are not (first: flat index {bad[0]} = {arr.ravel()[bad[0]]})"
+        )
+    for bound, outside, word in (
+        (low, arr < (low if low is not None else 0), "below"),
+        (high, arr > (high if high is not None else 0), "above"),
+    ):
         if bound is not None and outside.any():
             i = int(np.flatnonzero(outside.ravel())[0])
-            raise InputError(f"{name}: {int(outside.sum())} entries are {word} {bound:g} (first: flat index "
-                             f"{i} = {arr.ravel()[i]:g}); expected values in [{low if low is not None else '-inf'}, "
-                             f"{high if high is not None else 'inf'}]")
+            raise InputError(
+                f"{name}: {int(outside.sum())} entries are {word} {bound:g} (first: flat index "
+                f"{i} = {arr.ravel()[i]:g}); expected values in [{low if low is not None else '-inf'}, "
+                f"{high if high is not None else 'inf'}]"
+            )
     return arr
 
 

@@ -34,8 +34,12 @@ def _nested_types(config_type: type) -> dict[str, type]:
     return out
 
 
-def config_with_overrides(config_type: type[C], config: C | Mapping[str, Any] | None = None,
-                          overrides: Mapping[str, Any] | None = None, owner: str | None = None) -> C:
+def config_with_overrides(
+    config_type: type[C],
+    config: C | Mapping[str, Any] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    owner: str | None = None,
+) -> C:
     """A `config_type` dataclass built from `config` and then `overrides`.
 
     Arguments:
@@ -93,6 +97,7 @@ def parse_value(text: str, what: str) -> Any:
     """A value given on the command line: strict JSON when it is JSON (numbers, true, false, null,
     lists, objects), else the string itself. NaN and Infinity (in any spelling) are refused with an
     InputError naming `what`."""
+
     def refuse(constant: str) -> Any:
         raise InputError(f"{what}: {constant} is not allowed; expected a finite number")
 

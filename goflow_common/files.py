@@ -132,10 +132,13 @@ def load_tensors(path: str | os.PathLike[str], what: str) -> Any:
         return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         first = str(exc).strip().splitlines()
-        reason = next((line.strip() for line in first if "Unsupported" in line or "global" in line.lower()),
-                      first[0] if first else "")
-        raise FileFormatError(f"{path}: refused: it holds objects other than tensors and plain data "
-                              f"({reason[:160]}); expected a {what}") from None
+        reason = next(
+            (line.strip() for line in first if "Unsupported" in line or "global" in line.lower()),
+            first[0] if first else "",
+        )
+        raise FileFormatError(
+            f"{path}: refused: it holds objects other than tensors and plain data ({reason[:160]}); expected a {what}"
+        ) from None
     except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError, KeyError) as exc:
         reason = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
         raise FileFormatError(f"{path}: not a readable {what} (truncated or foreign file: {reason})") from None
@@ -163,8 +166,9 @@ def check_output_file(path: str | os.PathLike[str], what: str = "output") -> Pat
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputPathError(f"{what} {path}: cannot create the folder {path.parent} "
-                              f"({exc.strerror or exc})") from None
+        raise OutputPathError(
+            f"{what} {path}: cannot create the folder {path.parent} ({exc.strerror or exc})"
+        ) from None
     if path.exists() and not os.access(path, os.W_OK):
         raise OutputPathError(f"{what} {path}: the file exists and is not writable")
     _probe_writable(path.parent, what, path)
@@ -202,8 +206,10 @@ def run_folder_lock(folder: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         lock.acquire()
     except Timeout:
-        raise RunFolderBusyError(f"run folder {folder} is in use by another run (it holds {folder / LOCK_NAME}); "
-                                 "wait for it to finish or choose another folder") from None
+        raise RunFolderBusyError(
+            f"run folder {folder} is in use by another run (it holds {folder / LOCK_NAME}); "
+            "wait for it to finish or choose another folder"
+        ) from None
     try:
         yield folder
     finally:

@@ -76,8 +76,9 @@ class ProcessPool:
     normally lets the workers finish and exit, leaving it by an exception (Ctrl-C too)
     terminates them. ValueError (InputError) if `workers` is not an integer >= 1."""
 
-    def __init__(self, workers: int, initializer: Callable[..., Any] | None = None,
-                 initargs: Sequence[Any] = ()) -> None:
+    def __init__(
+        self, workers: int, initializer: Callable[..., Any] | None = None, initargs: Sequence[Any] = ()
+    ) -> None:
         self.workers = check_int(workers, "workers", 1)
         ctx = mp.get_context("spawn")
         self._events = ctx.SimpleQueue()
@@ -94,8 +95,15 @@ class ProcessPool:
         else:
             self.terminate()
 
-    def imap(self, fn: Callable[..., Any], calls: Iterable[Sequence[Any]], *, retries: int = 0,
-             errors: str = "raise", on_start: Callable[[int], None] | None = None) -> Iterator[tuple[int, Any]]:
+    def imap(
+        self,
+        fn: Callable[..., Any],
+        calls: Iterable[Sequence[Any]],
+        *,
+        retries: int = 0,
+        errors: str = "raise",
+        on_start: Callable[[int], None] | None = None,
+    ) -> Iterator[tuple[int, Any]]:
         """Run `fn(*args)` for each `args` of `calls` in the workers; yield (index, value) as each
         finishes. A failed call (it raised, or its worker died more than `retries` times):
         `errors="raise"` raises its WorkerError (the calls still running are left to the pool:
@@ -116,9 +124,12 @@ class ProcessPool:
         def submit(index: int) -> None:
             task = next(self._tasks)
             live[task] = index
-            self._pool.apply_async(_tracked, (task, fn, calls[index]),
-                                   callback=lambda value, task=task: results.put((task, True, value)),
-                                   error_callback=lambda exc, task=task: results.put((task, False, exc)))
+            self._pool.apply_async(
+                _tracked,
+                (task, fn, calls[index]),
+                callback=lambda value, task=task: results.put((task, True, value)),
+                error_callback=lambda exc, task=task: results.put((task, False, exc)),
+            )
 
         for index in range(len(calls)):
             submit(index)
@@ -163,9 +174,13 @@ class ProcessPool:
                     if attempts[index] <= retries:
                         submit(index)
                         continue
-                    error = WorkerError(f"call {index} of {_name(fn)}: its worker process (pid {pid}) died (killed, "
-                                        f"or out of memory?) on each of {attempts[index]} attempt(s)",
-                                        index, attempts[index], pid)
+                    error = WorkerError(
+                        f"call {index} of {_name(fn)}: its worker process (pid {pid}) died (killed, "
+                        f"or out of memory?) on each of {attempts[index]} attempt(s)",
+                        index,
+                        attempts[index],
+                        pid,
+                    )
                     if errors == "raise":
                         raise error
                     yield index, error
@@ -198,8 +213,13 @@ class ProcessPool:
             self._pool = None
 
 
-def map_calls(fn: Callable[..., Any], calls: Iterable[Sequence[Any]], workers: int,
-              initializer: Callable[..., Any] | None = None, initargs: Sequence[Any] = ()) -> list[Any]:
+def map_calls(
+    fn: Callable[..., Any],
+    calls: Iterable[Sequence[Any]],
+    workers: int,
+    initializer: Callable[..., Any] | None = None,
+    initargs: Sequence[Any] = (),
+) -> list[Any]:
     """`fn(*args)` for each `args` of `calls` in a ProcessPool of min(`workers`, calls) spawned
     processes, in call order; the first failure raises its WorkerError (the other workers are
     terminated), Ctrl-C a KeyboardInterrupt once they are. No calls: [] (no pool started)."""

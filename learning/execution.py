@@ -40,12 +40,25 @@ from goflow_common.checks import check_int, check_number
 from goflow_common.errors import ClusterError, GridError, InputError
 from goflow_common.pool import ProcessPool, WorkerError
 
-__all__ = ["Job", "Outcome", "Backend", "InlineBackend", "PoolBackend", "RayBackend", "parse_ray_address",
-           "make_backend", "add_ray_flag", "run_jobs", "run_grid"]
+__all__ = [
+    "Job",
+    "Outcome",
+    "Backend",
+    "InlineBackend",
+    "PoolBackend",
+    "RayBackend",
+    "parse_ray_address",
+    "make_backend",
+    "add_ray_flag",
+    "run_jobs",
+    "run_grid",
+]
 
 #: What --ray accepts, for help texts and messages.
-RAY_CHOICES = ("'local' (start Ray on this machine with --workers CPUs), 'auto' (join the Ray cluster this "
-               "machine belongs to) or HOST:PORT (the head of a running cluster, e.g. 10.0.0.5:6379)")
+RAY_CHOICES = (
+    "'local' (start Ray on this machine with --workers CPUs), 'auto' (join the Ray cluster this "
+    "machine belongs to) or HOST:PORT (the head of a running cluster, e.g. 10.0.0.5:6379)"
+)
 
 
 @dataclass(frozen=True)
@@ -104,15 +117,18 @@ def _call(job: Job) -> tuple[str, Any, str, float]:
 # Progress: one bar, the state of every job
 # ---------------------------------------------------------------------------------------------
 
+
 class _Board:
     """The driver's view of a grid: each job's state and attempts, one tqdm bar over the grid
     (done + failed of all) whose postfix counts the jobs running, done, retried and failed, and a
     line above the bar for each retry and each failure. `on_result(index, value)` is called for
     each job as it finishes."""
 
-    def __init__(self, jobs: Sequence[Job], progress: bool, desc: str,
-                 on_result: Callable[[int, Any], None] | None) -> None:
+    def __init__(
+        self, jobs: Sequence[Job], progress: bool, desc: str, on_result: Callable[[int, Any], None] | None
+    ) -> None:
         from tqdm import tqdm
+
         self.names = [job.name for job in jobs]
         self.state = ["pending"] * len(jobs)
         self.attempts = [0] * len(jobs)
@@ -127,8 +143,11 @@ class _Board:
     def _show(self, refresh: bool = True) -> None:
         running = self.state.count("running")
         retried = sum(a > 1 for a in self.attempts)
-        self.bar.set_postfix_str(f"running {running}, done {self.state.count('done')}, retried {retried}, "
-                                 f"failed {self.state.count('failed')}", refresh=refresh)
+        self.bar.set_postfix_str(
+            f"running {running}, done {self.state.count('done')}, retried {retried}, "
+            f"failed {self.state.count('failed')}",
+            refresh=refresh,
+        )
 
     def started(self, index: int, attempt: int | None = None) -> None:
         """Job `index` started (its `attempt`-th start; default: one more than before)."""
@@ -136,8 +155,10 @@ class _Board:
         if attempt <= self.attempts[index] or self.state[index] in ("done", "failed", "stopped"):
             return
         if attempt > 1:
-            self._say(f"{self.names[index]}: its worker died; started again (attempt {attempt}), from its last "
-                      "checkpoint where it keeps one")
+            self._say(
+                f"{self.names[index]}: its worker died; started again (attempt {attempt}), from its last "
+                "checkpoint where it keeps one"
+            )
         self.attempts[index] = attempt
         self.state[index] = "running"
         self._show()
@@ -161,6 +182,7 @@ class _Board:
 # ---------------------------------------------------------------------------------------------
 # Backends
 # ---------------------------------------------------------------------------------------------
+
 
 class Backend:
     """Where `run_jobs` runs a grid. A backend is a reentrant context manager: entering it the
@@ -223,6 +245,7 @@ def _pool_call(job: Job) -> tuple[str, Any, str, float]:
     """One job in a pool worker; "stopped" when the grid was interrupted (a training run keeps
     its last checkpoint)."""
     import signal
+
     if _STOP is not None and _STOP.is_set():
         return "stopped", None, "", 0.0
     signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -256,6 +279,7 @@ class PoolBackend(Backend):
         import multiprocessing as mp
         import signal
         import threading
+
         stop, done = mp.get_context("spawn").Event(), threading.Event()
         pool = ProcessPool(min(self.workers, len(jobs)), _init_pool_worker, (stop,))
 
@@ -279,11 +303,18 @@ class PoolBackend(Backend):
         previous = signal.signal(signal.SIGINT, interrupt) if main_thread else None
         outcomes: list[Outcome | None] = [None] * len(jobs)
         try:
-            for i, result in pool.imap(_pool_call, [(job,) for job in jobs], retries=self.retries, errors="return",
-                                       on_start=board.started):
+            for i, result in pool.imap(
+                _pool_call, [(job,) for job in jobs], retries=self.retries, errors="return", on_start=board.started
+            ):
                 if isinstance(result, WorkerError):
-                    error = (f"WorkerDied: its worker process (pid {result.pid}) died on each of {result.attempts} "
-                             "attempts") if result.pid is not None else _one_line(result.__cause__ or result)
+                    error = (
+                        (
+                            f"WorkerDied: its worker process (pid {result.pid}) died on each of {result.attempts} "
+                            "attempts"
+                        )
+                        if result.pid is not None
+                        else _one_line(result.__cause__ or result)
+                    )
                     outcomes[i] = Outcome(jobs[i].name, "failed", error=error)
                 else:
                     status, value, error, seconds = result
@@ -306,9 +337,11 @@ def _import_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise ClusterError("--ray needs the ray package, which is not installed; install it with "
-                           "`.venv/bin/pip install -e \".[ray]\"` (or use the local process pool: leave --ray "
-                           "out)") from None
+        raise ClusterError(
+            "--ray needs the ray package, which is not installed; install it with "
+            '`.venv/bin/pip install -e ".[ray]"` (or use the local process pool: leave --ray '
+            "out)"
+        ) from None
     return ray
 
 
@@ -336,9 +369,16 @@ def _ray_call(log: Any, index: int, job: Job, cwd: str) -> tuple[str, Any, str, 
     try:
         os.chdir(cwd)
     except OSError:
-        return "failed", None, (f"ClusterError: the driver's working directory {cwd} does not exist on node "
-                                f"{socket.gethostname()}: run the driver from a folder on storage every node "
-                                "mounts (docs/cluster.md)"), 0.0
+        return (
+            "failed",
+            None,
+            (
+                f"ClusterError: the driver's working directory {cwd} does not exist on node "
+                f"{socket.gethostname()}: run the driver from a folder on storage every node "
+                "mounts (docs/cluster.md)"
+            ),
+            0.0,
+        )
     return _call(job)
 
 
@@ -365,6 +405,7 @@ class RayBackend(Backend):
 
     def start(self) -> None:
         import logging
+
         if self.address not in ("local", "auto"):
             _check_reachable(self.address)
         ray = _import_ray()
@@ -377,8 +418,10 @@ class RayBackend(Backend):
             try:
                 ray.init(address=self.address, **common)
             except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise ClusterError(f"--ray {self.address}: cannot join a Ray cluster ({_one_line(exc)}); start one "
-                                   "with `ray start --head`, or use --ray local") from None
+                raise ClusterError(
+                    f"--ray {self.address}: cannot join a Ray cluster ({_one_line(exc)}); start one "
+                    "with `ray start --head`, or use --ray local"
+                ) from None
         self._owned = True
 
     def stop(self) -> None:
@@ -396,8 +439,9 @@ class RayBackend(Backend):
         for job in jobs:  # a task asking for more than the cluster has would wait forever
             for key, need in (("CPU", job.num_cpus), ("GPU", job.num_gpus)):
                 if need > have.get(key, 0.0):
-                    raise ClusterError(f"job {job.name} needs {need:g} {key}s; the Ray cluster has "
-                                       f"{have.get(key, 0.0):g} in all")
+                    raise ClusterError(
+                        f"job {job.name} needs {need:g} {key}s; the Ray cluster has {have.get(key, 0.0):g} in all"
+                    )
         if self._task is None:
             self._task = ray.remote(_ray_call)
         if self._log is None:
@@ -407,8 +451,13 @@ class RayBackend(Backend):
         cwd = os.getcwd()
         index = {}
         for i, job in enumerate(jobs):
-            ref = self._task.options(name=job.name, num_cpus=job.num_cpus, num_gpus=job.num_gpus,
-                                     max_retries=self.retries, retry_exceptions=False).remote(log, i, job, cwd)
+            ref = self._task.options(
+                name=job.name,
+                num_cpus=job.num_cpus,
+                num_gpus=job.num_gpus,
+                max_retries=self.retries,
+                retry_exceptions=False,
+            ).remote(log, i, job, cwd)
             index[ref] = i
         outcomes: list[Outcome | None] = [None] * len(jobs)
         pending = list(index)
@@ -441,8 +490,10 @@ def _check_reachable(address: str) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
     except OSError as exc:
-        raise ClusterError(f"--ray {address}: no Ray cluster answers there ({exc.strerror or exc}); start one with "
-                           f"`ray start --head --port {port}` on that machine, or use --ray local") from None
+        raise ClusterError(
+            f"--ray {address}: no Ray cluster answers there ({exc.strerror or exc}); start one with "
+            f"`ray start --head --port {port}` on that machine, or use --ray local"
+        ) from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -463,8 +514,10 @@ def parse_ray_address(value: Any, name: str = "--ray") -> str:
     if value in ("local", "auto"):
         return value
     if "://" in value:
-        raise InputError(f"{name} = {value!r}: a URL is not accepted (run this command on a node of the cluster, "
-                         f"with its head's HOST:PORT); {expected}")
+        raise InputError(
+            f"{name} = {value!r}: a URL is not accepted (run this command on a node of the cluster, "
+            f"with its head's HOST:PORT); {expected}"
+        )
     host, sep, port = value.rpartition(":")
     ok_port = sep and port.isascii() and port.isdigit() and 1 <= int(port) <= 65535
     if host.startswith("[") and host.endswith("]"):
@@ -492,17 +545,26 @@ def make_backend(ray: str | None = None, workers: int = 1, inline: bool = False)
 
 def add_ray_flag(parser: argparse.ArgumentParser) -> None:
     """Add --ray, the same on every command that runs a grid (`args.ray`, None by default)."""
-    parser.add_argument("--ray", default=None, metavar="local|auto|HOST:PORT",
-                        help=f"run each job as a Ray task: {RAY_CHOICES}; default: local processes "
-                             "(docs/cluster.md)")
+    parser.add_argument(
+        "--ray",
+        default=None,
+        metavar="local|auto|HOST:PORT",
+        help=f"run each job as a Ray task: {RAY_CHOICES}; default: local processes (docs/cluster.md)",
+    )
 
 
 # ---------------------------------------------------------------------------------------------
 # Running a grid
 # ---------------------------------------------------------------------------------------------
 
-def run_jobs(jobs: Sequence[Job], backend: Backend, progress: bool = True, desc: str = "grid",
-             on_result: Callable[[int, Any], None] | None = None) -> list[Outcome]:
+
+def run_jobs(
+    jobs: Sequence[Job],
+    backend: Backend,
+    progress: bool = True,
+    desc: str = "grid",
+    on_result: Callable[[int, Any], None] | None = None,
+) -> list[Outcome]:
     """Run `jobs` on `backend` (entered for the call); return each job's Outcome in job order.
 
     A job that fails does not stop the others. `on_result(index, value)` is called in this process
@@ -523,8 +585,13 @@ def run_jobs(jobs: Sequence[Job], backend: Backend, progress: bool = True, desc:
             board.close()
 
 
-def run_grid(jobs: Sequence[Job], backend: Backend, progress: bool = True, desc: str = "grid",
-             on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
+def run_grid(
+    jobs: Sequence[Job],
+    backend: Backend,
+    progress: bool = True,
+    desc: str = "grid",
+    on_result: Callable[[int, Any], None] | None = None,
+) -> list[Any]:
     """The results of `jobs` in job order (see `run_jobs`). If any job failed, GridError once all
     have ended, naming each failed job with its message (`.results` holds the others')."""
     outcomes = run_jobs(jobs, backend, progress, desc, on_result)
@@ -532,6 +599,7 @@ def run_grid(jobs: Sequence[Job], backend: Backend, progress: bool = True, desc:
     results = [o.value if o.status == "done" else None for o in outcomes]
     if failed:
         listing = "; ".join(f"{name}: {error}" for name, error in failed.items())
-        raise GridError(f"{len(failed)} of {len(outcomes)} jobs failed, the others finished: {listing}",
-                        failed, results)
+        raise GridError(
+            f"{len(failed)} of {len(outcomes)} jobs failed, the others finished: {listing}", failed, results
+        )
     return results

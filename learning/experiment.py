@@ -44,12 +44,33 @@ from goflow_common.files import check_output_dir, load_tensors, run_folder_lock,
 from learning.execution import Backend, Job, make_backend, parse_ray_address, run_grid
 from learning.ppo import PPO, PPOConfig
 from learning.samplers.registry import (
-    GRADIENT_METHODS, METHODS, SAMPLER_SIGNALS, THRESHOLD_METHODS, make_sampler, sampler_config,
+    GRADIENT_METHODS,
+    METHODS,
+    SAMPLER_SIGNALS,
+    THRESHOLD_METHODS,
+    make_sampler,
+    sampler_config,
 )
 
-__all__ = ["TrainConfig", "Run", "load_run", "train", "SamplerFitConfig", "fit_sampler", "ExperimentConfig",
-           "run_experiment", "summarize", "format_summary", "plot_curves", "protocol_sampler_kwargs",
-           "probe_env", "load_checkpoint", "experiment_jobs", "experiment_backend", "write_experiment"]
+__all__ = [
+    "TrainConfig",
+    "Run",
+    "load_run",
+    "train",
+    "SamplerFitConfig",
+    "fit_sampler",
+    "ExperimentConfig",
+    "run_experiment",
+    "summarize",
+    "format_summary",
+    "plot_curves",
+    "protocol_sampler_kwargs",
+    "probe_env",
+    "load_checkpoint",
+    "experiment_jobs",
+    "experiment_backend",
+    "write_experiment",
+]
 
 #: What a checkpoint file is called in messages.
 _CHECKPOINT = "goflow training checkpoint (checkpoint.pt of a `goflow train` run folder)"
@@ -115,18 +136,19 @@ class TrainConfig:
         if self.sampler_batch is None:
             self.sampler_batch = "training" if self.method == "adr" else "validation"
         if self.sampler_batch not in ("validation", "training"):
-            raise ValueError(f"TrainConfig.sampler_batch = {self.sampler_batch!r}; expected 'validation' or "
-                             "'training'")
+            raise ValueError(f"TrainConfig.sampler_batch = {self.sampler_batch!r}; expected 'validation' or 'training'")
         if self.sampler_signal not in SAMPLER_SIGNALS:
             raise ValueError(f"TrainConfig.sampler_signal = {self.sampler_signal!r}; expected one of {SAMPLER_SIGNALS}")
         if self.sampler_signal == "success" and self.method in THRESHOLD_METHODS:
             raise ValueError(f"{self.method} compares returns with J_T itself: sampler_signal must be 'return'")
         if self.method == "doraemon" and self.sampler_batch != "validation":
-            raise ValueError("DORAEMON's importance weights assume the uniform validation batch: "
-                             "sampler_batch must be 'validation'")
+            raise ValueError(
+                "DORAEMON's importance weights assume the uniform validation batch: sampler_batch must be 'validation'"
+            )
         if self.method == "adr" and self.sampler_batch != "training":
-            raise ValueError("ADR learns only from its own boundary-pinned training episodes: "
-                             "sampler_batch must be 'training'")
+            raise ValueError(
+                "ADR learns only from its own boundary-pinned training episodes: sampler_batch must be 'training'"
+            )
         if self.vectorization not in VECTORIZATIONS:
             raise ValueError(f"TrainConfig.vectorization = {self.vectorization!r}; expected one of {VECTORIZATIONS}")
         for name in ("total_steps", "iterations_per_round", "eval_episodes"):
@@ -189,8 +211,9 @@ def load_run(run: Path | str) -> Run:
     log = state["log"]
     config = TrainConfig.from_json(log["config"])
     space = ParamSpace.from_dict(state["space"])
-    sampler = make_sampler(config.method, space, log["success_threshold"],
-                           protocol_sampler_kwargs(config.method, config.sampler_kwargs))
+    sampler = make_sampler(
+        config.method, space, log["success_threshold"], protocol_sampler_kwargs(config.method, config.sampler_kwargs)
+    )
     sampler.load_state_dict(state["sampler"])
     return Run(state, config, space, sampler, PPO.from_state_dict(state["agent"]))
 
@@ -202,18 +225,21 @@ def make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
     has one, else n single envs in a SyncVectorEnv."""
     spec = gymnasium.spec(config.env)
     if config.vectorization == "batched" and spec.vector_entry_point is not None:
-        return gymnasium.make_vec(config.env, num_envs=n, vectorization_mode="vector_entry_point",
-                                  **config.env_kwargs)
+        return gymnasium.make_vec(config.env, num_envs=n, vectorization_mode="vector_entry_point", **config.env_kwargs)
     return gymnasium.vector.SyncVectorEnv(
         [lambda: gymnasium.make(config.env, **config.env_kwargs) for _ in range(n)],
-        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP,
+    )
 
 
 def _same_run(saved: dict[str, Any], config: TrainConfig) -> list[str]:
     """What makes a checkpoint's run another run than `config`: the env, its options, the method
     or the seed (a later stage may change the budget, the round size or the batch, not these)."""
-    return [f"{key}: checkpoint {saved.get(key)!r} vs now {getattr(config, key)!r}"
-            for key in ("env", "env_kwargs", "method", "seed") if saved.get(key) != config_to_dict(getattr(config, key))]
+    return [
+        f"{key}: checkpoint {saved.get(key)!r} vs now {getattr(config, key)!r}"
+        for key in ("env", "env_kwargs", "method", "seed")
+        if saved.get(key) != config_to_dict(getattr(config, key))
+    ]
 
 
 def train(config: TrainConfig, progress: bool = True) -> dict:
@@ -248,19 +274,30 @@ def _train(config: TrainConfig, probe: gymnasium.Env, progress: bool) -> dict:
     train_envs = make_vector_env(config, ppo_config.num_envs)
     val_envs = make_vector_env(config, ppo_config.num_envs)
     val_envs.set_attr("sampler", FullDR(space))
-    log = {"config": config.to_json(), "env": config.env, "method": config.method,
-           "success_threshold": J_T, "curve": [], "seconds": 0.0, "sampler_seconds": 0.0,
-           "rounds": 0}
+    log = {
+        "config": config.to_json(),
+        "env": config.env,
+        "method": config.method,
+        "success_threshold": J_T,
+        "curve": [],
+        "seconds": 0.0,
+        "sampler_seconds": 0.0,
+        "rounds": 0,
+    }
     checkpoint = config.out / "checkpoint.pt" if config.out else None
     if checkpoint is not None and checkpoint.exists():
         state = load_checkpoint(checkpoint)
         if ParamSpace.from_dict(state["space"]) != space:
-            raise InputError(f"checkpoint {checkpoint} was trained on another ParamSpace: "
-                             + "; ".join(space.diff(ParamSpace.from_dict(state["space"]))))
+            raise InputError(
+                f"checkpoint {checkpoint} was trained on another ParamSpace: "
+                + "; ".join(space.diff(ParamSpace.from_dict(state["space"])))
+            )
         other = _same_run(state["log"]["config"], config)
         if other:
-            raise InputError(f"{config.out} holds a checkpoint of another run ({'; '.join(other)}); "
-                             "choose another run folder, or remove it to start over")
+            raise InputError(
+                f"{config.out} holds a checkpoint of another run ({'; '.join(other)}); "
+                "choose another run folder, or remove it to start over"
+            )
         agent.load_state_dict(state["agent"])
         sampler.load_state_dict(state["sampler"])
         log = state["log"]
@@ -272,8 +309,13 @@ def _train(config: TrainConfig, probe: gymnasium.Env, progress: bool) -> dict:
     # size continues the run to config.total_steps (a fresh run does at least one round).
     done = log.get("steps", log["curve"][-1][0] if log["curve"] else 0)
     rounds = log["rounds"] + max(0 if done else 1, (config.total_steps - done) // steps_per_round)
-    bar = tqdm(total=rounds, initial=log["rounds"], disable=not progress,
-               desc=f"{config.method} seed {config.seed}", unit="round")
+    bar = tqdm(
+        total=rounds,
+        initial=log["rounds"],
+        disable=not progress,
+        desc=f"{config.method} seed {config.seed}",
+        unit="round",
+    )
     try:
         _rounds(config, log, rounds, done, agent, sampler, space, train_envs, val_envs, checkpoint, bar)
     finally:
@@ -283,14 +325,25 @@ def _train(config: TrainConfig, probe: gymnasium.Env, progress: bool) -> dict:
     return log
 
 
-def _rounds(config: TrainConfig, log: dict, rounds: int, done: int, agent: PPO, sampler: Sampler, space: ParamSpace,
-            train_envs: gymnasium.vector.VectorEnv, val_envs: gymnasium.vector.VectorEnv, checkpoint: Path | None,
-            bar: tqdm) -> None:
+def _rounds(
+    config: TrainConfig,
+    log: dict,
+    rounds: int,
+    done: int,
+    agent: PPO,
+    sampler: Sampler,
+    space: ParamSpace,
+    train_envs: gymnasium.vector.VectorEnv,
+    val_envs: gymnasium.vector.VectorEnv,
+    checkpoint: Path | None,
+    bar: tqdm,
+) -> None:
     """The protocol's rounds until `rounds`, checkpointing after each; Ctrl-C stops after the
     round in progress (see `_stop_after_round`)."""
     with _stop_after_round() as stop_requested:
-        _round_loop(config, log, rounds, done, agent, sampler, space, train_envs, val_envs,
-                    checkpoint, bar, stop_requested)
+        _round_loop(
+            config, log, rounds, done, agent, sampler, space, train_envs, val_envs, checkpoint, bar, stop_requested
+        )
 
 
 @contextmanager
@@ -300,6 +353,7 @@ def _stop_after_round() -> Iterator[Callable[[], bool]]:
     a second one interrupts at once. An ignored SIGINT stays ignored."""
     import signal
     import threading
+
     previous = signal.getsignal(signal.SIGINT)
     if threading.current_thread() is not threading.main_thread() or previous is signal.SIG_IGN:
         yield lambda: False
@@ -317,10 +371,20 @@ def _stop_after_round() -> Iterator[Callable[[], bool]]:
         signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
 
 
-def _round_loop(config: TrainConfig, log: dict, rounds: int, done: int, agent: PPO, sampler: Sampler,
-                space: ParamSpace, train_envs: gymnasium.vector.VectorEnv,
-                val_envs: gymnasium.vector.VectorEnv, checkpoint: Path | None, bar: tqdm,
-                stop_requested: Callable[[], bool]) -> None:
+def _round_loop(
+    config: TrainConfig,
+    log: dict,
+    rounds: int,
+    done: int,
+    agent: PPO,
+    sampler: Sampler,
+    space: ParamSpace,
+    train_envs: gymnasium.vector.VectorEnv,
+    val_envs: gymnasium.vector.VectorEnv,
+    checkpoint: Path | None,
+    bar: tqdm,
+    stop_requested: Callable[[], bool],
+) -> None:
     steps_per_round = config.steps_per_round()
     while log["rounds"] < rounds:
         r = log["rounds"]
@@ -330,14 +394,16 @@ def _round_loop(config: TrainConfig, log: dict, rounds: int, done: int, agent: P
         for _ in range(config.iterations_per_round):
             stats, _ = agent.train_iteration(train_envs)
             episodes.append(stats)
-        xi, returns, successes = agent.evaluate(val_envs, config.eval_episodes,
-                                                seed=config.seed * 100_003 + r)
+        xi, returns, successes = agent.evaluate(val_envs, config.eval_episodes, seed=config.seed * 100_003 + r)
         t1 = time.perf_counter()
         train_returns = np.concatenate([e.episode_returns for e in episodes])
         train_successes = np.concatenate([e.successes for e in episodes])
         if config.sampler_batch == "training":
             batch_xi, batch_returns, batch_successes = (
-                np.concatenate([e.xi for e in episodes]), train_returns, train_successes)
+                np.concatenate([e.xi for e in episodes]),
+                train_returns,
+                train_successes,
+            )
         else:
             batch_xi, batch_returns, batch_successes = xi, returns, successes
         signal = _sampler_signal(config.sampler_signal, batch_returns, batch_successes)
@@ -346,19 +412,23 @@ def _round_loop(config: TrainConfig, log: dict, rounds: int, done: int, agent: P
         log["rounds"] = r + 1
         done += steps_per_round
         log["steps"] = done
-        log["curve"].append([done, float(np.mean(successes)),
-                             float(np.mean(returns))])
+        log["curve"].append([done, float(np.mean(successes)), float(np.mean(returns))])
         # Training-phase episodes (xi from the sampler): how the policy does where it trains.
         log.setdefault("train_curve", []).append(
-            [done, float(train_successes.mean()) if len(train_successes) else None,
-             float(train_returns.mean()) if len(train_returns) else None])
+            [
+                done,
+                float(train_successes.mean()) if len(train_successes) else None,
+                float(train_returns.mean()) if len(train_returns) else None,
+            ]
+        )
         log["seconds"] += t2 - t0
         log["sampler_seconds"] += t2 - t1
-        log["last_sampler"] = {k: v for k, v in diagnostics.items()
-                               if isinstance(v, (int, float, bool, str))}
+        log["last_sampler"] = {k: v for k, v in diagnostics.items() if isinstance(v, (int, float, bool, str))}
         if checkpoint is not None:
-            save_tensors(checkpoint, {"agent": agent.state_dict(), "sampler": sampler.state_dict(),
-                                      "space": space.to_dict(), "log": log})
+            save_tensors(
+                checkpoint,
+                {"agent": agent.state_dict(), "sampler": sampler.state_dict(), "space": space.to_dict(), "log": log},
+            )
             write_json(config.out / "log.json", log)
         bar.set_postfix(success=f"{log['curve'][-1][1]:.2f}")
         bar.update(1)
@@ -418,8 +488,9 @@ def _fit_sampler(run: Path, fit: SamplerFitConfig, progress: bool) -> dict:
             r = len(done)
             t0 = time.perf_counter()
             entropy = float(sampler.entropy())
-            xi, returns, successes = agent.evaluate(envs, fit.episodes, deterministic=True,
-                                                    seed=config.seed * 100_003 + 500_000 + r)
+            xi, returns, successes = agent.evaluate(
+                envs, fit.episodes, deterministic=True, seed=config.seed * 100_003 + 500_000 + r
+            )
             t1 = time.perf_counter()
             success = float(successes.mean())
             if best is None or (success, entropy) > (best["success"], best["entropy"]):
@@ -490,14 +561,23 @@ class ExperimentConfig:
         return f"{base}-{extra}" if extra else base
 
     def runs(self) -> list[TrainConfig]:
-        return [TrainConfig(env=self.env, env_kwargs=dict(self.env_kwargs), method=m,
-                            sampler_kwargs=dict(self.sampler_kwargs.get(m, {})), seed=s,
-                            total_steps=self.total_steps,
-                            iterations_per_round=self.iterations_per_round,
-                            eval_episodes=self.eval_episodes, ppo=self.ppo,
-                            sampler_signal="return" if m in THRESHOLD_METHODS else self.sampler_signal,
-                            out=self.out / self.stem() / m / f"seed{s}")
-                for m in self.methods for s in range(self.first_seed, self.first_seed + self.seeds)]
+        return [
+            TrainConfig(
+                env=self.env,
+                env_kwargs=dict(self.env_kwargs),
+                method=m,
+                sampler_kwargs=dict(self.sampler_kwargs.get(m, {})),
+                seed=s,
+                total_steps=self.total_steps,
+                iterations_per_round=self.iterations_per_round,
+                eval_episodes=self.eval_episodes,
+                ppo=self.ppo,
+                sampler_signal="return" if m in THRESHOLD_METHODS else self.sampler_signal,
+                out=self.out / self.stem() / m / f"seed{s}",
+            )
+            for m in self.methods
+            for s in range(self.first_seed, self.first_seed + self.seeds)
+        ]
 
 
 def _mean_se(runs: list[dict], column: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -526,8 +606,9 @@ def summarize(logs: list[dict], steps: int, env: str) -> dict:
             "final_return_mean": float(ret[-1]),
             "final_return_se": float(ret_se[-1]),
             "return_curve": [[s, float(m), float(e)] for s, m, e in zip(steps_axis, ret, ret_se)],
-            "sampler_time_share": float(sum(r["sampler_seconds"] for r in runs)
-                                        / max(sum(r["seconds"] for r in runs), 1e-9)),
+            "sampler_time_share": float(
+                sum(r["sampler_seconds"] for r in runs) / max(sum(r["seconds"] for r in runs), 1e-9)
+            ),
         }
     return out
 
@@ -536,8 +617,10 @@ def plot_curves(summary: dict, path: Path) -> None:
     """Success (left) and mean return (right) on the uniform box vs training steps, mean and
     standard-error band per method."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, (ax, ax_ret) = plt.subplots(1, 2, figsize=(11, 4))
     for method, res in summary["methods"].items():
         for axis, key in ((ax, "curve"), (ax_ret, "return_curve")):
@@ -579,8 +662,9 @@ def experiment_backend(config: ExperimentConfig) -> Backend:
     return make_backend(config.ray, config.workers)
 
 
-def run_experiment(config: ExperimentConfig, progress: bool = True, command: str = "",
-                   backend: Backend | None = None) -> dict:
+def run_experiment(
+    config: ExperimentConfig, progress: bool = True, command: str = "", backend: Backend | None = None
+) -> dict:
     """Run every (method, seed) on `backend` (default: `experiment_backend(config)`: a pool of
     `config.workers` processes, or Ray at `config.ray`), resuming finished or interrupted runs from
     their checkpoints; write <results>/<stem>.json and .png (and, for Toy2D, the learned densities
@@ -611,6 +695,7 @@ def write_experiment(config: ExperimentConfig, logs: list[dict], command: str = 
     plot_curves(summary, Path(summary["figures"][0]))
     if gymnasium.spec(config.env).name == "Toy2D":
         from learning.plots import plot_toy2d_densities
+
         summary["figures"].append(str(stem) + "-densities.png")
         finals = {m: load_run(config.out / config.stem() / m / "seed0").sampler for m in config.methods}
         plot_toy2d_densities(config.env, config.env_kwargs, finals, Path(summary["figures"][-1]))
@@ -620,10 +705,14 @@ def write_experiment(config: ExperimentConfig, logs: list[dict], command: str = 
 
 def format_summary(summary: dict) -> str:
     """A table of final success and return per method and the sampler update's share of wall time."""
-    lines = [f"{summary['env']}  ({summary['steps']} steps per run)",
-             f"{'method':<10} {'final success':>14} {'final return':>18} {'seeds':>6} {'sampler time':>13}"]
+    lines = [
+        f"{summary['env']}  ({summary['steps']} steps per run)",
+        f"{'method':<10} {'final success':>14} {'final return':>18} {'seeds':>6} {'sampler time':>13}",
+    ]
     for method, res in summary["methods"].items():
         ret = f"{res['final_return_mean']:.1f} +- {res['final_return_se']:.1f}"
-        lines.append(f"{method:<10} {res['final_success_mean']:>7.3f} +- {res['final_success_se']:<5.3f}"
-                     f" {ret:>18} {res['seeds']:>6} {100 * res['sampler_time_share']:>12.1f}%")
+        lines.append(
+            f"{method:<10} {res['final_success_mean']:>7.3f} +- {res['final_success_se']:<5.3f}"
+            f" {ret:>18} {res['seeds']:>6} {100 * res['sampler_time_share']:>12.1f}%"
+        )
     return "\n".join(lines)

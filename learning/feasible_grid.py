@@ -53,8 +53,15 @@ from learning.feasible_sets import coverage, mass_on
 from learning.samplers.goflow import GoFlowSampler
 from learning.samplers.goflow_config import GoFlowConfig
 
-__all__ = ["FeasibleGridConfig", "GridPlan", "FeasibleSet", "FlowRefitConfig", "flow_report", "constrained_copy",
-           "refit_flow"]
+__all__ = [
+    "FeasibleGridConfig",
+    "GridPlan",
+    "FeasibleSet",
+    "FlowRefitConfig",
+    "flow_report",
+    "constrained_copy",
+    "refit_flow",
+]
 
 _FORMAT = "goflow-feasible-set-1"
 _REFIT_FORMAT = "goflow-flow-refit-1"
@@ -92,15 +99,22 @@ class FeasibleGridConfig:
         flow's per-axis median) and moved inside the box."""
         d = space.dim
         width = space.high - space.low
-        fine = np.asarray(_per_axis(self.fine_width, d, "fine_width", False) if self.fine_width is not None
-                          else 0.1 * width, np.float64)
+        fine = np.asarray(
+            _per_axis(self.fine_width, d, "fine_width", False) if self.fine_width is not None else 0.1 * width,
+            np.float64,
+        )
         centre = np.asarray(median if self.centre is None else self.centre, np.float64)
         if centre.shape != (d,) or not np.all(np.isfinite(centre)):
             raise InputError(f"centre = {self.centre!r}; expected {d} finite numbers")
         fine = np.minimum(fine, width)
         low = np.clip(centre - fine / 2, space.low, space.high - fine)
-        return GridPlan(space, low, low + fine, _per_axis(self.fine_cells, d, "fine_cells", True),
-                        _per_axis(self.coarse_cells, d, "coarse_cells", True))
+        return GridPlan(
+            space,
+            low,
+            low + fine,
+            _per_axis(self.fine_cells, d, "fine_cells", True),
+            _per_axis(self.coarse_cells, d, "coarse_cells", True),
+        )
 
 
 @dataclass(frozen=True)
@@ -137,8 +151,17 @@ class GridPlan:
             raise InputError(f"{returns.shape} returns; expected one per point of the grid ({n_fine + run.sum()})")
         coarse = np.full(len(run), np.nan)
         coarse[run] = returns[n_fine:]
-        return FeasibleSet(self.space, self.low, self.high, self.fine_cells, self.coarse_cells, returns[:n_fine],
-                           coarse, success_threshold, variant)
+        return FeasibleSet(
+            self.space,
+            self.low,
+            self.high,
+            self.fine_cells,
+            self.coarse_cells,
+            returns[:n_fine],
+            coarse,
+            success_threshold,
+            variant,
+        )
 
 
 def _centres(low: NDArray, high: NDArray, cells: tuple[int, ...]) -> NDArray[np.float64]:
@@ -157,9 +180,18 @@ def _index(x: NDArray, low: NDArray, high: NDArray, cells: tuple[int, ...]) -> N
 class FeasibleSet:
     """A measured feasible set: labelled fine and coarse cells over a skill's box (module docstring)."""
 
-    def __init__(self, space: ParamSpace, fine_low: ArrayLike, fine_high: ArrayLike, fine_cells: tuple[int, ...],
-                 coarse_cells: tuple[int, ...], fine_returns: ArrayLike, coarse_returns: ArrayLike,
-                 success_threshold: float, variant: str) -> None:
+    def __init__(
+        self,
+        space: ParamSpace,
+        fine_low: ArrayLike,
+        fine_high: ArrayLike,
+        fine_cells: tuple[int, ...],
+        coarse_cells: tuple[int, ...],
+        fine_returns: ArrayLike,
+        coarse_returns: ArrayLike,
+        success_threshold: float,
+        variant: str,
+    ) -> None:
         self.space = space
         self.fine_low, self.fine_high = np.asarray(fine_low, np.float64), np.asarray(fine_high, np.float64)
         self.fine_cells, self.coarse_cells = tuple(fine_cells), tuple(coarse_cells)
@@ -167,8 +199,9 @@ class FeasibleSet:
         self.coarse_returns = np.asarray(coarse_returns, np.float64)  # NaN where not run
         self.success_threshold = float(success_threshold)
         self.variant = variant
-        if self.fine_returns.shape != (int(np.prod(self.fine_cells)),) or \
-                self.coarse_returns.shape != (int(np.prod(self.coarse_cells)),):
+        if self.fine_returns.shape != (int(np.prod(self.fine_cells)),) or self.coarse_returns.shape != (
+            int(np.prod(self.coarse_cells)),
+        ):
             raise FileFormatError("feasible set: the returns do not match the grid's cells")
 
     @property
@@ -188,8 +221,9 @@ class FeasibleSet:
         coarse_cell = (self.space.high - self.space.low) / np.asarray(self.coarse_cells)
         fine = _centres(self.fine_low, self.fine_high, self.fine_cells)
         coarse = _centres(self.space.low, self.space.high, self.coarse_cells)[run]
-        xi = np.concatenate([fine + fine_cell * (rng.random(fine.shape) - 0.5),
-                             coarse + coarse_cell * (rng.random(coarse.shape) - 0.5)])
+        xi = np.concatenate(
+            [fine + fine_cell * (rng.random(fine.shape) - 0.5), coarse + coarse_cell * (rng.random(coarse.shape) - 0.5)]
+        )
         return xi, self.contains(xi)
 
     def plan(self) -> GridPlan:
@@ -230,8 +264,11 @@ class FeasibleSet:
             return np.zeros((0, d)), 0.0
         n_in = int(round(n * share_in / share))
         corners = _centres(self.fine_low, self.fine_high, self.fine_cells)[good] - fine_cell / 2
-        inside = corners[rng.integers(len(good), size=n_in)] + fine_cell * rng.random((n_in, d)) if len(good) \
+        inside = (
+            corners[rng.integers(len(good), size=n_in)] + fine_cell * rng.random((n_in, d))
+            if len(good)
             else np.zeros((0, d))
+        )
         return np.concatenate([inside, outer[hit][: n - n_in]]), share
 
     @cached_property
@@ -241,19 +278,32 @@ class FeasibleSet:
 
     def summary(self) -> dict[str, Any]:
         """Plain data: cells run, successes, the fine region and F's share of the box."""
-        return {"variant": self.variant, "fine_low": self.fine_low.tolist(), "fine_high": self.fine_high.tolist(),
-                "fine_cells": list(self.fine_cells), "coarse_cells": list(self.coarse_cells),
-                "episodes": int(len(self.fine_returns) + np.isfinite(self.coarse_returns).sum()),
-                "fine_successes": int(self.fine_success.sum()), "coarse_successes": int(self.coarse_success.sum()),
-                "share": self.share}
+        return {
+            "variant": self.variant,
+            "fine_low": self.fine_low.tolist(),
+            "fine_high": self.fine_high.tolist(),
+            "fine_cells": list(self.fine_cells),
+            "coarse_cells": list(self.coarse_cells),
+            "episodes": int(len(self.fine_returns) + np.isfinite(self.coarse_returns).sum()),
+            "fine_successes": int(self.fine_success.sum()),
+            "coarse_successes": int(self.coarse_success.sum()),
+            "share": self.share,
+        }
 
     def state_dict(self) -> dict[str, Any]:
         """Tensors and plain data (for a skill file or a checkpoint)."""
-        return {"format": _FORMAT, "space": self.space.to_dict(), "fine_low": self.fine_low.tolist(),
-                "fine_high": self.fine_high.tolist(), "fine_cells": list(self.fine_cells),
-                "coarse_cells": list(self.coarse_cells), "fine_returns": torch.from_numpy(self.fine_returns),
-                "coarse_returns": torch.from_numpy(self.coarse_returns),
-                "success_threshold": self.success_threshold, "variant": self.variant}
+        return {
+            "format": _FORMAT,
+            "space": self.space.to_dict(),
+            "fine_low": self.fine_low.tolist(),
+            "fine_high": self.fine_high.tolist(),
+            "fine_cells": list(self.fine_cells),
+            "coarse_cells": list(self.coarse_cells),
+            "fine_returns": torch.from_numpy(self.fine_returns),
+            "coarse_returns": torch.from_numpy(self.coarse_returns),
+            "success_threshold": self.success_threshold,
+            "variant": self.variant,
+        }
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> FeasibleSet:
@@ -261,10 +311,17 @@ class FeasibleSet:
         if not isinstance(state, Mapping) or state.get("format") != _FORMAT:
             raise FileFormatError(f"not a measured feasible set (format {_FORMAT!r})")
         try:
-            return cls(ParamSpace.from_dict(state["space"]), state["fine_low"], state["fine_high"],
-                       tuple(state["fine_cells"]), tuple(state["coarse_cells"]),
-                       torch.as_tensor(state["fine_returns"]).numpy(), torch.as_tensor(state["coarse_returns"]).numpy(),
-                       state["success_threshold"], state["variant"])
+            return cls(
+                ParamSpace.from_dict(state["space"]),
+                state["fine_low"],
+                state["fine_high"],
+                tuple(state["fine_cells"]),
+                tuple(state["coarse_cells"]),
+                torch.as_tensor(state["fine_returns"]).numpy(),
+                torch.as_tensor(state["coarse_returns"]).numpy(),
+                state["success_threshold"],
+                state["variant"],
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise FileFormatError(f"a malformed measured feasible set ({type(exc).__name__}: {exc})") from None
 
@@ -272,8 +329,9 @@ class FeasibleSet:
 # -- the flow against the set ----------------------------------------------------------------
 
 
-def flow_report(sampler: Any, feasible: FeasibleSet, samples: int = REPORT_SAMPLES,
-                seed: int = REPORT_SEED) -> dict[str, float]:
+def flow_report(
+    sampler: Any, feasible: FeasibleSet, samples: int = REPORT_SAMPLES, seed: int = REPORT_SEED
+) -> dict[str, float]:
     """A sampler against a measured feasible set F: its mass on F (share of `samples` draws), the
     mass outside, and its coverage of F at 10 % and 1 % of the uniform-on-F density (at
     `samples` / 10 points uniform on F), with F's share of the box (`FeasibleSet.share`).
@@ -334,11 +392,20 @@ def constrained_copy(sampler: GoFlowSampler, config: FlowRefitConfig) -> GoFlowS
     # the constrained mode's own estimate of the feasible set and its truncation, whatever the
     # source flow was saved with (a flow saved before they existed loads with the k-NN vote)
     fresh = GoFlowConfig()
-    settings = {k: getattr(fresh, k) for k in ("feasible_model", "truncate", "feasible_level", "leak_target",
-                                                 "level_step", "classifier_hidden")}
-    config_dict = {**state["config"], **settings, "mode": "constrained", "beta": 0.0, "delta": float(config.delta),
-                   "floor": float(config.floor), "steps": int(config.steps),
-                   "classifier_steps": int(config.classifier_steps)}
+    settings = {
+        k: getattr(fresh, k)
+        for k in ("feasible_model", "truncate", "feasible_level", "leak_target", "level_step", "classifier_hidden")
+    }
+    config_dict = {
+        **state["config"],
+        **settings,
+        "mode": "constrained",
+        "beta": 0.0,
+        "delta": float(config.delta),
+        "floor": float(config.floor),
+        "steps": int(config.steps),
+        "classifier_steps": int(config.classifier_steps),
+    }
     new = GoFlowSampler(sampler.space, sampler.success_threshold, config_dict)
     state.pop("feasible_level", None)  # F-hat's level starts again at the config's
     dim = sampler.space.dim
@@ -352,9 +419,14 @@ def constrained_copy(sampler: GoFlowSampler, config: FlowRefitConfig) -> GoFlowS
 Evaluate = Callable[[NDArray[np.float64], int], NDArray[np.float64]]
 
 
-def refit_flow(sampler: GoFlowSampler, feasible: FeasibleSet, evaluate: Evaluate,
-               config: FlowRefitConfig | None = None, checkpoint: str | os.PathLike[str] | None = None,
-               progress: bool = False) -> tuple[GoFlowSampler, list[dict[str, float]]]:
+def refit_flow(
+    sampler: GoFlowSampler,
+    feasible: FeasibleSet,
+    evaluate: Evaluate,
+    config: FlowRefitConfig | None = None,
+    checkpoint: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+) -> tuple[GoFlowSampler, list[dict[str, float]]]:
     """Refit `sampler`'s flow in GoFlow's constrained mode: one update from the measured grid
     `feasible` (a point uniform in each cell, with the cell's label), then `config.rounds`
     updates, each from `config.episodes` of the flow's own draws labelled by `evaluate`
@@ -373,8 +445,10 @@ def refit_flow(sampler: GoFlowSampler, feasible: FeasibleSet, evaluate: Evaluate
             raise FileFormatError(f"{checkpoint}: not a flow refit checkpoint")
         saved_config = saved.get("config")
         if not isinstance(saved_config, dict) or {"floor": 0.0, **saved_config} != config.to_dict():  # no floor: 0
-            raise InputError(f"{checkpoint} holds a refit with {saved.get('config')}, not {config.to_dict()}; "
-                             "remove it or choose another folder")
+            raise InputError(
+                f"{checkpoint} holds a refit with {saved.get('config')}, not {config.to_dict()}; "
+                "remove it or choose another folder"
+            )
         new.load_state_dict(saved["sampler"])
         records = list(saved["records"])
     total = config.rounds + 1
@@ -391,12 +465,26 @@ def refit_flow(sampler: GoFlowSampler, feasible: FeasibleSet, evaluate: Evaluate
                 success = np.asarray(evaluate(xi, r), np.float64) >= feasible.success_threshold
                 rate = float(success.mean())
             new.update(xi, success.astype(np.float64))
-            records.append({"update": r, "episodes": int(len(xi)), "success_on_draws": rate,
-                            **flow_report(new, feasible), "entropy": float(new.entropy()),
-                            "seconds": time.perf_counter() - t0})
+            records.append(
+                {
+                    "update": r,
+                    "episodes": int(len(xi)),
+                    "success_on_draws": rate,
+                    **flow_report(new, feasible),
+                    "entropy": float(new.entropy()),
+                    "seconds": time.perf_counter() - t0,
+                }
+            )
             if checkpoint is not None:
-                save_tensors(checkpoint, {"format": _REFIT_FORMAT, "config": config.to_dict(),
-                                          "sampler": new.state_dict(), "records": records})
+                save_tensors(
+                    checkpoint,
+                    {
+                        "format": _REFIT_FORMAT,
+                        "config": config.to_dict(),
+                        "sampler": new.state_dict(),
+                        "records": records,
+                    },
+                )
             bar.set_postfix(mass=f"{records[-1]['mass_on']:.3f}", cover=f"{records[-1]['coverage10']:.2f}")
             bar.update(1)
     finally:

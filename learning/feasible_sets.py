@@ -111,8 +111,9 @@ class Layout:
         check_int(self.dim, f"Layout {self.name!r}: dim", 1)
         check_number(self.ramp, f"Layout {self.name!r}: ramp", 0.0)
         if self.exact_share is not None:
-            check_number(self.exact_share, f"Layout {self.name!r}: exact_share", 0.0, 1.0, low_open=True,
-                         high_open=True)
+            check_number(
+                self.exact_share, f"Layout {self.name!r}: exact_share", 0.0, 1.0, low_open=True, high_open=True
+            )
 
     @property
     def graded(self) -> bool:
@@ -161,8 +162,9 @@ class Layout:
     def uniform_rewards(self) -> NDArray[np.float64]:
         """Rewards at the fixed-seed 10^6 uniform points (cached; behind graded normalizers)."""
         rng = np.random.default_rng(MC_SEED)
-        return np.concatenate([self.reward(rng.random((min(_CHUNK, MC_POINTS - s), self.dim)))
-                               for s in range(0, MC_POINTS, _CHUNK)])
+        return np.concatenate(
+            [self.reward(rng.random((min(_CHUNK, MC_POINTS - s), self.dim))) for s in range(0, MC_POINTS, _CHUNK)]
+        )
 
     def sample_inside(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
         """n points uniform on F, shape (n, d) (rejection from the uniform box)."""
@@ -205,6 +207,7 @@ def _annulus(centre: tuple[float, float], inner: float, outer: float) -> PointFu
     def margin(x: NDArray[np.float64]) -> NDArray[np.float64]:
         r = np.linalg.norm(x - c, axis=1)
         return np.minimum(r - inner, outer - r)
+
     return margin
 
 
@@ -215,11 +218,13 @@ def _strip(centre: tuple[float, float], length: float, width: float, degrees: fl
     def margin(x: NDArray[np.float64]) -> NDArray[np.float64]:
         local = (x - c) @ rot  # coordinates along the rectangle's axes
         return np.minimum(0.5 * length - np.abs(local[:, 0]), 0.5 * width - np.abs(local[:, 1]))
+
     return margin
 
 
-def _ellipsoid(centre: tuple[float, ...], axes: tuple[float, ...],
-               planes: tuple[tuple[int, int, float], ...]) -> PointFunction:
+def _ellipsoid(
+    centre: tuple[float, ...], axes: tuple[float, ...], planes: tuple[tuple[int, int, float], ...]
+) -> PointFunction:
     """A rotated ellipsoid; margin = min(axes) * (1 - |scaled local coordinates|)."""
     c, a, rot = np.asarray(centre), np.asarray(axes), _rotation(len(centre), planes)
     return lambda x: float(a.min()) * (1.0 - np.linalg.norm(((x - c) @ rot) / a, axis=1))
@@ -243,32 +248,83 @@ _R_TINY = math.sqrt(0.003 / math.pi)  # a disk of 0.3 % (the gears' capture rang
 
 def _suite() -> dict[str, Layout]:
     layouts = [
-        Layout("disks", 2, "three disjoint disks, radii 0.2, 0.08, 0.04",
-               _union(_disk((0.3, 0.65), 0.2), _disk((0.72, 0.3), 0.08), _disk((0.8, 0.75), 0.04)),
-               exact_share=math.pi * (0.2**2 + 0.08**2 + 0.04**2)),
-        Layout("ring", 2, "an off-centre annulus, radii 0.2 to 0.32",
-               _annulus((0.45, 0.55), 0.2, 0.32), exact_share=math.pi * (0.32**2 - 0.2**2)),
-        Layout("strip", 2, "a thin strip 0.9 x 0.04 rotated by 30 degrees",
-               _strip((0.5, 0.5), 0.9, 0.04, 30.0), exact_share=0.9 * 0.04),
-        Layout("edges", 2, "a quarter disk (radius 0.35) in a corner and a band along the opposite edge",
-               _union(_disk((0.0, 0.0), 0.35), _band(0, 0.9)), exact_share=math.pi * 0.35**2 / 4 + 0.1),
+        Layout(
+            "disks",
+            2,
+            "three disjoint disks, radii 0.2, 0.08, 0.04",
+            _union(_disk((0.3, 0.65), 0.2), _disk((0.72, 0.3), 0.08), _disk((0.8, 0.75), 0.04)),
+            exact_share=math.pi * (0.2**2 + 0.08**2 + 0.04**2),
+        ),
+        Layout(
+            "ring",
+            2,
+            "an off-centre annulus, radii 0.2 to 0.32",
+            _annulus((0.45, 0.55), 0.2, 0.32),
+            exact_share=math.pi * (0.32**2 - 0.2**2),
+        ),
+        Layout(
+            "strip",
+            2,
+            "a thin strip 0.9 x 0.04 rotated by 30 degrees",
+            _strip((0.5, 0.5), 0.9, 0.04, 30.0),
+            exact_share=0.9 * 0.04,
+        ),
+        Layout(
+            "edges",
+            2,
+            "a quarter disk (radius 0.35) in a corner and a band along the opposite edge",
+            _union(_disk((0.0, 0.0), 0.35), _band(0, 0.9)),
+            exact_share=math.pi * 0.35**2 / 4 + 0.1,
+        ),
         Layout("small", 2, "an off-centre disk of 5 % of the box", _disk((0.7, 0.3), _R_SMALL), exact_share=0.05),
         Layout("tiny", 2, "an off-centre disk of 0.3 % of the box", _disk((0.3, 0.7), _R_TINY), exact_share=0.003),
-        Layout("halfplane", 2, "the anchor: the half-plane p0 + 0.3 p1 <= 0.63, 48 % of the box",
-               _halfplane((1.0, 0.3), 0.63), exact_share=0.48),
-        Layout("intervals", 1, "two intervals, [0.15, 0.25] and [0.55, 0.85]",
-               _union(_disk((0.2,), 0.05), _disk((0.7,), 0.15)), exact_share=0.4),
-        Layout("ellipsoid3d", 3, "an off-centre rotated ellipsoid, semi-axes 0.38, 0.25, 0.15",
-               _ellipsoid((0.55, 0.45, 0.5), (0.38, 0.25, 0.15), ((0, 1, 30.0), (1, 2, 40.0), (0, 2, 20.0))),
-               exact_share=4.0 / 3.0 * math.pi * 0.38 * 0.25 * 0.15),
-        Layout("ellipsoid6d", 6, "an off-centre rotated ellipsoid cut by the box, about 11 % of it",
-               _ellipsoid((0.45, 0.55, 0.5, 0.4, 0.6, 0.5), (0.75, 0.6, 0.55, 0.5, 0.45, 0.4),
-                          ((0, 1, 30.0), (2, 3, 45.0), (4, 5, 20.0), (1, 4, 35.0), (0, 5, 25.0)))),
-        Layout("graded1d", 1, "graded: plateau on [0.55, 0.65], ramp 0.2, F = [0.45, 0.75]",
-               _disk((0.6,), 0.15), ramp=0.2, exact_share=0.3),
-        Layout("graded2d", 2, "graded: two disks (radii 0.18, 0.12), ramp 0.1",
-               _union(_disk((0.3, 0.35), 0.18), _disk((0.72, 0.7), 0.12)), ramp=0.1,
-               exact_share=math.pi * (0.18**2 + 0.12**2)),
+        Layout(
+            "halfplane",
+            2,
+            "the anchor: the half-plane p0 + 0.3 p1 <= 0.63, 48 % of the box",
+            _halfplane((1.0, 0.3), 0.63),
+            exact_share=0.48,
+        ),
+        Layout(
+            "intervals",
+            1,
+            "two intervals, [0.15, 0.25] and [0.55, 0.85]",
+            _union(_disk((0.2,), 0.05), _disk((0.7,), 0.15)),
+            exact_share=0.4,
+        ),
+        Layout(
+            "ellipsoid3d",
+            3,
+            "an off-centre rotated ellipsoid, semi-axes 0.38, 0.25, 0.15",
+            _ellipsoid((0.55, 0.45, 0.5), (0.38, 0.25, 0.15), ((0, 1, 30.0), (1, 2, 40.0), (0, 2, 20.0))),
+            exact_share=4.0 / 3.0 * math.pi * 0.38 * 0.25 * 0.15,
+        ),
+        Layout(
+            "ellipsoid6d",
+            6,
+            "an off-centre rotated ellipsoid cut by the box, about 11 % of it",
+            _ellipsoid(
+                (0.45, 0.55, 0.5, 0.4, 0.6, 0.5),
+                (0.75, 0.6, 0.55, 0.5, 0.45, 0.4),
+                ((0, 1, 30.0), (2, 3, 45.0), (4, 5, 20.0), (1, 4, 35.0), (0, 5, 25.0)),
+            ),
+        ),
+        Layout(
+            "graded1d",
+            1,
+            "graded: plateau on [0.55, 0.65], ramp 0.2, F = [0.45, 0.75]",
+            _disk((0.6,), 0.15),
+            ramp=0.2,
+            exact_share=0.3,
+        ),
+        Layout(
+            "graded2d",
+            2,
+            "graded: two disks (radii 0.18, 0.12), ramp 0.1",
+            _union(_disk((0.3, 0.35), 0.18), _disk((0.72, 0.7), 0.12)),
+            ramp=0.1,
+            exact_share=math.pi * (0.18**2 + 0.12**2),
+        ),
     ]
     return {layout.name: layout for layout in layouts}
 
@@ -284,7 +340,7 @@ OBJECTIVES: tuple[str, ...] = ("entropy", "constrained")
 
 def _check_objective(objective: tuple[str, float]) -> tuple[str, float]:
     if not isinstance(objective, (tuple, list)) or len(objective) != 2:
-        raise InputError(f"objective = {objective!r}; expected (\"entropy\", alpha) or (\"constrained\", delta)")
+        raise InputError(f'objective = {objective!r}; expected ("entropy", alpha) or ("constrained", delta)')
     kind = check_choice(objective[0], OBJECTIVES, "objective kind")
     if kind == "entropy":
         return kind, check_number(objective[1], "objective alpha", 0.0, low_open=True)
@@ -307,8 +363,7 @@ def mass_on(samples: ArrayLike, contains: Callable[[NDArray[np.float64]], NDArra
     return float(np.mean(np.asarray(contains(x), dtype=bool)))
 
 
-def coverage(log_prob: LogDensity, inside_points: ArrayLike, share: float, level: float,
-             volume: float = 1.0) -> float:
+def coverage(log_prob: LogDensity, inside_points: ArrayLike, share: float, level: float, volume: float = 1.0) -> float:
     """The share of F where a density exceeds `level` x the uniform-on-F density.
 
     Arguments:
@@ -334,8 +389,14 @@ def coverage(log_prob: LogDensity, inside_points: ArrayLike, share: float, level
     return float(np.mean(lp > math.log(level) - math.log(share * volume)))
 
 
-def report_on(sampler: Any, contains: Callable[[NDArray[np.float64]], NDArray[np.bool_]], space: ParamSpace,
-              rng: np.random.Generator, draws: int = 20_000, box_points: int = 200_000) -> dict[str, float]:
+def report_on(
+    sampler: Any,
+    contains: Callable[[NDArray[np.float64]], NDArray[np.bool_]],
+    space: ParamSpace,
+    rng: np.random.Generator,
+    draws: int = 20_000,
+    box_points: int = 200_000,
+) -> dict[str, float]:
     """A sampler (`sample`, `log_prob`) against a feasible set given by `contains` over the box of
     `space`: the set's share of the box (`box_points` uniform draws), the sampler's mass on it
     (`draws` of its draws, after the box's from the same `rng`), and its coverage at 10 % and 1 %
@@ -388,8 +449,9 @@ def optimum_mass(layout: Layout, objective: tuple[str, float]) -> float:
     return float(np.sum(w[r >= 0.5]) / np.sum(w))
 
 
-def kl_to_optimum(sampler_draws: ArrayLike, log_prob: LogDensity, layout: Layout,
-                  objective: tuple[str, float]) -> float:
+def kl_to_optimum(
+    sampler_draws: ArrayLike, log_prob: LogDensity, layout: Layout, objective: tuple[str, float]
+) -> float:
     """KL(q || p*) in nats, by Monte Carlo on draws of q.
 
     Arguments:
@@ -414,12 +476,19 @@ def kl_to_optimum(sampler_draws: ArrayLike, log_prob: LogDensity, layout: Layout
     if np.isposinf(lq).any():
         return math.inf
     if np.isneginf(lq).any():
-        raise InputError(f"kl_to_optimum: log_prob is -inf at {int(np.isneginf(lq).sum())} of its own draws; "
-                         "expected draws of the distribution log_prob describes")
+        raise InputError(
+            f"kl_to_optimum: log_prob is -inf at {int(np.isneginf(lq).sum())} of its own draws; "
+            "expected draws of the distribution log_prob describes"
+        )
     return float(np.mean(lq - optimum_log_prob(layout, objective)(x)))
 
 
 def describe(layout: Layout) -> dict[str, Any]:
     """The layout as JSON data: name, dim, description, graded, share."""
-    return {"name": layout.name, "dim": layout.dim, "description": layout.description, "graded": layout.graded,
-            "share": layout.share}
+    return {
+        "name": layout.name,
+        "dim": layout.dim,
+        "description": layout.description,
+        "graded": layout.graded,
+        "share": layout.share,
+    }

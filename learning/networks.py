@@ -33,8 +33,9 @@ def _layer(in_features: int, out_features: int, gain: float, generator: torch.Ge
     return layer
 
 
-def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, out_gain: float,
-        generator: torch.Generator | None = None) -> nn.Sequential:
+def mlp(
+    in_dim: int, hidden: Sequence[int], out_dim: int, out_gain: float, generator: torch.Generator | None = None
+) -> nn.Sequential:
     """Tanh MLP with orthogonal init: hidden layers gain sqrt(2), output layer `out_gain`."""
     layers: list[nn.Module] = []
     prev = in_dim
@@ -48,8 +49,14 @@ def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, out_gain: float,
 class Actor(nn.Module):
     """Diagonal Gaussian policy pi(a | obs) = N(mean(obs), exp(log_std)^2), unsquashed."""
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden: Sequence[int] = (64, 64),
-                 init_log_std: float = 0.0, generator: torch.Generator | None = None) -> None:
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        hidden: Sequence[int] = (64, 64),
+        init_log_std: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> None:
         super().__init__()
         self.mean = mlp(obs_dim, hidden, action_dim, 0.01, generator)
         self.log_std = nn.Parameter(torch.full((action_dim,), float(init_log_std)))
@@ -59,8 +66,7 @@ class Actor(nn.Module):
         mean = self.mean(obs)
         return torch.distributions.Normal(mean, self.log_std.expand_as(mean).exp())
 
-    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(unclipped action, its log-prob summed over action dims), drawn with `generator`."""
         mean = self.mean(obs)
         std = self.log_std.expand_as(mean).exp()
@@ -77,8 +83,9 @@ class Actor(nn.Module):
 class Critic(nn.Module):
     """State value V(critic_obs) with critic_obs = concat(obs, normalized xi)."""
 
-    def __init__(self, critic_obs_dim: int, hidden: Sequence[int] = (64, 64),
-                 generator: torch.Generator | None = None) -> None:
+    def __init__(
+        self, critic_obs_dim: int, hidden: Sequence[int] = (64, 64), generator: torch.Generator | None = None
+    ) -> None:
         super().__init__()
         self.value = mlp(critic_obs_dim, hidden, 1, 1.0, generator)
 
@@ -125,14 +132,22 @@ class RunningMeanStd:
 
     def state_dict(self) -> dict[str, Any]:
         """Statistics as tensors and floats (loadable with torch.load(weights_only=True))."""
-        return {"mean": torch.from_numpy(self.mean.copy()), "var": torch.from_numpy(self.var.copy()),
-                "count": float(self.count), "shape": list(self.shape), "eps": self.eps, "clip": self.clip}
+        return {
+            "mean": torch.from_numpy(self.mean.copy()),
+            "var": torch.from_numpy(self.var.copy()),
+            "count": float(self.count),
+            "shape": list(self.shape),
+            "eps": self.eps,
+            "clip": self.clip,
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore statistics; ValueError if the shape differs."""
         if tuple(state["shape"]) != self.shape:
-            raise ValueError(f"RunningMeanStd.load_state_dict: saved shape {tuple(state['shape'])}, "
-                             f"this normalizer has shape {self.shape}")
+            raise ValueError(
+                f"RunningMeanStd.load_state_dict: saved shape {tuple(state['shape'])}, "
+                f"this normalizer has shape {self.shape}"
+            )
         self.mean = np.asarray(state["mean"], dtype=np.float64).copy()
         self.var = np.asarray(state["var"], dtype=np.float64).copy()
         self.count = float(state["count"])

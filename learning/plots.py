@@ -16,14 +16,17 @@ import numpy as np
 import assembly  # noqa: F401  (registers the environment ids)
 
 
-def plot_toy2d_densities(env_id: str, env_kwargs: Mapping[str, Any], samplers: Mapping[str, Any], path: Path,
-                         grid: int = 120) -> None:
+def plot_toy2d_densities(
+    env_id: str, env_kwargs: Mapping[str, Any], samplers: Mapping[str, Any], path: Path, grid: int = 120
+) -> None:
     """One panel per method of `samplers` (method -> a sampler with `log_prob`, e.g. a run's final
     one): its density over the 2-D box of env `env_id` (made with `env_kwargs`), the feasible set's
     outline on top; a first panel shows the feasible set itself. Written to `path` (a PNG)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     env = gymnasium.make(env_id, **env_kwargs).unwrapped
     lo, hi = env.space.low, env.space.high
     xs, ys = np.linspace(lo[0], hi[0], grid), np.linspace(lo[1], hi[1], grid)
@@ -39,8 +42,14 @@ def plot_toy2d_densities(env_id: str, env_kwargs: Mapping[str, Any], samplers: M
         sampler = samplers[method]
         logp = np.asarray(sampler.log_prob(points), dtype=float)
         density = np.exp(np.where(np.isfinite(logp), logp, -np.inf))
-        ax.imshow(density.reshape(grid, grid), origin="lower", extent=extent, cmap="viridis",
-                  vmin=0.0, vmax=max(float(np.percentile(density, 99.5)), 1e-12))  # spikes clipped
+        ax.imshow(
+            density.reshape(grid, grid),
+            origin="lower",
+            extent=extent,
+            cmap="viridis",
+            vmin=0.0,
+            vmax=max(float(np.percentile(density, 99.5)), 1e-12),
+        )  # spikes clipped
         if hasattr(sampler, "point"):  # a point mass (NoDR): mark it
             ax.plot(*np.asarray(sampler.point)[:2], "r*", markersize=12)
         ax.contour(X, Y, feasible.astype(float), levels=[0.5], colors="w", linewidths=0.8)
@@ -56,14 +65,20 @@ def plot_toy2d_densities(env_id: str, env_kwargs: Mapping[str, Any], samplers: M
 def plot_sweep(sweep: dict, path: Path) -> None:
     """Final uniform-box success (mean +- s.e. over seeds) against each swept value of one option."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = sweep["rows"]
     labels = [str(r["value"]) for r in rows]
     fig, ax = plt.subplots(figsize=(5.0, 3.4))
-    ax.errorbar(range(len(rows)), [r["final_success_mean"] for r in rows],
-                yerr=[r["final_success_se"] for r in rows], fmt="o-", capsize=4)
+    ax.errorbar(
+        range(len(rows)),
+        [r["final_success_mean"] for r in rows],
+        yerr=[r["final_success_se"] for r in rows],
+        fmt="o-",
+        capsize=4,
+    )
     ax.set_xticks(range(len(rows)), labels)
     ax.set_xlabel(f"{sweep['method']}: {sweep['param']}")
     ax.set_ylabel("final success on the uniform box")

@@ -45,7 +45,13 @@ from goflow_common.checks import check_int, check_number
 from goflow_common.errors import InputError
 from learning.networks import Actor, Critic, RunningMeanStd
 from learning.ppo_checkpoint import (
-    CHECKPOINT_FORMAT, check_loadable, is_checkpoint, read_checkpoint, saved_action_space, saved_config, write_checkpoint,
+    CHECKPOINT_FORMAT,
+    check_loadable,
+    is_checkpoint,
+    read_checkpoint,
+    saved_action_space,
+    saved_config,
+    write_checkpoint,
 )
 from learning.samplers.goflow_config import check_layer_sizes
 from learning.vector_env_contract import NonFiniteError, check_finite, check_vec_env, read_final_info, read_obs
@@ -98,19 +104,25 @@ class PPOConfig:
         if self.target_kl is not None:
             check_number(self.target_kl, "PPOConfig.target_kl", 0.0, low_open=True)
         if self.anneal_lr and self.total_iterations is None:
-            raise InputError("PPOConfig: anneal_lr=True needs total_iterations (the learning rate "
-                             "goes linearly from learning_rate to 0 over that many updates)")
+            raise InputError(
+                "PPOConfig: anneal_lr=True needs total_iterations (the learning rate "
+                "goes linearly from learning_rate to 0 over that many updates)"
+            )
         if self.total_iterations is not None:
             check_int(self.total_iterations, "PPOConfig.total_iterations", 1)
         object.__setattr__(self, "hidden_sizes", check_layer_sizes(self.hidden_sizes, "PPOConfig.hidden_sizes"))
         check_int(self.seed, "PPOConfig.seed", 0)
         batch = self.batch_size
         if batch % self.num_minibatches != 0:
-            raise InputError(f"PPOConfig: num_minibatches ({self.num_minibatches}) must divide the batch "
-                             f"num_envs * num_steps = {batch}")
+            raise InputError(
+                f"PPOConfig: num_minibatches ({self.num_minibatches}) must divide the batch "
+                f"num_envs * num_steps = {batch}"
+            )
         if batch // self.num_minibatches < 2:
-            raise InputError(f"PPOConfig: minibatches of {batch // self.num_minibatches} sample(s) are too small "
-                             "(need >= 2 to standardize advantages); use fewer num_minibatches")
+            raise InputError(
+                f"PPOConfig: minibatches of {batch // self.num_minibatches} sample(s) are too small "
+                "(need >= 2 to standardize advantages); use fewer num_minibatches"
+            )
 
     @property
     def batch_size(self) -> int:
@@ -154,9 +166,15 @@ class RolloutStats:
         return float(self.successes.mean()) if self.num_episodes else math.nan
 
 
-def compute_gae(rewards: ArrayLike, values: ArrayLike, next_values: ArrayLike, terminated: ArrayLike,
-                ended: ArrayLike, gamma: float, gae_lambda: float
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def compute_gae(
+    rewards: ArrayLike,
+    values: ArrayLike,
+    next_values: ArrayLike,
+    terminated: ArrayLike,
+    ended: ArrayLike,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Generalized advantage estimation with truncation-aware bootstrapping; arrays (T, N).
 
     For step t of sub-env i: `values[t]` = V(s_t); `next_values[t]` = V of the state after the
@@ -176,8 +194,10 @@ def compute_gae(rewards: ArrayLike, values: ArrayLike, next_values: ArrayLike, t
     term = np.asarray(terminated, dtype=bool)
     end = np.asarray(ended, dtype=bool)
     if not (r.shape == v.shape == nv.shape == term.shape == end.shape) or r.ndim != 2:
-        raise ValueError("compute_gae: rewards, values, next_values, terminated, ended must all have the same "
-                         f"shape (T, N); got {r.shape}, {v.shape}, {nv.shape}, {term.shape}, {end.shape}")
+        raise ValueError(
+            "compute_gae: rewards, values, next_values, terminated, ended must all have the same "
+            f"shape (T, N); got {r.shape}, {v.shape}, {nv.shape}, {term.shape}, {end.shape}"
+        )
     if np.any(term & ~end):
         raise ValueError("compute_gae: a terminated step must also be marked ended")
     adv = np.zeros_like(r)
@@ -206,8 +226,9 @@ class PPO:
             ppo.save("ckpt.pt")                        # between iterations
     """
 
-    def __init__(self, obs_dim: int, critic_obs_dim: int, action_space: spaces.Box,
-                 config: PPOConfig | None = None) -> None:
+    def __init__(
+        self, obs_dim: int, critic_obs_dim: int, action_space: spaces.Box, config: PPOConfig | None = None
+    ) -> None:
         self.config = config or PPOConfig()
         check_int(obs_dim, "PPO obs_dim", 1)
         check_int(critic_obs_dim, "PPO critic_obs_dim", 1)
@@ -287,12 +308,16 @@ class PPO:
             raise ValueError(f"PPO.collect: the vector env has {n} sub-envs, config.num_envs = {cfg.num_envs}")
         carried = self._obs is not None and self._env_ref is not None and self._env_ref() is vec_env
         if self._obs is not None and not carried and reset_seed is None and not cfg.reset_each_rollout:
-            raise ValueError("PPO.collect: this is not the vector env the previous rollout ran on; pass "
-                             "reset_seed= to start its episodes")
+            raise ValueError(
+                "PPO.collect: this is not the vector env the previous rollout ran on; pass "
+                "reset_seed= to start its episodes"
+            )
         if reset_seed is not None or cfg.reset_each_rollout or not carried:
             seed = self.rollout_seed(self.iteration) if reset_seed is None else int(reset_seed)
             obs, info = vec_env.reset(seed=seed)
-            self._obs, self._critic_obs = read_obs(obs, info, n, self.obs_dim, self.critic_obs_dim, "vec_env.reset", None)
+            self._obs, self._critic_obs = read_obs(
+                obs, info, n, self.obs_dim, self.critic_obs_dim, "vec_env.reset", None
+            )
             self._env_ref = weakref.ref(vec_env)
             self._ep_len[:] = 0
             self._disc_return[:] = 0.0
@@ -339,8 +364,9 @@ class PPO:
             if cfg.normalize_rewards:  # scale by the running std of the discounted return (CleanRL/gymnasium)
                 self._disc_return = self._disc_return * cfg.gamma + reward
                 self.reward_rms.update(self._disc_return)
-                reward = np.clip(reward / math.sqrt(self.reward_rms.var + self.reward_rms.eps),
-                                 -cfg.reward_clip, cfg.reward_clip)
+                reward = np.clip(
+                    reward / math.sqrt(self.reward_rms.var + self.reward_rms.eps), -cfg.reward_clip, cfg.reward_clip
+                )
                 self._disc_return[done] = 0.0
             rewards[t] = reward
 
@@ -372,12 +398,16 @@ class PPO:
 
         d = self.critic_obs_dim - self.obs_dim
         return RolloutStats(
-            steps=T * n, global_step=self.global_step, mean_reward=raw_reward_sum / (T * n),
+            steps=T * n,
+            global_step=self.global_step,
+            mean_reward=raw_reward_sum / (T * n),
             episode_returns=np.asarray(ep_returns, dtype=np.float64),
             episode_lengths=np.asarray(ep_lengths, dtype=np.int64),
             successes=np.asarray(ep_success, dtype=bool),
             xi=np.stack(ep_xi) if ep_xi else np.zeros((0, max(d, 0))),
-            terminated=np.asarray(ep_term, dtype=bool), sim_errors=sim_errors)
+            terminated=np.asarray(ep_term, dtype=bool),
+            sim_errors=sim_errors,
+        )
 
     # -- optimization --------------------------------------------------------------------------
 
@@ -394,8 +424,10 @@ class PPO:
             raise RuntimeError("PPO.update: no collected rollout to learn from; call collect() first")
         cfg = self.config
         if cfg.anneal_lr and self.iteration >= cfg.total_iterations:
-            raise RuntimeError(f"PPO.update: anneal_lr reached learning rate 0 after total_iterations="
-                               f"{cfg.total_iterations} updates; raise total_iterations to train longer")
+            raise RuntimeError(
+                f"PPO.update: anneal_lr reached learning rate 0 after total_iterations="
+                f"{cfg.total_iterations} updates; raise total_iterations to train longer"
+            )
         lr = self.current_learning_rate()
         for group in self.optimizer.param_groups:
             group["lr"] = lr
@@ -411,15 +443,21 @@ class PPO:
         if not (torch.isfinite(adv_all).all() and torch.isfinite(ret).all()):
             raise NonFiniteError("PPO.update: non-finite advantages or value targets (the critic diverged?)")
 
-        sums = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0, "old_approx_kl": 0.0,
-                "clipfrac": 0.0}
+        sums = {
+            "policy_loss": 0.0,
+            "value_loss": 0.0,
+            "entropy": 0.0,
+            "approx_kl": 0.0,
+            "old_approx_kl": 0.0,
+            "clipfrac": 0.0,
+        }
         count, epochs_run = 0, 0
         for _ in range(cfg.update_epochs):
             epochs_run += 1
             perm = torch.from_numpy(self.rng.permutation(B))
             epoch_kl = []
             for start in range(0, B, mb):
-                idx = perm[start:start + mb]
+                idx = perm[start : start + mb]
                 new_logp, entropy = self.actor.evaluate(obs[idx], actions[idx])
                 new_v = self.critic(cobs[idx])
                 logratio = new_logp - old_logp[idx]
@@ -440,15 +478,23 @@ class PPO:
                 ent = entropy.mean()
                 loss = pg_loss - cfg.ent_coef * ent + cfg.vf_coef * v_loss
                 if not torch.isfinite(loss):
-                    raise NonFiniteError(f"PPO.update: non-finite loss (policy {pg_loss.item()}, value {v_loss.item()}, "
-                                         f"entropy {ent.item()}) at gradient step {self.gradient_steps}")
+                    raise NonFiniteError(
+                        f"PPO.update: non-finite loss (policy {pg_loss.item()}, value {v_loss.item()}, "
+                        f"entropy {ent.item()}) at gradient step {self.gradient_steps}"
+                    )
                 self.optimizer.zero_grad()
                 loss.backward()
                 nn.utils.clip_grad_norm_(self._parameters(), cfg.max_grad_norm)
                 self.optimizer.step()
                 self.gradient_steps += 1
-                for k, v in (("policy_loss", pg_loss), ("value_loss", v_loss), ("entropy", ent),
-                             ("approx_kl", approx_kl), ("old_approx_kl", old_approx_kl), ("clipfrac", clipfrac)):
+                for k, v in (
+                    ("policy_loss", pg_loss),
+                    ("value_loss", v_loss),
+                    ("entropy", ent),
+                    ("approx_kl", approx_kl),
+                    ("old_approx_kl", old_approx_kl),
+                    ("clipfrac", clipfrac),
+                ):
                     sums[k] += float(v.item())
                 count += 1
                 epoch_kl.append(float(approx_kl.item()))
@@ -461,13 +507,19 @@ class PPO:
         self.iteration += 1
         self._rollout_ready = False
         logs = {k: v / count for k, v in sums.items()}
-        logs.update(explained_variance=explained, learning_rate=lr, epochs=float(epochs_run),
-                    action_std=float(self.actor.log_std.exp().mean().item()), iteration=float(self.iteration),
-                    global_step=float(self.global_step))
+        logs.update(
+            explained_variance=explained,
+            learning_rate=lr,
+            epochs=float(epochs_run),
+            action_std=float(self.actor.log_std.exp().mean().item()),
+            iteration=float(self.iteration),
+            global_step=float(self.global_step),
+        )
         return logs
 
-    def train_iteration(self, vec_env: gymnasium.vector.VectorEnv, *, reset_seed: int | None = None
-                        ) -> tuple[RolloutStats, dict[str, float]]:
+    def train_iteration(
+        self, vec_env: gymnasium.vector.VectorEnv, *, reset_seed: int | None = None
+    ) -> tuple[RolloutStats, dict[str, float]]:
         """collect(vec_env) then update(): (rollout stats, update logs)."""
         stats = self.collect(vec_env, reset_seed=reset_seed)
         return stats, self.update()
@@ -500,9 +552,14 @@ class PPO:
             a = self.actor.mean(o) if deterministic else self.actor.sample(o, gen)[0]
         return np.clip(a.numpy(), self._low, self._high)
 
-    def evaluate(self, vec_env: gymnasium.vector.VectorEnv, n_episodes: int, deterministic: bool = False,
-                 seed: int | None = None, progress: bool = False
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    def evaluate(
+        self,
+        vec_env: gymnasium.vector.VectorEnv,
+        n_episodes: int,
+        deterministic: bool = False,
+        seed: int | None = None,
+        progress: bool = False,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         """Run n_episodes full episodes without learning: (xi (n, d), returns (n,), successes (n,)).
 
         Nothing of the training run changes: no normalizer update, no parameter update, and the
@@ -535,8 +592,13 @@ class PPO:
                     final = read_final_info(info, done, self.critic_obs_dim, step)
                     for j, i in enumerate(np.flatnonzero(done)):
                         if len(got[i]) < quota:
-                            got[i].append((np.asarray(final["xi"][j], dtype=np.float64),
-                                           float(final["episode_return"][j]), bool(final["success"][j])))
+                            got[i].append(
+                                (
+                                    np.asarray(final["xi"][j], dtype=np.float64),
+                                    float(final["episode_return"][j]),
+                                    bool(final["success"][j]),
+                                )
+                            )
                     bar.update(min(sum(map(len, got)), int(n_episodes)) - bar.n)
                 step += 1
         ordered = [got[i][k] for k in range(quota) for i in range(n)][:n_episodes]
@@ -551,8 +613,10 @@ class PPO:
         Take it between iterations (after update()); the vector env's state is not in it (see the
         module docstring: with reset_each_rollout the next rollout starts from a seeded reset)."""
         if self._rollout_ready:
-            raise RuntimeError("PPO.state_dict: a collected rollout has not been used by update() yet; "
-                               "checkpoint between iterations (after update())")
+            raise RuntimeError(
+                "PPO.state_dict: a collected rollout has not been used by update() yet; "
+                "checkpoint between iterations (after update())"
+            )
         return {
             "format": CHECKPOINT_FORMAT,
             "config": dataclasses.asdict(self.config),
@@ -569,8 +633,11 @@ class PPO:
             "torch_rng": self.torch_rng.get_state(),
             "act_rng": self.act_rng.get_state(),
             "numpy_rng": self.rng.bit_generator.state,
-            "counters": {"iteration": self.iteration, "global_step": self.global_step,
-                         "gradient_steps": self.gradient_steps},
+            "counters": {
+                "iteration": self.iteration,
+                "global_step": self.global_step,
+                "gradient_steps": self.gradient_steps,
+            },
         }
 
     def load_state_dict(self, state: dict[str, Any], strict_config: bool = True, optimizer: bool = True) -> None:
@@ -578,8 +645,12 @@ class PPO:
         bounds differ, or (strict_config) if any hyperparameter differs from this PPO's config.
         optimizer=False keeps this PPO's own (fresh) Adam state: for a state saved to act, not to
         resume training, which may lack it."""
-        dims = {"obs_dim": self.obs_dim, "critic_obs_dim": self.critic_obs_dim, "action_low": self._low.tolist(),
-                "action_high": self._high.tolist()}
+        dims = {
+            "obs_dim": self.obs_dim,
+            "critic_obs_dim": self.critic_obs_dim,
+            "action_low": self._low.tolist(),
+            "action_high": self._high.tolist(),
+        }
         check_loadable(state, dims, self.config, strict_config)
         self.actor.load_state_dict(state["actor"])
         self.critic.load_state_dict(state["critic"])
@@ -616,6 +687,8 @@ class PPO:
         (optimizer: as in load_state_dict)."""
         if not is_checkpoint(state):
             raise ValueError("PPO.from_state_dict: not a PPO state_dict")
-        ppo = cls(state["obs_dim"], state["critic_obs_dim"], saved_action_space(state), PPOConfig(**saved_config(state)))
+        ppo = cls(
+            state["obs_dim"], state["critic_obs_dim"], saved_action_space(state), PPOConfig(**saved_config(state))
+        )
         ppo.load_state_dict(state, optimizer=optimizer)
         return ppo

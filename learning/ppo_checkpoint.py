@@ -20,8 +20,16 @@ from gymnasium import spaces
 from goflow_common.errors import FileFormatError
 from goflow_common.files import check_output_file, load_tensors, save_tensors
 
-__all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_WHAT", "check_loadable", "is_checkpoint", "read_checkpoint",
-           "saved_action_space", "saved_config", "write_checkpoint"]
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "CHECKPOINT_WHAT",
+    "check_loadable",
+    "is_checkpoint",
+    "read_checkpoint",
+    "saved_action_space",
+    "saved_config",
+    "write_checkpoint",
+]
 
 CHECKPOINT_FORMAT = "goflow.ppo/1"
 #: How a file of this format is named in error messages.
@@ -42,8 +50,11 @@ def saved_config(state: dict[str, Any]) -> dict[str, Any]:
 
 def saved_action_space(state: dict[str, Any]) -> spaces.Box:
     """The float32 action Box a checkpoint was written for."""
-    return spaces.Box(np.asarray(state["action_low"], dtype=np.float32),
-                      np.asarray(state["action_high"], dtype=np.float32), dtype=np.float32)
+    return spaces.Box(
+        np.asarray(state["action_low"], dtype=np.float32),
+        np.asarray(state["action_high"], dtype=np.float32),
+        dtype=np.float32,
+    )
 
 
 def check_loadable(state: Any, dims: dict[str, Any], config: Any, strict_config: bool) -> None:
@@ -59,10 +70,12 @@ def check_loadable(state: Any, dims: dict[str, Any], config: Any, strict_config:
     mine = dataclasses.asdict(config)
     diff = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
     if diff and strict_config:
-        raise ValueError("PPO.load_state_dict: the checkpoint's config differs from this PPO's in "
-                         + ", ".join(f"{k} (checkpoint {saved.get(k)!r}, here {mine.get(k)!r})" for k in diff)
-                         + "; build the PPO with the checkpoint's config (PPO.from_checkpoint) or pass "
-                           "strict_config=False")
+        raise ValueError(
+            "PPO.load_state_dict: the checkpoint's config differs from this PPO's in "
+            + ", ".join(f"{k} (checkpoint {saved.get(k)!r}, here {mine.get(k)!r})" for k in diff)
+            + "; build the PPO with the checkpoint's config (PPO.from_checkpoint) or pass "
+            "strict_config=False"
+        )
 
 
 def write_checkpoint(path: str | os.PathLike[str], state: dict[str, Any]) -> None:

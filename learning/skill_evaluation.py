@@ -23,8 +23,16 @@ from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.feasible_grid import flow_report
 from learning.skill_file import Skill
 
-__all__ = ["SkillEvaluation", "describe", "evaluate_skill", "evaluate_skill_jobs", "feasible_report", "flow_width",
-           "rollout_return"]
+__all__ = [
+    "SkillEvaluation",
+    "describe",
+    "evaluate_skill",
+    "evaluate_skill_jobs",
+    "feasible_report",
+    "flow_width",
+    "rollout_return",
+]
+
 
 @dataclass(frozen=True)
 class SkillEvaluation:
@@ -49,49 +57,87 @@ class SkillEvaluation:
         return dataclasses.asdict(self)
 
 
-def evaluate_skill(skill: Skill, variant: str = "fast", xi: str = "flow", episodes: int = 100, seed: int = 0,
-                   num_envs: int = 4, progress: bool = False) -> SkillEvaluation:
+def evaluate_skill(
+    skill: Skill,
+    variant: str = "fast",
+    xi: str = "flow",
+    episodes: int = 100,
+    seed: int = 0,
+    num_envs: int = 4,
+    progress: bool = False,
+) -> SkillEvaluation:
     """Run `episodes` episodes of the skill's deterministic policy with xi from its flow or uniform
     over the box, in `num_envs` environments; `progress` shows a bar of the episodes finished."""
     episodes = check_int(episodes, "episodes", 1)
     t0 = time.perf_counter()
     n = max(1, min(int(num_envs), int(episodes)))
-    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
-                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    vec = gymnasium.vector.SyncVectorEnv(
+        [lambda: skill.make_env(variant, xi) for _ in range(n)], autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP
+    )
     try:
-        xis, returns, successes = skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed,
-                                                       progress=progress)
+        xis, returns, successes = skill.agent.evaluate(
+            vec, int(episodes), deterministic=True, seed=seed, progress=progress
+        )
     finally:
         vec.close()
     return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes)
 
 
-def _evaluation(gear: str, variant: str, xi: str, seed: int, seconds: float, xis: NDArray[np.float64],
-                returns: NDArray[np.float64], successes: NDArray[np.bool_], jobs: int = 1) -> SkillEvaluation:
+def _evaluation(
+    gear: str,
+    variant: str,
+    xi: str,
+    seed: int,
+    seconds: float,
+    xis: NDArray[np.float64],
+    returns: NDArray[np.float64],
+    successes: NDArray[np.bool_],
+    jobs: int = 1,
+) -> SkillEvaluation:
     rate = float(np.mean(successes))
-    return SkillEvaluation(gear=gear, variant=variant, xi=xi, episodes=len(successes), success_rate=rate,
-                           success_se=float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
-                           mean_return=float(np.mean(returns)), seed=int(seed), seconds=seconds,
-                           xi_mean=xis.mean(axis=0).tolist(), xi_std=xis.std(axis=0).tolist(), jobs=jobs)
+    return SkillEvaluation(
+        gear=gear,
+        variant=variant,
+        xi=xi,
+        episodes=len(successes),
+        success_rate=rate,
+        success_se=float(math.sqrt(max(rate * (1 - rate), 1e-12) / len(successes))),
+        mean_return=float(np.mean(returns)),
+        seed=int(seed),
+        seconds=seconds,
+        xi_mean=xis.mean(axis=0).tolist(),
+        xi_std=xis.std(axis=0).tolist(),
+        jobs=jobs,
+    )
 
 
-def _evaluate_part(path: str, variant: str, xi: str, episodes: int, seed: int,
-                   num_envs: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+def _evaluate_part(
+    path: str, variant: str, xi: str, episodes: int, seed: int, num_envs: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """One job of `evaluate_skill_jobs`, in a worker: the skill file's episodes (xi, returns, successes)."""
     torch.set_num_threads(1)
     skill = Skill.load(path)
     n = max(1, min(int(num_envs), int(episodes)))
-    vec = gymnasium.vector.SyncVectorEnv([lambda: skill.make_env(variant, xi) for _ in range(n)],
-                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    vec = gymnasium.vector.SyncVectorEnv(
+        [lambda: skill.make_env(variant, xi) for _ in range(n)], autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP
+    )
     try:
         return skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
     finally:
         vec.close()
 
 
-def evaluate_skill_jobs(path: str | os.PathLike[str], variant: str = "fast", xi: str = "flow", episodes: int = 100,
-                        seed: int = 0, jobs: int = 1, num_envs: int = 4, backend: Backend | None = None,
-                        progress: bool = False) -> SkillEvaluation:
+def evaluate_skill_jobs(
+    path: str | os.PathLike[str],
+    variant: str = "fast",
+    xi: str = "flow",
+    episodes: int = 100,
+    seed: int = 0,
+    jobs: int = 1,
+    num_envs: int = 4,
+    backend: Backend | None = None,
+    progress: bool = False,
+) -> SkillEvaluation:
     """`evaluate_skill` of the skill file at `path` with its episodes split into `jobs` parts run on
     `backend` (learning.execution; default: this process), each loading the file (a path every
     worker reaches). Part j runs `episodes // jobs` episodes (one more for the first
@@ -108,11 +154,24 @@ def evaluate_skill_jobs(path: str | os.PathLike[str], variant: str = "fast", xi:
     skill = Skill.load(path)  # a bad file fails here, before any job
     t0 = time.perf_counter()
     sizes = [episodes // jobs + (1 if j < episodes % jobs else 0) for j in range(jobs)]
-    seeds = [int(seed)] if jobs == 1 else [int(np.random.SeedSequence([int(seed), j]).generate_state(1)[0])
-                                           for j in range(jobs)]
-    parts = run_grid([Job(f"episodes {sum(sizes[:j])}-{sum(sizes[:j + 1]) - 1}", _evaluate_part,
-                          (str(path), variant, xi, sizes[j], seeds[j], num_envs)) for j in range(jobs)],
-                     backend or InlineBackend(), progress, f"evaluate {skill.name}-{skill.gear}")
+    seeds = (
+        [int(seed)]
+        if jobs == 1
+        else [int(np.random.SeedSequence([int(seed), j]).generate_state(1)[0]) for j in range(jobs)]
+    )
+    parts = run_grid(
+        [
+            Job(
+                f"episodes {sum(sizes[:j])}-{sum(sizes[: j + 1]) - 1}",
+                _evaluate_part,
+                (str(path), variant, xi, sizes[j], seeds[j], num_envs),
+            )
+            for j in range(jobs)
+        ],
+        backend or InlineBackend(),
+        progress,
+        f"evaluate {skill.name}-{skill.gear}",
+    )
     xis, returns, successes = (np.concatenate([part[k] for part in parts]) for k in range(3))
     return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, jobs)
 
@@ -127,9 +186,13 @@ def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) 
     u = skill.space.low + (skill.space.high - skill.space.low) * rng.random((samples, skill.space.dim))
     density = skill.density(u)
     volume = float(np.prod(skill.space.high - skill.space.low))
-    return {"entropy": float(skill.sampler.entropy()), "uniform_entropy": math.log(volume),
-            "eps": float(eps), "eps_uniform_ratio": float(eps * volume),
-            "trusted_fraction": float(np.mean(density > eps))}
+    return {
+        "entropy": float(skill.sampler.entropy()),
+        "uniform_entropy": math.log(volume),
+        "eps": float(eps),
+        "eps_uniform_ratio": float(eps * volume),
+        "trusted_fraction": float(np.mean(density > eps)),
+    }
 
 
 def describe(skill: Skill) -> str:
@@ -138,9 +201,13 @@ def describe(skill: Skill) -> str:
     and outside it, and the share of it the flow covers at 10 % and 1 % of the uniform-on-set
     density (learning.feasible_grid.flow_report)."""
     keep = ("steps", "rounds", "train_seconds", "final_uniform_success", "command", "exported")
-    line = {"skill": skill.name, "gear": skill.gear, "method": skill.method,
-            "mode": getattr(getattr(skill.sampler, "config", None), "mode", None),
-            **{k: skill.provenance.get(k) for k in keep}}
+    line = {
+        "skill": skill.name,
+        "gear": skill.gear,
+        "method": skill.method,
+        "mode": getattr(getattr(skill.sampler, "config", None), "mode", None),
+        **{k: skill.provenance.get(k) for k in keep},
+    }
     if "refit" in skill.provenance:
         line["refit_command"] = skill.provenance["refit"].get("command")
     if skill.feasible is not None:

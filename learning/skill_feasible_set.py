@@ -42,9 +42,17 @@ def _returns_at(path: str, variant: str, xi: NDArray[np.float64]) -> NDArray[np.
         env.close()
 
 
-def _returns(path: str, variant: str, xi: NDArray[np.float64], backend: Backend, progress: bool, desc: str,
-             done: dict[int, NDArray[np.float64]] | None = None, save: Any = None,
-             part: int = PART) -> NDArray[np.float64]:
+def _returns(
+    path: str,
+    variant: str,
+    xi: NDArray[np.float64],
+    backend: Backend,
+    progress: bool,
+    desc: str,
+    done: dict[int, NDArray[np.float64]] | None = None,
+    save: Any = None,
+    part: int = PART,
+) -> NDArray[np.float64]:
     """Returns at each row of xi, in jobs of `part` rows on `backend`. Jobs already in `done`
     (job index -> returns) are not run again; `save(done)` is called as each job finishes."""
     parts = [np.arange(k, min(k + part, len(xi))) for k in range(0, len(xi), part)]
@@ -57,8 +65,13 @@ def _returns(path: str, variant: str, xi: NDArray[np.float64], backend: Backend,
             save(done)
 
     if todo:
-        run_grid([Job(f"{desc} {k}", _returns_at, (path, variant, xi[parts[k]])) for k in todo], backend, progress,
-                 desc, on_result=keep)
+        run_grid(
+            [Job(f"{desc} {k}", _returns_at, (path, variant, xi[parts[k]])) for k in todo],
+            backend,
+            progress,
+            desc,
+            on_result=keep,
+        )
     return np.concatenate([done[k] for k in range(len(parts))]) if parts else np.zeros(0)
 
 
@@ -77,11 +90,19 @@ def _covered(variant: str, variants: tuple[str, ...]) -> int:
     """How many of `variants` a measurement made in `variant` ("fast", "fast+panda") covers: the
     length of its chain when that chain starts `variants`, else 0."""
     done = tuple(variant.split("+"))
-    return len(done) if done == variants[:len(done)] else 0
+    return len(done) if done == variants[: len(done)] else 0
 
 
-def _checkpointed_returns(path: Path, variant: str, xi: NDArray[np.float64], key: dict[str, Any],
-                          checkpoint: Path | None, backend: Backend, progress: bool, desc: str) -> NDArray[np.float64]:
+def _checkpointed_returns(
+    path: Path,
+    variant: str,
+    xi: NDArray[np.float64],
+    key: dict[str, Any],
+    checkpoint: Path | None,
+    backend: Backend,
+    progress: bool,
+    desc: str,
+) -> NDArray[np.float64]:
     """`_returns` whose finished jobs are saved in `checkpoint` under `key` and reused from it."""
     done: dict[int, NDArray[np.float64]] = {}
     if checkpoint is not None and checkpoint.is_file():
@@ -95,10 +116,14 @@ def _checkpointed_returns(path: Path, variant: str, xi: NDArray[np.float64], key
     return _returns(str(path), variant, xi, backend, progress, desc, done, save if checkpoint is not None else None)
 
 
-def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
-                         backend: Backend | None = None, progress: bool = False,
-                         checkpoint: str | os.PathLike[str] | None = None,
-                         known: FeasibleSet | None = None) -> FeasibleSet:
+def measure_feasible_set(
+    path: str | os.PathLike[str],
+    grid: FeasibleGridConfig = INSERT_GRID,
+    backend: Backend | None = None,
+    progress: bool = False,
+    checkpoint: str | os.PathLike[str] | None = None,
+    known: FeasibleSet | None = None,
+) -> FeasibleSet:
     """Where the deterministic policy of the skill file at `path` succeeds: one episode at the
     centre of each cell of `grid` (learning.feasible_grid), in the grid's variant (default the
     skill's own), in jobs of `PART` cells on `backend` (default: this process); with
@@ -121,17 +146,29 @@ def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig 
         plan, returns = known.plan(), known.returns()
     else:
         done, plan = 1, grid.plan(skill.space, _flow_median(skill))
-        returns = _checkpointed_returns(path, variants[0], plan.points(),
-                                        {"skill_sha256": sha, "grid": [*plan.key(), variants[0], PART]},
-                                        checkpoint, backend, progress, "feasible set")
+        returns = _checkpointed_returns(
+            path,
+            variants[0],
+            plan.points(),
+            {"skill_sha256": sha, "grid": [*plan.key(), variants[0], PART]},
+            checkpoint,
+            backend,
+            progress,
+            "feasible set",
+        )
     xi = plan.points()
     for variant in variants[done:]:
         good = np.flatnonzero(returns >= skill.success_threshold)
         again = _checkpointed_returns(
-            path, variant, xi[good],
+            path,
+            variant,
+            xi[good],
             {"skill_sha256": sha, "grid": [*plan.key(), variant, PART], "cells": good.tolist()},
-            None if checkpoint is None else checkpoint.with_name(f"{checkpoint.stem}-{variant}.pt"), backend,
-            progress, f"feasible set, {variant}")
+            None if checkpoint is None else checkpoint.with_name(f"{checkpoint.stem}-{variant}.pt"),
+            backend,
+            progress,
+            f"feasible set, {variant}",
+        )
         returns[good] = np.minimum(returns[good], again)
     return plan.feasible_set(returns, skill.success_threshold, "+".join(variants))
 
@@ -139,21 +176,35 @@ def measure_feasible_set(path: str | os.PathLike[str], grid: FeasibleGridConfig 
 def _same_policy(a: Skill, b: Skill) -> bool:
     """Whether two skills run the same deterministic policy in the same environment and box (so a
     feasible set measured with one holds for the other)."""
-    if (a.env_id, a.env_kwargs, a.space.to_dict(), a.success_threshold) != \
-            (b.env_id, b.env_kwargs, b.space.to_dict(), b.success_threshold):
+    if (a.env_id, a.env_kwargs, a.space.to_dict(), a.success_threshold) != (
+        b.env_id,
+        b.env_kwargs,
+        b.space.to_dict(),
+        b.success_threshold,
+    ):
         return False
-    for mine, theirs in ((a.agent.actor.state_dict(), b.agent.actor.state_dict()),
-                         (a.agent.obs_rms.state_dict(), b.agent.obs_rms.state_dict())):
+    for mine, theirs in (
+        (a.agent.actor.state_dict(), b.agent.actor.state_dict()),
+        (a.agent.obs_rms.state_dict(), b.agent.obs_rms.state_dict()),
+    ):
         if mine.keys() != theirs.keys() or not all(
-                torch.equal(torch.as_tensor(mine[k]), torch.as_tensor(theirs[k])) for k in mine):
+            torch.equal(torch.as_tensor(mine[k]), torch.as_tensor(theirs[k])) for k in mine
+        ):
             return False
     return True
 
 
-def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid: FeasibleGridConfig = INSERT_GRID,
-                refit: FlowRefitConfig | None = None, folder: str | os.PathLike[str] | None = None,
-                backend: Backend | None = None, command: str = "", progress: bool = False,
-                feasible_from: str | os.PathLike[str] | None = None) -> Skill:
+def refit_skill(
+    path: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    grid: FeasibleGridConfig = INSERT_GRID,
+    refit: FlowRefitConfig | None = None,
+    folder: str | os.PathLike[str] | None = None,
+    backend: Backend | None = None,
+    command: str = "",
+    progress: bool = False,
+    feasible_from: str | os.PathLike[str] | None = None,
+) -> Skill:
     """The frozen-policy refit of a skill file's flow (stage 4 of `train_skill`): measure where
     its policy succeeds on `grid`, refit the flow to that set in GoFlow's constrained mode
     (`learning.feasible_grid.refit_flow`), and write the skill with the new flow and the
@@ -172,8 +223,10 @@ def refit_skill(path: str | os.PathLike[str], out: str | os.PathLike[str], grid:
         if other.feasible is None:
             raise InputError(f"feasible_from = {str(feasible_from)!r} holds no measured feasible set")
         if not _same_policy(skill, other):
-            raise InputError(f"feasible_from = {str(feasible_from)!r}: its policy, environment or box differ from "
-                             f"{str(path)!r}'s; a measured feasible set holds only for the policy that ran it")
+            raise InputError(
+                f"feasible_from = {str(feasible_from)!r}: its policy, environment or box differ from "
+                f"{str(path)!r}'s; a measured feasible set holds only for the policy that ran it"
+            )
         known = other.feasible
     backend = backend or InlineBackend()
     if folder is None:
@@ -194,40 +247,80 @@ def _refit_checkpoint(folder: Path | None, path: Path, feasible: FeasibleSet) ->
 def _usable(feasible: FeasibleSet | None, plan: GridPlan, variants: tuple[str, ...]) -> int:
     """How many of `variants` (in order) a stored measurement covers on a grid with `plan`'s cells
     and fine width (0: none; its fine region may lie elsewhere, around the flow it was made for)."""
-    if feasible is None or (feasible.fine_cells, feasible.coarse_cells) != (plan.fine_cells, plan.coarse_cells) \
-            or not np.allclose(feasible.fine_high - feasible.fine_low, plan.high - plan.low):
+    if (
+        feasible is None
+        or (feasible.fine_cells, feasible.coarse_cells) != (plan.fine_cells, plan.coarse_cells)
+        or not np.allclose(feasible.fine_high - feasible.fine_low, plan.high - plan.low)
+    ):
         return 0
     return _covered(feasible.variant, variants)
 
 
-def _refit_skill(skill: Skill, path: Path, out: Path, grid: FeasibleGridConfig, refit: FlowRefitConfig,
-                 folder: Path | None, backend: Backend, command: str, progress: bool,
-                 known: FeasibleSet | None) -> Skill:
+def _refit_skill(
+    skill: Skill,
+    path: Path,
+    out: Path,
+    grid: FeasibleGridConfig,
+    refit: FlowRefitConfig,
+    folder: Path | None,
+    backend: Backend,
+    command: str,
+    progress: bool,
+    known: FeasibleSet | None,
+) -> Skill:
     variants = _variants(skill, grid)
     plan = grid.plan(skill.space, _flow_median(skill))
     # the file's own measurement first, then the one handed in: whichever covers more variants
     covered, feasible = max(((_usable(f, plan, variants), f) for f in (skill.feasible, known)), key=lambda c: c[0])
     if covered < len(variants):
-        feasible = measure_feasible_set(path, grid, backend, progress,
-                                        folder / "feasible.pt" if folder is not None else None,
-                                        feasible if covered else None)
+        feasible = measure_feasible_set(
+            path,
+            grid,
+            backend,
+            progress,
+            folder / "feasible.pt" if folder is not None else None,
+            feasible if covered else None,
+        )
     before = flow_report(skill.sampler, feasible)
 
     def evaluate(xi: NDArray[np.float64], update: int) -> NDArray[np.float64]:
         returns = _returns(str(path), variants[0], xi, backend, False, f"refit update {update}", part=REFIT_PART)
         for variant in variants[1:]:  # a success must hold in the confirming variant too
             good = np.flatnonzero(returns >= skill.success_threshold)
-            returns[good] = np.minimum(returns[good], _returns(str(path), variant, xi[good], backend, False,
-                                                               f"refit update {update}, {variant}", part=REFIT_PART))
+            returns[good] = np.minimum(
+                returns[good],
+                _returns(
+                    str(path), variant, xi[good], backend, False, f"refit update {update}, {variant}", part=REFIT_PART
+                ),
+            )
         return returns
 
     with backend:  # one pool or cluster for every update
-        sampler, records = refit_flow(skill.sampler, feasible, evaluate, refit,
-                                      _refit_checkpoint(folder, path, feasible), progress)
-    provenance = {**skill.provenance, "refit": {"command": command, "config": refit.to_dict(),
-                                                "feasible_set": feasible.summary(), "before": before,
-                                                "updates": records, "date": time.strftime("%Y-%m-%d")}}
-    new = Skill(skill.name, skill.gear, skill.env_id, skill.env_kwargs, skill.method, skill.agent, sampler,
-                skill.success_threshold, provenance, feasible)
+        sampler, records = refit_flow(
+            skill.sampler, feasible, evaluate, refit, _refit_checkpoint(folder, path, feasible), progress
+        )
+    provenance = {
+        **skill.provenance,
+        "refit": {
+            "command": command,
+            "config": refit.to_dict(),
+            "feasible_set": feasible.summary(),
+            "before": before,
+            "updates": records,
+            "date": time.strftime("%Y-%m-%d"),
+        },
+    }
+    new = Skill(
+        skill.name,
+        skill.gear,
+        skill.env_id,
+        skill.env_kwargs,
+        skill.method,
+        skill.agent,
+        sampler,
+        skill.success_threshold,
+        provenance,
+        feasible,
+    )
     new.save(out)
     return new

@@ -58,9 +58,19 @@ def skill_path(name: str, gear: str, folder: str | os.PathLike[str] = SKILL_DIR)
 class Skill:
     """A trained skill: policy, privileged value function, sampling distribution, ParamSpace."""
 
-    def __init__(self, name: str, gear: str, env_id: str, env_kwargs: dict[str, Any], method: str,
-                 agent: PPO, sampler: Sampler, success_threshold: float, provenance: dict[str, Any],
-                 feasible: FeasibleSet | None = None) -> None:
+    def __init__(
+        self,
+        name: str,
+        gear: str,
+        env_id: str,
+        env_kwargs: dict[str, Any],
+        method: str,
+        agent: PPO,
+        sampler: Sampler,
+        success_threshold: float,
+        provenance: dict[str, Any],
+        feasible: FeasibleSet | None = None,
+    ) -> None:
         check_skill_name(name, gear)
         self.name, self.gear, self.env_id = name, gear, env_id
         self.env_kwargs = dict(env_kwargs)
@@ -74,8 +84,10 @@ class Skill:
         self.feasible = feasible
 
     def __repr__(self) -> str:
-        return (f"Skill({self.name!r}, gear={self.gear!r}, method={self.method!r}, "
-                f"params={self.space.names}, trained {self.provenance.get('steps', '?')} steps)")
+        return (
+            f"Skill({self.name!r}, gear={self.gear!r}, method={self.method!r}, "
+            f"params={self.space.names}, trained {self.provenance.get('steps', '?')} steps)"
+        )
 
     def act(self, obs: ArrayLike, deterministic: bool = True) -> NDArray[np.float32]:
         """Actions for raw observations (obs_dim,) or (n, obs_dim); the policy mean by default."""
@@ -91,8 +103,10 @@ class Skill:
         if len(x) == 1 and len(o) > 1:
             x = np.repeat(x, len(o), axis=0)
         if o.ndim != 2 or o.shape[1] != self.agent.obs_dim or len(x) != len(o):
-            raise ValueError(f"Skill.value: obs has shape {np.shape(obs)} and xi {np.shape(xi)}; expected "
-                             f"({self.agent.obs_dim},) or (n, {self.agent.obs_dim}) and (d,) or (n, {self.space.dim})")
+            raise ValueError(
+                f"Skill.value: obs has shape {np.shape(obs)} and xi {np.shape(xi)}; expected "
+                f"({self.agent.obs_dim},) or (n, {self.agent.obs_dim}) and (d,) or (n, {self.space.dim})"
+            )
         self.space.validate(x, what="Skill.value xi")
         critic_obs = np.concatenate([o, self.space.normalize(x)], axis=1)
         v = self.agent.value(critic_obs)
@@ -118,11 +132,19 @@ class Skill:
         """Write the skill file atomically (tensors and plain data only); return its path."""
         path = check_output_file(path, "skill file")
         agent_state = self.agent.state_dict()
-        state = {"format": SKILL_FORMAT, "name": self.name, "gear": self.gear, "env": self.env_id,
-                 "env_kwargs": self.env_kwargs, "method": self.method,
-                 "success_threshold": self.success_threshold, "space": self.space.to_dict(),
-                 "agent": {k: v for k, v in agent_state.items() if k != "optimizer"},
-                 "sampler": self.sampler.state_dict(), "provenance": self.provenance}
+        state = {
+            "format": SKILL_FORMAT,
+            "name": self.name,
+            "gear": self.gear,
+            "env": self.env_id,
+            "env_kwargs": self.env_kwargs,
+            "method": self.method,
+            "success_threshold": self.success_threshold,
+            "space": self.space.to_dict(),
+            "agent": {k: v for k, v in agent_state.items() if k != "optimizer"},
+            "sampler": self.sampler.state_dict(),
+            "provenance": self.provenance,
+        }
         if self.feasible is not None:
             state["feasible"] = self.feasible.state_dict()
         return save_tensors(path, state)
@@ -146,8 +168,18 @@ class Skill:
             feasible = FeasibleSet.from_state_dict(state["feasible"]) if "feasible" in state else None
         except (KeyError, TypeError, AttributeError, FileFormatError) as exc:
             raise FileFormatError(f"{path}: a malformed {what} ({type(exc).__name__}: {exc})") from None
-        return cls(state["name"], state["gear"], state["env"], state["env_kwargs"], state["method"], agent,
-                   sampler, state["success_threshold"], state["provenance"], feasible)
+        return cls(
+            state["name"],
+            state["gear"],
+            state["env"],
+            state["env_kwargs"],
+            state["method"],
+            agent,
+            sampler,
+            state["success_threshold"],
+            state["provenance"],
+            feasible,
+        )
 
 
 def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLike[str] | None = None) -> Skill:
@@ -155,8 +187,10 @@ def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLi
     if path is None:
         path = skill_path(name, gear)
         if not path.is_file():
-            raise FileNotFoundError(f"no shipped {name!r} skill for the {gear} gear at {path}; "
-                                    f"train it with `goflow skill train --skill {name} --gear {gear}`")
+            raise FileNotFoundError(
+                f"no shipped {name!r} skill for the {gear} gear at {path}; "
+                f"train it with `goflow skill train --skill {name} --gear {gear}`"
+            )
     skill = Skill.load(path)
     if (skill.name, skill.gear) != (name, gear):
         raise ValueError(f"{path} holds the {skill.name!r} skill for the {skill.gear} gear, not {name!r} for {gear}")

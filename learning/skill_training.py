@@ -65,26 +65,39 @@ class SkillRecipe:
     def train_config(self, name: str, gear: str, out: Path) -> TrainConfig:
         """Stage 1 of this recipe for skill `name` on `gear`, writing to run folder `out`."""
         check_skill_name(name, gear)
-        return TrainConfig(env=SKILL_ENVS[name], env_kwargs={"gear": gear, "variant": self.variant},
-                           method=self.method, sampler_kwargs=dict(self.sampler_kwargs), seed=self.seed,
-                           total_steps=self.total_steps, iterations_per_round=self.iterations_per_round,
-                           eval_episodes=self.eval_episodes, ppo=self.ppo, out=Path(out))
+        return TrainConfig(
+            env=SKILL_ENVS[name],
+            env_kwargs={"gear": gear, "variant": self.variant},
+            method=self.method,
+            sampler_kwargs=dict(self.sampler_kwargs),
+            seed=self.seed,
+            total_steps=self.total_steps,
+            iterations_per_round=self.iterations_per_round,
+            eval_episodes=self.eval_episodes,
+            ppo=self.ppo,
+            out=Path(out),
+        )
 
     def refine_config(self, name: str, gear: str, out: Path) -> TrainConfig:
         """Stage 2: the same run continued for `refine_steps`, the flow learning from its own draws."""
-        return dataclasses.replace(self.train_config(name, gear, out),
-                                   total_steps=self.total_steps + self.refine_steps,
-                                   iterations_per_round=self.refine_iterations_per_round,
-                                   eval_episodes=self.refine_eval_episodes, sampler_batch="training")
+        return dataclasses.replace(
+            self.train_config(name, gear, out),
+            total_steps=self.total_steps + self.refine_steps,
+            iterations_per_round=self.refine_iterations_per_round,
+            eval_episodes=self.refine_eval_episodes,
+            sampler_batch="training",
+        )
 
     def stages(self, name: str, gear: str, out: Path) -> list[TrainConfig]:
         """The TrainConfigs run one after the other on run folder `out`."""
         return [self.train_config(name, gear, out)] + (
-            [self.refine_config(name, gear, out)] if self.refine_steps > 0 else [])
+            [self.refine_config(name, gear, out)] if self.refine_steps > 0 else []
+        )
 
 
-def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | os.PathLike[str],
-                 command: str = "") -> Skill:
+def export_skill(
+    run: str | os.PathLike[str], name: str, gear: str, out: str | os.PathLike[str], command: str = ""
+) -> Skill:
     """Package a `goflow train` run folder (checkpoint.pt, log.json) as a skill file at `out`
     (`command` is recorded as provenance)."""
     check_skill_name(name, gear)
@@ -93,25 +106,42 @@ def export_skill(run: str | os.PathLike[str], name: str, gear: str, out: str | o
     log = loaded.state["log"]
     cfg = log["config"]
     if cfg["env"] != SKILL_ENVS[name] or cfg["env_kwargs"].get("gear", "medium") != gear:
-        raise ValueError(f"{run} trained {cfg['env']} with {cfg['env_kwargs']}, not the {name!r} skill for "
-                         f"the {gear} gear")
+        raise ValueError(
+            f"{run} trained {cfg['env']} with {cfg['env_kwargs']}, not the {name!r} skill for the {gear} gear"
+        )
     sampler, agent = loaded.sampler, loaded.agent
     step, success, mean_return = log["curve"][-1]
-    provenance = {"command": command, "steps": int(step), "rounds": int(log["rounds"]),
-                  "train_seconds": float(log["seconds"]), "sampler_seconds": float(log["sampler_seconds"]),
-                  "final_uniform_success": float(success), "final_uniform_return": float(mean_return),
-                  "sampler_kwargs": dict(cfg["sampler_kwargs"]), "train_config": cfg,
-                  "sampler_fit": log.get("sampler_fit", []), "sampler_fit_config": log.get("sampler_fit_config"),
-                  "sampler_fit_best": log.get("sampler_fit_best"),
-                  "exported": time.strftime("%Y-%m-%d")}
-    skill = Skill(name, gear, cfg["env"], cfg["env_kwargs"], cfg["method"], agent, sampler,
-                  log["success_threshold"], provenance)
+    provenance = {
+        "command": command,
+        "steps": int(step),
+        "rounds": int(log["rounds"]),
+        "train_seconds": float(log["seconds"]),
+        "sampler_seconds": float(log["sampler_seconds"]),
+        "final_uniform_success": float(success),
+        "final_uniform_return": float(mean_return),
+        "sampler_kwargs": dict(cfg["sampler_kwargs"]),
+        "train_config": cfg,
+        "sampler_fit": log.get("sampler_fit", []),
+        "sampler_fit_config": log.get("sampler_fit_config"),
+        "sampler_fit_best": log.get("sampler_fit_best"),
+        "exported": time.strftime("%Y-%m-%d"),
+    }
+    skill = Skill(
+        name, gear, cfg["env"], cfg["env_kwargs"], cfg["method"], agent, sampler, log["success_threshold"], provenance
+    )
     skill.save(out)
     return skill
 
 
-def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: str | os.PathLike[str] = RUNS_SKILL_DIR,
-                out: str | os.PathLike[str] | None = None, command: str = "", progress: bool = True) -> Skill:
+def train_skill(
+    name: str,
+    gear: str,
+    recipe: SkillRecipe | None = None,
+    runs: str | os.PathLike[str] = RUNS_SKILL_DIR,
+    out: str | os.PathLike[str] | None = None,
+    command: str = "",
+    progress: bool = True,
+) -> Skill:
     """Train (or resume) skill `name` for `gear` with `recipe` in run folder `<runs>/<name>-<gear>`,
     then export it to `out` (default: `<runs>/<name>-<gear>.pt`; the shipped file in
     learning/skill_files is replaced only when `out` names it). The output paths are checked
@@ -128,8 +158,7 @@ def train_skill(name: str, gear: str, recipe: SkillRecipe | None = None, runs: s
         return export_skill(run, name, gear, out, command=command)
     stage3 = check_output_file(run / "stage3.pt", "skill file")
     export_skill(run, name, gear, stage3, command=command)
-    return refit_skill(stage3, out, recipe.grid, recipe.refit, folder=run / "refit", command=command,
-                       progress=progress)
+    return refit_skill(stage3, out, recipe.grid, recipe.refit, folder=run / "refit", command=command, progress=progress)
 
 
 def _train_skill_file(name: str, gear: str, recipe: SkillRecipe, runs: str, out: str, command: str) -> str:
@@ -138,9 +167,16 @@ def _train_skill_file(name: str, gear: str, recipe: SkillRecipe, runs: str, out:
     return out
 
 
-def train_skills(name: str, gears: list[str] | tuple[str, ...], recipe: SkillRecipe | None = None,
-                 runs: str | os.PathLike[str] = RUNS_SKILL_DIR, out: str | os.PathLike[str] | None = None,
-                 command: str = "", backend: Backend | None = None, progress: bool = True) -> list[Skill]:
+def train_skills(
+    name: str,
+    gears: list[str] | tuple[str, ...],
+    recipe: SkillRecipe | None = None,
+    runs: str | os.PathLike[str] = RUNS_SKILL_DIR,
+    out: str | os.PathLike[str] | None = None,
+    command: str = "",
+    backend: Backend | None = None,
+    progress: bool = True,
+) -> list[Skill]:
     """`train_skill` for each of `gears` (each writing `<runs>/<name>-<gear>.pt`, or `out` when
     there is one gear), one job per gear
     on `backend` (learning.execution; default: one after the other in this process, with their
@@ -153,13 +189,17 @@ def train_skills(name: str, gears: list[str] | tuple[str, ...], recipe: SkillRec
     for gear in gears:
         check_skill_name(name, gear)
     if out is not None and len(gears) > 1:
-        raise ValueError(f"out = {str(out)!r} names one skill file, but {len(gears)} gears are trained; leave it out "
-                         f"(each gear's file goes to {Path(runs)}/{name}-<gear>.pt)")
+        raise ValueError(
+            f"out = {str(out)!r} names one skill file, but {len(gears)} gears are trained; leave it out "
+            f"(each gear's file goes to {Path(runs)}/{name}-<gear>.pt)"
+        )
     if backend is None and len(gears) == 1:
         return [train_skill(name, gears[0], recipe, runs=runs, out=out, command=command, progress=progress)]
     with backend or InlineBackend() as grid:
         outs = [str(check_output_file(out or skill_path(name, gear, runs), "skill file")) for gear in gears]
-        jobs = [Job(f"{name}-{gear}", _train_skill_file, (name, gear, recipe, str(runs), out, command))
-                for gear, out in zip(gears, outs)]
+        jobs = [
+            Job(f"{name}-{gear}", _train_skill_file, (name, gear, recipe, str(runs), out, command))
+            for gear, out in zip(gears, outs)
+        ]
         files = run_grid(jobs, grid, progress, f"skill train {name}")
     return [Skill.load(f) for f in files]

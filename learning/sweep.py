@@ -43,8 +43,9 @@ class SweepConfig:
         if len(set(labels)) < len(labels):
             raise InputError(f"SweepConfig.values = {list(self.values)}; expected each value once")
         if self.param in self.method_kwargs:
-            raise InputError(f"SweepConfig.method_kwargs sets {self.param!r}, the swept option; expected it "
-                             "only in values")
+            raise InputError(
+                f"SweepConfig.method_kwargs sets {self.param!r}, the swept option; expected it only in values"
+            )
         for experiment in self.experiments():
             experiment.runs()  # every value's sampler options are checked now, before any run
 
@@ -56,10 +57,16 @@ class SweepConfig:
     def experiments(self) -> list[ExperimentConfig]:
         """The experiment of each value, in the order of `values`."""
         stem = self.stem()
-        return [dataclasses.replace(self.experiment, methods=(self.method,),
-                                    sampler_kwargs={self.method: {**self.method_kwargs, self.param: v}},
-                                    name=f"{stem}-{value_label(v)}", results=Path(self.experiment.results) / stem)
-                for v in self.values]
+        return [
+            dataclasses.replace(
+                self.experiment,
+                methods=(self.method,),
+                sampler_kwargs={self.method: {**self.method_kwargs, self.param: v}},
+                name=f"{stem}-{value_label(v)}",
+                results=Path(self.experiment.results) / stem,
+            )
+            for v in self.values
+        ]
 
 
 def value_label(value: Any) -> str:
@@ -67,8 +74,9 @@ def value_label(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, separators=(",", ":"))
 
 
-def run_sweep(config: SweepConfig, progress: bool = True, command: str = "",
-              backend: Backend | None = None) -> dict[str, Any]:
+def run_sweep(
+    config: SweepConfig, progress: bool = True, command: str = "", backend: Backend | None = None
+) -> dict[str, Any]:
     """Run the experiments of every value as one grid on `backend` (default: the experiment's
     process pool, or Ray at its `ray`), each run resuming from its checkpoint; write each value's
     experiment, then `<results>/<stem>.json` with `command` as provenance and `<stem>.png`; return
@@ -87,20 +95,38 @@ def run_sweep(config: SweepConfig, progress: bool = True, command: str = "",
     with backend or experiment_backend(config.experiment) as grid:
         check_output_dir(results / stem, "sweep results folder")
         check_output_dir(config.experiment.out, "run folder")
-        jobs = [[dataclasses.replace(job, name=f"{config.param}={value_label(value)} {job.name}")
-                 for job in experiment_jobs(e)] for value, e in zip(config.values, experiments)]
+        jobs = [
+            [
+                dataclasses.replace(job, name=f"{config.param}={value_label(value)} {job.name}")
+                for job in experiment_jobs(e)
+            ]
+            for value, e in zip(config.values, experiments)
+        ]
         logs = run_grid([job for value_jobs in jobs for job in value_jobs], grid, progress, f"sweep {stem}")
     rows, first = [], 0
     for value, experiment, value_jobs in zip(config.values, experiments, jobs):
-        summary = write_experiment(experiment, logs[first:first + len(value_jobs)], command)
+        summary = write_experiment(experiment, logs[first : first + len(value_jobs)], command)
         first += len(value_jobs)
         res = summary["methods"][config.method]
-        rows.append({"value": value, "final_success_mean": res["final_success_mean"],
-                     "final_success_se": res["final_success_se"], "seeds": res["seeds"]})
+        rows.append(
+            {
+                "value": value,
+                "final_success_mean": res["final_success_mean"],
+                "final_success_se": res["final_success_se"],
+                "seeds": res["seeds"],
+            }
+        )
     figure = results / f"{stem}.png"
-    sweep = {"env": config.experiment.env, "env_kwargs": dict(config.experiment.env_kwargs),
-             "method": config.method, "param": config.param, "steps": config.experiment.total_steps,
-             "rows": rows, "command": command, "figures": [str(figure)]}
+    sweep = {
+        "env": config.experiment.env,
+        "env_kwargs": dict(config.experiment.env_kwargs),
+        "method": config.method,
+        "param": config.param,
+        "steps": config.experiment.total_steps,
+        "rows": rows,
+        "command": command,
+        "figures": [str(figure)],
+    }
     write_json(results / f"{stem}.json", sweep)
     plot_sweep(sweep, figure)
     return sweep
@@ -108,11 +134,15 @@ def run_sweep(config: SweepConfig, progress: bool = True, command: str = "",
 
 def format_sweep(sweep: dict[str, Any]) -> str:
     """A table of final success per value, and the best value."""
-    lines = [f"{sweep['env']}  {sweep['method']} {sweep['param']} ({sweep['steps']} steps per run)",
-             f"{sweep['param']:<12} {'final success':>16} {'seeds':>6}"]
+    lines = [
+        f"{sweep['env']}  {sweep['method']} {sweep['param']} ({sweep['steps']} steps per run)",
+        f"{sweep['param']:<12} {'final success':>16} {'seeds':>6}",
+    ]
     for row in sweep["rows"]:
-        lines.append(f"{value_label(row['value']):<12} {row['final_success_mean']:>7.3f} +- "
-                     f"{row['final_success_se']:<5.3f} {row['seeds']:>6}")
+        lines.append(
+            f"{value_label(row['value']):<12} {row['final_success_mean']:>7.3f} +- "
+            f"{row['final_success_se']:<5.3f} {row['seeds']:>6}"
+        )
     best = max(sweep["rows"], key=lambda r: r["final_success_mean"])
     lines.append(f"best {sweep['param']} = {value_label(best['value'])} (success {best['final_success_mean']:.3f})")
     return "\n".join(lines)

@@ -71,11 +71,9 @@ class CalibrationConfig:
         if not all(0 < level < 1 for level in self.levels):
             raise InputError(f"levels = {list(self.levels)}; expected probabilities in (0, 1)")
         if not all(np.isfinite(f) and f > 0 for f in self.tempering_factors):
-            raise InputError(f"tempering_factors = {list(self.tempering_factors)}; expected "
-                             "finite factors > 0")
+            raise InputError(f"tempering_factors = {list(self.tempering_factors)}; expected finite factors > 0")
         if not all(np.isfinite(g) and g > 0 for g in self.shape_exponents):
-            raise InputError(f"shape_exponents = {list(self.shape_exponents)}; expected finite "
-                             "exponents > 0")
+            raise InputError(f"shape_exponents = {list(self.shape_exponents)}; expected finite exponents > 0")
 
 
 def pose_error(estimate: np.ndarray, truth: np.ndarray, period: float) -> tuple[float, float]:
@@ -94,8 +92,22 @@ def confidently_wrong(row: dict) -> bool:
 
 
 # What each row keeps of the posterior's search info (explain a miscalibration after the fact).
-ROW_INFO = ("gsd", "tempering", "evidence_factor", "pixels", "stride", "inlier_fraction", "valid_fraction",
-            "depth_noise", "pixel_noise", "brightness", "light", "edge_mass", "posterior_factor", "shape")
+ROW_INFO = (
+    "gsd",
+    "tempering",
+    "evidence_factor",
+    "pixels",
+    "stride",
+    "inlier_fraction",
+    "valid_fraction",
+    "depth_noise",
+    "pixel_noise",
+    "brightness",
+    "light",
+    "edge_mass",
+    "posterior_factor",
+    "shape",
+)
 
 
 def row_brightness(row: dict, default: float | None = None) -> float | None:
@@ -111,28 +123,52 @@ def row_brightness(row: dict, default: float | None = None) -> float | None:
     return float(perturbation.lighting.intensity)
 
 
-def _row(group: str, view: str, scene: int, gear: str, truth: np.ndarray, post: PosePosterior,
-         prior: Prior, seconds: float, factors: tuple[float, ...] = (),
-         shapes: tuple[float, ...] = ()) -> dict:
+def _row(
+    group: str,
+    view: str,
+    scene: int,
+    gear: str,
+    truth: np.ndarray,
+    post: PosePosterior,
+    prior: Prior,
+    seconds: float,
+    factors: tuple[float, ...] = (),
+    shapes: tuple[float, ...] = (),
+) -> dict:
     period = post.period
     extra = {}
     if factors and post.informative:  # from the posterior before its reshaping
         f0, g0 = post.info.get("posterior_factor", 1.0), post.info.get("shape", 1.0)
-        raw = post.reshaped(f0 ** -g0, 1.0 / g0)
+        raw = post.reshaped(f0**-g0, 1.0 / g0)
         extra["scaled_levels"] = [raw.tempered(f).credible_level(truth) for f in factors]
         if shapes:  # at exponent 1 the reshaping is the tempering: its levels are already there
             extra["shaped_levels"] = [
-                list(extra["scaled_levels"]) if g == 1
-                else [raw.reshaped(f, g).credible_level(truth) for f in factors] for g in shapes]
+                list(extra["scaled_levels"]) if g == 1 else [raw.reshaped(f, g).credible_level(truth) for f in factors]
+                for g in shapes
+            ]
     d, e = pose_error(post.map_pose, truth, period)
     err = post.map_pose - truth
     err[2] = wrap(err[2], period)
-    return {"group": group, "view": view, "scene": scene, "gear": gear, "seen": True,
-            "informative": post.informative, "reason": post.reason,
-            "level": post.credible_level(truth), "xy_error_m": d, "yaw_error_rad": e,
-            "map_error": err.tolist(), "std": post.std().tolist(), "truth": truth.tolist(),
-            "map": post.map_pose.tolist(), "prior_half_width": prior.half_width,
-            "seconds": seconds, **{k: post.info.get(k) for k in ROW_INFO}, **extra}
+    return {
+        "group": group,
+        "view": view,
+        "scene": scene,
+        "gear": gear,
+        "seen": True,
+        "informative": post.informative,
+        "reason": post.reason,
+        "level": post.credible_level(truth),
+        "xy_error_m": d,
+        "yaw_error_rad": e,
+        "map_error": err.tolist(),
+        "std": post.std().tolist(),
+        "truth": truth.tolist(),
+        "map": post.map_pose.tolist(),
+        "prior_half_width": prior.half_width,
+        "seconds": seconds,
+        **{k: post.info.get(k) for k in ROW_INFO},
+        **extra,
+    }
 
 
 def _close_prior(far: PosePosterior, fallback: Prior, config: CalibrationConfig) -> Prior:
@@ -158,24 +194,56 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
             truth = np.array(scene.poses[gear])
             det = detections[gear]
             if not det.seen:
-                rows.append({"group": group, "view": "scene", "scene": scene.index, "gear": gear,
-                             "seen": False, "reason": det.reason, "informative": False})
+                rows.append(
+                    {
+                        "group": group,
+                        "view": "scene",
+                        "scene": scene.index,
+                        "gear": gear,
+                        "seen": False,
+                        "reason": det.reason,
+                        "informative": False,
+                    }
+                )
                 continue
             t0 = time.perf_counter()
             far = estimate_pose(view.obs, gear_model(gear), det.prior, config.search)
-            rows.append(_row(group, "scene", scene.index, gear, truth, far, det.prior,
-                             time.perf_counter() - t0, config.tempering_factors,
-                             config.shape_exponents))
+            rows.append(
+                _row(
+                    group,
+                    "scene",
+                    scene.index,
+                    gear,
+                    truth,
+                    far,
+                    det.prior,
+                    time.perf_counter() - t0,
+                    config.tempering_factors,
+                    config.shape_exponents,
+                )
+            )
             rows[-1]["detect_seconds"] = t_detect
             rows[-1]["hidden_fraction"] = view.hidden_fraction if view.gear == gear else None
             prior = _close_prior(far, det.prior, config)
-            close = renderer.render_view(scene, "inspect", gear, group, scene.rng("inspect", gear, group),
-                                         believed_xy=(prior.x, prior.y))
+            close = renderer.render_view(
+                scene, "inspect", gear, group, scene.rng("inspect", gear, group), believed_xy=(prior.x, prior.y)
+            )
             t0 = time.perf_counter()
             post = estimate_pose(close.obs, gear_model(gear), prior, config.search)
-            rows.append(_row(group, "inspect", scene.index, gear, truth, post, prior,
-                             time.perf_counter() - t0, config.tempering_factors,
-                             config.shape_exponents))
+            rows.append(
+                _row(
+                    group,
+                    "inspect",
+                    scene.index,
+                    gear,
+                    truth,
+                    post,
+                    prior,
+                    time.perf_counter() - t0,
+                    config.tempering_factors,
+                    config.shape_exponents,
+                )
+            )
             rows[-1]["far_std"] = far.std().tolist()
             rows[-1]["hidden_fraction"] = close.hidden_fraction
     return rows
@@ -196,20 +264,26 @@ def summarize(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> list[dict
             std_xy = np.array([np.hypot(*r["std"][:2]) / np.sqrt(2) for r in ok])
             yaw = np.array([r["yaw_error_rad"] for r in ok])
             coverage = {lvl: float(np.mean(lv < lvl)) if len(ok) else float("nan") for lvl in levels}
-            out.append({
-                "group": group, "view": view, "posteriors": len(rs), "informative": len(ok),
-                "not_seen": sum(not r["seen"] for r in rs),
-                "uninformative": sum(r["seen"] and not r["informative"] for r in rs),
-                "coverage": {f"{lvl:g}": c for lvl, c in coverage.items()},
-                "coverage_se": {f"{lvl:g}": se for lvl, se in coverage_se(ok, levels).items()},
-                "within_band": bool(len(ok)) and all(abs(c - lvl) <= BAND for lvl, c in coverage.items()),
-                "calibrated_pass_chance": calibrated_pass_chance(len(ok), levels),
-                "confidently_wrong": sum(confidently_wrong(r) for r in ok),
-                "xy_error_mm": _percentiles(1e3 * xy), "yaw_error_deg": _percentiles(np.degrees(yaw)),
-                "std_xy_mm": _percentiles(1e3 * std_xy),
-                "std_yaw_deg": _percentiles(np.degrees([r["std"][2] for r in ok])),
-                "seconds": _percentiles(np.array([r["seconds"] for r in ok])),
-            })
+            out.append(
+                {
+                    "group": group,
+                    "view": view,
+                    "posteriors": len(rs),
+                    "informative": len(ok),
+                    "not_seen": sum(not r["seen"] for r in rs),
+                    "uninformative": sum(r["seen"] and not r["informative"] for r in rs),
+                    "coverage": {f"{lvl:g}": c for lvl, c in coverage.items()},
+                    "coverage_se": {f"{lvl:g}": se for lvl, se in coverage_se(ok, levels).items()},
+                    "within_band": bool(len(ok)) and all(abs(c - lvl) <= BAND for lvl, c in coverage.items()),
+                    "calibrated_pass_chance": calibrated_pass_chance(len(ok), levels),
+                    "confidently_wrong": sum(confidently_wrong(r) for r in ok),
+                    "xy_error_mm": _percentiles(1e3 * xy),
+                    "yaw_error_deg": _percentiles(np.degrees(yaw)),
+                    "std_xy_mm": _percentiles(1e3 * std_xy),
+                    "std_yaw_deg": _percentiles(np.degrees([r["std"][2] for r in ok])),
+                    "seconds": _percentiles(np.array([r["seconds"] for r in ok])),
+                }
+            )
     return out
 
 
@@ -220,8 +294,10 @@ def scene_hits(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> tuple[np
     Whole-scene bootstraps resample their first axis."""
     scene_ids = {s: i for i, s in enumerate(dict.fromkeys(r["scene"] for r in rows))}
     cell_ids = {c: i for i, c in enumerate(dict.fromkeys((r.get("group"), r.get("view")) for r in rows))}
-    index = (np.array([scene_ids[r["scene"]] for r in rows], int),
-             np.array([cell_ids[(r.get("group"), r.get("view"))] for r in rows], int))
+    index = (
+        np.array([scene_ids[r["scene"]] for r in rows], int),
+        np.array([cell_ids[(r.get("group"), r.get("view"))] for r in rows], int),
+    )
     hits = np.zeros((len(scene_ids), len(cell_ids), len(levels)))
     np.add.at(hits, index, np.array([r["level"] for r in rows])[:, None] < np.asarray(levels, float))
     counts = np.zeros((len(scene_ids), len(cell_ids)))
@@ -229,8 +305,9 @@ def scene_hits(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> tuple[np
     return hits, counts
 
 
-def coverage_se(rows: list[dict], levels: tuple[float, ...] = LEVELS, draws: int = 2000,
-                seed: int = 0) -> dict[float, float]:
+def coverage_se(
+    rows: list[dict], levels: tuple[float, ...] = LEVELS, draws: int = 2000, seed: int = 0
+) -> dict[float, float]:
     """Standard error of the observed coverage at each level in `levels`, from a bootstrap over
     scenes (informative rows with "scene" and "level"; each draw resamples whole scenes, so
     gears that err together in one scene count as one): how far the cell's coverage would move
@@ -244,8 +321,7 @@ def coverage_se(rows: list[dict], levels: tuple[float, ...] = LEVELS, draws: int
     return {lvl: float(se) for lvl, se in zip(levels, coverage.std(axis=0))}
 
 
-def calibrated_pass_chance(n: int, levels: tuple[float, ...] = LEVELS, band: float = BAND,
-                           draws: int = 4000) -> float:
+def calibrated_pass_chance(n: int, levels: tuple[float, ...] = LEVELS, band: float = BAND, draws: int = 4000) -> float:
     """The chance that `n` posteriors of a perfectly calibrated pipeline (truth levels independent
     and uniform) read within +-`band` of nominal at every level in `levels`: the pass rate the
     benchmark's target allows at that sample size (Monte Carlo, a fixed seed; 0 for n = 0).
@@ -263,8 +339,14 @@ def calibrated_pass_chance(n: int, levels: tuple[float, ...] = LEVELS, band: flo
     return passed / draws
 
 
-def resampled_set_count(rows: list[dict], scenes: int, levels: tuple[float, ...] = LEVELS,
-                        band: float = BAND, draws: int = 1000, seed: int = 0) -> float:
+def resampled_set_count(
+    rows: list[dict],
+    scenes: int,
+    levels: tuple[float, ...] = LEVELS,
+    band: float = BAND,
+    draws: int = 1000,
+    seed: int = 0,
+) -> float:
     """The mean number of group x view cells within +-`band` of nominal at every level in
     `levels` on sets of `scenes` scenes drawn with replacement from the scenes of `rows` (whole
     scenes, every group and view of a scene together, as one benchmark set draws them): what one
@@ -292,8 +374,7 @@ def resampled_set_count(rows: list[dict], scenes: int, levels: tuple[float, ...]
 def _percentiles(values: np.ndarray) -> dict:
     if len(values) == 0:
         return {"median": float("nan"), "p95": float("nan"), "max": float("nan")}
-    return {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)),
-            "max": float(np.max(values))}
+    return {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)), "max": float(np.max(values))}
 
 
 def run_calibration(config: CalibrationConfig | None = None, progress: bool = False) -> dict:
@@ -313,14 +394,19 @@ def run_calibration(config: CalibrationConfig | None = None, progress: bool = Fa
                 if progress:
                     print(f"calibration: {config.groups[k]} done", flush=True)
         rows = [row for k in range(len(config.groups)) for row in done[k]]
-    return {"config": {"scenes": config.scenes, "seed": config.seed, "groups": list(config.groups),
-                       "levels": list(config.levels)},
-            "summary": summarize(rows, config.levels), "rows": rows}
+    return {
+        "config": {
+            "scenes": config.scenes,
+            "seed": config.seed,
+            "groups": list(config.groups),
+            "levels": list(config.levels),
+        },
+        "summary": summarize(rows, config.levels),
+        "rows": rows,
+    }
 
 
-
-def save_result(path: str | os.PathLike[str] | None, result: dict,
-                rows: str | os.PathLike[str] | None = None) -> None:
+def save_result(path: str | os.PathLike[str] | None, result: dict, rows: str | os.PathLike[str] | None = None) -> None:
     """Write a calibration result (`run_calibration`'s) as `goflow bench calibration` does: its
     config and summary to `path` (strict JSON, small; None: not written); its rows, every
     posterior's, only where `rows` names a file: there the whole result as gzip'd strict JSON,
@@ -359,6 +445,7 @@ def load_result(path: str | os.PathLike[str]) -> dict:
 def _reject_constant(name: str) -> None:
     raise ValueError(f"{name} is not valid JSON")
 
+
 def named_by_set(rows: list[dict], name: object) -> list[dict]:
     """Copies of a set's `rows` with each scene named "name/scene", so that two sets' scene 0
     stay two scenes when their rows are pooled."""
@@ -381,8 +468,10 @@ def pool_results(results: list[dict]) -> dict:
         if not isinstance(config, dict) or "levels" not in config:
             raise InputError(f"result {k}: not a calibration result (expected 'config' with 'levels' and 'rows')")
         if not isinstance(result.get("rows"), list):
-            raise InputError(f"result {k}: has no rows (a summary); expected the rows file a run writes with "
-                             "--rows (goflow bench calibration --rows PATH)")
+            raise InputError(
+                f"result {k}: has no rows (a summary); expected the rows file a run writes with "
+                "--rows (goflow bench calibration --rows PATH)"
+            )
         mine = tuple(float(x) for x in config["levels"])
         if levels is not None and mine != levels:
             raise InputError(f"result {k}: levels {list(mine)}; expected those of the first, {list(levels)}")
@@ -393,27 +482,42 @@ def pool_results(results: list[dict]) -> dict:
     sets = []
     for k, result in enumerate(results):
         summary = result.get("summary") or summarize(result["rows"], levels)
-        sets.append({"seed": seeds[k], "scenes": result["config"].get("scenes"),
-                     "cells": len(summary), "within_band": sum(bool(s["within_band"]) for s in summary),
-                     "calibrated_expected": sum(s["calibrated_pass_chance"] for s in summary)})
+        sets.append(
+            {
+                "seed": seeds[k],
+                "scenes": result["config"].get("scenes"),
+                "cells": len(summary),
+                "within_band": sum(bool(s["within_band"]) for s in summary),
+                "calibrated_expected": sum(s["calibrated_pass_chance"] for s in summary),
+            }
+        )
     scenes = [s["scenes"] for s in sets if isinstance(s["scenes"], int) and s["scenes"] > 0]
     per_set = round(float(np.mean(scenes))) if scenes else 0
-    return {"config": {"scenes": sum(r["config"].get("scenes", 0) for r in results), "seeds": seeds,
-                       "groups": groups, "levels": list(levels)},
-            "summary": summarize(rows, levels), "rows": rows,
-            "sets": {"each": sets, "scenes": per_set,
-                     "resampled_within_band": resampled_set_count(rows, per_set, levels)}}
+    return {
+        "config": {
+            "scenes": sum(r["config"].get("scenes", 0) for r in results),
+            "seeds": seeds,
+            "groups": groups,
+            "levels": list(levels),
+        },
+        "summary": summarize(rows, levels),
+        "rows": rows,
+        "sets": {"each": sets, "scenes": per_set, "resampled_within_band": resampled_set_count(rows, per_set, levels)},
+    }
 
 
 def sets_text(sets: dict) -> str:
     """`pool_results`' "sets" in words: each set's cells within the band beside a perfectly
     calibrated pipeline's expectation, and the mean of sets of the same size resampled from the
     pooled scenes."""
-    each = ", ".join(f"{s['seed']}: {s['within_band']} of {s['cells']} ({s['calibrated_expected']:.1f})"
-                     for s in sets["each"])
-    return (f"Each set alone, within +-{100 * BAND:.0f} (a perfectly calibrated pipeline's expectation): {each}. "
-            f"Sets of {sets['scenes']} scenes resampled from the pooled scenes: "
-            f"{sets['resampled_within_band']:.1f} on average.")
+    each = ", ".join(
+        f"{s['seed']}: {s['within_band']} of {s['cells']} ({s['calibrated_expected']:.1f})" for s in sets["each"]
+    )
+    return (
+        f"Each set alone, within +-{100 * BAND:.0f} (a perfectly calibrated pipeline's expectation): {each}. "
+        f"Sets of {sets['scenes']} scenes resampled from the pooled scenes: "
+        f"{sets['resampled_within_band']:.1f} on average."
+    )
 
 
 def reliability_plot(result: dict, path: str | Path):
@@ -421,12 +525,12 @@ def reliability_plot(result: dict, path: str | Path):
     bootstrap standard error, where the summary has it), a panel per view, with the +-5 point
     band; saved to `path`. Returns the matplotlib Figure."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     levels = np.array(result["config"]["levels"])
-    lowest = min((c for s in result["summary"] for c in s["coverage"].values() if np.isfinite(c)),
-                 default=0.4)
+    lowest = min((c for s in result["summary"] for c in s["coverage"].values() if np.isfinite(c)), default=0.4)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), sharey=True)
     for ax, view in zip(axes, VIEWS):
         ax.fill_between([0.4, 1.0], [0.35, 0.95], [0.45, 1.05], color="0.9", label="+-5 points")
@@ -435,8 +539,9 @@ def reliability_plot(result: dict, path: str | Path):
         for s in (s for s in result["summary"] if s["view"] == view):
             observed = [s["coverage"][f"{lvl:g}"] for lvl in levels]
             se = [s.get("coverage_se", {}).get(f"{lvl:g}", float("nan")) for lvl in levels]
-            ax.errorbar(levels, observed, yerr=se, fmt="o-", ms=3, lw=1, capsize=2,
-                        label=f"{s['group']} ({s['informative']})")
+            ax.errorbar(
+                levels, observed, yerr=se, fmt="o-", ms=3, lw=1, capsize=2, label=f"{s['group']} ({s['informative']})"
+            )
         ax.set_title(f"{view} view")
         ax.set_xlabel("nominal coverage")
         ax.set_xlim(0.45, 1.0)
@@ -452,9 +557,12 @@ def reliability_plot(result: dict, path: str | Path):
 def markdown_table(summary: list[dict]) -> str:
     """The summary as a markdown table (coverage in percent at each level)."""
     levels = list(summary[0]["coverage"]) if summary else []
-    head = ("| group | view | n | " + " | ".join(f"{float(lvl):.0%}" for lvl in levels)
-            + " | within +-5 (chance if calibrated) | conf. wrong | MAP x-y err median / p95 [mm] | std x-y median [mm] "
-              "| yaw err p95 [deg] | std yaw median [deg] | s median | not seen / uninf. |")
+    head = (
+        "| group | view | n | "
+        + " | ".join(f"{float(lvl):.0%}" for lvl in levels)
+        + " | within +-5 (chance if calibrated) | conf. wrong | MAP x-y err median / p95 [mm] | std x-y median [mm] "
+        "| yaw err p95 [deg] | std yaw median [deg] | s median | not seen / uninf. |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for s in summary:
         cov = " | ".join(f"{100 * s['coverage'][lvl]:.0f}" for lvl in levels)
@@ -464,16 +572,36 @@ def markdown_table(summary: list[dict]) -> str:
             f"{s['xy_error_mm']['median']:.3f} / {s['xy_error_mm']['p95']:.3f} | "
             f"{s['std_xy_mm']['median']:.3f} | {s['yaw_error_deg']['p95']:.2f} | "
             f"{s['std_yaw_deg']['median']:.2f} | {s['seconds']['median']:.2f} | "
-            f"{s['not_seen']} / {s['uninformative']} |")
+            f"{s['not_seen']} / {s['uninformative']} |"
+        )
     if summary:
         expected = sum(s["calibrated_pass_chance"] for s in summary)
-        lines.append(f"\nWithin +-{100 * BAND:.0f} points at every level: "
-                     f"{sum(s['within_band'] for s in summary)} of {len(summary)} cells "
-                     f"(a perfectly calibrated pipeline of these sizes: {expected:.1f} expected).")
+        lines.append(
+            f"\nWithin +-{100 * BAND:.0f} points at every level: "
+            f"{sum(s['within_band'] for s in summary)} of {len(summary)} cells "
+            f"(a perfectly calibrated pipeline of these sizes: {expected:.1f} expected)."
+        )
     return "\n".join(lines)
 
 
-__all__ = ["BAND", "CalibrationConfig", "HELD_OUT_SEED", "LEVELS", "calibrated_pass_chance", "confidently_wrong", "coverage_se", "group_rows",
-           "load_result", "markdown_table", "pool_results", "pose_error", "reliability_plot", "resampled_set_count", "row_brightness",
-           "run_calibration", "save_result", "sets_text",
-           "summarize"]
+__all__ = [
+    "BAND",
+    "CalibrationConfig",
+    "HELD_OUT_SEED",
+    "LEVELS",
+    "calibrated_pass_chance",
+    "confidently_wrong",
+    "coverage_se",
+    "group_rows",
+    "load_result",
+    "markdown_table",
+    "pool_results",
+    "pose_error",
+    "reliability_plot",
+    "resampled_set_count",
+    "row_brightness",
+    "run_calibration",
+    "save_result",
+    "sets_text",
+    "summarize",
+]

@@ -83,14 +83,25 @@ class DetectionConfig:
     fit_iterations: int = 20
 
     def __post_init__(self) -> None:
-        for name in ("max_height", "region_margin", "tube", "huber", "occluder_gap", "base_half_width",
-                     "sigma_scale", "min_half_width", "max_half_width"):
+        for name in (
+            "max_height",
+            "region_margin",
+            "tube",
+            "huber",
+            "occluder_gap",
+            "base_half_width",
+            "sigma_scale",
+            "min_half_width",
+            "max_half_width",
+        ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"DetectionConfig.{name} = {value}; expected a finite value > 0")
         if not self.min_half_width <= self.max_half_width <= 0.2:
-            raise ValueError(f"DetectionConfig half-widths {self.min_half_width}, "
-                             f"{self.max_half_width}; expected min <= max <= 0.2 m (a Prior's limit)")
+            raise ValueError(
+                f"DetectionConfig half-widths {self.min_half_width}, "
+                f"{self.max_half_width}; expected min <= max <= 0.2 m (a Prior's limit)"
+            )
         if not (np.isfinite(self.hidden_scale) and self.hidden_scale >= 0):
             raise ValueError(f"DetectionConfig.hidden_scale = {self.hidden_scale}; expected >= 0")
         for name in ("min_visible", "max_extra"):
@@ -128,14 +139,15 @@ class _Image:
     near the placement region)."""
 
     obs: Observation
-    rel: np.ndarray     # (H, W, 3) chromaticity minus the table's
-    rel2: np.ndarray    # (H, W) its squared norm
+    rel: np.ndarray  # (H, W, 3) chromaticity minus the table's
+    rel2: np.ndarray  # (H, W) its squared norm
     bright: np.ndarray  # (H, W) r + g + b >= min_brightness
-    low: np.ndarray     # (H, W)
+    low: np.ndarray  # (H, W)
 
 
-def detect_gears(obs: Observation, gears: tuple[str, ...] = GEAR_NAMES,
-                 config: DetectionConfig | None = None) -> dict[str, Detection]:
+def detect_gears(
+    obs: Observation, gears: tuple[str, ...] = GEAR_NAMES, config: DetectionConfig | None = None
+) -> dict[str, Detection]:
     """Detect each of `gears` lying flat on the table in the placement region from one RGB-D
     observation (the station's scene camera, or any camera that sees the table from above).
     ValueError on a non-Observation, an unknown gear or a camera that does not see the region."""
@@ -155,29 +167,30 @@ def detect_gears(obs: Observation, gears: tuple[str, ...] = GEAR_NAMES,
 
 def _region(margin: float) -> tuple[tuple[float, float], tuple[float, float]]:
     """The placement region grown by `margin` [m] on every side."""
-    return ((PLACEMENT_X[0] - margin, PLACEMENT_X[1] + margin),
-            (PLACEMENT_Y[0] - margin, PLACEMENT_Y[1] + margin))
+    return ((PLACEMENT_X[0] - margin, PLACEMENT_X[1] + margin), (PLACEMENT_Y[0] - margin, PLACEMENT_Y[1] + margin))
 
 
 def _check_sees_region(obs: Observation, config: DetectionConfig) -> None:
     """ValueError unless some pixel's ray reaches the table inside the placement region."""
     k = obs.intrinsics
-    v, u = np.mgrid[0:k.height:8, 0:k.width:8]
+    v, u = np.mgrid[0 : k.height : 8, 0 : k.width : 8]
     origin, dirs = obs.rays_W(u.ravel(), v.ravel())
     down = dirs[:, 2] < -1e-9
     t = -origin[2] / np.where(down, dirs[:, 2], -1.0)
     x, y = origin[0] + t * dirs[:, 0], origin[1] + t * dirs[:, 1]
     (x0, x1), (y0, y1) = _region(0.0)
     if origin[2] <= 0 or not np.any(down & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)):
-        raise ValueError(f"the observation's camera at {np.round(origin, 3).tolist()} sees no part "
-                         f"of the placement region x {PLACEMENT_X}, y {PLACEMENT_Y} m on the table; "
-                         "expected a camera above the table looking at it")
+        raise ValueError(
+            f"the observation's camera at {np.round(origin, 3).tolist()} sees no part "
+            f"of the placement region x {PLACEMENT_X}, y {PLACEMENT_Y} m on the table; "
+            "expected a camera above the table looking at it"
+        )
 
 
 @lru_cache(maxsize=8)
 def _camera_rays(k: Intrinsics) -> np.ndarray:
     """(H, W, 3) camera-frame ray directions (unit z) of every pixel of a camera."""
-    v, u = np.mgrid[0:k.height, 0:k.width]
+    v, u = np.mgrid[0 : k.height, 0 : k.width]
     return k.rays_C(u.ravel(), v.ravel()).reshape(k.height, k.width, 3).astype(np.float32)
 
 
@@ -206,19 +219,19 @@ def _chromaticity(rgb: np.ndarray) -> np.ndarray:
     return rgb / rgb.sum()
 
 
-def _colour_classes(image: _Image, gear: str, config: DetectionConfig
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def _colour_classes(image: _Image, gear: str, config: DetectionConfig) -> tuple[np.ndarray, np.ndarray]:
     """(gear-coloured, table-coloured) masks: bright pixels within `tube` of the line from the
     table's chromaticity to the gear's, past its middle or before it."""
     line = _chromaticity(gear_spec(gear).rgba[:3]) - _chromaticity(table_albedo())
     t = image.rel @ (line / (line @ line))
     perp2 = image.rel2 - t * t * (line @ line)
-    ok = (perp2 < config.tube ** 2) & image.bright
+    ok = (perp2 < config.tube**2) & image.bright
     return ok & (t > 0.5) & (t < 1.6), ok & (t <= 0.5) & (t > -0.6)
 
 
-def _gear_mask(positive: np.ndarray, image: _Image, gear: str, config: DetectionConfig
-               ) -> tuple[np.ndarray, tuple[slice, slice], int]:
+def _gear_mask(
+    positive: np.ndarray, image: _Image, gear: str, config: DetectionConfig
+) -> tuple[np.ndarray, tuple[slice, slice], int]:
     """The gear's filled mask in a window around it (the largest component of its pixels and the
     components within a gear's diameter of it, closed over dropped-out pixels, holes filled; the
     window pads it by half its size), the window, and the gear's pixels in it."""
@@ -230,7 +243,7 @@ def _gear_mask(positive: np.ndarray, image: _Image, gear: str, config: Detection
     main = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
     # The gear's diameter in pixels, from the distance of the main component's centre.
     cu, cv = (int(round(c)) for c in centroids[main])
-    patch = image.obs.depth[max(cv - 2, 0):cv + 3, max(cu - 2, 0):cu + 3]
+    patch = image.obs.depth[max(cv - 2, 0) : cv + 3, max(cu - 2, 0) : cu + 3]
     depth = float(np.nanmedian(patch)) if np.isfinite(patch).any() else 1.0
     reach = 2.2 * gear_spec(gear).tip_radius * image.obs.intrinsics.fx / max(depth, 1e-3)
     near = 1 + np.nonzero(np.hypot(*(centroids[1:] - centroids[main]).T) <= reach)[0]
@@ -248,8 +261,7 @@ def _gear_mask(positive: np.ndarray, image: _Image, gear: str, config: Detection
     return filled, window, int(np.count_nonzero(positive[window] & filled))
 
 
-def _outline_edges(mask: np.ndarray, background: np.ndarray, depth: np.ndarray, gap: float
-                   ) -> np.ndarray:
+def _outline_edges(mask: np.ndarray, background: np.ndarray, depth: np.ndarray, gap: float) -> np.ndarray:
     """(n, 2) pixel coordinates (u, v) in the mask's array of the midpoints between a mask pixel
     and a 4-neighbouring background pixel that is not more than `gap` nearer to the camera (a
     nearer one, e.g. a shaft in front, hides the outline instead of bordering it; a mask pixel
@@ -278,8 +290,7 @@ def _segments(obs: Observation, uv: np.ndarray, top: float) -> tuple[np.ndarray,
     return a, b
 
 
-def _segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def _segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distances (n,) from point `c` to segments [a, b] and the closest points (n, 2)."""
     ab = b - a
     s = np.clip(((c - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-18), 0.0, 1.0)
@@ -287,8 +298,9 @@ def _segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray
     return np.linalg.norm(c - closest, axis=-1), closest
 
 
-def _fit_centre(a: np.ndarray, b: np.ndarray, radius: float, start: np.ndarray,
-                config: DetectionConfig) -> tuple[np.ndarray, np.ndarray]:
+def _fit_centre(
+    a: np.ndarray, b: np.ndarray, radius: float, start: np.ndarray, config: DetectionConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """Centre whose distance to each segment is `radius` (Huber-weighted Gauss-Newton from
     `start`); returns the centre and its covariance (from the weighted residuals)."""
     c = np.asarray(start, float).copy()
@@ -311,8 +323,7 @@ def _fit_centre(a: np.ndarray, b: np.ndarray, radius: float, start: np.ndarray,
     return c, sigma2 * np.linalg.inv(H)
 
 
-def _silhouette(obs: Observation, window: tuple[slice, slice], centre: np.ndarray,
-                radius: float) -> np.ndarray:
+def _silhouette(obs: Observation, window: tuple[slice, slice], centre: np.ndarray, radius: float) -> np.ndarray:
     """The predicted silhouette in `window`: pixels whose ray passes within `radius` of the
     vertical axis at `centre` between the table and the gears' top."""
     v, u = np.mgrid[window]
@@ -328,21 +339,41 @@ def _detect(image: _Image, gear: str, config: DetectionConfig) -> Detection:
     positive = colour & image.low
     count = int(np.count_nonzero(positive))
     if count < config.min_pixels:
-        return Detection(gear, False, pixels=count, reason=(
-            f"{count} pixels of its colour at table height in the placement region (need "
-            f"{config.min_pixels}): out of view, hidden or not on the table"))
+        return Detection(
+            gear,
+            False,
+            pixels=count,
+            reason=(
+                f"{count} pixels of its colour at table height in the placement region (need "
+                f"{config.min_pixels}): out of view, hidden or not on the table"
+            ),
+        )
     mask, window, pixels = _gear_mask(positive, image, gear, config)
     if pixels < config.min_pixels:
-        return Detection(gear, False, pixels=pixels, reason=(
-            f"its colour's pixels are scattered (largest group {pixels} px, need "
-            f"{config.min_pixels}): mostly hidden, or not a gear"))
+        return Detection(
+            gear,
+            False,
+            pixels=pixels,
+            reason=(
+                f"its colour's pixels are scattered (largest group {pixels} px, need "
+                f"{config.min_pixels}): mostly hidden, or not a gear"
+            ),
+        )
     offset = np.array([window[1].start, window[0].start], float)
-    edges = _outline_edges(mask, table[window] & image.low[window], image.obs.depth[window],
-                           config.occluder_gap) + offset
+    edges = (
+        _outline_edges(mask, table[window] & image.low[window], image.obs.depth[window], config.occluder_gap) + offset
+    )
     if len(edges) < config.min_edges:
-        return Detection(gear, False, pixels=pixels, edges=len(edges), reason=(
-            f"{len(edges)} outline edges against the table (need {config.min_edges}): too little "
-            "of its outline is seen"))
+        return Detection(
+            gear,
+            False,
+            pixels=pixels,
+            edges=len(edges),
+            reason=(
+                f"{len(edges)} outline edges against the table (need {config.min_edges}): too little "
+                "of its outline is seen"
+            ),
+        )
     obs = image.obs
     a, b = _segments(obs, edges, GEAR_THICKNESS)
     vs, us = np.nonzero(mask)
@@ -351,9 +382,17 @@ def _detect(image: _Image, gear: str, config: DetectionConfig) -> Detection:
     centre, cov = _fit_centre(a, b, radius, start.mean(0), config)
     std = float(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
     if not (np.all(np.isfinite(centre)) and config.sigma_scale * std <= config.max_half_width):
-        return Detection(gear, False, pixels=pixels, edges=len(edges), std=std, reason=(
-            f"the {len(edges)} outline edges seen do not fix its centre (standard error "
-            f"{1e3 * std:.1f} mm): too little or too odd an outline"))
+        return Detection(
+            gear,
+            False,
+            pixels=pixels,
+            edges=len(edges),
+            std=std,
+            reason=(
+                f"the {len(edges)} outline edges seen do not fix its centre (standard error "
+                f"{1e3 * std:.1f} mm): too little or too odd an outline"
+            ),
+        )
     predicted = _silhouette(obs, window, centre, radius)
     # Too dark to judge but low (a wall facing away from the light) is the gear, not an occluder.
     shown = mask | (~image.bright[window] & image.low[window])
@@ -362,14 +401,25 @@ def _detect(image: _Image, gear: str, config: DetectionConfig) -> Detection:
     score = float(np.clip(visible * (1.0 - extra), 0.0, 1.0))
     common = dict(pixels=pixels, score=score, visible=visible, edges=len(edges), std=std)
     if visible < config.min_visible:
-        return Detection(gear, False, reason=(
-            f"only {100 * visible:.1f} % of the fitted gear's silhouette is seen (need "
-            f"{100 * config.min_visible:.1f} %): hidden, or its pixels are not this gear"), **common)
+        return Detection(
+            gear,
+            False,
+            reason=(
+                f"only {100 * visible:.1f} % of the fitted gear's silhouette is seen (need "
+                f"{100 * config.min_visible:.1f} %): hidden, or its pixels are not this gear"
+            ),
+            **common,
+        )
     if extra > config.max_extra:
-        return Detection(gear, False, reason=(
-            f"{100 * extra:.1f} % of its colour's pixels lie outside the fitted gear (allowed "
-            f"{100 * config.max_extra:.1f} %): not a gear of this size"), **common)
-    half = (config.base_half_width + config.sigma_scale * std
-            + config.hidden_scale * spec.tip_radius * (1.0 - visible))
+        return Detection(
+            gear,
+            False,
+            reason=(
+                f"{100 * extra:.1f} % of its colour's pixels lie outside the fitted gear (allowed "
+                f"{100 * config.max_extra:.1f} %): not a gear of this size"
+            ),
+            **common,
+        )
+    half = config.base_half_width + config.sigma_scale * std + config.hidden_scale * spec.tip_radius * (1.0 - visible)
     half = float(np.clip(half, config.min_half_width, config.max_half_width))
     return Detection(gear, True, Prior(float(centre[0]), float(centre[1]), half), **common)

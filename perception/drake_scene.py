@@ -13,8 +13,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.geometry import (
-    Box, ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, LightParameter,
-    MakeRenderEngineVtk, RenderCameraCore, RenderEngineVtkParams,
+    Box,
+    ClippingRange,
+    ColorRenderCamera,
+    DepthRange,
+    DepthRenderCamera,
+    LightParameter,
+    MakeRenderEngineVtk,
+    RenderCameraCore,
+    RenderEngineVtkParams,
 )
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
@@ -53,8 +60,7 @@ class SceneConfig:
     or a gear name (a copy of that gear, e.g. one carried in the hand); they start parked
     far out of view."""
 
-    gears: dict[str, tuple[float, float, float]] = field(
-        default_factory=lambda: {"large": (0.40, -0.15, 0.0)})
+    gears: dict[str, tuple[float, float, float]] = field(default_factory=lambda: {"large": (0.40, -0.15, 0.0)})
     marked: tuple[str, ...] = ()
     plate_pose: tuple[float, float, float] | None = None
     lightings: dict[str, tuple[LightParameter, ...]] = field(default_factory=dict)
@@ -68,16 +74,21 @@ class SceneConfig:
                 raise ValueError(f"marked gear {name!r} is not in the scene's gears {list(self.gears)}")
         for name, lights in self.lightings.items():
             if name == DEFAULT_LIGHTING or not isinstance(name, str) or not name:
-                raise ValueError(f"lighting name {name!r}; expected a non-empty name other than "
-                                 f"{DEFAULT_LIGHTING!r} (Drake's default headlight)")
+                raise ValueError(
+                    f"lighting name {name!r}; expected a non-empty name other than "
+                    f"{DEFAULT_LIGHTING!r} (Drake's default headlight)"
+                )
             if not lights or not all(isinstance(light, LightParameter) for light in lights):
-                raise ValueError(f"lighting {name!r} = {lights!r}; expected a non-empty tuple of "
-                                 "pydrake.geometry.LightParameter")
+                raise ValueError(
+                    f"lighting {name!r} = {lights!r}; expected a non-empty tuple of pydrake.geometry.LightParameter"
+                )
         kinds = (HAND_OCCLUDER,) + GEAR_NAMES
         for name, kind in self.occluders.items():
             if kind not in kinds or name in self.gears:
-                raise ValueError(f"occluder {name!r} of kind {kind!r}; expected a kind in {kinds} "
-                                 f"and a name that is not one of the scene's gears {list(self.gears)}")
+                raise ValueError(
+                    f"occluder {name!r} of kind {kind!r}; expected a kind in {kinds} "
+                    f"and a name that is not one of the scene's gears {list(self.gears)}"
+                )
 
 
 class DrakeScene:
@@ -93,15 +104,15 @@ class DrakeScene:
         plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("table", table), RigidTransform())
         if self.config.plate_pose is not None:
             plate = parser.AddModels(str(paths["plate"]))[0]
-            plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("gear_plate", plate),
-                             planar_pose(*self.config.plate_pose))
+            plant.WeldFrames(
+                plant.world_frame(), plant.GetFrameByName("gear_plate", plate), planar_pose(*self.config.plate_pose)
+            )
         self.bodies = {}
         for name in self.config.gears:
             self.bodies[name] = gear_body(plant, parser.AddModels(str(paths[name]))[0])
             if name in self.config.marked:
                 size, X_GM, rgba = marker_box(name)
-                plant.RegisterVisualGeometry(self.bodies[name], X_GM, Box(*size), f"{name}_marker",
-                                             np.array(rgba))
+                plant.RegisterVisualGeometry(self.bodies[name], X_GM, Box(*size), f"{name}_marker", np.array(rgba))
         self.occluder_bodies: dict[str, RigidBody] = {}
         if self.config.occluders:
             self._add_occluders(plant)
@@ -110,8 +121,9 @@ class DrakeScene:
         self._renderers = {DEFAULT_LIGHTING: RENDERER}
         for name, lights in self.config.lightings.items():
             self._renderers[name] = f"{RENDERER}_{name}"
-            scene_graph.AddRenderer(self._renderers[name],
-                                    MakeRenderEngineVtk(RenderEngineVtkParams(lights=list(lights))))
+            scene_graph.AddRenderer(
+                self._renderers[name], MakeRenderEngineVtk(RenderEngineVtkParams(lights=list(lights)))
+            )
         self.plant, self.scene_graph = plant, scene_graph
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()
@@ -153,10 +165,8 @@ class DrakeScene:
         """Place occluder `name` (its body frame: the hand frame, or a gear frame) at X_WO; None
         parks it far out of view."""
         if name not in self.occluder_bodies:
-            raise ValueError(f"occluder {name!r} is not in this scene; it has "
-                             f"{list(self.occluder_bodies)}")
-        self.plant.SetFreeBodyPose(self._plant_context, self.occluder_bodies[name],
-                                   PARKED if X_WO is None else X_WO)
+            raise ValueError(f"occluder {name!r} is not in this scene; it has {list(self.occluder_bodies)}")
+        self.plant.SetFreeBodyPose(self._plant_context, self.occluder_bodies[name], PARKED if X_WO is None else X_WO)
 
     def label(self, name: str) -> int:
         """The render label of gear `name`'s body (its pixels in `render_labels`)."""
@@ -164,21 +174,19 @@ class DrakeScene:
             raise ValueError(f"gear {name!r} is not in this scene; it has {list(self.bodies)}")
         return int(self.bodies[name].index())
 
-    def render(self, camera: CameraConfig, X_WC: RigidTransform,
-               lighting: str = DEFAULT_LIGHTING) -> Observation:
+    def render(self, camera: CameraConfig, X_WC: RigidTransform, lighting: str = DEFAULT_LIGHTING) -> Observation:
         """Colour and depth seen by `camera` (intrinsics and clipping) placed at X_WC, lit by the
         named lighting setup."""
         return self.render_info(camera.info(), camera.near, camera.far, X_WC, lighting)
 
     def _core(self, info: CameraInfo, near: float, far: float, lighting: str) -> RenderCameraCore:
         if lighting not in self._renderers:
-            raise ValueError(f"lighting {lighting!r} is not in this scene; it has "
-                             f"{list(self._renderers)}")
-        return RenderCameraCore(self._renderers[lighting], info, ClippingRange(near, far),
-                                RigidTransform())
+            raise ValueError(f"lighting {lighting!r} is not in this scene; it has {list(self._renderers)}")
+        return RenderCameraCore(self._renderers[lighting], info, ClippingRange(near, far), RigidTransform())
 
-    def render_info(self, info: CameraInfo, near: float, far: float, X_WC: RigidTransform,
-                    lighting: str = DEFAULT_LIGHTING) -> Observation:
+    def render_info(
+        self, info: CameraInfo, near: float, far: float, X_WC: RigidTransform, lighting: str = DEFAULT_LIGHTING
+    ) -> Observation:
         """Colour and depth of a pinhole camera with intrinsics `info` (e.g. a crop of a larger
         camera: same focal lengths, shifted principal point) and clipping range [near, far]."""
         core = self._core(info, near, far, lighting)
@@ -186,24 +194,21 @@ class DrakeScene:
         world = self.scene_graph.world_frame_id()
         color = query.RenderColorImage(ColorRenderCamera(core, False), world, X_WC)
         depth = query.RenderDepthImage(DepthRenderCamera(core, DepthRange(near, far)), world, X_WC)
-        return Observation(color.data[:, :, :3].copy(), depth.data[:, :, 0].copy(),
-                           Intrinsics.from_camera_info(info), X_WC)
+        return Observation(
+            color.data[:, :, :3].copy(), depth.data[:, :, 0].copy(), Intrinsics.from_camera_info(info), X_WC
+        )
 
-    def render_labels(self, info: CameraInfo, near: float, far: float, X_WC: RigidTransform
-                      ) -> np.ndarray:
+    def render_labels(self, info: CameraInfo, near: float, far: float, X_WC: RigidTransform) -> np.ndarray:
         """(H, W) int render labels (a body's label is its index; `label(gear)`) seen by a pinhole
         camera with intrinsics `info` at X_WC (lighting plays no part)."""
         core = self._core(info, near, far, DEFAULT_LIGHTING)
         query = self.scene_graph.get_query_output_port().Eval(self._sg_context)
-        labels = query.RenderLabelImage(ColorRenderCamera(core, False),
-                                        self.scene_graph.world_frame_id(), X_WC)
+        labels = query.RenderLabelImage(ColorRenderCamera(core, False), self.scene_graph.world_frame_id(), X_WC)
         return labels.data[:, :, 0].astype(np.int32)
 
 
 def crop_info(info: CameraInfo, u0: int, u1: int, v0: int, v1: int) -> CameraInfo:
     """The intrinsics of the pixel window [u0, u1) x [v0, v1) of a camera."""
     if not (0 <= u0 < u1 <= info.width() and 0 <= v0 < v1 <= info.height()):
-        raise ValueError(f"crop [{u0}, {u1}) x [{v0}, {v1}) is not inside the "
-                         f"{info.width()} x {info.height()} image")
-    return CameraInfo(u1 - u0, v1 - v0, info.focal_x(), info.focal_y(),
-                      info.center_x() - u0, info.center_y() - v0)
+        raise ValueError(f"crop [{u0}, {u1}) x [{v0}, {v1}) is not inside the {info.width()} x {info.height()} image")
+    return CameraInfo(u1 - u0, v1 - v0, info.focal_x(), info.focal_y(), info.center_x() - u0, info.center_y() - v0)

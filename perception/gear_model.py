@@ -112,8 +112,15 @@ def gear_model(gear: str, marked: bool = False) -> GearModel:
         faces = np.vstack([faces, mf + len(vertices)])
         vertices = np.vstack([vertices, mv])
         albedo = np.vstack([albedo, np.tile(np.asarray(rgba[:3], np.float32), (len(mf), 1))])
-    return GearModel(gear, marked, vertices, faces, albedo, 1 if marked else spec.teeth,
-                     float(np.max(np.hypot(vertices[:, 0], vertices[:, 1]))))
+    return GearModel(
+        gear,
+        marked,
+        vertices,
+        faces,
+        albedo,
+        1 if marked else spec.teeth,
+        float(np.max(np.hypot(vertices[:, 0], vertices[:, 1]))),
+    )
 
 
 @lru_cache(maxsize=None)

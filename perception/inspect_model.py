@@ -65,9 +65,11 @@ def close_view_noise(rows: list[dict]) -> dict[str, dict[str, tuple[float, ...] 
         if not len(clean):
             raise ValueError(f"no informative clean close view of the {gear} gear in the rows")
         every = np.array([r["std"] for r in seen])
-        out[gear] = {"median": tuple(float(f"{v:.2g}") for v in np.median(clean, axis=0)),
-                     "p90": tuple(float(f"{v:.2g}") for v in np.percentile(every, 90, axis=0)),
-                     "informative": round(len(seen) / len(close), 3)}
+        out[gear] = {
+            "median": tuple(float(f"{v:.2g}") for v in np.median(clean, axis=0)),
+            "p90": tuple(float(f"{v:.2g}") for v in np.percentile(every, 90, axis=0)),
+            "informative": round(len(seen) / len(close), 3),
+        }
     return out
 
 
@@ -78,15 +80,15 @@ def predict_inspection(gear: str, before: PosePosterior | np.ndarray) -> Inspect
     spec = gear_spec(gear)
     std = before.std() if isinstance(before, PosePosterior) else np.asarray(before, float)
     if std.shape != (3,) or not np.all(np.isfinite(std)) or np.any(std <= 0):
-        raise ValueError(f"before = {std}; expected 3 standard deviations > 0 (x [m], y [m], "
-                         "yaw [rad]) or a PosePosterior")
+        raise ValueError(
+            f"before = {std}; expected 3 standard deviations > 0 (x [m], y [m], yaw [rad]) or a PosePosterior"
+        )
     close = CLOSE_VIEW[spec.name]
 
     def fuse(sigma_close) -> np.ndarray:
-        return 1.0 / np.sqrt(std ** -2 + np.asarray(sigma_close, float) ** -2)
+        return 1.0 / np.sqrt(std**-2 + np.asarray(sigma_close, float) ** -2)
 
-    return InspectPrediction(spec.name, std, fuse(close["median"]), fuse(close["p90"]),
-                             float(close["informative"]))
+    return InspectPrediction(spec.name, std, fuse(close["median"]), fuse(close["p90"]), float(close["informative"]))
 
 
 __all__ = ["CLOSE_VIEW", "InspectPrediction", "close_view_noise", "predict_inspection"]

@@ -69,13 +69,13 @@ class LikelihoodConfig:
     depth_range: float = 2.0
     tempering: float | None = None  # None: from the view and the gear (see tempering_for)
     correlation_length: float = 1.0e-3  # [m] along the gear's outline (calibrated, docs)
-    gsd_exponent: float = 1.77          # how the tempering grows with the pixel size (calibrated)
-    reference_gsd: float = 4.1e-4       # [m/pixel] where the exponent is anchored (the close view)
+    gsd_exponent: float = 1.77  # how the tempering grows with the pixel size (calibrated)
+    reference_gsd: float = 4.1e-4  # [m/pixel] where the exponent is anchored (the close view)
     gear_tempering: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(GEAR_TEMPERING))
-    occlusion_exponent: float = 0.5     # evidence of a partly hidden gear, resolved teeth (calibrated)
-    noise_exponent: float = 1.0         # evidence under depth noise (calibrated)
-    lamp_discount: float = 0.8          # evidence under a light fitted from the gear's shading (calibrated)
-    brightness_exponent: float = 0.75   # how the colour scale follows a dimmer light (calibrated)
+    occlusion_exponent: float = 0.5  # evidence of a partly hidden gear, resolved teeth (calibrated)
+    noise_exponent: float = 1.0  # evidence under depth noise (calibrated)
+    lamp_discount: float = 0.8  # evidence under a light fitted from the gear's shading (calibrated)
+    brightness_exponent: float = 0.75  # how the colour scale follows a dimmer light (calibrated)
     # how it follows a brighter one, (unresolved, resolved teeth) blended by `teeth_resolved`: the
     # scene view's colour residuals grow faster with it than the close view's (calibrated, docs)
     bright_exponent: tuple[float, float] = (1.0, 0.75)
@@ -100,46 +100,68 @@ class LikelihoodConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.p_out < 1.0:
             raise ValueError(f"p_out = {self.p_out}; expected a probability in (0, 1)")
-        for name in ("b_rgb", "b_d", "depth_range", "tempering", "correlation_length",
-                     "gsd_exponent", "reference_gsd", "far_reference_pixels"):
+        for name in (
+            "b_rgb",
+            "b_d",
+            "depth_range",
+            "tempering",
+            "correlation_length",
+            "gsd_exponent",
+            "reference_gsd",
+            "far_reference_pixels",
+        ):
             value = getattr(self, name)
             if name == "tempering" and value is None:
                 continue
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value > 0")
         if not (np.isfinite(self.lamp_discount) and 0 < self.lamp_discount <= 1):
-            raise ValueError(f"LikelihoodConfig.lamp_discount = {self.lamp_discount}; expected a "
-                             "factor in (0, 1]")
+            raise ValueError(f"LikelihoodConfig.lamp_discount = {self.lamp_discount}; expected a factor in (0, 1]")
         for name in ("occlusion_exponent", "noise_exponent", "brightness_exponent"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"LikelihoodConfig.{name} = {value}; expected a finite value >= 0")
         if not (len(self.bright_exponent) == 2 and all(np.isfinite(e) and e >= 0 for e in self.bright_exponent)):
-            raise ValueError(f"LikelihoodConfig.bright_exponent = {self.bright_exponent}; expected "
-                             "(unresolved, resolved) values >= 0")
+            raise ValueError(
+                f"LikelihoodConfig.bright_exponent = {self.bright_exponent}; expected "
+                "(unresolved, resolved) values >= 0"
+            )
         for name in ("posterior_factor", "shape_exponent", "colour_scale_factor"):
             pair = getattr(self, name)
             if not (len(pair) == 2 and all(np.isfinite(e) and 0 < e <= 4 for e in pair)):
-                raise ValueError(f"LikelihoodConfig.{name} = {pair}; expected (unresolved, "
-                                 "resolved) values in (0, 4]")
+                raise ValueError(f"LikelihoodConfig.{name} = {pair}; expected (unresolved, resolved) values in (0, 4]")
         for gear, pair in self.far_reshaping.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
-            if not (len(pair) == 2 and np.isfinite(pair[0]) and 0 < pair[0] <= 4 and np.isfinite(pair[1])
-                    and abs(pair[1]) <= 8):
-                raise ValueError(f"LikelihoodConfig.far_reshaping[{gear!r}] = {pair}; expected (a in (0, 4], "
-                                 "b in [-8, 8]) of the far view's factor (a (pixels / far_reference_pixels)^b)^(1 - w)")
+            if not (
+                len(pair) == 2
+                and np.isfinite(pair[0])
+                and 0 < pair[0] <= 4
+                and np.isfinite(pair[1])
+                and abs(pair[1]) <= 8
+            ):
+                raise ValueError(
+                    f"LikelihoodConfig.far_reshaping[{gear!r}] = {pair}; expected (a in (0, 4], "
+                    "b in [-8, 8]) of the far view's factor (a (pixels / far_reference_pixels)^b)^(1 - w)"
+                )
         for gear, triple in self.close_reshaping.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
-            if not (len(triple) == 3 and np.isfinite(triple[0]) and 0 < triple[0] <= 4
-                    and all(np.isfinite(c) and abs(c) <= 8 for c in triple[1:])):
-                raise ValueError(f"LikelihoodConfig.close_reshaping[{gear!r}] = {triple}; expected (a in (0, 4], "
-                                 "c_dim and c_bright in [-8, 8]) of the close view's factor (a brightness^c)^w")
+            if not (
+                len(triple) == 3
+                and np.isfinite(triple[0])
+                and 0 < triple[0] <= 4
+                and all(np.isfinite(c) and abs(c) <= 8 for c in triple[1:])
+            ):
+                raise ValueError(
+                    f"LikelihoodConfig.close_reshaping[{gear!r}] = {triple}; expected (a in (0, 4], "
+                    "c_dim and c_bright in [-8, 8]) of the close view's factor (a brightness^c)^w"
+                )
         for gear, factor in self.gear_tempering.items():
             gear_spec(gear)  # a known gear, or ValueError naming the valid ones
-            if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0
-                    and np.isfinite(factor[1])):
-                raise ValueError(f"LikelihoodConfig.gear_tempering[{gear!r}] = {factor}; expected "
-                                 "(A > 0, B) of the factor A (gsd / reference_gsd)^B")
+            if not (len(factor) == 2 and np.isfinite(factor[0]) and factor[0] > 0 and np.isfinite(factor[1])):
+                raise ValueError(
+                    f"LikelihoodConfig.gear_tempering[{gear!r}] = {factor}; expected "
+                    "(A > 0, B) of the factor A (gsd / reference_gsd)^B"
+                )
 
     def tempering_for(self, gear: str, gsd: float) -> float:
         """The tempering exponent for `gear` seen at ground sampling distance `gsd` [m of table per
@@ -160,11 +182,10 @@ class LikelihoodConfig:
             raise ValueError(f"gsd = {gsd}; expected a ground sampling distance > 0 [m/pixel]")
         g0 = self.reference_gsd
         a, b = self.gear_tempering.get(gear, (1.0, 0.0))
-        pixel = a * g0 ** 2 * (gsd / g0) ** (self.gsd_exponent + b)
+        pixel = a * g0**2 * (gsd / g0) ** (self.gsd_exponent + b)
         return float(min(1.0, pixel / (self.correlation_length * gear_spec(gear).tip_radius)))
 
-    def evidence_factor(self, gsd: float, visible: float, depth_noise: float,
-                        fitted_light: bool = False) -> float:
+    def evidence_factor(self, gsd: float, visible: float, depth_noise: float, fitted_light: bool = False) -> float:
         """What the tempering is multiplied by once the best pose is known, from the view
         (`gsd` [m/pixel]), the share of the gear's predicted pixels that pose explains (`visible`,
         in (0, 1]), the per-pixel depth noise read off the table (`depth_noise` [m]; the
@@ -205,10 +226,11 @@ class LikelihoodConfig:
         g = light_gain(brightness)
         w = teeth_resolved(gsd)
         e = self.brightness_exponent if g <= 1.0 else by_view(self.bright_exponent, w)
-        return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g ** e)
+        return float(by_view(self.colour_scale_factor, w, geometric=True) * self.b_rgb * g**e)
 
-    def reshaping_for(self, gsd: float, gear: str | None = None, pixels: float | None = None,
-                      brightness: float = 1.0) -> tuple[float, float]:
+    def reshaping_for(
+        self, gsd: float, gear: str | None = None, pixels: float | None = None, brightness: float = 1.0
+    ) -> tuple[float, float]:
         """(factor, exponent) of the posterior's reshaping for `gear` in a view of ground sampling
         distance `gsd` [m/pixel] (PosePosterior.reshaped): posterior_factor's and shape_exponent's
         two values blended by how well the view resolves the teeth (`teeth_resolved`; the factor
@@ -226,8 +248,10 @@ class LikelihoodConfig:
         if gear is None or gear not in self.close_reshaping:
             return 1.0
         if not (np.isfinite(brightness) and brightness > 0):
-            raise ValueError(f"brightness = {brightness}; expected the light's colour gain (> 0) "
-                             f"for the {gear} gear's close-view reshaping")
+            raise ValueError(
+                f"brightness = {brightness}; expected the light's colour gain (> 0) "
+                f"for the {gear} gear's close-view reshaping"
+            )
         return close_factor(gsd, brightness, *self.close_reshaping[gear])
 
     def far_factor_for(self, gsd: float, gear: str | None, pixels: float | None = None) -> float:
@@ -237,38 +261,49 @@ class LikelihoodConfig:
         if gear is None or gear not in self.far_reshaping:
             return 1.0
         if pixels is None or not (np.isfinite(pixels) and pixels > 0):
-            raise ValueError(f"pixels = {pixels}; expected the {gear} gear's sampled pixel count (> 0) "
-                             "for its far-view reshaping")
+            raise ValueError(
+                f"pixels = {pixels}; expected the {gear} gear's sampled pixel count (> 0) for its far-view reshaping"
+            )
         a, b = self.far_reshaping[gear]
         return far_factor(gsd, pixels, a, b, self.far_reference_pixels)
 
     def pixel_constants(self, scales: float = 3.0) -> tuple:
         """The constants `pixel_terms` takes: the scales in float32 (the images' precision) and
         the density's log normalizers; `scales` sets the inlier test."""
-        return (np.float32(self.b_rgb), np.float32(self.b_d), float(np.log1p(-self.p_out)),
-                float(3 * np.log(2 * self.b_rgb)), float(np.log(2 * self.b_d)),
-                float(np.log(self.p_out)), float(np.log(self.depth_range)), np.float32(scales))
+        return (
+            np.float32(self.b_rgb),
+            np.float32(self.b_d),
+            float(np.log1p(-self.p_out)),
+            float(3 * np.log(2 * self.b_rgb)),
+            float(np.log(2 * self.b_d)),
+            float(np.log(self.p_out)),
+            float(np.log(self.depth_range)),
+            np.float32(scales),
+        )
 
-    def pixel_loglik(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                     depth_hat: np.ndarray) -> np.ndarray:
+    def pixel_loglik(
+        self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray, depth_hat: np.ndarray
+    ) -> np.ndarray:
         """Log-likelihood of observed pixels (rgb (..., 3), depth (...)) given rendered ones,
         computed in float32 like the images; a pixel without a valid depth (NaN, <= 0) is scored
         on its colour alone (its depth density marginalized out)."""
         return self._per_pixel(rgb, depth, rgb_hat, depth_hat, 3.0)[0]
 
-    def is_inlier(self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray,
-                  depth_hat: np.ndarray, scales: float = 3.0) -> np.ndarray:
+    def is_inlier(
+        self, rgb: np.ndarray, depth: np.ndarray, rgb_hat: np.ndarray, depth_hat: np.ndarray, scales: float = 3.0
+    ) -> np.ndarray:
         """Whether each pixel matches its rendering within `scales` times b_rgb (colour, L1) and
         b_d (depth; a pixel without depth on colour alone): what "the hypothesis explains this
         pixel" means in the sanity checks."""
         return self._per_pixel(rgb, depth, rgb_hat, depth_hat, scales)[1]
 
     def _per_pixel(self, rgb, depth, rgb_hat, depth_hat, scales):
-        rgb, depth, rgb_hat, depth_hat = (np.asarray(x, np.float32)
-                                          for x in (rgb, depth, rgb_hat, depth_hat))
+        rgb, depth, rgb_hat, depth_hat = (np.asarray(x, np.float32) for x in (rgb, depth, rgb_hat, depth_hat))
         shape = np.broadcast_shapes(rgb.shape[:-1], rgb_hat.shape[:-1], depth.shape, depth_hat.shape)
-        flat = [np.ascontiguousarray(np.broadcast_to(x, shape + tail).reshape((-1,) + tail))
-                for x, tail in ((rgb, (3,)), (depth, ()), (rgb_hat, (3,)), (depth_hat, ()))]
+        flat = [
+            np.ascontiguousarray(np.broadcast_to(x, shape + tail).reshape((-1,) + tail))
+            for x, tail in ((rgb, (3,)), (depth, ()), (rgb_hat, (3,)), (depth_hat, ()))
+        ]
         loglik, inlier = _pixels(*flat, self.pixel_constants(scales))
         return loglik.reshape(shape), inlier.reshape(shape)
 
@@ -287,7 +322,7 @@ def by_view(pair: tuple[float, float], resolved: float | np.ndarray, geometric: 
     (exponents)."""
     a, b = pair
     if geometric:
-        return a ** (1.0 - resolved) * b ** resolved
+        return a ** (1.0 - resolved) * b**resolved
     return (1.0 - resolved) * a + resolved * b
 
 
@@ -311,8 +346,9 @@ def light_gain(brightness: float) -> float:
     return float(np.clip(brightness, *GAIN_RANGE))
 
 
-def blend_reshaping(posterior_factor: tuple[float, float], shape_exponent: tuple[float, float],
-                    resolved: float | np.ndarray) -> tuple:
+def blend_reshaping(
+    posterior_factor: tuple[float, float], shape_exponent: tuple[float, float], resolved: float | np.ndarray
+) -> tuple:
     """(factor, exponent) of the reshaping at teeth-resolution `resolved` in [0, 1] (a number or
     an array, `teeth_resolved`): the (unresolved, resolved) factors blended geometrically, the
     exponents linearly."""
@@ -350,8 +386,17 @@ def _pixels(rgb, depth, rgb_hat, depth_hat, constants):
     loglik = np.empty(n)
     inlier = np.empty(n, np.bool_)
     for i in range(n):
-        loglik[i], inlier[i] = pixel_terms(rgb[i, 0], rgb[i, 1], rgb[i, 2], depth[i], rgb_hat[i, 0],
-                                           rgb_hat[i, 1], rgb_hat[i, 2], depth_hat[i], constants)
+        loglik[i], inlier[i] = pixel_terms(
+            rgb[i, 0],
+            rgb[i, 1],
+            rgb[i, 2],
+            depth[i],
+            rgb_hat[i, 0],
+            rgb_hat[i, 1],
+            rgb_hat[i, 2],
+            depth_hat[i],
+            constants,
+        )
     return loglik, inlier
 
 
@@ -376,8 +421,7 @@ def table_depth(origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.where(down, -origin[2] / np.where(down, dirs[:, 2], -1.0), np.inf).astype(np.float32)
 
 
-def table_prediction(origin: np.ndarray, dirs: np.ndarray, light: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def table_prediction(origin: np.ndarray, dirs: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """What each ray sees if no gear is in its way: the table plane z = 0 (depth, shaded colour);
     depth is +inf for rays that never reach it."""
     rgb = np.broadcast_to(table_colour(light), (len(dirs), 3)).astype(np.float32)

@@ -32,15 +32,22 @@ class Intrinsics:
         for name in ("fx", "fy", "cx", "cy"):
             value = getattr(self, name)
             if not np.isfinite(value) or (name in ("fx", "fy") and value <= 0):
-                raise ValueError(f"intrinsics {name} = {value}; expected a finite "
-                                 + ("focal length > 0 [px]" if name in ("fx", "fy") else
-                                    "principal point [px]"))
+                raise ValueError(
+                    f"intrinsics {name} = {value}; expected a finite "
+                    + ("focal length > 0 [px]" if name in ("fx", "fy") else "principal point [px]")
+                )
 
     @staticmethod
     def from_camera_info(info: CameraInfo) -> "Intrinsics":
         """The intrinsics of a Drake CameraInfo."""
-        return Intrinsics(int(info.width()), int(info.height()), float(info.focal_x()),
-                          float(info.focal_y()), float(info.center_x()), float(info.center_y()))
+        return Intrinsics(
+            int(info.width()),
+            int(info.height()),
+            float(info.focal_x()),
+            float(info.focal_y()),
+            float(info.center_x()),
+            float(info.center_y()),
+        )
 
     def rays_C(self, u: np.ndarray, v: np.ndarray, offset: float = VTK_PIXEL_OFFSET) -> np.ndarray:
         """Camera-frame ray directions (unit z component) through pixels (u, v), shape (n, 3)."""
@@ -72,11 +79,14 @@ class Observation:
         if depth.ndim == 3 and depth.shape[2] == 1:
             depth = depth[:, :, 0]
         if rgb.ndim != 3 or rgb.shape[2] not in (3, 4) or rgb.shape[:2] != (k.height, k.width):
-            raise ValueError(f"rgb image has shape {rgb.shape}; expected ({k.height}, {k.width}, 3) "
-                             "or with an alpha channel (the camera's height x width)")
+            raise ValueError(
+                f"rgb image has shape {rgb.shape}; expected ({k.height}, {k.width}, 3) "
+                "or with an alpha channel (the camera's height x width)"
+            )
         if depth.shape != (k.height, k.width):
-            raise ValueError(f"depth image has shape {depth.shape}; expected ({k.height}, {k.width}) "
-                             "(the camera's height x width)")
+            raise ValueError(
+                f"depth image has shape {depth.shape}; expected ({k.height}, {k.width}) (the camera's height x width)"
+            )
         if rgb.dtype == np.uint8:
             rgb = rgb.astype(np.float32) / 255.0
         rgb = np.asarray(rgb[:, :, :3], dtype=np.float32)
@@ -84,8 +94,7 @@ class Observation:
             raise ValueError("rgb values must be finite and in [0, 1] (float) or 0..255 (uint8)")
         depth = np.asarray(depth, dtype=np.float32)
         if not np.any(np.isfinite(depth) & (depth > 0)):
-            raise ValueError("depth image has no valid pixel (all non-finite or <= 0); "
-                             "expected depths in metres")
+            raise ValueError("depth image has no valid pixel (all non-finite or <= 0); expected depths in metres")
         if not isinstance(self.X_WC, RigidTransform):
             raise ValueError(f"X_WC is {type(self.X_WC).__name__}; expected a pydrake RigidTransform")
         self.rgb, self.depth = rgb, depth

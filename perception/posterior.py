@@ -66,8 +66,7 @@ class PosePosterior:
         if self.support is not None:
             x0, x1, y0, y1 = self.support
             if not (x0 < x1 and y0 < y1):
-                raise ValueError(f"support {self.support}; expected (x0, x1, y0, y1) with x0 < x1 "
-                                 "and y0 < y1")
+                raise ValueError(f"support {self.support}; expected (x0, x1, y0, y1) with x0 < x1 and y0 < y1")
             lm = lm + self._support_cut()
         if not np.isfinite(lm.max()):
             raise ValueError("the posterior has no mass (every cell is -inf or outside its support)")
@@ -78,8 +77,10 @@ class PosePosterior:
         """(1, nx, ny, 1) log of each cell's fraction inside the support box (-inf outside)."""
         x0, x1, y0, y1 = self.support
         with np.errstate(divide="ignore"):
-            return (np.log(cell_overlap(self.xs, self.dx, x0, x1))[None, :, None, None]
-                    + np.log(cell_overlap(self.ys, self.dy, y0, y1))[None, None, :, None])
+            return (
+                np.log(cell_overlap(self.xs, self.dx, x0, x1))[None, :, None, None]
+                + np.log(cell_overlap(self.ys, self.dy, y0, y1))[None, None, :, None]
+            )
 
     def _evidence(self) -> np.ndarray:
         """The log-masses without the support cut (-inf outside the support): what the image says,
@@ -144,8 +145,12 @@ class PosePosterior:
         rel = (self.yaws() - lo) % self.period  # cell centres measured from the arc's start
         return sum(cell_overlap(rel + s, self.dyaw, 0.0, span) for s in (-self.period, 0.0, self.period))
 
-    def probability(self, x: tuple[float, float] | None = None, y: tuple[float, float] | None = None,
-                    yaw: tuple[float, float] | None = None) -> float:
+    def probability(
+        self,
+        x: tuple[float, float] | None = None,
+        y: tuple[float, float] | None = None,
+        yaw: tuple[float, float] | None = None,
+    ) -> float:
         """Probability that the pose lies in the box x in [x0, x1], y in [y0, y1] and yaw in the arc
         from yaw0 counter-clockwise to yaw1 [rad] (for a symmetric gear: that some yaw of its class
         does); a dimension left as None is unconstrained."""
@@ -196,12 +201,12 @@ class PosePosterior:
         for dim, width in (("x", self.dx), ("y", self.dy)):
             v, p = self.marginal(dim)
             mu = (v * p).sum()
-            out.append(np.sqrt(max(((v - mu) ** 2 * p).sum(), 0.0) + width ** 2 / 12))
+            out.append(np.sqrt(max(((v - mu) ** 2 * p).sum(), 0.0) + width**2 / 12))
         v, p = self.marginal("yaw")
         scale = TURN / self.period
         r = abs((p * np.exp(1j * scale * v)).sum())
         sigma = np.sqrt(-2 * np.log(np.clip(r, 1e-12, 1.0))) / scale
-        out.append(np.sqrt(sigma ** 2 + self.dyaw ** 2 / 12))
+        out.append(np.sqrt(sigma**2 + self.dyaw**2 / 12))
         return np.array(out)
 
     def _levels(self) -> np.ndarray:
@@ -248,15 +253,25 @@ class PosePosterior:
         raw = self._evidence()
         with np.errstate(invalid="ignore"):
             deficit = factor * (raw.max() - raw)
-            reshaped = np.where(np.isfinite(raw), -deficit ** exponent, -np.inf)
+            reshaped = np.where(np.isfinite(raw), -(deficit**exponent), -np.inf)
         return self._with_evidence(reshaped)
 
     def _with_evidence(self, log_evidence: np.ndarray) -> "PosePosterior":
         """This posterior with another log-evidence on the same cells (the support cut applied
         again by the constructor)."""
-        return PosePosterior(self.gear, self.xs, self.ys, self.mode_yaws, self.yaw_offsets,
-                             log_evidence, self.informative, self.reason, dict(self.info),
-                             self.period, self.support)
+        return PosePosterior(
+            self.gear,
+            self.xs,
+            self.ys,
+            self.mode_yaws,
+            self.yaw_offsets,
+            log_evidence,
+            self.informative,
+            self.reason,
+            dict(self.info),
+            self.period,
+            self.support,
+        )
 
     def upsampled(self, factor: int, order: int = 3) -> "PosePosterior":
         """The posterior on cells `factor` times finer in x, y and yaw over the same cell centres'
@@ -279,11 +294,25 @@ class PosePosterior:
         xs, ys, offsets = fine_axis(self.xs), fine_axis(self.ys), fine_axis(self.yaw_offsets)
         shape = (len(xs), len(ys), len(offsets))
         scale = [m / k for m, k in zip(shape, raw.shape[1:])]
-        fine = np.stack([zoom(r, scale, order=order, mode="nearest", grid_mode=False)
-                         for r in raw]) if raw.shape[1:] != shape else raw
+        fine = (
+            np.stack([zoom(r, scale, order=order, mode="nearest", grid_mode=False) for r in raw])
+            if raw.shape[1:] != shape
+            else raw
+        )
         fine = np.minimum(fine, raw.max())
-        return PosePosterior(self.gear, xs, ys, self.mode_yaws, offsets, fine, self.informative,
-                             self.reason, dict(self.info), self.period, self.support)
+        return PosePosterior(
+            self.gear,
+            xs,
+            ys,
+            self.mode_yaws,
+            offsets,
+            fine,
+            self.informative,
+            self.reason,
+            dict(self.info),
+            self.period,
+            self.support,
+        )
 
     def credible_mask(self, level: float = 0.9) -> np.ndarray:
         """Cells of the highest-probability region holding `level` of the mass (a cell is in when
@@ -326,27 +355,38 @@ class PosePosterior:
 
     def summary(self) -> dict:
         """A JSON-ready summary: MAP, standard deviations, entropies, flags."""
-        return {"gear": self.gear, "informative": self.informative, "reason": self.reason,
-                "map": self.map_pose.tolist(), "std": self.std().tolist(),
-                "entropy": {d: self.marginal_entropy(d) for d in DIMS},
-                **{k: v for k, v in self.info.items() if isinstance(v, (int, float, str))}}
+        return {
+            "gear": self.gear,
+            "informative": self.informative,
+            "reason": self.reason,
+            "map": self.map_pose.tolist(),
+            "std": self.std().tolist(),
+            "entropy": {d: self.marginal_entropy(d) for d in DIMS},
+            **{k: v for k, v in self.info.items() if isinstance(v, (int, float, str))},
+        }
 
     def plot(self, path: str | Path | None = None, truth: np.ndarray | None = None):
         """The x-y map (summed over yaw) and the yaw marginal (the seed paper's Fig. 12); saved to
         `path` if given. Returns the matplotlib Figure."""
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
         fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9, 3.6))
         xy = self.mass.sum(axis=(0, 3))
-        extent = [1e3 * (self.xs[0] - self.dx / 2), 1e3 * (self.xs[-1] + self.dx / 2),
-                  1e3 * (self.ys[0] - self.dy / 2), 1e3 * (self.ys[-1] + self.dy / 2)]
+        extent = [
+            1e3 * (self.xs[0] - self.dx / 2),
+            1e3 * (self.xs[-1] + self.dx / 2),
+            1e3 * (self.ys[0] - self.dy / 2),
+            1e3 * (self.ys[-1] + self.dy / 2),
+        ]
         ax0.imshow(xy.T, origin="lower", extent=extent, cmap="viridis", aspect="equal")
         if truth is not None:
             ax0.plot(1e3 * truth[0], 1e3 * truth[1], "r+", ms=12, label="truth")
             ax0.legend(loc="upper right", fontsize=8)
         from matplotlib.ticker import MaxNLocator
+
         ax0.xaxis.set_major_locator(MaxNLocator(4))
         ax0.yaxis.set_major_locator(MaxNLocator(5))
         ax0.set_xlabel("x [mm]")
@@ -368,15 +408,31 @@ class PosePosterior:
         return fig
 
 
-def uniform_posterior(gear: str, centre: tuple[float, float], half_width: float, reason: str,
-                      period: float = TURN, cells: int = 21, yaw_cells: int = 72,
-                      info: dict | None = None) -> PosePosterior:
+def uniform_posterior(
+    gear: str,
+    centre: tuple[float, float],
+    half_width: float,
+    reason: str,
+    period: float = TURN,
+    cells: int = 21,
+    yaw_cells: int = 72,
+    info: dict | None = None,
+) -> PosePosterior:
     """The prior, flagged uninformative: uniform over the square box of `half_width` around
     `centre` (its support) and over every yaw of the symmetry class (`period`)."""
     edges = (np.arange(cells) + 0.5) * 2 * half_width / cells - half_width
     offsets = -period / 2 + (np.arange(yaw_cells) + 0.5) * period / yaw_cells
-    support = (centre[0] - half_width, centre[0] + half_width,
-               centre[1] - half_width, centre[1] + half_width)
-    return PosePosterior(gear, centre[0] + edges, centre[1] + edges, np.zeros(1), offsets,
-                         np.zeros((1, cells, cells, yaw_cells)), informative=False, reason=reason,
-                         info=dict(info or {}), period=period, support=support)
+    support = (centre[0] - half_width, centre[0] + half_width, centre[1] - half_width, centre[1] + half_width)
+    return PosePosterior(
+        gear,
+        centre[0] + edges,
+        centre[1] + edges,
+        np.zeros(1),
+        offsets,
+        np.zeros((1, cells, cells, yaw_cells)),
+        informative=False,
+        reason=reason,
+        info=dict(info or {}),
+        period=period,
+        support=support,
+    )

@@ -68,8 +68,9 @@ class RayCaster:
         # that rays grazing a face's edge hit it even between two march samples.
         self._levels = np.ascontiguousarray(np.unique(self.map.height[flat])[::-1][:4])
 
-    def render(self, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray,
-               poses: np.ndarray, surface: bool = False) -> RenderedPairs:
+    def render(
+        self, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray, poses: np.ndarray, surface: bool = False
+    ) -> RenderedPairs:
         """Hits of rays origin + t * dirs (t = depth) for each pose (N, 3) in `poses`; `light` is
         the direction towards the light in the world (minus the camera's optical axis for Drake's
         headlight), its length the intensity. `surface`: also return each hit's world normal and
@@ -85,8 +86,10 @@ class RayCaster:
         origin = np.asarray(origin, float)
         dirs = np.asarray(dirs, float)
         if origin[2] <= self._top:
-            raise ValueError(f"camera height {origin[2]:.4f} m is not above the gear top "
-                             f"{self._top:.4f} m; the ray caster looks down at the table")
+            raise ValueError(
+                f"camera height {origin[2]:.4f} m is not above the gear top "
+                f"{self._top:.4f} m; the ray caster looks down at the table"
+            )
         down = dirs[:, 2] < -1e-9
         t_top = np.where(down, (self._top - origin[2]) / np.where(down, dirs[:, 2], -1.0), np.inf)
         t_bot = np.where(down, -origin[2] / np.where(down, dirs[:, 2], -1.0), np.inf)
@@ -95,16 +98,36 @@ class RayCaster:
         hyp, pix = self._candidates(a, b, down, poses[:, :2])
         m = self.map
         count, *out = _march_pairs(
-            hyp, pix, a, b, t_top, t_bot, poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
-            np.asarray(light, float), self.config.march_step, self._h, self._n, self._wall,
-            self._albedo, self._levels, float(m.x0), 1.0 / m.texel, m.size, float(self._top),
-            (self.model.tip_radius + 2 * m.texel) ** 2, self.config.refine_steps, surface)
+            hyp,
+            pix,
+            a,
+            b,
+            t_top,
+            t_bot,
+            poses,
+            np.cos(poses[:, 2]),
+            np.sin(poses[:, 2]),
+            np.asarray(light, float),
+            self.config.march_step,
+            self._h,
+            self._n,
+            self._wall,
+            self._albedo,
+            self._levels,
+            float(m.x0),
+            1.0 / m.texel,
+            m.size,
+            float(self._top),
+            (self.model.tip_radius + 2 * m.texel) ** 2,
+            self.config.refine_steps,
+            surface,
+        )
         hyp, pix, depth, rgb, normal, albedo = (o[:count] for o in out)
-        return RenderedPairs(hyp, pix, depth, rgb, normal if surface else None,
-                             albedo if surface else None)
+        return RenderedPairs(hyp, pix, depth, rgb, normal if surface else None, albedo if surface else None)
 
-    def _candidates(self, a: np.ndarray, b: np.ndarray, down: np.ndarray,
-                    centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _candidates(
+        self, a: np.ndarray, b: np.ndarray, down: np.ndarray, centres: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(hypothesis, pixel) pairs whose slab chord a-b passes within the tip radius of the
         hypothesis' centre; computed once per distinct centre (hypotheses that differ only in yaw
         share their pixels)."""
@@ -118,7 +141,7 @@ class RayCaster:
         ms, ps = [], []
         step = max(1, 2_000_000 // max(len(ax), 1))
         for s in range(0, len(uniq), step):
-            cx, cy = uniq[s:s + step, 0:1], uniq[s:s + step, 1:2]
+            cx, cy = uniq[s : s + step, 0:1], uniq[s : s + step, 1:2]
             acx, acy = cx - ax, cy - ay
             u = np.clip((acx * abx + acy * aby) * inv_ab2, 0.0, 1.0)
             ex, ey = acx - u * abx, acy - u * aby
@@ -138,8 +161,9 @@ class RayCaster:
         return order[first + within], pair_p
 
 
-def render_image(caster: RayCaster, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray,
-                 pose: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def render_image(
+    caster: RayCaster, origin: np.ndarray, dirs: np.ndarray, light: np.ndarray, pose: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
     """Dense (depth, rgb) images of one pose for rays given in row-major pixel order; depth is
     +inf and rgb 0 where the gear is not hit."""
     out = caster.render(origin, dirs, light, np.asarray(pose, float)[None])
@@ -163,9 +187,31 @@ def _texel(x, y, x0, inv_texel, n):
 
 
 @numba.njit(cache=True)
-def _march_pairs(hyp, pix, a, b, t_top, t_bot, poses, cos_yaw, sin_yaw, light, march_step, h,
-                 normal, wall_normal, albedo, levels, x0, inv_texel, n, top, r2, refine_steps,
-                 surface):
+def _march_pairs(
+    hyp,
+    pix,
+    a,
+    b,
+    t_top,
+    t_bot,
+    poses,
+    cos_yaw,
+    sin_yaw,
+    light,
+    march_step,
+    h,
+    normal,
+    wall_normal,
+    albedo,
+    levels,
+    x0,
+    inv_texel,
+    n,
+    top,
+    r2,
+    refine_steps,
+    surface,
+):
     """The hits of the (hypothesis, pixel) pairs (hyp[q], pix[q]), in pair order: the ray's slab
     chord runs from a[pix] (top of the slab, ray parameter t_top) to b[pix] (the table, t_bot); in
     the gear frame of pose poses[hyp] it is (x + s dx, y + s dy), s in [0, 1], marched through the

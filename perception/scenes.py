@@ -40,8 +40,17 @@ from perception.drake_scene import DEFAULT_LIGHTING, HAND_OCCLUDER, DrakeScene, 
 from perception.observation import Observation
 
 __all__ = [
-    "DEPTH_NOISE_REFERENCE", "INSPECT_OFFSET", "Lighting", "PERTURBATIONS", "Perturbation",
-    "RandomScene", "SceneRenderer", "VIEWS", "View", "apply_depth_noise", "apply_dropout",
+    "DEPTH_NOISE_REFERENCE",
+    "INSPECT_OFFSET",
+    "Lighting",
+    "PERTURBATIONS",
+    "Perturbation",
+    "RandomScene",
+    "SceneRenderer",
+    "VIEWS",
+    "View",
+    "apply_depth_noise",
+    "apply_dropout",
     "random_scenes",
 ]
 
@@ -78,8 +87,10 @@ class Lighting:
         if not (np.isfinite(self.intensity) and self.intensity > 0):
             raise ValueError(f"Lighting.intensity = {self.intensity}; expected a finite value > 0")
         if self.elevation_deg is not None and not 0 < self.elevation_deg <= 90:
-            raise ValueError(f"Lighting.elevation_deg = {self.elevation_deg}; expected (0, 90] "
-                             "degrees or None (the camera headlight)")
+            raise ValueError(
+                f"Lighting.elevation_deg = {self.elevation_deg}; expected (0, 90] "
+                "degrees or None (the camera headlight)"
+            )
 
     @property
     def is_default(self) -> bool:
@@ -89,12 +100,12 @@ class Lighting:
     def lights(self) -> tuple[LightParameter, ...]:
         """The Drake LightParameters of this setup."""
         if self.elevation_deg is None:
-            return (LightParameter(type="directional", frame="camera", intensity=self.intensity,
-                                   direction=[0.0, 0.0, 1.0]),)
+            return (
+                LightParameter(type="directional", frame="camera", intensity=self.intensity, direction=[0.0, 0.0, 1.0]),
+            )
         el, az = np.radians(self.elevation_deg), np.radians(self.azimuth_deg)
         towards = -np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        return (LightParameter(type="directional", frame="world", intensity=self.intensity,
-                               direction=towards),)
+        return (LightParameter(type="directional", frame="world", intensity=self.intensity, direction=towards),)
 
 
 @dataclass(frozen=True)
@@ -120,8 +131,7 @@ class Perturbation:
         if not 0 <= self.dropout < 1:
             raise ValueError(f"{self.name}: dropout = {self.dropout}; expected a fraction in [0, 1)")
         if self.occluder is not None and self.occluder not in OCCLUDER_KINDS:
-            raise ValueError(f"{self.name}: occluder = {self.occluder!r}; expected None or one of "
-                             f"{OCCLUDER_KINDS}")
+            raise ValueError(f"{self.name}: occluder = {self.occluder!r}; expected None or one of {OCCLUDER_KINDS}")
         if not 0 < self.hidden[0] < self.hidden[1] < 1:
             raise ValueError(f"{self.name}: hidden = {self.hidden}; expected 0 < low < high < 1")
 
@@ -130,30 +140,37 @@ class Perturbation:
 # oblique light comes from the side of that view, 90 deg further round.
 _SIDE_AZIMUTH = 38.0
 
-PERTURBATIONS: dict[str, Perturbation] = {p.name: p for p in (
-    Perturbation("clean", "Drake's default headlight, perfect depth"),
-    Perturbation("depth_noise", "Gaussian depth noise, sigma 1 mm at 0.5 m growing with depth^2",
-                 depth_noise=0.001),
-    Perturbation("dropout_3", "3 % of depth pixels NaN (independent pixels)", dropout=0.03),
-    Perturbation("dropout_10", "10 % of depth pixels NaN (independent pixels)", dropout=0.10),
-    Perturbation("dim", "headlight at half intensity", lighting=Lighting(intensity=0.5)),
-    Perturbation("bright", "headlight at 1.6 x intensity, colours saturate at 1",
-                 lighting=Lighting(intensity=1.6)),
-    Perturbation("oblique", "one directional light from 45 deg elevation off the side instead of "
-                 "the headlight", lighting=Lighting(elevation_deg=45.0, azimuth_deg=_SIDE_AZIMUTH)),
-    Perturbation("occluded_hand", "a Panda hand between camera and gear hides 15-40 % of it",
-                 occluder="hand"),
-    Perturbation("occluded_gear", "another gear, as if carried, between camera and gear hides "
-                 "15-40 % of it", occluder="gear"),
-)}
+PERTURBATIONS: dict[str, Perturbation] = {
+    p.name: p
+    for p in (
+        Perturbation("clean", "Drake's default headlight, perfect depth"),
+        Perturbation(
+            "depth_noise", "Gaussian depth noise, sigma 1 mm at 0.5 m growing with depth^2", depth_noise=0.001
+        ),
+        Perturbation("dropout_3", "3 % of depth pixels NaN (independent pixels)", dropout=0.03),
+        Perturbation("dropout_10", "10 % of depth pixels NaN (independent pixels)", dropout=0.10),
+        Perturbation("dim", "headlight at half intensity", lighting=Lighting(intensity=0.5)),
+        Perturbation("bright", "headlight at 1.6 x intensity, colours saturate at 1", lighting=Lighting(intensity=1.6)),
+        Perturbation(
+            "oblique",
+            "one directional light from 45 deg elevation off the side instead of the headlight",
+            lighting=Lighting(elevation_deg=45.0, azimuth_deg=_SIDE_AZIMUTH),
+        ),
+        Perturbation("occluded_hand", "a Panda hand between camera and gear hides 15-40 % of it", occluder="hand"),
+        Perturbation(
+            "occluded_gear", "another gear, as if carried, between camera and gear hides 15-40 % of it", occluder="gear"
+        ),
+    )
+}
 
 
 def _perturbation(perturbation: str | Perturbation) -> Perturbation:
     if isinstance(perturbation, Perturbation):
         return perturbation
     if perturbation not in PERTURBATIONS:
-        raise ValueError(f"unknown perturbation {perturbation!r}; expected one of "
-                         f"{list(PERTURBATIONS)} or a Perturbation")
+        raise ValueError(
+            f"unknown perturbation {perturbation!r}; expected one of {list(PERTURBATIONS)} or a Perturbation"
+        )
     return PERTURBATIONS[perturbation]
 
 
@@ -185,9 +202,12 @@ class RandomScene:
         return np.random.default_rng([self.seed, self.index, 1, *key])
 
 
-def random_scenes(seed: int, count: int | None = None,
-                  plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
-                  gears: tuple[str, ...] = GEAR_NAMES) -> Iterator[RandomScene]:
+def random_scenes(
+    seed: int,
+    count: int | None = None,
+    plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
+    gears: tuple[str, ...] = GEAR_NAMES,
+) -> Iterator[RandomScene]:
     """Fresh random scenes from `seed` (scene k depends only on seed and k): `count` of them, or
     endlessly when None."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -227,8 +247,11 @@ class SceneRenderer:
     setup of `perturbations`) reused for every random scene: a view costs a few renders, not a
     rebuild."""
 
-    def __init__(self, plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
-                 perturbations: dict[str, Perturbation] | None = None) -> None:
+    def __init__(
+        self,
+        plate_pose: tuple[float, float, float] = WorldConfig().plate_pose,
+        perturbations: dict[str, Perturbation] | None = None,
+    ) -> None:
         self.plate_pose = tuple(plate_pose)
         self.perturbations = dict(perturbations or PERTURBATIONS)
         self._lighting_names: dict[Lighting, str] = {}
@@ -242,15 +265,26 @@ class SceneRenderer:
                 lightings[name] = p.lighting.lights()
         occluders = {HAND_OCCLUDER: HAND_OCCLUDER, _WRIST_HAND: HAND_OCCLUDER}
         occluders.update({f"carried_{g}": g for g in GEAR_NAMES})
-        self.scene = DrakeScene(SceneConfig(
-            gears={g: (0.40, 0.0, 0.0) for g in GEAR_NAMES}, plate_pose=self.plate_pose,
-            lightings=lightings, occluders=occluders))
+        self.scene = DrakeScene(
+            SceneConfig(
+                gears={g: (0.40, 0.0, 0.0) for g in GEAR_NAMES},
+                plate_pose=self.plate_pose,
+                lightings=lightings,
+                occluders=occluders,
+            )
+        )
         self.scene_camera = default_scene_camera()
         self.wrist_camera = default_wrist_camera()
 
-    def render_view(self, scene: RandomScene, view: str, gear: str | None,
-                    perturbation: str | Perturbation, rng: np.random.Generator,
-                    believed_xy: tuple[float, float] | None = None) -> View:
+    def render_view(
+        self,
+        scene: RandomScene,
+        view: str,
+        gear: str | None,
+        perturbation: str | Perturbation,
+        rng: np.random.Generator,
+        believed_xy: tuple[float, float] | None = None,
+    ) -> View:
         """Render `view` ("scene" or "inspect") of `scene` under `perturbation`; `gear` is the
         inspected gear (required for "inspect") and the one an occluder hides (for "scene" with an
         occluder and no gear, one drawn from `rng`). Everything random (believed position,
@@ -258,8 +292,10 @@ class SceneRenderer:
         instead of at a random point near the truth (e.g. at a far posterior's estimate)."""
         p = _perturbation(perturbation)
         if p.lighting not in self._lighting_names:
-            raise ValueError(f"perturbation {p.name!r} has a lighting this renderer was not built "
-                             f"with; build SceneRenderer(perturbations=...) with it")
+            raise ValueError(
+                f"perturbation {p.name!r} has a lighting this renderer was not built "
+                f"with; build SceneRenderer(perturbations=...) with it"
+            )
         if view not in VIEWS:
             raise ValueError(f"view = {view!r}; expected one of {VIEWS}")
         if not isinstance(rng, np.random.Generator):
@@ -285,8 +321,7 @@ class SceneRenderer:
                 gear = names[int(rng.integers(len(names)))]
             occluder, hidden = self._place_occluder(p, scene, gear, camera, X_WC, labels, rng)
             labels = self.scene.render_labels(info, camera.near, camera.far, X_WC)
-            visible = {g: int(np.count_nonzero(labels == self.scene.label(g))) / counts[g]
-                       for g in visible}
+            visible = {g: int(np.count_nonzero(labels == self.scene.label(g))) / counts[g] for g in visible}
         obs = self.scene.render(camera, X_WC, self._lighting_names[p.lighting])
         depth = obs.depth
         if p.depth_noise > 0:
@@ -294,8 +329,7 @@ class SceneRenderer:
         if p.dropout > 0:
             depth = apply_dropout(depth, p.dropout, rng)
         obs = Observation(obs.rgb, depth, obs.intrinsics, obs.X_WC)
-        return View(obs, view, gear, p.name, dict(scene.poses), camera, believed, hidden, occluder,
-                    visible)
+        return View(obs, view, gear, p.name, dict(scene.poses), camera, believed, hidden, occluder, visible)
 
     def _set_scene(self, scene: RandomScene) -> None:
         """Gears of `scene` at their poses, the others and every occluder parked."""
@@ -304,9 +338,9 @@ class SceneRenderer:
         for name in self.scene.occluder_bodies:
             self.scene.set_occluder_pose(name, None)
 
-    def _inspect_camera(self, pose: tuple[float, float, float], rng: np.random.Generator,
-                        believed_xy: tuple[float, float] | None = None
-                        ) -> tuple[tuple[float, float], CameraConfig, RigidTransform]:
+    def _inspect_camera(
+        self, pose: tuple[float, float, float], rng: np.random.Generator, believed_xy: tuple[float, float] | None = None
+    ) -> tuple[tuple[float, float], CameraConfig, RigidTransform]:
         """The believed position (uniform in a disc of radius INSPECT_OFFSET around the truth),
         the wrist camera and its world pose at inspect_tool_pose(believed); places the hand that
         carries the camera."""
@@ -318,9 +352,16 @@ class SceneRenderer:
         self.scene.set_occluder_pose(_WRIST_HAND, X_WH)
         return believed, self.wrist_camera, X_WH @ self.wrist_camera.X_PC
 
-    def _place_occluder(self, p: Perturbation, scene: RandomScene, gear: str,
-                        camera: CameraConfig, X_WC: RigidTransform, labels: np.ndarray,
-                        rng: np.random.Generator) -> tuple[tuple[str, RigidTransform], float]:
+    def _place_occluder(
+        self,
+        p: Perturbation,
+        scene: RandomScene,
+        gear: str,
+        camera: CameraConfig,
+        X_WC: RigidTransform,
+        labels: np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[tuple[str, RigidTransform], float]:
         """Put an occluder of kind `p.occluder` between the camera and `gear` so that it hides a
         fraction in `p.hidden` of the gear's pixels: drawn height along the line of sight,
         direction across it and yaw, then the offset across the line found by bisection on the
@@ -335,14 +376,16 @@ class SceneRenderer:
         target = self.scene.label(gear)
         v, u = np.nonzero(labels == target)
         if len(u) == 0:
-            raise ValueError(f"the {gear} gear is not in the {camera.name} camera's view; "
-                             "nothing to occlude")
+            raise ValueError(f"the {gear} gear is not in the {camera.name} camera's view; nothing to occlude")
         seen = len(u)
 
         def hidden_at(X_WO: RigidTransform) -> float:
             self.scene.set_occluder_pose(name, X_WO)
-            return 1.0 - float(np.count_nonzero(
-                self.scene.render_labels(info, camera.near, camera.far, X_WC) == target)) / seen
+            return (
+                1.0
+                - float(np.count_nonzero(self.scene.render_labels(info, camera.near, camera.far, X_WC) == target))
+                / seen
+            )
 
         x, y, _ = scene.poses[gear]
         p_gear = np.array([x, y, GEAR_THICKNESS])
@@ -389,10 +432,10 @@ class SceneRenderer:
                 else:
                     far = k
             if found is None or (p_gear + s * sight + found[0] * across)[2] - drop < (
-                    GEAR_THICKNESS + _OCCLUDER_CLEARANCE):
+                GEAR_THICKNESS + _OCCLUDER_CLEARANCE
+            ):
                 continue
             X_WO = pose(found[0])
             self.scene.set_occluder_pose(name, X_WO)
             return (kind, X_WO), found[1]
-        raise RuntimeError(f"could not place a {kind} occluder hiding {lo:.0%}-{hi:.0%} of the "
-                           f"{gear} gear in 30 tries")
+        raise RuntimeError(f"could not place a {kind} occluder hiding {lo:.0%}-{hi:.0%} of the {gear} gear in 30 tries")

@@ -20,8 +20,7 @@ import numba
 import numpy as np
 
 from perception.gear_model import GearModel
-from perception.likelihood import (LikelihoodConfig, pixel_terms, table_colour, table_depth,
-                                   table_prediction)
+from perception.likelihood import LikelihoodConfig, pixel_terms, table_colour, table_depth, table_prediction
 from perception.observation import VTK_PIXEL_OFFSET, Observation
 from perception.renderer import RayCaster, RayCasterConfig
 
@@ -64,9 +63,15 @@ class _PixelSet:
 class ImageScorer:
     """Hypotheses of `model` near (cx, cy) (within `radius` [m]) against `obs`."""
 
-    def __init__(self, obs: Observation, model: GearModel, centre: tuple[float, float],
-                 radius: float, likelihood: LikelihoodConfig | None = None,
-                 raycaster: RayCasterConfig | None = None) -> None:
+    def __init__(
+        self,
+        obs: Observation,
+        model: GearModel,
+        centre: tuple[float, float],
+        radius: float,
+        likelihood: LikelihoodConfig | None = None,
+        raycaster: RayCasterConfig | None = None,
+    ) -> None:
         self.obs, self.model = obs, model
         self.likelihood = likelihood or LikelihoodConfig()
         self.caster = RayCaster(model, raycaster)
@@ -86,7 +91,7 @@ class ImageScorer:
         a = origin[:2] + np.where(down, t0, 0.0)[:, None] * dirs[:, :2]
         b = origin[:2] + np.where(down, t1, 0.0)[:, None] * dirs[:, :2]
         ab = b - a
-        w = np.clip(((centre - a) * ab).sum(1) / np.maximum((ab ** 2).sum(1), 1e-18), 0.0, 1.0)
+        w = np.clip(((centre - a) * ab).sum(1) / np.maximum((ab**2).sum(1), 1e-18), 0.0, 1.0)
         dist = np.linalg.norm(a + w[:, None] * ab - centre, axis=1)
         valid = obs.valid[self._v, self._u]
         self.roi = down & (dist <= radius + model.tip_radius)
@@ -112,12 +117,13 @@ class ImageScorer:
         self.conditions = self._table.conditions(self.light)
         self.brightness = float(np.mean(self.conditions.gain))  # the light's colour gain, mean of r, g, b
         self.pixels_model = replace(
-            self.likelihood, b_rgb=self.likelihood.colour_scale_for(self.brightness, self.gsd),
-            b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)))
+            self.likelihood,
+            b_rgb=self.likelihood.colour_scale_for(self.brightness, self.gsd),
+            b_d=float(np.hypot(self.likelihood.b_d, self.conditions.depth_noise)),
+        )
         self._sets = {}
 
-    def fit_light(self, pose: np.ndarray, stride: int, min_walls: int = 30,
-                  min_gain: float = 0.3) -> bool:
+    def fit_light(self, pose: np.ndarray, stride: int, min_walls: int = 30, min_gain: float = 0.3) -> bool:
         """Estimate the light's direction from the gear's shading at `pose` (x, y, yaw) and use it
         if it explains the gear's colours clearly better than the current one; returns whether the
         light changed.
@@ -135,8 +141,7 @@ class ImageScorer:
         if self.conditions.table_pixels == 0 or self.light[2] <= 0:
             return False
         ps = self.pixels(stride)
-        hits = self.caster.render(ps.origin, ps.dirs, self.light, np.asarray(pose, float)[None],
-                                  surface=True)
+        hits = self.caster.render(ps.origin, ps.dirs, self.light, np.asarray(pose, float)[None], surface=True)
         k = self.conditions.gain * self.light[2]  # table colour / table albedo, per channel
         depth = ps.depth[hits.pix]
         near = np.isfinite(depth) & (np.abs(depth - hits.depth) < 3 * self.pixels_model.b_d)
@@ -156,9 +161,11 @@ class ImageScorer:
 
         # The hinge has local optima (a wall predicted dark never pulls): start from the current
         # light and from lights all round at a few elevations, keep the best fit.
-        starts = [m0] + [np.array([np.cos(az), np.sin(az)]) / np.tan(el)
-                         for el in np.radians([30.0, 50.0, 70.0])
-                         for az in np.radians(np.arange(0.0, 360.0, 45.0))]
+        starts = [m0] + [
+            np.array([np.cos(az), np.sin(az)]) / np.tan(el)
+            for el in np.radians([30.0, 50.0, 70.0])
+            for az in np.radians(np.arange(0.0, 360.0, 45.0))
+        ]
         m = min((_fit_hinge(n, y, start) for start in starts), key=loss)
         if loss(m) > (1.0 - min_gain) * loss(m0):
             return False
@@ -196,8 +203,17 @@ class ImageScorer:
         ps = self.pixels(stride)
         hits = self.caster.render(ps.origin, ps.dirs, self.light, poses)
         total, pixels, inliers = _score_hits(
-            hits.hyp, hits.pix, hits.rgb, hits.depth, ps.rgb, ps.depth, ps.delta_bg,
-            self.conditions.gain.astype(np.float32), self.pixels_model.pixel_constants(), len(poses))
+            hits.hyp,
+            hits.pix,
+            hits.rgb,
+            hits.depth,
+            ps.rgb,
+            ps.depth,
+            ps.delta_bg,
+            self.conditions.gain.astype(np.float32),
+            self.pixels_model.pixel_constants(),
+            len(poses),
+        )
         return Scores(ps.weight * total, pixels, inliers)
 
 
@@ -213,9 +229,16 @@ def _score_hits(hyp, pix, rgb_hit, depth_hit, rgb, depth, delta_bg, gain, consta
     for q in range(hyp.size):
         i, p = hyp[q], pix[q]
         loglik, inlier = pixel_terms(
-            rgb[p, 0], rgb[p, 1], rgb[p, 2], depth[p], min(rgb_hit[q, 0] * gain[0], one),
-            min(rgb_hit[q, 1] * gain[1], one), min(rgb_hit[q, 2] * gain[2], one), depth_hit[q],
-            constants)
+            rgb[p, 0],
+            rgb[p, 1],
+            rgb[p, 2],
+            depth[p],
+            min(rgb_hit[q, 0] * gain[0], one),
+            min(rgb_hit[q, 1] * gain[1], one),
+            min(rgb_hit[q, 2] * gain[2], one),
+            depth_hit[q],
+            constants,
+        )
         total[i] += loglik - delta_bg[p]
         pixels[i] += 1
         inliers[i] += 1.0 if inlier else 0.0
@@ -257,8 +280,9 @@ class _TableReading:
         return ImageConditions(gain.astype(np.float32), self.spread, self.pixels, self.pixel_noise)
 
 
-def _read_table(obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray,
-                origin: np.ndarray, min_pixels: int = 200) -> _TableReading:
+def _read_table(
+    obs: Observation, u: np.ndarray, v: np.ndarray, dirs: np.ndarray, origin: np.ndarray, min_pixels: int = 200
+) -> _TableReading:
     """The bare table's reading from the pixels (u, v): those with depth within 2 robust standard
     deviations (at least 2 mm) of the table plane's. The pixel noise is read apart, from second
     differences along rows over the pixels within 1 cm of the region's own depth offset, so that a
@@ -295,7 +319,7 @@ def _table_offset(resid: np.ndarray, min_pixels: int, reach: float = 0.06) -> fl
     start = strong[-1]  # the deepest run of strong bins
     while start - 1 in strong:
         start -= 1
-    peak = start + int(np.argmax(smooth[start:strong[-1] + 1]))
+    peak = start + int(np.argmax(smooth[start : strong[-1] + 1]))
     centre = 0.5 * (edges[peak] + edges[peak + 1])
     return float(np.median(r[np.abs(r - centre) < 0.003]))
 
@@ -319,8 +343,7 @@ def _row_noise(depth: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def _image_box(obs: Observation, centre: np.ndarray, radius: float, top: float
-               ) -> tuple[int, int, int, int]:
+def _image_box(obs: Observation, centre: np.ndarray, radius: float, top: float) -> tuple[int, int, int, int]:
     """Pixel bounds (u0, u1, v0, v1), end-exclusive and clipped to the image, of the vertical
     cylinder of `radius` around `centre` between z = 0 and `top` (empty if it is behind the
     camera or out of view)."""

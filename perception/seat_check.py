@@ -36,10 +36,17 @@ class SeatCheckConfig:
     min_points: int = 60
 
     def __post_init__(self) -> None:
-        if not (self.tolerance > 0 and 0 < self.inliers <= 1 and self.margin >= 0
-                and self.occluder_height > 2 * self.tolerance and self.min_points >= 10):
-            raise ValueError(f"{self}: expected tolerance > 0, 0 < inliers <= 1, margin >= 0, "
-                             "occluder_height > 2 tolerance and min_points >= 10")
+        if not (
+            self.tolerance > 0
+            and 0 < self.inliers <= 1
+            and self.margin >= 0
+            and self.occluder_height > 2 * self.tolerance
+            and self.min_points >= 10
+        ):
+            raise ValueError(
+                f"{self}: expected tolerance > 0, 0 < inliers <= 1, margin >= 0, "
+                "occluder_height > 2 tolerance and min_points >= 10"
+            )
 
 
 @dataclass(frozen=True)
@@ -55,8 +62,7 @@ class SeatCheck:
     reason: str
 
 
-def check_seat(obs: Observation, gear: str, X_WS: RigidTransform,
-               config: SeatCheckConfig | None = None) -> SeatCheck:
+def check_seat(obs: Observation, gear: str, X_WS: RigidTransform, config: SeatCheckConfig | None = None) -> SeatCheck:
     """Whether `gear` sits seated on its shaft (frame X_WS: on the shaft axis at the plate top,
     z up) as seen in `obs` (any calibrated RGB-D view of the shaft: the wrist camera after the
     release). ValueError for an unknown gear."""
@@ -70,14 +76,24 @@ def check_seat(obs: Observation, gear: str, X_WS: RigidTransform,
     dz = p_S[ring, 2] - GEAR_THICKNESS
     dz = dz[dz < c.occluder_height]  # the fingers and the hand are in front of the face
     if dz.size < c.min_points:
-        return SeatCheck("unseen", float("nan"), float("nan"), int(dz.size),
-                         f"{gear}: {dz.size} points on its seated face's ring, fewer than {c.min_points}")
+        return SeatCheck(
+            "unseen",
+            float("nan"),
+            float("nan"),
+            int(dz.size),
+            f"{gear}: {dz.size} points on its seated face's ring, fewer than {c.min_points}",
+        )
     height = float(np.median(dz))
     inliers = float(np.mean(np.abs(dz) <= 2 * c.tolerance))
     what = "seated" if abs(height) <= c.tolerance and inliers >= c.inliers else "unseated"
-    return SeatCheck(what, height, inliers, int(dz.size),
-                     f"{gear}: face {1e3 * height:+.2f} mm from seated, {100 * inliers:.0f} % of {dz.size} "
-                     f"points within {2e3 * c.tolerance:.1f} mm: {what}")
+    return SeatCheck(
+        what,
+        height,
+        inliers,
+        int(dz.size),
+        f"{gear}: face {1e3 * height:+.2f} mm from seated, {100 * inliers:.0f} % of {dz.size} "
+        f"points within {2e3 * c.tolerance:.1f} mm: {what}",
+    )
 
 
 __all__ = ["SeatCheck", "SeatCheckConfig", "VERDICTS", "check_seat"]

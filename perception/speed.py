@@ -42,8 +42,9 @@ class BenchConfig:
 
 def close_camera(x: float, y: float, height: float = 0.15) -> CameraConfig:
     """A wrist-like camera (60 degree field of view) `height` above the table over (x, y)."""
-    return CameraConfig("close", look_at([x + 0.01, y + 0.01, height], [x, y, 0.0]),
-                        fov_y=np.deg2rad(60.0), near=0.01, far=1.5)
+    return CameraConfig(
+        "close", look_at([x + 0.01, y + 0.01, height], [x, y, 0.0]), fov_y=np.deg2rad(60.0), near=0.01, far=1.5
+    )
 
 
 def _views(x: float, y: float) -> dict[str, CameraConfig]:
@@ -53,7 +54,7 @@ def _views(x: float, y: float) -> dict[str, CameraConfig]:
 def gear_mask(obs: Observation) -> np.ndarray:
     """Pixels that see something above the table plane by more than 1 mm (here: the gear)."""
     k = obs.intrinsics
-    v, u = np.mgrid[0:k.height, 0:k.width]
+    v, u = np.mgrid[0 : k.height, 0 : k.width]
     origin, dirs = obs.rays_W(u.ravel(), v.ravel())
     plane, _ = table_prediction(origin, dirs, -obs.X_WC.rotation().matrix()[:, 2])
     return obs.valid & (np.abs(obs.depth - plane.reshape(k.height, k.width)) > 1e-3)
@@ -67,14 +68,13 @@ def _smooth(depth: np.ndarray, seen: np.ndarray, jump: float) -> np.ndarray:
     h, w = d.shape
     for dv in (-1, 0, 1):
         for du in (-1, 0, 1):
-            n = pad[1 + dv:1 + dv + h, 1 + du:1 + du + w]
+            n = pad[1 + dv : 1 + dv + h, 1 + du : 1 + du + w]
             with np.errstate(invalid="ignore"):
                 ok &= np.abs(n - d) <= jump
     return ok
 
 
-def compare_depth(drake_depth: np.ndarray, drake_gear: np.ndarray, ours_depth: np.ndarray,
-                  jump: float = 0.005) -> dict:
+def compare_depth(drake_depth: np.ndarray, drake_gear: np.ndarray, ours_depth: np.ndarray, jump: float = 0.005) -> dict:
     """Depth agreement where both renderers see the gear: over all such pixels, and over those
     away from depth edges (silhouette, bore and tooth edges: no neighbour differs by more than
     `jump` in either image), where a sub-pixel shift of an edge cannot flip a pixel."""
@@ -83,10 +83,14 @@ def compare_depth(drake_depth: np.ndarray, drake_gear: np.ndarray, ours_depth: n
     interior = both & _smooth(drake_depth, drake_gear, jump) & _smooth(ours_depth, ours_gear, jump)
     err = np.abs(drake_depth - np.where(ours_gear, ours_depth, 0.0))
     frac = lambda m: float((err[m] <= DEPTH_TOL).mean()) if m.any() else float("nan")  # noqa: E731
-    return {"pixels_both": int(both.sum()), "pixels_interior": int(interior.sum()),
-            "within_1mm_all": frac(both), "within_1mm_interior": frac(interior),
-            "max_error_interior_m": float(err[interior].max()) if interior.any() else float("nan"),
-            "median_error_m": float(np.median(err[both])) if both.any() else float("nan")}
+    return {
+        "pixels_both": int(both.sum()),
+        "pixels_interior": int(interior.sum()),
+        "within_1mm_all": frac(both),
+        "within_1mm_interior": frac(interior),
+        "max_error_interior_m": float(err[interior].max()) if interior.any() else float("nan"),
+        "median_error_m": float(np.median(err[both])) if both.any() else float("nan"),
+    }
 
 
 def _time(fn, repeat: int = 1) -> float:
@@ -109,8 +113,9 @@ def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
         scene = DrakeScene(SceneConfig(gears={gear: (x, y, 0.0)}))
         caster = RayCaster(gear_model(gear))
         n = config.hypotheses
-        poses = np.column_stack([x + rng.uniform(-0.01, 0.01, n), y + rng.uniform(-0.01, 0.01, n),
-                                 rng.uniform(-np.pi, np.pi, n)])
+        poses = np.column_stack(
+            [x + rng.uniform(-0.01, 0.01, n), y + rng.uniform(-0.01, 0.01, n), rng.uniform(-np.pi, np.pi, n)]
+        )
         for view, camera in _views(x, y).items():
             scene.render(camera, camera.X_PC)  # warm up the renderer
             drake = []
@@ -124,7 +129,7 @@ def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
             t_full = _time(drake_full)
             k = drake[0].intrinsics
             # The pixels whose rays can meet the gear anywhere in the pose box, and their crop.
-            v, u = np.mgrid[0:k.height, 0:k.width]
+            v, u = np.mgrid[0 : k.height, 0 : k.width]
             origin, dirs = drake[0].rays_W(u.ravel(), v.ravel())
             down = dirs[:, 2] < 0
             hit = origin[:2] + (-origin[2] / np.where(down, dirs[:, 2], -1.0))[:, None] * dirs[:, :2]
@@ -159,20 +164,24 @@ def bench_renderers(config: BenchConfig | None = None) -> list[dict]:
                 sel = out.hyp == h
                 depth[idx[out.pix[sel]]] = out.depth[sel]
                 agree.append(compare_depth(obs.depth, gear_mask(obs), depth.reshape(k.height, k.width)))
-            rows.append({
-                "gear": gear, "view": view, "hypotheses": n,
-                "drake_full_hypotheses_per_second": n / t_full,
-                "drake_crop_hypotheses_per_second": n / t_crop,
-                "drake_crop_pixels": int(info.width() * info.height()),
-                "ours_all_hypotheses_per_second": n / t_ours,
-                "ours_all_pixels": int(roi.sum()),
-                "ours_sparse_hypotheses_per_second": n / t_sparse,
-                "ours_sparse_pixels": int(len(sparse)),
-                "within_1mm_interior": float(np.mean([a["within_1mm_interior"] for a in agree])),
-                "within_1mm_all": float(np.mean([a["within_1mm_all"] for a in agree])),
-                "max_error_interior_m": float(np.max([a["max_error_interior_m"] for a in agree])),
-                "median_error_m": float(np.median([a["median_error_m"] for a in agree])),
-            })
+            rows.append(
+                {
+                    "gear": gear,
+                    "view": view,
+                    "hypotheses": n,
+                    "drake_full_hypotheses_per_second": n / t_full,
+                    "drake_crop_hypotheses_per_second": n / t_crop,
+                    "drake_crop_pixels": int(info.width() * info.height()),
+                    "ours_all_hypotheses_per_second": n / t_ours,
+                    "ours_all_pixels": int(roi.sum()),
+                    "ours_sparse_hypotheses_per_second": n / t_sparse,
+                    "ours_sparse_pixels": int(len(sparse)),
+                    "within_1mm_interior": float(np.mean([a["within_1mm_interior"] for a in agree])),
+                    "within_1mm_all": float(np.mean([a["within_1mm_all"] for a in agree])),
+                    "max_error_interior_m": float(np.max([a["max_error_interior_m"] for a in agree])),
+                    "median_error_m": float(np.median([a["median_error_m"] for a in agree])),
+                }
+            )
     return rows
 
 
@@ -188,8 +197,9 @@ def bench_posteriors(config: BenchConfig | None = None) -> dict:
         camera = close_camera(0.42, -0.05)
         estimate_pose(scene.render(camera, camera.X_PC), gear, Prior(0.42, -0.05, 0.005))
         for _ in range(config.posteriors):
-            truth = np.array([0.42 + rng.uniform(-0.01, 0.01), -0.05 + rng.uniform(-0.01, 0.01),
-                              rng.uniform(-np.pi, np.pi)])
+            truth = np.array(
+                [0.42 + rng.uniform(-0.01, 0.01), -0.05 + rng.uniform(-0.01, 0.01), rng.uniform(-np.pi, np.pi)]
+            )
             scene.set_gear_pose(gear, tuple(truth))
             camera = close_camera(truth[0] + rng.uniform(-0.02, 0.02), truth[1] + rng.uniform(-0.02, 0.02))
             obs = scene.render(camera, camera.X_PC)
@@ -199,11 +209,20 @@ def bench_posteriors(config: BenchConfig | None = None) -> dict:
             dt = time.perf_counter() - t0
             seconds.append(dt)
             hyps.append(post.info["hypotheses"])
-            rows.append({"gear": gear, "seconds": dt, "hypotheses": post.info["hypotheses"],
-                         "xy_error_m": float(np.hypot(*(post.map_pose[:2] - truth[:2])))})
-    return {"seconds_per_posterior": float(np.mean(seconds)),
-            "hypotheses_per_second": float(np.sum(hyps) / np.sum(seconds)),
-            "renderer": RAYCAST_NAME, "rows": rows}
+            rows.append(
+                {
+                    "gear": gear,
+                    "seconds": dt,
+                    "hypotheses": post.info["hypotheses"],
+                    "xy_error_m": float(np.hypot(*(post.map_pose[:2] - truth[:2]))),
+                }
+            )
+    return {
+        "seconds_per_posterior": float(np.mean(seconds)),
+        "hypotheses_per_second": float(np.sum(hyps) / np.sum(seconds)),
+        "renderer": RAYCAST_NAME,
+        "rows": rows,
+    }
 
 
 def bench_scenes(config: BenchConfig | None = None) -> dict:
@@ -222,11 +241,14 @@ def bench_scenes(config: BenchConfig | None = None) -> dict:
             if det.seen:
                 estimate_pose(obs, gear_model(gear), det.prior)
         t2 = time.perf_counter()
-        rows.append({"detect_seconds": t1 - t0, "posteriors_seconds": t2 - t1,
-                     "seen": sum(d.seen for d in detections.values())})
-    return {"seconds_per_scene": float(np.mean([r["detect_seconds"] + r["posteriors_seconds"]
-                                                for r in rows])),
-            "detect_seconds": float(np.mean([r["detect_seconds"] for r in rows])), "rows": rows}
+        rows.append(
+            {"detect_seconds": t1 - t0, "posteriors_seconds": t2 - t1, "seen": sum(d.seen for d in detections.values())}
+        )
+    return {
+        "seconds_per_scene": float(np.mean([r["detect_seconds"] + r["posteriors_seconds"] for r in rows])),
+        "detect_seconds": float(np.mean([r["detect_seconds"] for r in rows])),
+        "rows": rows,
+    }
 
 
 def bench_perception(config: BenchConfig | None = None) -> dict:

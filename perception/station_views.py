@@ -32,9 +32,12 @@ def observe(station: Station, root: Context, camera: str) -> Observation:
     X_WC = camera_pose(station, root, camera)
     context = station.diagram.GetMyContextFromRoot(root)
     config = station.config.cameras.scene if camera == "scene" else station.config.cameras.wrist
-    return observation_from_images(station.diagram.GetOutputPort(f"{camera}_rgb").Eval(context),
-                                   station.diagram.GetOutputPort(f"{camera}_depth").Eval(context),
-                                   config, X_WC)
+    return observation_from_images(
+        station.diagram.GetOutputPort(f"{camera}_rgb").Eval(context),
+        station.diagram.GetOutputPort(f"{camera}_depth").Eval(context),
+        config,
+        X_WC,
+    )
 
 
 def observation_from_images(rgb_image, depth_image, config, X_WC) -> Observation:

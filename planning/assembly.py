@@ -43,8 +43,7 @@ class PlannedAssemblyConfig:
     def __post_init__(self) -> None:
         check_int(self.seed, "seed", minimum=0)
         if len(self.camera_error) != 2 or not all(np.isfinite(v) and v >= 0 for v in self.camera_error):
-            raise ValueError(f"camera_error = {self.camera_error}; expected (translation [m], rotation [rad]) "
-                             "std >= 0")
+            raise ValueError(f"camera_error = {self.camera_error}; expected (translation [m], rotation [rad]) std >= 0")
         if not (np.isfinite(self.max_time) and self.max_time > 0):
             raise ValueError(f"max_time = {self.max_time}; expected > 0 s")
 
@@ -68,8 +67,9 @@ class PlannedAssembly:
         return self.planner.run(self.planner.GetMyContextFromRoot(self.root_context))
 
 
-def build_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: dict | None = None,
-                           meshcat: Meshcat | None = None) -> PlannedAssembly:
+def build_planned_assembly(
+    config: PlannedAssemblyConfig | None = None, skills: dict | None = None, meshcat: Meshcat | None = None
+) -> PlannedAssembly:
     """The station with the gears placed for `config.seed`, driven by the planner."""
     from learning.skill_file import load_skill
 
@@ -87,17 +87,29 @@ def build_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: 
     X_WT0 = station.controller.tool_pose(np.asarray(world.q_arm_start, dtype=float))
     # The planner is given what the robot knows: the skills, the shafts (from the plate's known
     # pose), the cameras and its own start; never the gear poses.
-    planner = BeliefSpacePlanner(skills, domain, {g: station.models.X_WS(g) for g in domain.goal},
-                                 calibrated, X_WT0, world.finger_width_start, config.system,
-                                 meshcat)
+    planner = BeliefSpacePlanner(
+        skills,
+        domain,
+        {g: station.models.X_WS(g) for g in domain.goal},
+        calibrated,
+        X_WT0,
+        world.finger_width_start,
+        config.system,
+        meshcat,
+    )
     simulator = Simulator(connect_planner(station, planner))
     simulator.Initialize()
     return PlannedAssembly(station, planner, simulator, poses)
 
 
-def run_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: dict | None = None,
-                         meshcat: Meshcat | None = None, record: Path | None = None,
-                         progress: bool = False, built: PlannedAssembly | None = None) -> dict:
+def run_planned_assembly(
+    config: PlannedAssemblyConfig | None = None,
+    skills: dict | None = None,
+    meshcat: Meshcat | None = None,
+    record: Path | None = None,
+    progress: bool = False,
+    built: PlannedAssembly | None = None,
+) -> dict:
     """Place the gears for `config.seed`, let the planner assemble them, and score the result:
     {"seed", "plan": [[skill, gear], ...] (the first plan), "plans" (every plan made),
     "executed": [{"skill", "gear", "t_start", "t_end", "outcome", "precondition_prob"}],
@@ -135,14 +147,24 @@ def run_planned_assembly(config: PlannedAssemblyConfig | None = None, skills: di
     gears = {}
     for gear in GEAR_NAMES:  # scoring: the only place the true poses are read
         err = station.insertion_error(root, gear)
-        gears[gear] = {"inserted": bool(err.inserted), "lateral_error_m": float(err.lateral_m),
-                       "height_error_m": float(abs(err.height_m))}
-    summary = {"seed": config.seed, "plan": run.plans[0] if run.plans else [], "plans": list(run.plans),
-               "executed": list(run.executed), "replans": run.replans,
-               "status": run.phase.value if run.finished else "timeout",
-               "reason": run.reason, "gears": gears,
-               "placement": {g: list(p) for g, p in poses.items()},
-               "sim_time_s": float(root.get_time()), "wall_time_s": time.perf_counter() - wall0}
+        gears[gear] = {
+            "inserted": bool(err.inserted),
+            "lateral_error_m": float(err.lateral_m),
+            "height_error_m": float(abs(err.height_m)),
+        }
+    summary = {
+        "seed": config.seed,
+        "plan": run.plans[0] if run.plans else [],
+        "plans": list(run.plans),
+        "executed": list(run.executed),
+        "replans": run.replans,
+        "status": run.phase.value if run.finished else "timeout",
+        "reason": run.reason,
+        "gears": gears,
+        "placement": {g: list(p) for g, p in poses.items()},
+        "sim_time_s": float(root.get_time()),
+        "wall_time_s": time.perf_counter() - wall0,
+    }
     if error is not None:
         summary["sim_error"] = error
     return summary
@@ -153,19 +175,29 @@ def format_planned(summary: dict) -> str:
     per-gear result."""
     lines = [f"seed {summary['seed']}: plan " + ", ".join(f"{s}({g})" for s, g in summary["plan"])]
     for e in summary["executed"]:
-        lines.append(f"  {e['t_start']:6.2f}-{e['t_end']:6.2f} s  {e['skill']:<8} {e['gear']:<7} "
-                     f"P = {e['precondition_prob']:.2f}  {e['outcome']}")
-    lines.append(f"replans: {summary['replans']}; status: {summary['status']}"
-                 + (f" ({summary['reason']})" if summary["reason"] else ""))
+        lines.append(
+            f"  {e['t_start']:6.2f}-{e['t_end']:6.2f} s  {e['skill']:<8} {e['gear']:<7} "
+            f"P = {e['precondition_prob']:.2f}  {e['outcome']}"
+        )
+    lines.append(
+        f"replans: {summary['replans']}; status: {summary['status']}"
+        + (f" ({summary['reason']})" if summary["reason"] else "")
+    )
     lines.append(f"{'gear':<8} {'inserted':<9} {'lateral [mm]':>12} {'height [mm]':>12}")
     for name, g in summary["gears"].items():
-        lines.append(f"{name:<8} {str(g['inserted']):<9} {1e3 * g['lateral_error_m']:>12.2f} "
-                     f"{1e3 * g['height_error_m']:>12.2f}")
+        lines.append(
+            f"{name:<8} {str(g['inserted']):<9} {1e3 * g['lateral_error_m']:>12.2f} {1e3 * g['height_error_m']:>12.2f}"
+        )
     lines.append(f"sim {summary['sim_time_s']:.1f} s in {summary['wall_time_s']:.1f} s wall")
     if "sim_error" in summary:
         lines.append(f"SIMULATION ERROR: {summary['sim_error']}")
     return "\n".join(lines)
 
 
-__all__ = ["PlannedAssembly", "PlannedAssemblyConfig", "build_planned_assembly", "format_planned",
-           "run_planned_assembly"]
+__all__ = [
+    "PlannedAssembly",
+    "PlannedAssemblyConfig",
+    "build_planned_assembly",
+    "format_planned",
+    "run_planned_assembly",
+]

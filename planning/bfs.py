@@ -11,6 +11,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Hashable, Protocol
 
+
 @dataclass(frozen=True)
 class Step:
     """One planned skill call and the precondition probability it was planned with (1 for skills
@@ -65,7 +66,8 @@ def plan_bfs(start: Hashable, domain: Domain, max_depth: int = 12) -> Plan:
             seen.add(nxt)
             frontier.append((nxt, steps + [step]))
     reason = getattr(domain, "explain", lambda s: "")(start) or (
-        f"no sequence of at most {max_depth} skills reaches the goal from this belief")
+        f"no sequence of at most {max_depth} skills reaches the goal from this belief"
+    )
     return Plan(False, [], reason, expanded)
 
 

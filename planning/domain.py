@@ -107,14 +107,14 @@ class AssemblyDomain:
     def __post_init__(self) -> None:
         unknown = [g for g in self.goal if g not in GEAR_NAMES]
         if unknown or not self.goal:
-            raise ValueError(f"goal {list(self.goal)}: unknown gear(s) {unknown}; expected some of "
-                             f"{list(GEAR_NAMES)}")
+            raise ValueError(f"goal {list(self.goal)}: unknown gear(s) {unknown}; expected some of {list(GEAR_NAMES)}")
         missing = [g for g in self.goal if g not in self.preconditions]
         if missing:
             raise ValueError(f"no insert skill precondition for {missing}: a missing skill file?")
         if self.order is not None and set(self.goal) - set(self.order):
-            raise ValueError(f"order {list(self.order)} leaves out goal gears "
-                             f"{sorted(set(self.goal) - set(self.order))}")
+            raise ValueError(
+                f"order {list(self.order)} leaves out goal gears {sorted(set(self.goal) - set(self.order))}"
+            )
 
     def is_goal(self, state: BeliefState) -> bool:
         return all(state.gear(g).location == "inserted" for g in self.goal)
@@ -138,7 +138,7 @@ class AssemblyDomain:
     def _ready(self, state: BeliefState, gear: str) -> bool:
         if self.order is None or gear not in self.order:
             return True
-        before = self.order[:self.order.index(gear)]
+        before = self.order[: self.order.index(gear)]
         return all(state.gear(g).location == "inserted" for g in before if g in dict(state.gears))
 
     def successors(self, state: BeliefState) -> list[tuple[Step, BeliefState]]:
@@ -147,20 +147,27 @@ class AssemblyDomain:
             if state.holding is None and g.location == "table":
                 if g.inspections < self.max_inspections:
                     std = tuple(float(s) for s in self.inspect_std(name, g.std))
-                    out.append((Step("inspect", name),
-                                state.with_gear(name, replace(g, std=std, inspections=g.inspections + 1,
-                                                              doubted=False))))
+                    out.append(
+                        (
+                            Step("inspect", name),
+                            state.with_gear(name, replace(g, std=std, inspections=g.inspections + 1, doubted=False)),
+                        )
+                    )
                 if g.inspections < self.min_inspections or (g.doubted and g.inspections < self.max_inspections):
                     continue
                 tool = tuple(float(t) for t in aim_tool(g.mean, self.aim_xi.get(name, (0.0, 0.0, 0.0))))
-                out.append((Step("pick", name),
-                            state.with_gear(name, replace(g, location="hand", tool=tool), holding=name)))
+                out.append(
+                    (Step("pick", name), state.with_gear(name, replace(g, location="hand", tool=tool), holding=name))
+                )
             elif g.location == "hand" and state.holding == name and self._ready(state, name):
                 p = self.insert_probability(name, g)
                 if p > self.eta:
-                    out.append((Step("insert", name, p),
-                                state.with_gear(name, replace(g, location="inserted", tool=None),
-                                                holding=None)))
+                    out.append(
+                        (
+                            Step("insert", name, p),
+                            state.with_gear(name, replace(g, location="inserted", tool=None), holding=None),
+                        )
+                    )
         return out
 
     def explain(self, start: BeliefState) -> str:
@@ -176,8 +183,10 @@ class AssemblyDomain:
             tool = g.tool if g.location == "hand" else tuple(aim_tool(g.mean, self.aim_xi.get(name, (0.0, 0.0, 0.0))))
             p = self.insert_probability(name, replace(g, std=std, tool=tool))
             if p <= self.eta:
-                bad.append(f"{name} (P = {p:.2f} <= eta = {self.eta:.2f} after "
-                           f"{max(self.max_inspections - g.inspections, 0)} more inspection(s))")
+                bad.append(
+                    f"{name} (P = {p:.2f} <= eta = {self.eta:.2f} after "
+                    f"{max(self.max_inspections - g.inspections, 0)} more inspection(s))"
+                )
         return ("insert's precondition fails for " + ", ".join(bad)) if bad else ""
 
 
@@ -204,12 +213,15 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         if self.max_inspections < 0 or self.min_inspections < 0 or self.min_inspections > self.max_inspections:
-            raise ValueError(f"min_inspections = {self.min_inspections}, max_inspections = "
-                             f"{self.max_inspections}; expected 0 <= min <= max")
+            raise ValueError(
+                f"min_inspections = {self.min_inspections}, max_inspections = "
+                f"{self.max_inspections}; expected 0 <= min <= max"
+            )
 
 
-def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = GEAR_NAMES,
-                   skills: dict | None = None) -> AssemblyDomain:
+def gearbox_domain(
+    config: PlannerConfig | None = None, goal: tuple[str, ...] = GEAR_NAMES, skills: dict | None = None
+) -> AssemblyDomain:
     """The domain of the shipped skills: each goal gear's insert precondition (its skill file and
     measured V_T), picks aimed at the skill's preferred grasp error, and inspections predicted by
     the measured inspect model (its cautious 90th-percentile close view). `skills` may hold
@@ -218,7 +230,10 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
     from learning.skill_file import load_skill
     from perception.inspect_model import predict_inspection
     from planning.precondition import (
-        PreconditionConfig, best_aim, insert_precondition, preferred_grasp_error,
+        PreconditionConfig,
+        best_aim,
+        insert_precondition,
+        preferred_grasp_error,
     )
 
     config = config or PlannerConfig()
@@ -237,17 +252,38 @@ def gearbox_domain(config: PlannerConfig | None = None, goal: tuple[str, ...] = 
     def inspect_std(gear: str, std: tuple[float, float, float]) -> tuple[float, float, float]:
         return tuple(float(v) for v in predict_inspection(gear, np.maximum(std, 1e-9)).std_after_cautious)
 
-    return AssemblyDomain(preconditions, config.eta, inspect_std, tuple(goal), config.order, aims,
-                          config.max_inspections, config.samples, config.seed, config.real_fingers,
-                          config.min_inspections)
+    return AssemblyDomain(
+        preconditions,
+        config.eta,
+        inspect_std,
+        tuple(goal),
+        config.order,
+        aims,
+        config.max_inspections,
+        config.samples,
+        config.seed,
+        config.real_fingers,
+        config.min_inspections,
+    )
 
 
-def table_belief(mean: tuple[float, float, float] | NDArray[np.float64],
-                 std: tuple[float, float, float] | NDArray[np.float64], doubted: bool = False) -> GearBelief:
+def table_belief(
+    mean: tuple[float, float, float] | NDArray[np.float64],
+    std: tuple[float, float, float] | NDArray[np.float64],
+    doubted: bool = False,
+) -> GearBelief:
     """A gear on the table believed at `mean` with `std` (x, y [m], yaw [rad]), e.g. a pose
     posterior's mean() and std(); `doubted`: see GearBelief."""
     return GearBelief("table", tuple(float(v) for v in mean), tuple(float(v) for v in std), doubted=doubted)
 
 
-__all__ = ["AssemblyDomain", "BeliefState", "GearBelief", "LOCATIONS", "PlannerConfig", "PreconditionFn",
-           "gearbox_domain", "table_belief"]
+__all__ = [
+    "AssemblyDomain",
+    "BeliefState",
+    "GearBelief",
+    "LOCATIONS",
+    "PlannerConfig",
+    "PreconditionFn",
+    "gearbox_domain",
+    "table_belief",
+]

@@ -34,8 +34,9 @@ def _check_period(period: float) -> None:
         raise ValueError(f"period = {period}; expected (0, 2 pi] rad")
 
 
-def grasp_error(poses: ArrayLike, tool: ArrayLike, period: float = 2 * np.pi,
-                yaw_centre: float = 0.0) -> NDArray[np.float64]:
+def grasp_error(
+    poses: ArrayLike, tool: ArrayLike, period: float = 2 * np.pi, yaw_centre: float = 0.0
+) -> NDArray[np.float64]:
     """The grasp errors xi (N, 3) of gears at world poses `poses` (N, 3) or (3,) = (x, y, yaw)
     picked by a tool at `tool` = (x, y, heading) pointing down; xi_yaw is the member of its class
     (modulo `period`) within period / 2 of `yaw_centre`."""
@@ -43,8 +44,10 @@ def grasp_error(poses: ArrayLike, tool: ArrayLike, period: float = 2 * np.pi,
     p = np.atleast_2d(np.asarray(poses, float))
     t = np.asarray(tool, float)
     if p.shape[1:] != (3,) or t.shape != (3,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(t))):
-        raise ValueError(f"poses {np.shape(poses)} and tool {np.shape(tool)}; expected finite (N, 3) "
-                         "and (3,) rows (x [m], y [m], yaw [rad])")
+        raise ValueError(
+            f"poses {np.shape(poses)} and tool {np.shape(tool)}; expected finite (N, 3) "
+            "and (3,) rows (x [m], y [m], yaw [rad])"
+        )
     c, s = np.cos(t[2]), np.sin(t[2])
     dx, dy = p[:, 0] - t[0], p[:, 1] - t[1]
     yaw = yaw_centre + _wrap(p[:, 2] - t[2] - yaw_centre, period)
@@ -84,15 +87,22 @@ def load_pick_model(path: str | os.PathLike[str] = PICK_MODEL_FILE) -> dict[str,
     data = read_json(path, "pick-model file (benchmarks/grasp_map.py --model)")
     table = data.get("pick_model") if isinstance(data, dict) else None
     if not isinstance(table, dict) or not table:
-        raise FileFormatError(f"{path}: expected {{\"pick_model\": {{gear: {{axis: [mean, std]}}}}}}")
+        raise FileFormatError(f'{path}: expected {{"pick_model": {{gear: {{axis: [mean, std]}}}}}}')
     model: dict[str, dict[str, tuple[float, float]]] = {}
     for gear, axes in table.items():
-        ok = isinstance(axes, dict) and set(axes) == set(_AXES) and all(
-            isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v) and v[1] >= 0
-            for v in axes.values())
+        ok = (
+            isinstance(axes, dict)
+            and set(axes) == set(_AXES)
+            and all(
+                isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v) and v[1] >= 0
+                for v in axes.values()
+            )
+        )
         if not ok:
-            raise FileFormatError(f"{path}: pick_model[{gear!r}] = {axes!r}; expected {{axis: [mean, std >= 0]}} "
-                                  f"for the axes {list(_AXES)}")
+            raise FileFormatError(
+                f"{path}: pick_model[{gear!r}] = {axes!r}; expected {{axis: [mean, std >= 0]}} "
+                f"for the axes {list(_AXES)}"
+            )
         model[str(gear)] = {axis: (float(axes[axis][0]), float(axes[axis][1])) for axis in _AXES}
     return model
 
@@ -100,8 +110,9 @@ def load_pick_model(path: str | os.PathLike[str] = PICK_MODEL_FILE) -> dict[str,
 PICK_MODEL: dict[str, dict[str, tuple[float, float]]] = load_pick_model()
 
 
-def picked_grasp_errors(gear: str, poses: ArrayLike, tool: ArrayLike, period: float,
-                        rng: np.random.Generator, yaw_centre: float = 0.0) -> NDArray[np.float64]:
+def picked_grasp_errors(
+    gear: str, poses: ArrayLike, tool: ArrayLike, period: float, rng: np.random.Generator, yaw_centre: float = 0.0
+) -> NDArray[np.float64]:
     """Grasp errors (N, 3) after the real fingers' pick of `gear` at world poses `poses` by a tool
     aimed at `tool`: the geometric errors (grasp_error) with the measured pick (PICK_MODEL): the
     closing axis (tool y) centred, a push along tool x, a small yaw change."""

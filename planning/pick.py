@@ -19,7 +19,10 @@ from pydrake.systems.analysis import Simulator
 
 from assembly.gearset import gear_spec
 from assembly.scripted_motion import (
-    ScriptedInsertionConfig, append_pick_and_insert, start_keyframe_plan, KeyframePlayer,
+    ScriptedInsertionConfig,
+    append_pick_and_insert,
+    start_keyframe_plan,
+    KeyframePlayer,
 )
 from assembly.station import StationConfig, build_station, drive_station
 from assembly.world import WorldConfig, planar_pose
@@ -63,8 +66,9 @@ def held_grasp_error(X_WT: RigidTransform, X_WG: RigidTransform, period: float) 
     return np.array([*X_TG.translation()[:2], yaw])
 
 
-def simulate_pick(gear: str, truth: tuple[float, float, float], believed: tuple[float, float, float],
-                  config: PickConfig | None = None) -> PickResult:
+def simulate_pick(
+    gear: str, truth: tuple[float, float, float], believed: tuple[float, float, float], config: PickConfig | None = None
+) -> PickResult:
     """Pick `gear` lying at `truth` with the scripted pick aimed at `believed` (only x and y
     matter: the fingers close on the round tip circle) in a station holding only that gear and
     the plate; measure the grasp after the lift."""
@@ -90,8 +94,16 @@ def simulate_pick(gear: str, truth: tuple[float, float, float], believed: tuple[
     try:
         simulator.AdvanceTo(lift.t + config.lift_settle)
     except RuntimeError as exc:  # a failed physics step is reported, not hidden
-        return PickResult(gear, truth_a, believed_a, tool, xi_aimed, None, False,
-                          f"simulation failed at t = {root.get_time():.3f} s: {exc}")
+        return PickResult(
+            gear,
+            truth_a,
+            believed_a,
+            tool,
+            xi_aimed,
+            None,
+            False,
+            f"simulation failed at t = {root.get_time():.3f} s: {exc}",
+        )
     X_WG = station.gear_pose(root, gear)
     lifted = bool(X_WG.translation()[2] > 0.01)
     xi_held = held_grasp_error(station.tool_pose(root), X_WG, period) if lifted else None

@@ -38,8 +38,12 @@ from perception.station_views import observation_from_images
 from planning.domain import GearBelief, table_belief
 
 #: The camera images the perception reads: input port name -> (camera, image kind).
-IMAGE_PORTS: dict[str, tuple[str, str]] = {"scene_rgb": ("scene", "rgb"), "scene_depth": ("scene", "depth"),
-                                           "wrist_rgb": ("wrist", "rgb"), "wrist_depth": ("wrist", "depth")}
+IMAGE_PORTS: dict[str, tuple[str, str]] = {
+    "scene_rgb": ("scene", "rgb"),
+    "scene_depth": ("scene", "depth"),
+    "wrist_rgb": ("wrist", "rgb"),
+    "wrist_depth": ("wrist", "depth"),
+}
 
 
 class Look(Enum):
@@ -96,10 +100,15 @@ class PlannerPerception(LeafSystem):
     Inputs: scene_rgb, scene_depth, wrist_rgb, wrist_depth (the cameras' images), X_WT (the
     measured tool pose), request (a LookRequest). Output: percept (a Percept of that request)."""
 
-    def __init__(self, cameras: CamerasConfig, gears: tuple[str, ...], X_WS: Mapping[str, RigidTransform],
-                 close_prior: tuple[float, float, float] = (4.0, 0.005, 0.03),
-                 scene_extrinsic_std: tuple[float, float] = (0.0, 0.0),
-                 seat_check: SeatCheckConfig | None = None) -> None:
+    def __init__(
+        self,
+        cameras: CamerasConfig,
+        gears: tuple[str, ...],
+        X_WS: Mapping[str, RigidTransform],
+        close_prior: tuple[float, float, float] = (4.0, 0.005, 0.03),
+        scene_extrinsic_std: tuple[float, float] = (0.0, 0.0),
+        seat_check: SeatCheckConfig | None = None,
+    ) -> None:
         super().__init__()
         self.set_name("planner_perception")
         unknown = [g for g in gears if g not in GEAR_NAMES]
@@ -113,8 +122,9 @@ class PlannerPerception(LeafSystem):
             self.DeclareAbstractInputPort(name, AbstractValue.Make(image_value(kind)))
         self.DeclareAbstractInputPort("X_WT", AbstractValue.Make(RigidTransform()))
         self.DeclareAbstractInputPort("request", AbstractValue.Make(LookRequest()))
-        self.DeclareAbstractOutputPort("percept", lambda: AbstractValue.Make(Percept(LookRequest())),
-                                       self._calc_percept)
+        self.DeclareAbstractOutputPort(
+            "percept", lambda: AbstractValue.Make(Percept(LookRequest())), self._calc_percept
+        )
 
     def _calc_percept(self, context: Context, output: AbstractValue) -> None:
         request = self.GetInputPort("request").Eval(context)
@@ -124,8 +134,7 @@ class PlannerPerception(LeafSystem):
         elif request.look is Look.CLOSE:
             percept = self._close(context, request)
         elif request.look is Look.SEAT:
-            check = check_seat(self.observe(context, "wrist"), request.gear, self.X_WS[request.gear],
-                               self.seat_check)
+            check = check_seat(self.observe(context, "wrist"), request.gear, self.X_WS[request.gear], self.seat_check)
             percept = Percept(request, reason=check.reason, seat=check)
         else:
             percept = Percept(request)
@@ -139,8 +148,12 @@ class PlannerPerception(LeafSystem):
             X_WC = config.X_PC
         else:
             X_WC = self.GetInputPort("X_WT").Eval(context) @ X_HT.inverse() @ config.X_PC
-        return observation_from_images(self.GetInputPort(f"{camera}_rgb").Eval(context),
-                                       self.GetInputPort(f"{camera}_depth").Eval(context), config, X_WC)
+        return observation_from_images(
+            self.GetInputPort(f"{camera}_rgb").Eval(context),
+            self.GetInputPort(f"{camera}_depth").Eval(context),
+            config,
+            X_WC,
+        )
 
     def _scene(self, context: Context, request: LookRequest) -> Percept:
         obs = self.observe(context, "scene")
@@ -149,8 +162,9 @@ class PlannerPerception(LeafSystem):
         for gear in request.gears:
             det = found.get(gear)
             if det is None or not det.seen:
-                return Percept(request, reason=f"{gear} gear not seen by the scene camera: "
-                                               f"{det.reason if det else 'not searched'}")
+                return Percept(
+                    request, reason=f"{gear} gear not seen by the scene camera: {det.reason if det else 'not searched'}"
+                )
             post = estimate_pose(obs, gear, det.prior)
             if not post.informative:
                 beliefs[gear] = table_belief((det.prior.x, det.prior.y, 0.0), (det.prior.half_width,) * 2 + (np.pi,))
@@ -165,7 +179,7 @@ class PlannerPerception(LeafSystem):
         if t_std == 0 and r_std == 0:
             return std
         cov = extrinsic_error_on_table(obs.X_WC, np.array([mean[0], mean[1], GEAR_THICKNESS]), t_std, r_std)
-        return np.sqrt(np.asarray(std) ** 2 + np.array([cov[0, 0], cov[1, 1], r_std ** 2]))
+        return np.sqrt(np.asarray(std) ** 2 + np.array([cov[0, 0], cov[1, 1], r_std**2]))
 
     def _close(self, context: Context, request: LookRequest) -> Percept:
         b = request.belief

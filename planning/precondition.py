@@ -53,8 +53,13 @@ class InsertPrecondition:
     """The precondition of one insertion skill: `probability(xi)` for belief samples xi (N, 3),
     `holds(xi)` against eta. `value_threshold` is V_T on the critic's scale."""
 
-    def __init__(self, skill: Skill, value_threshold: float, config: PreconditionConfig | None = None,
-                 s0: ArrayLike | None = None) -> None:
+    def __init__(
+        self,
+        skill: Skill,
+        value_threshold: float,
+        config: PreconditionConfig | None = None,
+        s0: ArrayLike | None = None,
+    ) -> None:
         if not np.isfinite(value_threshold):
             raise ValueError(f"value_threshold = {value_threshold}; expected a finite value")
         self.skill = skill
@@ -69,8 +74,7 @@ class InsertPrecondition:
         skill's box are outside its success region."""
         x = np.atleast_2d(np.asarray(xi, np.float64))
         if x.ndim != 2 or x.shape[1] != self.skill.space.dim or not np.all(np.isfinite(x)):
-            raise ValueError(f"xi has shape {np.shape(xi)}; expected finite (N, {self.skill.space.dim}) "
-                             "grasp errors")
+            raise ValueError(f"xi has shape {np.shape(xi)}; expected finite (N, {self.skill.space.dim}) grasp errors")
         inside = np.all((x >= self.skill.space.low) & (x <= self.skill.space.high), axis=1)
         ok = np.zeros(len(x), bool)
         if inside.any():
@@ -94,15 +98,17 @@ def load_value_thresholds(path: str | os.PathLike[str] = THRESHOLDS) -> dict[str
     """{gear: V_T} from a thresholds file (strict JSON: {"thresholds": {gear: number}, ...})."""
     data = read_json(path, "value-threshold file (benchmarks/preconditions.py --thresholds)")
     table = data.get("thresholds") if isinstance(data, dict) else None
-    if not isinstance(table, dict) or not all(
-            isinstance(v, (int, float)) and np.isfinite(v) for v in table.values()):
-        raise FileFormatError(f"{path}: expected {{\"thresholds\": {{gear: finite number}}}}")
+    if not isinstance(table, dict) or not all(isinstance(v, (int, float)) and np.isfinite(v) for v in table.values()):
+        raise FileFormatError(f'{path}: expected {{"thresholds": {{gear: finite number}}}}')
     return {str(k): float(v) for k, v in table.items()}
 
 
-def insert_precondition(gear: str, config: PreconditionConfig | None = None,
-                        skill: Skill | None = None,
-                        thresholds: str | os.PathLike[str] = THRESHOLDS) -> InsertPrecondition:
+def insert_precondition(
+    gear: str,
+    config: PreconditionConfig | None = None,
+    skill: Skill | None = None,
+    thresholds: str | os.PathLike[str] = THRESHOLDS,
+) -> InsertPrecondition:
     """The shipped insert skill's precondition for `gear` with its measured V_T."""
     table = load_value_thresholds(thresholds)
     if gear not in table:
@@ -119,8 +125,13 @@ def preferred_grasp_error(skill: Skill, samples: int = 4096, seed: int = 0) -> N
     return np.median(xi, axis=0)
 
 
-def best_aim(pre: InsertPrecondition, closing: float = 0.0, blur: tuple[float, float] = (5e-4, 0.01),
-             samples: int = 64, seed: int = 0) -> NDArray[np.float64]:
+def best_aim(
+    pre: InsertPrecondition,
+    closing: float = 0.0,
+    blur: tuple[float, float] = (5e-4, 0.01),
+    samples: int = 64,
+    seed: int = 0,
+) -> NDArray[np.float64]:
     """The grasp error a real-finger pick should aim for: the fingers pin xi_y (their closing
     axis) at `closing`, so search x (every 0.25 mm over +-5 mm) and yaw (the flow's median +- 2
     std, 9 values) for the point whose neighbourhood (x, yaw blurred by N(0, `blur`)) passes
@@ -154,8 +165,10 @@ def _fingerprint(pre: InsertPrecondition) -> bytes:
     V_T and eps."""
     xi = pre.skill.sampler.sample(8, np.random.default_rng(12345))
     v = pre.skill.value(np.repeat(pre.s0[None], len(xi), 0), xi)
-    return (np.concatenate([xi.ravel(), np.ravel(v), pre.skill.density(xi)]).tobytes()
-            + repr((pre.value_threshold, pre.config.eps)).encode())
+    return (
+        np.concatenate([xi.ravel(), np.ravel(v), pre.skill.density(xi)]).tobytes()
+        + repr((pre.value_threshold, pre.config.eps)).encode()
+    )
 
 
 def start_observation(skill: Skill) -> NDArray[np.float32]:
@@ -181,8 +194,9 @@ class ValueCalibration:
     success: NDArray[np.bool_]
 
 
-def calibrate_value_threshold(skill: Skill, episodes: int = 200, spread: float = 0.003,
-                              seed: int = 0) -> ValueCalibration:
+def calibrate_value_threshold(
+    skill: Skill, episodes: int = 200, spread: float = 0.003, seed: int = 0
+) -> ValueCalibration:
     """V_T by measurement: `episodes` rollouts at grasp errors drawn from the skill's flow and
     moved by N(0, spread) in x and y [m] (clipped to the box), so that both successes and
     failures occur; V_T is the threshold on V(s0, xi) that best separates them (balanced
@@ -212,6 +226,15 @@ def calibrate_value_threshold(skill: Skill, episodes: int = 200, spread: float =
     return ValueCalibration(best, best_acc, xi, value, returns, success)
 
 
-__all__ = ["InsertPrecondition", "PreconditionConfig", "THRESHOLDS", "ValueCalibration",
-           "calibrate_value_threshold", "insert_precondition", "load_value_thresholds",
-           "preferred_grasp_error", "best_aim", "start_observation"]
+__all__ = [
+    "InsertPrecondition",
+    "PreconditionConfig",
+    "THRESHOLDS",
+    "ValueCalibration",
+    "calibrate_value_threshold",
+    "insert_precondition",
+    "load_value_thresholds",
+    "preferred_grasp_error",
+    "best_aim",
+    "start_observation",
+]

@@ -47,8 +47,18 @@ from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.inspection import InspectConfig, append_inspect
 from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.scripted_motion import (
-    Keyframe, KeyframePlan, ScriptedInsertionConfig, append_move, append_pick, append_place, carry_height,
-    down_pose, grasp_tool_pose, gripper_widths, sample_plan, start_keyframe_plan,
+    Keyframe,
+    KeyframePlan,
+    ScriptedInsertionConfig,
+    append_move,
+    append_pick,
+    append_place,
+    carry_height,
+    down_pose,
+    grasp_tool_pose,
+    gripper_widths,
+    sample_plan,
+    start_keyframe_plan,
 )
 from assembly.station import COMMAND_PORTS, Station
 from assembly.world import nominal_grasp, planar_pose
@@ -98,8 +108,14 @@ class SkillRun:
     def record(self, t_end: float, outcome: str) -> dict[str, Any]:
         """The executed skill as `goflow demo` reports it: {"skill", "gear", "t_start", "t_end",
         "outcome", "precondition_prob"}."""
-        return {"skill": self.skill, "gear": self.gear, "t_start": self.t_start, "t_end": t_end,
-                "outcome": outcome, "precondition_prob": self.precondition_prob}
+        return {
+            "skill": self.skill,
+            "gear": self.gear,
+            "t_start": self.t_start,
+            "t_end": t_end,
+            "outcome": outcome,
+            "precondition_prob": self.precondition_prob,
+        }
 
 
 @dataclass(frozen=True)
@@ -177,9 +193,16 @@ class PlannerStateMachine(LeafSystem):
     executed, plans, replans, reason). Every output is a function of the state and the time
     alone, so the loop through the perception has no direct feedthrough."""
 
-    def __init__(self, skills: Mapping[str, Any], domain: AssemblyDomain, X_WS: Mapping[str, RigidTransform],
-                 cameras: CamerasConfig, X_WT_start: RigidTransform, width_start: float,
-                 config: PlannerSystemConfig | None = None) -> None:
+    def __init__(
+        self,
+        skills: Mapping[str, Any],
+        domain: AssemblyDomain,
+        X_WS: Mapping[str, RigidTransform],
+        cameras: CamerasConfig,
+        X_WT_start: RigidTransform,
+        width_start: float,
+        config: PlannerSystemConfig | None = None,
+    ) -> None:
         super().__init__()
         self.set_name("planner_state_machine")
         self.config = config or PlannerSystemConfig()
@@ -203,15 +226,24 @@ class PlannerStateMachine(LeafSystem):
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._update)
         now = {self.time_ticket(), self.abstract_state_ticket(self._state)}
         state_only = {self.abstract_state_ticket(self._state)}
-        self.DeclareAbstractOutputPort("X_WT_desired", lambda: AbstractValue.Make(RigidTransform()),
-                                       lambda c, o: o.set_value(self._sample(c)[0]), now)
+        self.DeclareAbstractOutputPort(
+            "X_WT_desired",
+            lambda: AbstractValue.Make(RigidTransform()),
+            lambda c, o: o.set_value(self._sample(c)[0]),
+            now,
+        )
         self.DeclareVectorOutputPort("V_WT_desired", 6, lambda c, o: o.SetFromVector(self._sample(c)[1]), now)
         self.DeclareVectorOutputPort("A_WT_desired", 6, lambda c, o: o.SetFromVector(self._sample(c)[2]), now)
         self.DeclareVectorOutputPort("gripper_width", 1, lambda c, o: o.SetFromVector([self._sample(c)[3]]), now)
-        self.DeclareAbstractOutputPort("request", lambda: AbstractValue.Make(LookRequest()),
-                                       lambda c, o: o.set_value(self.request(self.state(c))), state_only)
-        self.DeclareAbstractOutputPort("beliefs", lambda: AbstractValue.Make({}),
-                                       lambda c, o: o.set_value(dict(self.state(c).beliefs)), state_only)
+        self.DeclareAbstractOutputPort(
+            "request",
+            lambda: AbstractValue.Make(LookRequest()),
+            lambda c, o: o.set_value(self.request(self.state(c))),
+            state_only,
+        )
+        self.DeclareAbstractOutputPort(
+            "beliefs", lambda: AbstractValue.Make({}), lambda c, o: o.set_value(dict(self.state(c).beliefs)), state_only
+        )
         self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make({}), self._calc_status, state_only)
 
     # -- outputs -----------------------------------------------------------------------------
@@ -225,12 +257,18 @@ class PlannerStateMachine(LeafSystem):
         perceiving; CLOSE of the inspected gear and SEAT of an insert's gear (when the tool said
         seated and `config.seat_check` is set) while their motions run; else NOTHING."""
         if s.phase is Phase.PERCEIVE:
-            return LookRequest(Look.SCENE, gears=tuple(g for g in self.domain.goal
-                                                       if g not in s.beliefs or s.beliefs[g].location != "inserted"))
+            return LookRequest(
+                Look.SCENE,
+                gears=tuple(g for g in self.domain.goal if g not in s.beliefs or s.beliefs[g].location != "inserted"),
+            )
         if s.phase is Phase.MOTION and s.then is Then.PICTURE:
             return LookRequest(Look.CLOSE, gear=s.current.gear, belief=s.beliefs[s.current.gear])
-        if (s.phase is Phase.MOTION and s.then is Then.RELEASED and s.current.seated
-                and self.config.seat_check is not None):
+        if (
+            s.phase is Phase.MOTION
+            and s.then is Then.RELEASED
+            and s.current.seated
+            and self.config.seat_check is not None
+        ):
             return LookRequest(Look.SEAT, gear=s.current.gear)
         return LookRequest()
 
@@ -242,8 +280,15 @@ class PlannerStateMachine(LeafSystem):
 
     def _calc_status(self, context: Context, output: AbstractValue) -> None:
         s = self.state(context)
-        output.set_value({"phase": s.phase.value, "executed": list(s.executed), "plans": list(s.plans),
-                          "replans": s.replans, "reason": s.reason})
+        output.set_value(
+            {
+                "phase": s.phase.value,
+                "executed": list(s.executed),
+                "plans": list(s.plans),
+                "replans": s.replans,
+                "reason": s.reason,
+            }
+        )
 
     # -- the state machine -------------------------------------------------------------------
 
@@ -262,8 +307,10 @@ class PlannerStateMachine(LeafSystem):
     def _percept(self, context: Context, look: Look) -> Percept:
         percept = self.GetInputPort("percept").Eval(context)
         if percept.request.look is not look:
-            raise RuntimeError(f"the perception answered a {percept.request.look.name} look; the planner asked "
-                               f"for {look.name}: connect its request input to the planner's request output")
+            raise RuntimeError(
+                f"the perception answered a {percept.request.look.name} look; the planner asked "
+                f"for {look.name}: connect its request input to the planner's request output"
+            )
         return percept
 
     def _motion_done(self, s: PlannerState, t: float, X_WT: RigidTransform) -> bool:
@@ -288,8 +335,9 @@ class PlannerStateMachine(LeafSystem):
         for gear, b in percept.beliefs.items():
             doubted = gear in s.beliefs and s.beliefs[gear].doubted  # still owed a close view
             beliefs[gear] = replace(b, doubted=True) if doubted else b
-        s = replace(s, beliefs=beliefs,
-                    log=(*s.log, f"t = {t:.2f} s: perceived {sorted(beliefs)} in {percept.seconds:.1f} s"))
+        s = replace(
+            s, beliefs=beliefs, log=(*s.log, f"t = {t:.2f} s: perceived {sorted(beliefs)} in {percept.seconds:.1f} s")
+        )
         return self._replan(s, t, X_WT)
 
     def _replan(self, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
@@ -305,8 +353,11 @@ class PlannerStateMachine(LeafSystem):
     def _next_step(self, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
         if not s.steps:
             done = all(s.beliefs[g].location == "inserted" for g in self.domain.goal)
-            return replace(s, phase=Phase.DONE if done else Phase.FAILED,
-                           reason="" if done else "the plan ended before every gear was inserted")
+            return replace(
+                s,
+                phase=Phase.DONE if done else Phase.FAILED,
+                reason="" if done else "the plan ended before every gear was inserted",
+            )
         step = s.steps[0]
         current = SkillRun(step.skill, step.gear, t, float(step.probability))
         s = replace(s, steps=s.steps[1:], current=current)
@@ -338,10 +389,22 @@ class PlannerStateMachine(LeafSystem):
             seated = np.asarray(law.seated)
             start = seated + [0.0, 0.0, SHAFT_HEIGHT + GearInsertionConfig().start_height, 0.0]
             carry = carry_height(gear, self.X_WS[gear], c.motion)
-            append_move(plan, down_pose(np.array([start[0], start[1], carry]), start[3]), closed_w,
-                        f"{gear}: transport", c.motion.speed, c.motion.min_segment)
-            append_move(plan, down_pose(start[:3], start[3]), closed_w, f"{gear}: to the policy's start",
-                        c.motion.insert_speed * 3, c.motion.min_segment)
+            append_move(
+                plan,
+                down_pose(np.array([start[0], start[1], carry]), start[3]),
+                closed_w,
+                f"{gear}: transport",
+                c.motion.speed,
+                c.motion.min_segment,
+            )
+            append_move(
+                plan,
+                down_pose(start[:3], start[3]),
+                closed_w,
+                f"{gear}: to the policy's start",
+                c.motion.insert_speed * 3,
+                c.motion.min_segment,
+            )
             plan.append(c.motion.pause, plan.keyframes[-1].X_WT, closed_w, f"{gear}: steady")
             then = Then.POLICY
         else:
@@ -363,14 +426,16 @@ class PlannerStateMachine(LeafSystem):
                 s = self._record(s, t, f"missed (fingers {1e3 * width:.1f} mm apart)")
                 return self._retry(s, t, X_WT)
             b = s.beliefs[gear]
-            s = replace(s, beliefs={**s.beliefs, gear: GearBelief("hand", b.mean, b.std, b.inspections,
-                                                                  s.current.tool)})
+            s = replace(
+                s, beliefs={**s.beliefs, gear: GearBelief("hand", b.mean, b.std, b.inspections, s.current.tool)}
+            )
             return self._next_step(self._record(s, t, "holding"), t, X_WT)
         if s.then is Then.POLICY:
             history = PoseHistory(self.laws[gear])
             history.reset(_pose4(X_WT))
-            s = replace(s, history=history, policy_end=t + self.t_max, width=s.keyframes.keyframes[-1].width,
-                        phase=Phase.POLICY)
+            s = replace(
+                s, history=history, policy_end=t + self.t_max, width=s.keyframes.keyframes[-1].width, phase=Phase.POLICY
+            )
             return replace(s, target=self._policy_target(s, gear, X_WT))
         if s.then is Then.RELEASED:
             if s.current.seated and self.config.seat_check is not None:
@@ -378,8 +443,11 @@ class PlannerStateMachine(LeafSystem):
                 s = replace(s, log=(*s.log, f"t = {t:.2f} s: seat check: {check.reason}"))
                 if check.verdict == "unseated":
                     s = self._record(s, t, f"unseated (wrist camera: {check.reason})")
-                    return self._fail(s, f"insert({gear}) left the gear on its shaft unseated ({check.reason}); "
-                                         "no skill takes a gear back off its shaft")
+                    return self._fail(
+                        s,
+                        f"insert({gear}) left the gear on its shaft unseated ({check.reason}); "
+                        "no skill takes a gear back off its shaft",
+                    )
             s = self._record(s, t, s.current.outcome)
             if not s.current.seated:
                 return self._retry(s, t, X_WT)
@@ -408,8 +476,13 @@ class PlannerStateMachine(LeafSystem):
         dz = float(X_WT.translation()[2] - self.laws[gear].seated[2])
         holding, _ = self._holding(context, gear)
         seated = dz < self.config.seated_tolerance and holding
-        outcome = ("seated" if seated else "dropped" if not holding
-                   else f"unseated (tool {1e3 * dz:.1f} mm above seated; put back)")
+        outcome = (
+            "seated"
+            if seated
+            else "dropped"
+            if not holding
+            else f"unseated (tool {1e3 * dz:.1f} mm above seated; put back)"
+        )
         s = replace(s, current=replace(s.current, seated=seated, outcome=outcome))
         if seated or not holding:
             plan = self._open_and_lift(s, t, X_WT, gear, f"{gear}: release", f"{gear}: retreat")
@@ -417,8 +490,9 @@ class PlannerStateMachine(LeafSystem):
             tool = s.beliefs[gear].tool
             plan = self._hold(s, t, X_WT)
             X_WT_place = grasp_tool_pose(gear, planar_pose(tool[0], tool[1], 0.0), tool[2], self.config.motion)
-            append_place(plan, gear, X_WT_place, carry_height(gear, self.X_WS[gear], self.config.motion),
-                         self.config.motion)
+            append_place(
+                plan, gear, X_WT_place, carry_height(gear, self.X_WS[gear], self.config.motion), self.config.motion
+            )
         return replace(s, keyframes=plan, then=Then.RELEASED, phase=Phase.MOTION, target=None)
 
     def _holding(self, context: Context, gear: str) -> tuple[bool, float]:
@@ -428,15 +502,17 @@ class PlannerStateMachine(LeafSystem):
         width = float(q[0] + q[1])
         return width > 2 * gear_spec(gear).tip_radius - 0.005, width
 
-    def _open_and_lift(self, s: PlannerState, t: float, X_WT: RigidTransform, gear: str, open_label: str,
-                       lift_label: str) -> KeyframePlan:
+    def _open_and_lift(
+        self, s: PlannerState, t: float, X_WT: RigidTransform, gear: str, open_label: str, lift_label: str
+    ) -> KeyframePlan:
         """From the current command: open the fingers for `gear`, then lift by retreat_height."""
         c = self.config.motion
         open_w, _ = gripper_widths(gear, c)
         plan = self._hold(s, t, X_WT)
         plan.append(c.gripper_time, plan.keyframes[-1].X_WT, open_w, open_label)
-        up = RigidTransform(plan.keyframes[-1].X_WT.rotation(),
-                            plan.keyframes[-1].X_WT.translation() + [0, 0, c.retreat_height])
+        up = RigidTransform(
+            plan.keyframes[-1].X_WT.rotation(), plan.keyframes[-1].X_WT.translation() + [0, 0, c.retreat_height]
+        )
         append_move(plan, up, open_w, lift_label, c.speed, c.min_segment)
         return plan
 
@@ -450,12 +526,12 @@ class PlannerStateMachine(LeafSystem):
         # scene camera's view), then look again; the failed gear's belief is doubted
         gear = s.current.gear
         b = s.beliefs[gear]
-        s = replace(s, replans=s.replans + 1,
-                    beliefs={**s.beliefs, gear: GearBelief("table", b.mean, b.std, 0, doubted=True)})
+        s = replace(
+            s, replans=s.replans + 1, beliefs={**s.beliefs, gear: GearBelief("table", b.mean, b.std, 0, doubted=True)}
+        )
         c = self.config.motion
         plan = self._open_and_lift(s, t, X_WT, gear, "retry: open", "retry: lift")
-        append_move(plan, self.X_WT_start, plan.keyframes[-1].width, "retry: clear the view", c.speed,
-                    c.min_segment)
+        append_move(plan, self.X_WT_start, plan.keyframes[-1].width, "retry: clear the view", c.speed, c.min_segment)
         return replace(s, keyframes=plan, then=Then.REPERCEIVE, phase=Phase.MOTION)
 
 
@@ -471,16 +547,26 @@ class BeliefSpacePlanner(Diagram):
     Inputs: scene_rgb, scene_depth, wrist_rgb, wrist_depth, X_WT, hand_state. Outputs: the
     command ports (COMMAND_PORTS), beliefs and status."""
 
-    def __init__(self, skills: Mapping[str, Any], domain: AssemblyDomain, X_WS: Mapping[str, RigidTransform],
-                 cameras: CamerasConfig, X_WT_start: RigidTransform, width_start: float,
-                 config: PlannerSystemConfig | None = None, meshcat: Meshcat | None = None) -> None:
+    def __init__(
+        self,
+        skills: Mapping[str, Any],
+        domain: AssemblyDomain,
+        X_WS: Mapping[str, RigidTransform],
+        cameras: CamerasConfig,
+        X_WT_start: RigidTransform,
+        width_start: float,
+        config: PlannerSystemConfig | None = None,
+        meshcat: Meshcat | None = None,
+    ) -> None:
         super().__init__()
         config = config or PlannerSystemConfig()
         builder = DiagramBuilder()
-        machine = builder.AddSystem(PlannerStateMachine(skills, domain, X_WS, cameras, X_WT_start, width_start,
-                                                        config))
-        perception = builder.AddSystem(PlannerPerception(cameras, tuple(domain.goal), X_WS, config.close_prior,
-                                                         config.scene_extrinsic_std, config.seat_check))
+        machine = builder.AddSystem(PlannerStateMachine(skills, domain, X_WS, cameras, X_WT_start, width_start, config))
+        perception = builder.AddSystem(
+            PlannerPerception(
+                cameras, tuple(domain.goal), X_WS, config.close_prior, config.scene_extrinsic_std, config.seat_check
+            )
+        )
         for name in IMAGE_PORTS:
             builder.ExportInput(perception.GetInputPort(name), name)
         builder.ConnectInput(builder.ExportInput(perception.GetInputPort("X_WT"), "X_WT"), machine.GetInputPort("X_WT"))
@@ -517,5 +603,13 @@ def connect_planner(station: Station, planner: BeliefSpacePlanner) -> Diagram:
     return diagram
 
 
-__all__ = ["BeliefSpacePlanner", "Phase", "PlannerState", "PlannerStateMachine", "PlannerSystemConfig", "SkillRun",
-           "Then", "connect_planner"]
+__all__ = [
+    "BeliefSpacePlanner",
+    "Phase",
+    "PlannerState",
+    "PlannerStateMachine",
+    "PlannerSystemConfig",
+    "SkillRun",
+    "Then",
+    "connect_planner",
+]

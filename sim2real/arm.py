@@ -28,8 +28,7 @@ END_EFFECTORS: tuple[str, ...] = ("none", "hand", "hand+gear_small", "hand+gear_
 N_ARM = 7
 
 
-def arm_plant(end_effector: str = "hand", time_step: float = 0.0
-              ) -> tuple[MultibodyPlant, ModelInstanceIndex]:
+def arm_plant(end_effector: str = "hand", time_step: float = 0.0) -> tuple[MultibodyPlant, ModelInstanceIndex]:
     """A finalized plant of the Panda arm welded to the world at its base, with `end_effector`
     (one of END_EFFECTORS) welded to the flange; the arm's 7 joints come first in q and v.
     Returns (plant, arm instance). The plant has no scene graph (no geometry queries)."""
@@ -41,8 +40,9 @@ def arm_plant(end_effector: str = "hand", time_step: float = 0.0
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", arm))
     if end_effector != "none":
         hand = parser.AddModels(str(hand_urdf))[0]
-        plant.WeldFrames(plant.GetFrameByName("panda_link8", arm),
-                         plant.GetFrameByName("panda_hand", hand), X_FLANGE_HAND)
+        plant.WeldFrames(
+            plant.GetFrameByName("panda_link8", arm), plant.GetFrameByName("panda_hand", hand), X_FLANGE_HAND
+        )
         if end_effector.startswith("hand+gear_"):
             add_held_gear(plant, end_effector.split("_", 1)[1], tool_frame(plant, hand))
     plant.Finalize()
@@ -84,9 +84,9 @@ class ArmModel:
     def _state(self, q: NDArray[np.float64], dq: NDArray[np.float64]) -> None:
         x = np.zeros(2 * self.nq)
         x[:N_ARM] = q
-        x[self.nq:self.nq + N_ARM] = dq
+        x[self.nq : self.nq + N_ARM] = dq
         if self.nq > N_ARM:  # fingers held half open and still
-            x[N_ARM:self.nq] = 0.02
+            x[N_ARM : self.nq] = 0.02
         self.plant.SetPositionsAndVelocities(self.context, x)
 
     def terms(self, q: NDArray[np.float64], dq: NDArray[np.float64], ddq: NDArray[np.float64]) -> ArmTerms:
@@ -104,11 +104,11 @@ class ArmModel:
             grav = self.plant.CalcGravityGeneralizedForces(self.context)[:N_ARM]
             mass[k] = M
             rigid[k] = M @ ddq[k] + bias - grav
-        return ArmTerms(rigid=rigid, rotor=ddq * self.reflected_inertia,
-                        damping=dq * self.damping, mass=mass)
+        return ArmTerms(rigid=rigid, rotor=ddq * self.reflected_inertia, damping=dq * self.damping, mass=mass)
 
-    def flange_kinematics(self, q: NDArray[np.float64], dq: NDArray[np.float64], ddq: NDArray[np.float64]
-                          ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    def flange_kinematics(
+        self, q: NDArray[np.float64], dq: NDArray[np.float64], ddq: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Per sample: the flange's spatial Jacobian J (T, 6, 7) (angular rows first, expressed
         in the flange frame, about the flange origin), its angular velocity w (T, 3), angular
         acceleration alpha (T, 3) and the origin's linear acceleration minus gravity a (T, 3),
@@ -125,10 +125,12 @@ class ArmModel:
         for k in range(T):
             self._state(q[k], dq[k])
             R_WF = self.flange.CalcPoseInWorld(self.context).rotation().matrix()
-            Jw = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
-                                                        np.zeros(3), world, world)[:, :N_ARM]
-            bias = self.plant.CalcBiasSpatialAcceleration(self.context, JacobianWrtVariable.kV, self.flange,
-                                                          np.zeros(3), world, world)
+            Jw = self.plant.CalcJacobianSpatialVelocity(
+                self.context, JacobianWrtVariable.kV, self.flange, np.zeros(3), world, world
+            )[:, :N_ARM]
+            bias = self.plant.CalcBiasSpatialAcceleration(
+                self.context, JacobianWrtVariable.kV, self.flange, np.zeros(3), world, world
+            )
             A = Jw @ ddq[k] + np.concatenate([bias.rotational(), bias.translational()])
             V = Jw @ dq[k]
             J[k, :3] = R_WF.T @ Jw[:3]

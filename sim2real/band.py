@@ -93,11 +93,11 @@ class Band:
 
     def apply(self, x: Array) -> Array:
         """x (T, ...) filtered and kept every `stride` samples."""
-        return self.filter(np.asarray(x, dtype=np.float64))[::self.stride]
+        return self.filter(np.asarray(x, dtype=np.float64))[:: self.stride]
 
     def rows(self, x: NDArray[Any]) -> NDArray[Any]:
         """A per-sample array (masks, labels, states) kept every `stride` samples, unfiltered."""
-        return np.asarray(x)[::self.stride]
+        return np.asarray(x)[:: self.stride]
 
     @property
     def settle(self) -> int:
@@ -108,8 +108,8 @@ class Band:
     def inner(self, valid: NDArray[np.bool_]) -> NDArray[np.bool_]:
         """A copy of the per-sample mask `valid` with the `settle` samples at each end set False."""
         out = np.array(valid, dtype=bool)
-        out[:self.settle] = False
-        out[-self.settle:] = False
+        out[: self.settle] = False
+        out[-self.settle :] = False
         return out
 
     def power_response(self, f: Array) -> Array:
@@ -118,9 +118,14 @@ class Band:
         return np.abs(h) ** 4
 
     def summary(self) -> dict[str, Any]:
-        return {"cutoff_hz": self.cutoff, "excitation_hz": self.excitation, "stride": self.stride,
-                "rate_hz": 1.0 / (self.dt * self.stride), "reference_hz": [self.cutoff, self.reference * self.cutoff],
-                "reason": self.reason}
+        return {
+            "cutoff_hz": self.cutoff,
+            "excitation_hz": self.excitation,
+            "stride": self.stride,
+            "rate_hz": 1.0 / (self.dt * self.stride),
+            "reference_hz": [self.cutoff, self.reference * self.cutoff],
+            "reason": self.reason,
+        }
 
 
 def _power_edge(x: Array, dt: float, share: float = 0.99) -> float:
@@ -149,24 +154,38 @@ def choose_band(dq: Array, dt: float, config: BandConfig | None = None) -> Band:
         cutoff, reason = float(c.cutoff), "given"
     else:
         cutoff = float(np.clip(c.excitation_factor * excitation, c.min_cutoff, c.max_cutoff))
-        reason = (f"{c.excitation_factor:g} x the excitation's {excitation:.3g} Hz (99 % of the joint velocities' "
-                  f"power), within [{c.min_cutoff:g}, {c.max_cutoff:g}] Hz")
+        reason = (
+            f"{c.excitation_factor:g} x the excitation's {excitation:.3g} Hz (99 % of the joint velocities' "
+            f"power), within [{c.min_cutoff:g}, {c.max_cutoff:g}] Hz"
+        )
     if c.reference * cutoff >= 0.45 * fs:
-        raise InputError(f"band edge {cutoff:g} Hz is too high for a log sampled at {fs:g} Hz; expected at most "
-                         f"{0.45 * fs / c.reference:g} Hz")
+        raise InputError(
+            f"band edge {cutoff:g} Hz is too high for a log sampled at {fs:g} Hz; expected at most "
+            f"{0.45 * fs / c.reference:g} Hz"
+        )
     stride = max(1, int(np.floor(fs / (c.samples_per_cycle * cutoff))))
-    band = Band(cutoff=cutoff, dt=dt, stride=stride, order=c.order, reference=c.reference,
-                excitation=excitation, reason=reason)
+    band = Band(
+        cutoff=cutoff, dt=dt, stride=stride, order=c.order, reference=c.reference, excitation=excitation, reason=reason
+    )
     moving = np.std(band.filter(dq - dq.mean(axis=0)), axis=0)
     if float(np.max(moving)) < 1e-3:
-        raise InputError(f"the log's joints do not move below {cutoff:g} Hz (largest velocity spread "
-                         f"{float(np.max(moving)):.2g} rad/s); expected a trajectory that excites the joints")
+        raise InputError(
+            f"the log's joints do not move below {cutoff:g} Hz (largest velocity spread "
+            f"{float(np.max(moving)):.2g} rad/s); expected a trajectory that excites the joints"
+        )
     return band
 
 
-def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Array | None = None,
-               derivative: int | None = None, window: int = 41, measured: Array | None = None,
-               mass: Array | None = None) -> tuple[Array, dict[str, Any]]:
+def band_floor(
+    residual: Array,
+    valid: NDArray[np.bool_],
+    band: Band,
+    kernel: Array | None = None,
+    derivative: int | None = None,
+    window: int = 41,
+    measured: Array | None = None,
+    mass: Array | None = None,
+) -> tuple[Array, dict[str, Any]]:
     """The noise's standard deviation in the band for each column of `residual` (T, k).
 
     The residual's noise spectrum is modelled as a |K(f)|^2 + b |D(f)|^2: the sensor's noise, flat
@@ -192,14 +211,16 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
             and `mass`.
     """
     if derivative is not None and (measured is None or mass is None):
-        raise InputError(f"band_floor: derivative = {derivative} needs the measured signal and the mass matrix; "
-                         "expected both")
+        raise InputError(
+            f"band_floor: derivative = {derivative} needs the measured signal and the mass matrix; expected both"
+        )
     r = residual[valid]
     fs = 1.0 / band.dt
     nper = int(min(len(r) // 4, 2 ** int(np.ceil(np.log2(4.0 * fs)))))
     if nper < 64:
-        raise InputError(f"the log has {len(r)} valid samples; too few to read its noise spectrum (expected at "
-                         f"least {4 * 64})")
+        raise InputError(
+            f"the log has {len(r)} valid samples; too few to read its noise spectrum (expected at least {4 * 64})"
+        )
     f, P = welch(r - r.mean(axis=0), fs=fs, nperseg=nper, axis=0)
 
     def response(taps: Array) -> Array:
@@ -207,8 +228,11 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
         return np.abs(np.exp(-2j * np.pi * np.outer(f, lags) * band.dt) @ taps) ** 2
 
     K2 = np.ones_like(f) if kernel is None else response(kernel)
-    D2 = np.zeros_like(f) if derivative is None else response(
-        savgol_coeffs(window, 3, deriv=derivative, delta=band.dt, use="dot"))
+    D2 = (
+        np.zeros_like(f)
+        if derivative is None
+        else response(savgol_coeffs(window, 3, deriv=derivative, delta=band.dt, use="dot"))
+    )
     ref = (f >= band.cutoff) & (f <= band.reference * band.cutoff)
     fine = np.linspace(0.0, fs / 2, 8192)
     H = band.power_response(fine)
@@ -230,9 +254,13 @@ def band_floor(residual: Array, valid: NDArray[np.bool_], band: Band, kernel: Ar
             b[j] = min(b_max[j], float(np.mean(p / np.maximum(D2[ref], 1e-300))))
         a[j] = max(float(np.mean((p - b[j] * D2[ref]) / K2[ref])), 0.0)
     floors = np.sqrt(np.maximum(a * white + b * blue, 0.0))
-    detail = {"a": a.tolist(), "b": b.tolist(), "b_max": b_max.tolist(),
-              "reference_density": np.mean(P[ref], axis=0).tolist(),
-              "broadband_std": np.std(r, axis=0).tolist()}
+    detail = {
+        "a": a.tolist(),
+        "b": b.tolist(),
+        "b_max": b_max.tolist(),
+        "reference_density": np.mean(P[ref], axis=0).tolist(),
+        "broadband_std": np.std(r, axis=0).tolist(),
+    }
     return np.maximum(floors, 1e-9), detail
 
 
@@ -246,8 +274,12 @@ def band_candidate(cand: Candidate, band: Band, cache: dict[Any, Any]) -> Candid
     family = cand.family
     if family is not None:
         family = _band_family(family, band, cache)
-    out = dataclasses.replace(cand, features={c: band.apply(v) for c, v in cand.features.items()},
-                              offset={c: band.apply(v) for c, v in cand.offset.items()}, family=family)
+    out = dataclasses.replace(
+        cand,
+        features={c: band.apply(v) for c, v in cand.features.items()},
+        offset={c: band.apply(v) for c, v in cand.offset.items()},
+        family=family,
+    )
     cache[key] = out
     return out
 
@@ -255,8 +287,13 @@ def band_candidate(cand: Candidate, band: Band, cache: dict[Any, Any]) -> Candid
 def _band_family(family: Family, band: Band, cache: dict[Any, Any]) -> Family:
     key = ("family", id(family))
     if key not in cache:
-        cache[key] = Family(family.key, family.grid, family.low, family.high,
-                            lambda value: band_candidate(family.at(value), band, cache))
+        cache[key] = Family(
+            family.key,
+            family.grid,
+            family.low,
+            family.high,
+            lambda value: band_candidate(family.at(value), band, cache),
+        )
     return cache[key]
 
 
@@ -268,8 +305,10 @@ def band_pool(pool: dict[str, list[Candidate]], band: Band) -> dict[str, list[Ca
 
 # ---------------------------------------------------------------------------------------------- broadband
 
-def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101,
-                kernel: Array | None = None, reach: int | None = None) -> Array:
+
+def noise_floor(
+    residual: Array, valid: NDArray[np.bool_], window: int = 101, kernel: Array | None = None, reach: int | None = None
+) -> Array:
     """Per column of a (T, k) residual: the standard deviation of its noise, i.e. of what varies
     faster than any effect of the state can (vibration, sensor noise, derivative noise).
 
@@ -296,7 +335,7 @@ def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101,
         impulse = np.zeros(window + 2 * len(kernel))
         impulse[len(impulse) // 2] = 1.0
         seen = np.convolve(impulse, kernel[::-1], mode="same")
-        kept = float(np.sum((seen - savgol_filter(seen, window, 3)) ** 2) / np.sum(kernel ** 2))
+        kept = float(np.sum((seen - savgol_filter(seen, window, 3)) ** 2) / np.sum(kernel**2))
     spread = 1.4826 * np.median(np.abs(fast - np.median(fast, axis=0)), axis=0)
     floor = spread / np.sqrt(kept)
     if reach is not None and len(r) >= 12 * reach:
@@ -305,7 +344,7 @@ def noise_floor(residual: Array, valid: NDArray[np.bool_], window: int = 101,
         highpass[window // 2] += 1.0
         gain = float(np.max(np.abs(np.fft.rfft(highpass, 8 * window))))
         floor = np.clip(_nugget(r, reach), spread / gain, floor)
-    scale = np.sqrt(np.mean(r ** 2, axis=0))
+    scale = np.sqrt(np.mean(r**2, axis=0))
     return np.maximum(floor, 1e-6 * np.maximum(scale, 1e-12) + 1e-9)
 
 

@@ -76,8 +76,10 @@ def stale_rows(log: RobotLog) -> NDArray[np.bool_]:
 
 
 def _take(log: RobotLog, keep: NDArray[np.bool_]) -> RobotLog:
-    fields = {f.name: (v[keep] if isinstance(v := getattr(log, f.name), np.ndarray) else v)
-              for f in dataclasses.fields(RobotLog)}
+    fields = {
+        f.name: (v[keep] if isinstance(v := getattr(log, f.name), np.ndarray) else v)
+        for f in dataclasses.fields(RobotLog)
+    }
     return RobotLog(**fields)
 
 
@@ -126,22 +128,30 @@ def clean(log: RobotLog, config: CleanConfig | None = None) -> Cleaned:
     stale = stale_rows(log) if c.drop_repeats else np.zeros(log.n_samples, dtype=bool)
     n = log.n_samples
     if stale[1:].all():
-        raise InputError(f"every sample of the log repeats the one before it ({n - 1} of {n - 1}): the logger "
-                         "recorded no new state; expected fresh samples of a moving arm")
+        raise InputError(
+            f"every sample of the log repeats the one before it ({n - 1} of {n - 1}): the logger "
+            "recorded no new state; expected fresh samples of a moving arm"
+        )
     fresh_log = _take(log, ~stale)
     if fresh_log.n_samples < MIN_SAMPLES:
-        raise InputError(f"the log has {fresh_log.n_samples} fresh samples after dropping {int(stale.sum())} "
-                         f"stale repeats; expected at least {MIN_SAMPLES}")
+        raise InputError(
+            f"the log has {fresh_log.n_samples} fresh samples after dropping {int(stale.sum())} "
+            f"stale repeats; expected at least {MIN_SAMPLES}"
+        )
     steps = np.diff(fresh_log.time)
     dt = float(np.median(steps))
     notes = []
     if stale.any():
         share = stale.mean()
-        notes.append(f"dropped {int(stale.sum())} stale repeated samples ({100 * share:.1f} %: the logger read "
-                     "the same state twice)")
+        notes.append(
+            f"dropped {int(stale.sum())} stale repeated samples ({100 * share:.1f} %: the logger read "
+            "the same state twice)"
+        )
         if share > c.warn_repeats:
-            notes.append(f"warning: {100 * share:.0f} % of the samples are stale repeats; the logger misses many "
-                         "polls (the fits use the fresh ones)")
+            notes.append(
+                f"warning: {100 * share:.0f} % of the samples are stale repeats; the logger misses many "
+                "polls (the fits use the fresh ones)"
+            )
     uniform = np.allclose(steps, dt, rtol=1e-6, atol=1e-9)
     if uniform:
         out = fresh_log
@@ -155,16 +165,27 @@ def clean(log: RobotLog, config: CleanConfig | None = None) -> Cleaned:
         near = np.minimum(np.abs(out.time - t[i - 1]), np.abs(t[i] - out.time))
         fresh = near <= 0.5 * c.gap * dt + 1e-12
         gaps = steps[steps > c.gap * dt]
-        notes.append(f"resampled {fresh_log.n_samples} fresh samples onto a uniform {1e3 * dt:.3f} ms grid "
-                     f"(steps {1e3 * np.percentile(steps, 1):.2f}-{1e3 * np.percentile(steps, 99):.2f} ms, 1-99 %)")
+        notes.append(
+            f"resampled {fresh_log.n_samples} fresh samples onto a uniform {1e3 * dt:.3f} ms grid "
+            f"(steps {1e3 * np.percentile(steps, 1):.2f}-{1e3 * np.percentile(steps, 99):.2f} ms, 1-99 %)"
+        )
         if gaps.size:
-            notes.append(f"{gaps.size} gaps longer than {c.gap:g} periods (longest {1e3 * gaps.max():.1f} ms): "
-                         f"their {int((~fresh).sum())} grid points are interpolated, not fitted")
+            notes.append(
+                f"{gaps.size} gaps longer than {c.gap:g} periods (longest {1e3 * gaps.max():.1f} ms): "
+                f"their {int((~fresh).sum())} grid points are interpolated, not fitted"
+            )
     meta = dict(out.meta)
-    report = {"samples_in": n, "stale_dropped": int(stale.sum()), "stale_share": float(stale.mean()),
-              "period": dt, "uniform": bool(uniform),
-              "step_percentiles_ms": {str(p): float(1e3 * np.percentile(steps, p)) for p in (1, 50, 99)},
-              "gaps": int(gaps.size), "longest_gap_ms": float(1e3 * gaps.max()) if gaps.size else 0.0,
-              "grid_samples": out.n_samples, "not_fresh": int((~fresh).sum())}
+    report = {
+        "samples_in": n,
+        "stale_dropped": int(stale.sum()),
+        "stale_share": float(stale.mean()),
+        "period": dt,
+        "uniform": bool(uniform),
+        "step_percentiles_ms": {str(p): float(1e3 * np.percentile(steps, p)) for p in (1, 50, 99)},
+        "gaps": int(gaps.size),
+        "longest_gap_ms": float(1e3 * gaps.max()) if gaps.size else 0.0,
+        "grid_samples": out.n_samples,
+        "not_fresh": int((~fresh).sum()),
+    }
     meta["cleaned"] = report
     return Cleaned(log=dataclasses.replace(out, meta=meta), fresh=fresh, report=report, notes=notes)

@@ -22,6 +22,7 @@ def _bar(progress: bool):
     if not progress:
         return None
     from tqdm import tqdm
+
     state: dict[str, Any] = {}
 
     def say(stage: str, i: int, n: int) -> None:
@@ -40,9 +41,14 @@ def _bar(progress: bool):
     return say
 
 
-def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
-                  config: DiagnosisConfig | None = None, progress: bool = False, episodes: int = 10
-                  ) -> tuple[Diagnosis, list[Path]]:
+def diagnose_file(
+    log_path: str | Path,
+    out: str | Path,
+    model: str = "arm",
+    config: DiagnosisConfig | None = None,
+    progress: bool = False,
+    episodes: int = 10,
+) -> tuple[Diagnosis, list[Path]]:
     """Load the log at `log_path` (npz, Franka CSV or the Gaz et al. folder layout), diagnose it
     against `model` ("arm": the arm's torque and state channels; "perception": a perception log
     of sim2real.perception_channel, its pose channel; "station": an insertion log,
@@ -59,6 +65,7 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
     start = time.perf_counter()
     if model == "perception":
         from sim2real.perception_channel import diagnose_perception, load_perception_log
+
         perception_log = load_perception_log(log_path)
         check_output_dir(out, "--out-dir")
         d = diagnose_perception(perception_log, progress=_bar(progress))
@@ -68,6 +75,7 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
     check_output_dir(out, "--out-dir")
     if model == "station":
         from sim2real.contact import diagnose_insertion
+
         d = diagnose_insertion(log, config, progress=_bar(progress), episodes=episodes)
     else:
         d = diagnose(log, config, progress=_bar(progress))
@@ -78,8 +86,9 @@ def diagnose_file(log_path: str | Path, out: str | Path, model: str = "arm",
     return d, paths
 
 
-def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any] | None = None,
-                  model: str = "arm") -> Path:
+def make_log_file(
+    effects: list[str], out: str | Path, overrides: dict[str, Any] | None = None, model: str = "arm"
+) -> Path:
     """Make a log of a simulated reality with the effects given as NAME=VALUE or NAME.PARAM=VALUE
     strings (sim2real.catalogue.parse_effect_values) and save it at `out` (.npz, or .csv in the
     Franka layout for the arm); returns the path. model "arm": the arm on an exciting trajectory,
@@ -102,6 +111,7 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
         raise InputError(f"--out {out}: expected a .npz{' or .csv' if model == 'arm' else ''} file name")
     if model == "perception":
         from sim2real.perception_channel import make_perception_log, save_perception_log
+
         options = dict(overrides or {})
         unknown = set(options) - {"scenes", "seed"}
         if unknown:
@@ -109,6 +119,7 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
         return save_perception_log(make_perception_log(values, **options), path)
     if model == "station":
         from sim2real.station_logs import make_insertion_log, with_sensor_noise
+
         options = dict(overrides or {})
         unknown = set(options) - {"gear", "seed", "xi", "noise"}
         if unknown:
@@ -119,6 +130,7 @@ def make_log_file(effects: list[str], out: str | Path, overrides: dict[str, Any]
         log, _ = make_insertion_log(values, **options)
         return save_log(with_sensor_noise(log, options.get("seed", 0)) if noise else log, path)
     from sim2real.reality import RealityConfig, make_arm_log
+
     config = config_with_overrides(RealityConfig, None, overrides or {}, "--model-kwarg")
     log = make_arm_log(values, config)
     (write_franka_csv if path.suffix == ".csv" else save_log)(log, path)

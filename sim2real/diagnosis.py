@@ -30,8 +30,15 @@ from sim2real.config import DiagnosisConfig
 from sim2real.evidence import Evidence, arm_evidence
 from sim2real.fitting import Design
 from sim2real.log import RobotLog
-from sim2real.selection import (block_folds, heldout_prediction, identifiability_warnings, rank_effects, score,
-                                select, selected_effects)
+from sim2real.selection import (
+    block_folds,
+    heldout_prediction,
+    identifiability_warnings,
+    rank_effects,
+    score,
+    select,
+    selected_effects,
+)
 from sim2real.verdict import excess_interval, friction_table, how_far_table, structure_left, verdict_of
 from sim2real.where import rank_by_prediction, where_table
 
@@ -60,14 +67,22 @@ class Diagnosis:
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
-        return {"log": self.log_meta, "channels": list(self.channels),
-                "columns": {c: self.labels.get(c, [f"joint {j + 1}" for j in range(7)]) for c in self.channels},
-                "where": self.where, "audit": self.audit, "ranking": self.ranking, "selected": self.selected,
-                "warnings": self.warnings, "how_far": self.how_far, "verdict": self.verdict, **self.extra}
+        return {
+            "log": self.log_meta,
+            "channels": list(self.channels),
+            "columns": {c: self.labels.get(c, [f"joint {j + 1}" for j in range(7)]) for c in self.channels},
+            "where": self.where,
+            "audit": self.audit,
+            "ranking": self.ranking,
+            "selected": self.selected,
+            "warnings": self.warnings,
+            "how_far": self.how_far,
+            "verdict": self.verdict,
+            **self.extra,
+        }
 
 
-def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None
-             ) -> Diagnosis:
+def diagnose(log: RobotLog, config: DiagnosisConfig | None = None, progress: Progress | None = None) -> Diagnosis:
     """Answer where, which and how far for an arm log (see the module docstring)."""
     say = progress or (lambda what, i, n: None)
     say("replay", 0, 1)
@@ -117,8 +132,11 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     selection = select(design, ev.pool, folds, base, best_single, excess0, c, rng)
     say("selection", 1, 1)
     selected = selected_effects(design, selection, c, rng)
-    friction = (friction_table(selected, np.asarray(ev.preprocessing["nominal_damping"]))
-                if "nominal_damping" in ev.preprocessing else None)
+    friction = (
+        friction_table(selected, np.asarray(ev.preprocessing["nominal_damping"]))
+        if "nominal_damping" in ev.preprocessing
+        else None
+    )
     for r in selected:
         r.pop("_samples", None)
     warnings = identifiability_warnings(design, ranking, selection)
@@ -138,14 +156,35 @@ def analyse(ev: Evidence, config: DiagnosisConfig | None = None, progress: Progr
     structure = structure_left(design, design.y - pred, ev.valid, folds, ev.structure, excess0, e_final, level, c, rng)
     excess = excess_interval(base.sse, current.sse, n_rows, level, c.bootstrap, rng)
     verdict = verdict_of(c, chosen, structure, excess, e0, e_final, level)
-    verdict.update(heldout_before=float(e0), heldout_after=float(e_final), floor_level=level, excess=excess,
-                   structure=structure)
+    verdict.update(
+        heldout_before=float(e0), heldout_after=float(e_final), floor_level=level, excess=excess, structure=structure
+    )
 
     meta = {k: v for k, v in ev.meta.items() if k != "truth"}
-    arrays = {"residual": design.y, "after": design.y - pred, "floor": floor, "x": ev.x,
-              "time": ev.time, "valid": ev.valid}
-    return Diagnosis(log_meta=meta, channels=chans, where=where, audit=audit, ranking=ranking,
-                     selected=selected, warnings=warnings, how_far=how_far, verdict=verdict, arrays=arrays,
-                     labels=ev.labels, x_label=ev.x_label,
-                     extra={"notes": list(ev.notes), "preprocessing": ev.preprocessing,
-                            **({"friction": friction} if friction else {})})
+    arrays = {
+        "residual": design.y,
+        "after": design.y - pred,
+        "floor": floor,
+        "x": ev.x,
+        "time": ev.time,
+        "valid": ev.valid,
+    }
+    return Diagnosis(
+        log_meta=meta,
+        channels=chans,
+        where=where,
+        audit=audit,
+        ranking=ranking,
+        selected=selected,
+        warnings=warnings,
+        how_far=how_far,
+        verdict=verdict,
+        arrays=arrays,
+        labels=ev.labels,
+        x_label=ev.x_label,
+        extra={
+            "notes": list(ev.notes),
+            "preprocessing": ev.preprocessing,
+            **({"friction": friction} if friction else {}),
+        },
+    )

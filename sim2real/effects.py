@@ -26,8 +26,20 @@ from assembly.panda_model import TAU_MAX
 from sim2real.catalogue import CATALOGUE, effect
 from sim2real.replay import Replay
 
-__all__ = ["Candidate", "Family", "candidates", "untestable", "motor_band_offset", "backlash_excess", "backlash_motor_inertia", "FITTABLE",
-           "STRIBECK_SIGN_VELOCITY", "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING"]
+__all__ = [
+    "Candidate",
+    "Family",
+    "candidates",
+    "untestable",
+    "motor_band_offset",
+    "backlash_excess",
+    "backlash_motor_inertia",
+    "FITTABLE",
+    "STRIBECK_SIGN_VELOCITY",
+    "BACKLASH_MOTOR_FRACTION",
+    "BACKLASH_STIFFNESS",
+    "BACKLASH_DAMPING",
+]
 
 STRIBECK_SIGN_VELOCITY = 0.002  # [rad/s] the sign smoothing of the Stribeck term (catalogue)
 # The backlash transmission (sim2real/reality.py simulates the same one): the motor side holds
@@ -92,8 +104,9 @@ class Family:
         return max(below, self.low), min(above, self.high)
 
 
-def _family(name: str, key: str, grid: tuple[float, ...], make: Callable[[float], Candidate],
-            high: float | None = None) -> list[Candidate]:
+def _family(
+    name: str, key: str, grid: tuple[float, ...], make: Callable[[float], Candidate], high: float | None = None
+) -> list[Candidate]:
     """The candidates of `make` at `grid` (ascending), members of one Family whose range is the
     catalogue's bounds of `key` capped at `high`; where the catalogue's lower bound is 0 (no
     effect), the grid's first value is the smallest setting resolved (a 1 ms delay, a 1 mrad band)."""
@@ -129,7 +142,7 @@ def _route(rep: Replay, place: str, torque: Array) -> dict[str, Array]:
     if place == "motor" and rep.rotor_in_tau:
         place = "dynamics"
     if place in ("dynamics", "motor"):
-        for c in (("tau", "cmd") if place == "dynamics" else ("cmd",)):
+        for c in ("tau", "cmd") if place == "dynamics" else ("cmd",):
             if c in chans:
                 out[c] = seen
         if "dq" in chans:
@@ -148,8 +161,9 @@ def _route(rep: Replay, place: str, torque: Array) -> dict[str, Array]:
     return out
 
 
-def _per_joint(name: str, param: str, value: Callable[[Array], Array] = lambda c: c
-               ) -> tuple[list[str], Callable[[Array], dict[str, float | list[float]]]]:
+def _per_joint(
+    name: str, param: str, value: Callable[[Array], Array] = lambda c: c
+) -> tuple[list[str], Callable[[Array], dict[str, float | list[float]]]]:
     names = [f"{param}[{j + 1}]" for j in range(N)]
     return names, lambda coef: {param: [float(v) for v in value(np.asarray(coef))]}
 
@@ -159,31 +173,40 @@ def _bounds(name: str, param: str, shift: float = 0.0, count: int = N) -> Array:
     return np.tile([p.low - shift, p.high - shift], (count, 1)).astype(float)
 
 
-def _friction(rep: Replay, name: str, shape: Array, pname: str, setting: dict[str, float],
-              extra: dict[str, float]) -> Candidate:
+def _friction(
+    rep: Replay, name: str, shape: Array, pname: str, setting: dict[str, float], extra: dict[str, float]
+) -> Candidate:
     names, to_params = _per_joint(name, pname)
     feats = _route(rep, "dynamics", _diag(shape))
-    return Candidate(name, setting, feats, {}, names, _bounds(name, pname),
-                     lambda coef: {**to_params(coef), **extra})
+    return Candidate(name, setting, feats, {}, names, _bounds(name, pname), lambda coef: {**to_params(coef), **extra})
 
 
 def _coulomb(rep: Replay) -> list[Candidate]:
     dq = rep.dq
-    return _family("coulomb", "v_smooth", (0.005, 0.01, 0.02, 0.04, 0.08, 0.15, 0.3, 0.5), lambda vs: _friction(
-        rep, "coulomb", np.tanh(dq / vs), "fc", {"v_smooth": vs}, {"v_smooth": vs}))
+    return _family(
+        "coulomb",
+        "v_smooth",
+        (0.005, 0.01, 0.02, 0.04, 0.08, 0.15, 0.3, 0.5),
+        lambda vs: _friction(rep, "coulomb", np.tanh(dq / vs), "fc", {"v_smooth": vs}, {"v_smooth": vs}),
+    )
 
 
 def _stribeck(rep: Replay) -> list[Candidate]:
     dq = rep.dq
     sign = np.tanh(dq / STRIBECK_SIGN_VELOCITY)
-    return _family("stribeck", "vs", (0.01, 0.02, 0.05, 0.1, 0.2, 0.4), lambda vs: _friction(
-        rep, "stribeck", np.exp(-(dq / vs) ** 2) * sign, "fs", {"vs": vs}, {"vs": vs}))
+    return _family(
+        "stribeck",
+        "vs",
+        (0.01, 0.02, 0.05, 0.1, 0.2, 0.4),
+        lambda vs: _friction(rep, "stribeck", np.exp(-((dq / vs) ** 2)) * sign, "fs", {"vs": vs}, {"vs": vs}),
+    )
 
 
 def _viscous(rep: Replay) -> list[Candidate]:
     names, to_params = _per_joint("viscous", "fv")
-    return [Candidate("viscous", {}, _route(rep, "dynamics", _diag(rep.dq)), {}, names,
-                      _bounds("viscous", "fv"), to_params)]
+    return [
+        Candidate("viscous", {}, _route(rep, "dynamics", _diag(rep.dq)), {}, names, _bounds("viscous", "fv"), to_params)
+    ]
 
 
 def _rotor(rep: Replay) -> list[Candidate]:
@@ -221,15 +244,23 @@ def _payload(rep: Replay) -> list[Candidate]:
         com = coef[1:] / dm if abs(dm) > 1e-6 else np.zeros(3)
         return {"dm": dm, "com_x": float(com[0]), "com_y": float(com[1]), "com_z": float(com[2])}
 
-    return [Candidate("payload", {}, _route(rep, "dynamics", torque), {}, ["dm", "hx", "hy", "hz"],
-                      bounds, to_params)]
+    return [Candidate("payload", {}, _route(rep, "dynamics", torque), {}, ["dm", "hx", "hy", "hz"], bounds, to_params)]
 
 
 def _offset(rep: Replay) -> list[Candidate]:
     names, to_params = _per_joint("torque_offset", "offset")
     ones = np.ones((rep.log.n_samples, N))
-    return [Candidate("torque_offset", {}, _route(rep, "sensing", _diag(ones)), {}, names,
-                      _bounds("torque_offset", "offset"), to_params)]
+    return [
+        Candidate(
+            "torque_offset",
+            {},
+            _route(rep, "sensing", _diag(ones)),
+            {},
+            names,
+            _bounds("torque_offset", "offset"),
+            to_params,
+        )
+    ]
 
 
 def _shift(x: Array, steps: float) -> Array:
@@ -243,16 +274,21 @@ def _fixed_actuation(rep: Replay, name: str, key: str, value: float, excess: Arr
     """An actuation effect with no linear coefficient at setting `key` = `value`, whose delivered
     torque falls short of the command by `excess` (T, 7) = c - A(c)."""
     off = _route(rep, "actuation", excess[..., None])
-    return Candidate(name, {key: value}, {}, {k: v[..., 0] for k, v in off.items()}, [], np.zeros((0, 2)),
-                     lambda coef: {key: value})
+    return Candidate(
+        name, {key: value}, {}, {k: v[..., 0] for k, v in off.items()}, [], np.zeros((0, 2)), lambda coef: {key: value}
+    )
 
 
 def _delay(rep: Replay) -> list[Candidate]:
     c = rep.tau_cmd
     if c is None:
         return []
-    return _family("actuation_delay", "delay", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03),
-                   lambda d: _fixed_actuation(rep, "actuation_delay", "delay", d, c - _shift(c, d / rep.dt)))
+    return _family(
+        "actuation_delay",
+        "delay",
+        (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03),
+        lambda d: _fixed_actuation(rep, "actuation_delay", "delay", d, c - _shift(c, d / rep.dt)),
+    )
 
 
 def _gain(rep: Replay) -> list[Candidate]:
@@ -261,8 +297,17 @@ def _gain(rep: Replay) -> list[Candidate]:
         return []
     # c - k c = -(k - 1) c: coefficient (k - 1)
     names, to_params = _per_joint("torque_gain", "k", lambda coef: 1.0 + coef)
-    return [Candidate("torque_gain", {}, _route(rep, "actuation", _diag(-c)), {}, names,
-                      _bounds("torque_gain", "k", shift=1.0), to_params)]
+    return [
+        Candidate(
+            "torque_gain",
+            {},
+            _route(rep, "actuation", _diag(-c)),
+            {},
+            names,
+            _bounds("torque_gain", "k", shift=1.0),
+            to_params,
+        )
+    ]
 
 
 def _saturation(rep: Replay) -> list[Candidate]:
@@ -273,8 +318,13 @@ def _saturation(rep: Replay) -> list[Candidate]:
     grid = tuple(s for s in (0.05, 0.08, 0.12, 0.17, 0.25, 0.35, 0.5, 0.7) if s < peak)
     if not grid:
         return []
-    return _family("torque_saturation", "s", grid, lambda s: _fixed_actuation(
-        rep, "torque_saturation", "s", s, c - np.clip(c, -s * TAU_MAX, s * TAU_MAX)), high=peak)
+    return _family(
+        "torque_saturation",
+        "s",
+        grid,
+        lambda s: _fixed_actuation(rep, "torque_saturation", "s", s, c - np.clip(c, -s * TAU_MAX, s * TAU_MAX)),
+        high=peak,
+    )
 
 
 def backlash_excess(command: Array, ddq: Array, dt: float, b: float, motor_inertia: Array) -> Array:
@@ -307,8 +357,16 @@ BACKLASH_WIDTHS = np.geomspace(0.0005, 0.03, 43)  # [rad] the coarse search over
 _BAND_STARTS = (-1.0, 0.0, 1.0)  # where in its band the motor may start: a flank or the centre
 
 
-def mesh_motor_acceleration(command: Array, q: Array, dq: Array, dt: float, widths: Array,
-                            starts: Array, motor_inertia: Array, substeps: int = 4) -> Array:
+def mesh_motor_acceleration(
+    command: Array,
+    q: Array,
+    dq: Array,
+    dt: float,
+    widths: Array,
+    starts: Array,
+    motor_inertia: Array,
+    substeps: int = 4,
+) -> Array:
     """The motor's acceleration behind a dead band, driven by `command` and pushed by the logged link.
 
     Per row of `widths` (B, 7) [rad] and `starts` (B, 7) (the motor's start in its band, -1 to 1
@@ -321,16 +379,36 @@ def mesh_motor_acceleration(command: Array, q: Array, dq: Array, dt: float, widt
     half = 0.5 * np.asarray(widths, dtype=np.float64)
     starts = np.ascontiguousarray(np.broadcast_to(np.asarray(starts, dtype=np.float64), half.shape))
     out = np.zeros((half.shape[0], command.shape[0], command.shape[1]))
-    _mesh_loop(np.ascontiguousarray(command, dtype=np.float64), np.ascontiguousarray(q, dtype=np.float64),
-               np.ascontiguousarray(dq, dtype=np.float64), float(dt), np.ascontiguousarray(half), starts,
-               np.ascontiguousarray(np.broadcast_to(np.asarray(motor_inertia, dtype=np.float64), command.shape[1:])),
-               int(substeps), BACKLASH_STIFFNESS, BACKLASH_DAMPING, out)
+    _mesh_loop(
+        np.ascontiguousarray(command, dtype=np.float64),
+        np.ascontiguousarray(q, dtype=np.float64),
+        np.ascontiguousarray(dq, dtype=np.float64),
+        float(dt),
+        np.ascontiguousarray(half),
+        starts,
+        np.ascontiguousarray(np.broadcast_to(np.asarray(motor_inertia, dtype=np.float64), command.shape[1:])),
+        int(substeps),
+        BACKLASH_STIFFNESS,
+        BACKLASH_DAMPING,
+        out,
+    )
     return out
 
 
 @numba.njit(cache=True)
-def _mesh_loop(command: Array, q: Array, dq: Array, dt: float, half: Array, starts: Array, J: Array,
-               substeps: int, stiffness: float, damping: float, out: Array) -> None:
+def _mesh_loop(
+    command: Array,
+    q: Array,
+    dq: Array,
+    dt: float,
+    half: Array,
+    starts: Array,
+    J: Array,
+    substeps: int,
+    stiffness: float,
+    damping: float,
+    out: Array,
+) -> None:
     """`mesh_motor_acceleration`'s integration, one (row, joint) at a time, into `out` (B, T, 7)."""
     h = dt / substeps
     for b in range(out.shape[0]):
@@ -350,15 +428,16 @@ def _mesh_loop(command: Array, q: Array, dq: Array, dt: float, half: Array, star
                     delta = theta + h * free - q_end
                     if abs(delta) > half[b, j]:  # engaged at the end: the mesh spring-damper acts
                         side = 1.0 if delta > 0 else -1.0
-                        omega = (J[j] * omega + h * c - h * stiffness * (theta - q_end - side * half[b, j])
-                                 + h * d * v_end) / (stiff + h * d)
+                        omega = (
+                            J[j] * omega + h * c - h * stiffness * (theta - q_end - side * half[b, j]) + h * d * v_end
+                        ) / (stiff + h * d)
                     else:
                         omega = free
                     theta = theta + h * omega
                 out[b, k, j] = (omega - w0) / dt
 
 
-_MESH_BYTES = 2 ** 28  # the size of one array of the mesh search's predictions (a few are held at once)
+_MESH_BYTES = 2**28  # the size of one array of the mesh search's predictions (a few are held at once)
 
 
 def _backlash_mesh(rep: Replay, c: Array, motor: Array) -> list[Candidate]:
@@ -373,7 +452,7 @@ def _backlash_mesh(rep: Replay, c: Array, motor: Array) -> list[Candidate]:
     target = rep.residual["cmd"]
     weight = rep.valid.astype(float)
     cols = np.arange(N)
-    best_sse = weight @ (target ** 2)  # width 0
+    best_sse = weight @ (target**2)  # width 0
     best_pred = np.zeros_like(target)
     best_w = np.zeros(N)
     chunk = max(1, _MESH_BYTES // (8 * N * T))
@@ -385,7 +464,9 @@ def _backlash_mesh(rep: Replay, c: Array, motor: Array) -> list[Candidate]:
         rows = np.repeat(widths, len(_BAND_STARTS), axis=0)
         starts = np.tile(np.array(_BAND_STARTS)[:, None], (len(widths), N))
         for lo in range(0, len(rows), chunk):
-            acc = mesh_motor_acceleration(c, log.q, log.dq, rep.dt, rows[lo:lo + chunk], starts[lo:lo + chunk], motor)
+            acc = mesh_motor_acceleration(
+                c, log.q, log.dq, rep.dt, rows[lo : lo + chunk], starts[lo : lo + chunk], motor
+            )
             acc -= a_fd
             acc *= motor
             pred = rep.smooth(np.moveaxis(acc, 0, -1))  # (T, 7, rows)
@@ -404,10 +485,19 @@ def _backlash_mesh(rep: Replay, c: Array, motor: Array) -> list[Candidate]:
     ratio = BACKLASH_WIDTHS[1] / BACKLASH_WIDTHS[0]
     for step in (0.5, 0.25, 0.125):
         base = np.where(best_w > 0, best_w, BACKLASH_WIDTHS[0])
-        search(np.stack([base * ratio ** -step, base * ratio ** step]), best_w > 0)
+        search(np.stack([base * ratio**-step, base * ratio**step]), best_w > 0)
     widths = [float(w) for w in best_w]
-    return [Candidate("backlash", {"b": float(np.median(best_w))}, {}, {"cmd": best_pred}, [], np.zeros((0, 2)),
-                      lambda coef, widths=widths: {"b": widths})]
+    return [
+        Candidate(
+            "backlash",
+            {"b": float(np.median(best_w))},
+            {},
+            {"cmd": best_pred},
+            [],
+            np.zeros((0, 2)),
+            lambda coef, widths=widths: {"b": widths},
+        )
+    ]
 
 
 def _backlash(rep: Replay) -> list[Candidate]:
@@ -417,8 +507,12 @@ def _backlash(rep: Replay) -> list[Candidate]:
     motor = backlash_motor_inertia(rep.model.reflected_inertia)
     if rep.kernel is not None and "cmd" in rep.residual:
         return _backlash_mesh(rep, c, motor)
-    return _family("backlash", "b", (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02), lambda b: _fixed_actuation(
-        rep, "backlash", "b", b, backlash_excess(c, rep.ddq, rep.dt, b, motor)))
+    return _family(
+        "backlash",
+        "b",
+        (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02),
+        lambda b: _fixed_actuation(rep, "backlash", "b", b, backlash_excess(c, rep.ddq, rep.dt, b, motor)),
+    )
 
 
 def _controller(rep: Replay) -> list[Candidate]:
@@ -452,13 +546,16 @@ def _link_bounds(pi: Array) -> Array:
     """(70,) half-widths of plausible corrections of the standard parameters `pi` (70,)."""
     out = np.zeros(70)
     for k in range(N):
-        p = pi[10 * k:10 * k + 10]
+        p = pi[10 * k : 10 * k + 10]
         m = p[0]
         out[10 * k] = LINK_MASS_FRACTION * m
-        out[10 * k + 1:10 * k + 4] = LINK_MASS_FRACTION * np.abs(p[1:4]) + m * LINK_COM_SHIFT
-        scale = LINK_MASS_FRACTION * np.abs(p[4:7]).max() + m * LINK_COM_SHIFT ** 2 \
+        out[10 * k + 1 : 10 * k + 4] = LINK_MASS_FRACTION * np.abs(p[1:4]) + m * LINK_COM_SHIFT
+        scale = (
+            LINK_MASS_FRACTION * np.abs(p[4:7]).max()
+            + m * LINK_COM_SHIFT**2
             + 2.0 * np.linalg.norm(p[1:4]) * LINK_COM_SHIFT
-        out[10 * k + 4:10 * k + 10] = scale
+        )
+        out[10 * k + 4 : 10 * k + 10] = scale
     return out
 
 
@@ -474,8 +571,17 @@ def _link_inertia(rep: Replay) -> list[Candidate]:
     half = np.abs(bp.beta) @ _link_bounds(reg.nominal)
     bounds = np.stack([-half, half], axis=1)
     names = [f"base[{i + 1}]" for i in range(bp.count)]
-    return [Candidate("link_inertia", {}, _route(rep, "dynamics", Y), {}, names, bounds,
-                      lambda coef: {"base": [float(v) for v in coef]})]
+    return [
+        Candidate(
+            "link_inertia",
+            {},
+            _route(rep, "dynamics", Y),
+            {},
+            names,
+            bounds,
+            lambda coef: {"base": [float(v) for v in coef]},
+        )
+    ]
 
 
 def _tau_prediction(rep: Replay) -> Array:
@@ -489,8 +595,17 @@ def _torque_scale(rep: Replay) -> list[Candidate]:
         return []
     # k tau - tau = (k - 1) tau: coefficient (k - 1) on the predicted sensor torque
     names, to_params = _per_joint("torque_scale", "k", lambda coef: 1.0 + coef)
-    return [Candidate("torque_scale", {}, _route(rep, "sensing", _diag(_tau_prediction(rep))), {}, names,
-                      _bounds("torque_scale", "k", shift=1.0), to_params)]
+    return [
+        Candidate(
+            "torque_scale",
+            {},
+            _route(rep, "sensing", _diag(_tau_prediction(rep))),
+            {},
+            names,
+            _bounds("torque_scale", "k", shift=1.0),
+            to_params,
+        )
+    ]
 
 
 def _torque_delay(rep: Replay) -> list[Candidate]:
@@ -508,8 +623,17 @@ def _torque_delay(rep: Replay) -> list[Candidate]:
 
 def _joint_inertia(rep: Replay) -> list[Candidate]:
     names, to_params = _per_joint("joint_inertia", "dJ")
-    return [Candidate("joint_inertia", {}, _route(rep, "dynamics", _diag(rep.ddq)), {}, names,
-                      _bounds("joint_inertia", "dJ"), to_params)]
+    return [
+        Candidate(
+            "joint_inertia",
+            {},
+            _route(rep, "dynamics", _diag(rep.ddq)),
+            {},
+            names,
+            _bounds("joint_inertia", "dJ"),
+            to_params,
+        )
+    ]
 
 
 def motor_band_offset(drive: Array, dt: float, b: float, motor_inertia: Array) -> tuple[Array, Array]:
@@ -611,11 +735,22 @@ def _backlash_motor(rep: Replay) -> list[Candidate]:
 
 #: The effects a replayed arm log can be fitted with, and how to make their candidates.
 FITTABLE: dict[str, Callable[[Replay], list[Candidate]]] = {
-    "coulomb": _coulomb, "stribeck": _stribeck, "viscous": _viscous, "rotor_inertia": _rotor,
-    "payload": _payload, "torque_offset": _offset, "actuation_delay": _delay, "torque_gain": _gain,
-    "torque_saturation": _saturation, "backlash": _backlash, "controller_gain": _controller,
-    "link_inertia": _link_inertia, "torque_scale": _torque_scale, "torque_delay": _torque_delay,
-    "joint_inertia": _joint_inertia, "backlash_motor": _backlash_motor,
+    "coulomb": _coulomb,
+    "stribeck": _stribeck,
+    "viscous": _viscous,
+    "rotor_inertia": _rotor,
+    "payload": _payload,
+    "torque_offset": _offset,
+    "actuation_delay": _delay,
+    "torque_gain": _gain,
+    "torque_saturation": _saturation,
+    "backlash": _backlash,
+    "controller_gain": _controller,
+    "link_inertia": _link_inertia,
+    "torque_scale": _torque_scale,
+    "torque_delay": _torque_delay,
+    "joint_inertia": _joint_inertia,
+    "backlash_motor": _backlash_motor,
 }
 assert set(FITTABLE) <= set(CATALOGUE)
 
@@ -640,10 +775,11 @@ def untestable(rep: Replay) -> dict[str, str]:
         if not rep.rotor_in_tau:
             out["rotor_inertia"] = _NEEDS_CMD + " (a link-side torque does not see the rotor)"
     if "ctrl" not in rep.residual:
-        out["controller_gain"] = ("needs the reference (q_cmd, dq_cmd), the commanded torque and meta controller "
-                                  "gains, which the log lacks")
+        out["controller_gain"] = (
+            "needs the reference (q_cmd, dq_cmd), the commanded torque and meta controller gains, which the log lacks"
+        )
     if rep.log.meta.get("position_side", "link") != "motor":
-        out["backlash_motor"] = 'needs a motor-side position (meta position_side "motor"); the log\'s is the link\'s'
+        out["backlash_motor"] = "needs a motor-side position (meta position_side \"motor\"); the log's is the link's"
     if "tau" not in rep.residual:
         for name in ("torque_offset", "torque_scale", "torque_delay"):
             out[name] = "needs the measured joint torque (tau), which the log lacks"

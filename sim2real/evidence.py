@@ -78,10 +78,17 @@ def arm_regions(rep: Replay) -> dict[str, NDArray[np.bool_]]:
     load = np.abs(rep.terms.total)
     lo, hi = np.quantile(load[rep.valid], [1 / 3, 2 / 3], axis=0)
     speed = np.abs(dq)
-    return {"dq>0": dq > 0, "dq<0": dq < 0, "reversal (|dq|<0.05)": speed < 0.05,
-            "slow (0.05-0.3)": (speed >= 0.05) & (speed < 0.3), "medium (0.3-1)": (speed >= 0.3) & (speed < 1.0),
-            "fast (>1 rad/s)": speed >= 1.0,
-            "load low": load < lo, "load mid": (load >= lo) & (load < hi), "load high": load >= hi}
+    return {
+        "dq>0": dq > 0,
+        "dq<0": dq < 0,
+        "reversal (|dq|<0.05)": speed < 0.05,
+        "slow (0.05-0.3)": (speed >= 0.05) & (speed < 0.3),
+        "medium (0.3-1)": (speed >= 0.3) & (speed < 1.0),
+        "fast (>1 rad/s)": speed >= 1.0,
+        "load low": load < lo,
+        "load mid": (load >= lo) & (load < hi),
+        "load high": load >= hi,
+    }
 
 
 def _nominal_fit(rep: Replay) -> float:
@@ -93,7 +100,7 @@ def _nominal_fit(rep: Replay) -> float:
         if ch in rep.residual:
             r = rep.residual[ch][rep.valid]
             x = signals[ch][rep.valid]
-            total += float(np.sum(np.mean(r ** 2, axis=0) / np.maximum(np.mean(x ** 2, axis=0), 1e-12)))
+            total += float(np.sum(np.mean(r**2, axis=0) / np.maximum(np.mean(x**2, axis=0), 1e-12)))
     return total
 
 
@@ -106,19 +113,29 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     cleaned = clean(log, c.clean)
     log = cleaned.log
     notes = list(cleaned.notes)
-    ees = ["none", "hand"] if c.replay.end_effector is None and (
-        log.meta.get("end_effector") is None or log.meta.get("end_effector_assumed")) else [None]
+    ees = (
+        ["none", "hand"]
+        if c.replay.end_effector is None
+        and (log.meta.get("end_effector") is None or log.meta.get("end_effector_assumed"))
+        else [None]
+    )
     sources = ["q", "dq"] if c.band is not None else [c.replay.velocity_source]
-    options = {(ee, src): replay(log, dataclasses.replace(c.replay, end_effector=ee or c.replay.end_effector,
-                                                          velocity_source=src))
-               for ee in ees for src in sources}
+    options = {
+        (ee, src): replay(
+            log, dataclasses.replace(c.replay, end_effector=ee or c.replay.end_effector, velocity_source=src)
+        )
+        for ee in ees
+        for src in sources
+    }
     if len(ees) > 1:
         # the log does not say what the arm carries: the bare arm or the hand, whichever the
         # nominal residual supports (a held gear or tool shows as a payload effect)
         score = {ee: _nominal_fit(options[(ee, sources[0])]) for ee in ees}
         best = min(score, key=score.get)
-        notes.append(f"the log does not state its end effector; the data support {best!r} "
-                     f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})")
+        notes.append(
+            f"the log does not state its end effector; the data support {best!r} "
+            f"(nominal residual {score[best]:.3g} against {max(score.values()):.3g})"
+        )
         options = {k: r for k, r in options.items() if k[0] == best}
     if len(sources) > 1:
         # the velocity and acceleration from the encoder's position or from the measured velocity,
@@ -126,9 +143,11 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
         # rounding; its velocity the noise of the robot's own estimate)
         probe = {src: _band_noise(r, c.band) for (ee, src), r in options.items()}
         chosen_source = min(probe, key=probe.get)
-        notes.append(f"velocity and acceleration from the measured {'position' if chosen_source == 'q' else 'velocity'}"
-                     f" (its in-band torque noise {probe[chosen_source]:.3g} N m, geometric mean over joints, against "
-                     f"{max(probe.values()):.3g} from the {'velocity' if chosen_source == 'q' else 'position'})")
+        notes.append(
+            f"velocity and acceleration from the measured {'position' if chosen_source == 'q' else 'velocity'}"
+            f" (its in-band torque noise {probe[chosen_source]:.3g} N m, geometric mean over joints, against "
+            f"{max(probe.values()):.3g} from the {'velocity' if chosen_source == 'q' else 'position'})"
+        )
         options = {k: r for k, r in options.items() if k[1] == chosen_source}
     rep = next(iter(options.values()))
     rep.valid &= cleaned.fresh
@@ -139,37 +158,70 @@ def arm_evidence(log: RobotLog, config: DiagnosisConfig | None = None) -> Eviden
     meta = {**log.meta, "end_effector": rep.model.end_effector}
     pool = candidates(rep, c.effects)
     structure = {"joint velocity": hat_basis(rep.dq), "time": trend_basis(rep.log.time, 7)}
-    preprocessing: dict[str, Any] = {"clean": cleaned.report, "nominal_damping": rep.model.damping.tolist(),
-                                     "untestable": {k: v for k, v in untestable(rep).items()
-                                                    if c.effects is None or k in c.effects}}
+    preprocessing: dict[str, Any] = {
+        "clean": cleaned.report,
+        "nominal_damping": rep.model.damping.tolist(),
+        "untestable": {k: v for k, v in untestable(rep).items() if c.effects is None or k in c.effects},
+    }
     if c.band is None:
         # the filtered torque channels' noise: kernel-smoothed white noise's share of the fast
         # part, or the variogram's nugget (noise_floor)
-        floor = {ch: noise_floor(rep.residual[ch], rep.valid, kernel=rep.kernel, reach=rep.reach)
-                 for ch in rep.unfiltered}
-        return Evidence(residual=rep.residual, labels=labels, valid=rep.valid, phase=phase, regions=arm_regions(rep),
-                        pool=pool, audit=functools.partial(_arm_audit, rep, None), x=rep.log.dq,
-                        x_label="dq [rad/s]", time=rep.log.time, meta=meta, floor_min=dict(ARM_FLOOR_MIN),
-                        notes=notes, floor=floor, reach=rep.reach, structure=structure, preprocessing=preprocessing)
+        floor = {
+            ch: noise_floor(rep.residual[ch], rep.valid, kernel=rep.kernel, reach=rep.reach) for ch in rep.unfiltered
+        }
+        return Evidence(
+            residual=rep.residual,
+            labels=labels,
+            valid=rep.valid,
+            phase=phase,
+            regions=arm_regions(rep),
+            pool=pool,
+            audit=functools.partial(_arm_audit, rep, None),
+            x=rep.log.dq,
+            x_label="dq [rad/s]",
+            time=rep.log.time,
+            meta=meta,
+            floor_min=dict(ARM_FLOOR_MIN),
+            notes=notes,
+            floor=floor,
+            reach=rep.reach,
+            structure=structure,
+            preprocessing=preprocessing,
+        )
     band = choose_band(rep.dq, rep.dt, c.band)
     valid = band.inner(rep.valid)
     floor = {}
     detail = {}
     for ch in rep.channels:
-        floor[ch], detail[ch] = band_floor(rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None,
-                                           *_derivative(rep, ch))
+        floor[ch], detail[ch] = band_floor(
+            rep.residual[ch], valid, band, rep.kernel if ch in rep.unfiltered else None, *_derivative(rep, ch)
+        )
     preprocessing["band"] = band.summary()
     preprocessing["floor"] = {ch: {"in_band": floor[ch].tolist(), **detail[ch]} for ch in rep.channels}
-    notes.append(f"the residual is judged below {band.cutoff:.3g} Hz ({band.reason}), sampled at "
-                 f"{1.0 / (band.dt * band.stride):.3g} Hz; noise floor from its spectrum in "
-                 f"{band.cutoff:.3g}-{band.reference * band.cutoff:.3g} Hz")
-    return Evidence(residual={ch: band.apply(r) for ch, r in rep.residual.items()}, labels=labels,
-                    valid=band.rows(valid), phase=band.rows(phase),
-                    regions={k: band.rows(m) for k, m in arm_regions(rep).items()},
-                    pool=band_pool(pool, band), audit=functools.partial(_arm_audit, rep, band),
-                    x=band.rows(rep.dq), x_label="dq [rad/s]", time=band.rows(rep.log.time), meta=meta,
-                    floor_min=dict(ARM_FLOOR_MIN), notes=notes, floor=floor, reach=None,
-                    structure={k: band.apply(b) for k, b in structure.items()}, preprocessing=preprocessing)
+    notes.append(
+        f"the residual is judged below {band.cutoff:.3g} Hz ({band.reason}), sampled at "
+        f"{1.0 / (band.dt * band.stride):.3g} Hz; noise floor from its spectrum in "
+        f"{band.cutoff:.3g}-{band.reference * band.cutoff:.3g} Hz"
+    )
+    return Evidence(
+        residual={ch: band.apply(r) for ch, r in rep.residual.items()},
+        labels=labels,
+        valid=band.rows(valid),
+        phase=band.rows(phase),
+        regions={k: band.rows(m) for k, m in arm_regions(rep).items()},
+        pool=band_pool(pool, band),
+        audit=functools.partial(_arm_audit, rep, band),
+        x=band.rows(rep.dq),
+        x_label="dq [rad/s]",
+        time=band.rows(rep.log.time),
+        meta=meta,
+        floor_min=dict(ARM_FLOOR_MIN),
+        notes=notes,
+        floor=floor,
+        reach=None,
+        structure={k: band.apply(b) for k, b in structure.items()},
+        preprocessing=preprocessing,
+    )
 
 
 def _band_noise(rep: Replay, config: BandConfig) -> float:
@@ -198,8 +250,8 @@ def _derivative(rep: Replay, channel: str) -> tuple[int | None, int, Array | Non
 
 # ---------------------------------------------------------------------------------------------- the audit
 
-def term_candidate(rep: Replay, name: str, torque: Array, channels: tuple[str, ...] = ("tau", "cmd")
-                    ) -> Candidate:
+
+def term_candidate(rep: Replay, name: str, torque: Array, channels: tuple[str, ...] = ("tau", "cmd")) -> Candidate:
     """A fixed change of the model's torque prediction by `torque` (T, 7) in `channels` and dq."""
     off: dict[str, Array] = {}
     for c in channels:
@@ -219,8 +271,9 @@ def audit_verdict(change: str, after: float, before: float) -> str:
     return "the log fits the alternative better" if better else "the model's choice is supported"
 
 
-def _arm_audit(rep: Replay, band: Band | None, design: Design, folds, base_sse: Array, excess0: float,
-               n_rows: Array) -> list[dict[str, Any]]:
+def _arm_audit(
+    rep: Replay, band: Band | None, design: Design, folds, base_sse: Array, excess0: float, n_rows: Array
+) -> list[dict[str, Any]]:
     terms = rep.terms
     items = [("without the joint damping", -terms.damping, ("tau", "cmd"))]
     if rep.rotor_in_tau:
@@ -246,8 +299,14 @@ def _arm_audit(rep: Replay, band: Band | None, design: Design, folds, base_sse: 
             cand = band_candidate(cand, band, {})
         s = score(design, [cand], folds)
         e = s.sse.sum() / n_rows.sum()
-        out.append({"change": label, "heldout_before": base, "heldout_after": float(e),
-                    "closed": float((base - e) / max(excess0, 1e-12)),
-                    "verdict": audit_verdict(label, e, base)})
+        out.append(
+            {
+                "change": label,
+                "heldout_before": base,
+                "heldout_after": float(e),
+                "closed": float((base - e) / max(excess0, 1e-12)),
+                "verdict": audit_verdict(label, e, base),
+            }
+        )
     out.sort(key=lambda r: r["heldout_after"])
     return out

@@ -58,18 +58,24 @@ class _Part:
 class Design:
     """The residual y (T, C, 7) with weights w (C, 7) and valid mask, in `n_blocks` blocks."""
 
-    def __init__(self, residual: dict[str, Array], channels: tuple[str, ...], floor: Array,
-                 valid: NDArray[np.bool_], n_blocks: int) -> None:
+    def __init__(
+        self,
+        residual: dict[str, Array],
+        channels: tuple[str, ...],
+        floor: Array,
+        valid: NDArray[np.bool_],
+        n_blocks: int,
+    ) -> None:
         self.channels = channels
         self.y = np.stack([residual[c] for c in channels], axis=1)
-        self.w = 1.0 / floor ** 2  # (C, 7)
+        self.w = 1.0 / floor**2  # (C, 7)
         self.mask = valid.astype(float)
         self.starts = block_starts(valid, n_blocks)
         self.n_blocks = n_blocks
         wm = self.mask[:, None, None] * self.w[None]
         self.wm = wm
         self.count = np.add.reduceat(self.mask, self.starts) * self.y.shape[1] * 7  # rows per block
-        self.yy = self._reduce((wm * self.y ** 2).sum(axis=(1, 2)))
+        self.yy = self._reduce((wm * self.y**2).sum(axis=(1, 2)))
         self._parts: dict[int, tuple[Candidate, list[_Part]]] = {}
         self._gram: dict[tuple[int, int], Array] = {}
         self._cross: dict[int, Array] = {}
@@ -136,17 +142,17 @@ class Design:
             ki = id(pi)
             if ki not in self._cross:
                 self._cross[ki] = self._cross_part(pi)
-            g[:, offs[i]:offs[i + 1]] = self._cross[ki]
-            fixed[offs[i]:offs[i + 1]] = pi.fixed
+            g[:, offs[i] : offs[i + 1]] = self._cross[ki]
+            fixed[offs[i] : offs[i + 1]] = pi.fixed
             for j in range(i, len(parts)):
                 pj = parts[j][1]
                 key = (ki, id(pj))
                 if key not in self._gram:
                     self._gram[key] = self._gram_pair(pi, pj)
                 blk = self._gram[key]
-                A[:, offs[i]:offs[i + 1], offs[j]:offs[j + 1]] = blk
+                A[:, offs[i] : offs[i + 1], offs[j] : offs[j + 1]] = blk
                 if j != i:
-                    A[:, offs[j]:offs[j + 1], offs[i]:offs[i + 1]] = np.swapaxes(blk, 1, 2)
+                    A[:, offs[j] : offs[j + 1], offs[i] : offs[i + 1]] = np.swapaxes(blk, 1, 2)
         return A, g, fixed, [(c, p.width) for c, p in parts]
 
     def predict(self, cands: list[Candidate], theta: Array) -> Array:
@@ -155,7 +161,7 @@ class Design:
         k = 0
         for c in cands:
             for p in self.parts(c):
-                coef = theta[k:k + p.width]
+                coef = theta[k : k + p.width]
                 out += p.diag * coef if p.diag is not None else p.dense @ coef
                 k += p.width
         return out
@@ -246,7 +252,7 @@ class Model:
             free = []
             for p in self.design.parts(c):
                 if not p.fixed:
-                    free.append(theta[k:k + p.width])
+                    free.append(theta[k : k + p.width])
                 k += p.width
             out.append((c, np.concatenate(free) if free else np.zeros(0)))
         return out

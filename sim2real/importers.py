@@ -20,14 +20,27 @@ from goflow_common.errors import FileFormatError, InputError
 from goflow_common.files import check_output_file, read_json, reject_json_constant, write_atomic
 from sim2real.log import PHASES, RobotLog, read_npz_log, validate_log
 
-__all__ = ["GAZ_FILES", "GAZ_JOINTS", "load_log", "read_gaz_layout", "write_gaz_layout", "read_gaz_trajectory",
-           "csv_columns", "read_franka_csv", "write_franka_csv"]
+__all__ = [
+    "GAZ_FILES",
+    "GAZ_JOINTS",
+    "load_log",
+    "read_gaz_layout",
+    "write_gaz_layout",
+    "read_gaz_trajectory",
+    "csv_columns",
+    "read_franka_csv",
+    "write_franka_csv",
+]
 
 # ---------------------------------------------------------------------------------------------- Gaz et al. 2019
 
 #: The four files of the Gaz et al. log, by the field they fill (in `rbt_log/` or the folder itself).
-GAZ_FILES: dict[str, str] = {"time": "exciting_traj_time.txt", "q": "exciting_traj_positions.txt",
-                             "dq": "exciting_traj_velocity.txt", "tau": "exciting_traj_torques.txt"}
+GAZ_FILES: dict[str, str] = {
+    "time": "exciting_traj_time.txt",
+    "q": "exciting_traj_positions.txt",
+    "dq": "exciting_traj_velocity.txt",
+    "tau": "exciting_traj_torques.txt",
+}
 #: Lines per sample in the position, velocity and torque files (joint 1..7).
 GAZ_JOINTS = 7
 _GAZ_WF = 0.15 * math.pi  # [rad/s] fundamental of the Fourier trajectory (AutomaticExcTrjGen.m)
@@ -37,7 +50,8 @@ _GAZ_TRAJECTORY = (
     "a[j][l-1] cos(l wf s) + b[j][l-1] sin(l wf s) [rad/s], s = t - t0 with t0 the end of the ramp (about "
     "0.5 s), wf = omega_f = 0.15 pi rad/s, for 20 s, then a 0.5 s ramp back to rest. a (rows 1-7) and b (rows "
     "8-14) are gen_params.txt (4 decimals), q0 is gen_q0.txt; the sampled command itself is gen_dq.txt on "
-    "gen_time.txt (not part of the log).")
+    "gen_time.txt (not part of the log)."
+)
 
 
 def _read_numbers(path: Path, what: str) -> NDArray[np.float64]:
@@ -61,10 +75,13 @@ def _gaz_folder(folder: Path) -> Path:
             return where
         if present:
             missing = [name for name in GAZ_FILES.values() if name not in present]
-            raise FileFormatError(f"{where}: missing {', '.join(missing)}; expected the four files "
-                                  f"{', '.join(GAZ_FILES.values())}")
-    raise FileFormatError(f"{folder}: no rbt_log/{GAZ_FILES['time']} (nor {GAZ_FILES['time']}); expected a robot log "
-                          f"folder in the Gaz et al. 2019 layout ({', '.join(GAZ_FILES.values())})")
+            raise FileFormatError(
+                f"{where}: missing {', '.join(missing)}; expected the four files {', '.join(GAZ_FILES.values())}"
+            )
+    raise FileFormatError(
+        f"{folder}: no rbt_log/{GAZ_FILES['time']} (nor {GAZ_FILES['time']}); expected a robot log "
+        f"folder in the Gaz et al. 2019 layout ({', '.join(GAZ_FILES.values())})"
+    )
 
 
 def has_gaz_layout(folder: str | os.PathLike[str]) -> bool:
@@ -87,18 +104,31 @@ def read_gaz_trajectory(folder: str | os.PathLike[str]) -> dict[str, Any] | None
     if q0.shape != (GAZ_JOINTS,):
         raise FileFormatError(f"{q0_path}: {q0.size} numbers in shape {q0.shape}; expected {GAZ_JOINTS}, one per line")
     if params.shape != (2 * GAZ_JOINTS, 5):
-        raise FileFormatError(f"{params_path}: a table of shape {params.shape}; expected (14, 5): 7 rows of a then "
-                              "7 rows of b, 5 harmonics each")
-    return {"description": _GAZ_TRAJECTORY, "q0": q0.tolist(), "a": params[:GAZ_JOINTS].tolist(),
-            "b": params[GAZ_JOINTS:].tolist(), "omega_f": _GAZ_WF, "harmonics": 5,
-            "files": ["gen_q0.txt", "gen_params.txt"]}
+        raise FileFormatError(
+            f"{params_path}: a table of shape {params.shape}; expected (14, 5): 7 rows of a then "
+            "7 rows of b, 5 harmonics each"
+        )
+    return {
+        "description": _GAZ_TRAJECTORY,
+        "q0": q0.tolist(),
+        "a": params[:GAZ_JOINTS].tolist(),
+        "b": params[GAZ_JOINTS:].tolist(),
+        "omega_f": _GAZ_WF,
+        "harmonics": 5,
+        "files": ["gen_q0.txt", "gen_params.txt"],
+    }
 
 
 def _gaz_meta(folder: Path, where: Path, notes: list[str]) -> dict[str, Any]:
     # the layout carries no end effector: "none" (the Gaz et al. arm) is a guess the diagnosis may
     # revise from the data (end_effector_assumed); a meta.json stating it replaces both
-    meta: dict[str, Any] = {"robot": "franka_panda", "end_effector": "none", "end_effector_assumed": True,
-                            "torque_side": "link", "source": str(folder)}
+    meta: dict[str, Any] = {
+        "robot": "franka_panda",
+        "end_effector": "none",
+        "end_effector_assumed": True,
+        "torque_side": "link",
+        "source": str(folder),
+    }
     trajectory = read_gaz_trajectory(folder)
     if trajectory is not None:
         meta["commanded_trajectory"] = trajectory
@@ -140,21 +170,31 @@ def read_gaz_layout(folder: str | os.PathLike[str]) -> RobotLog:
             raise FileFormatError(f"{path}: {arr.shape[1]} numbers per line; expected one")
         per_sample = 1 if name == "time" else GAZ_JOINTS
         if arr.size % per_sample:
-            raise FileFormatError(f"{path}: {arr.size} lines, not a whole number of {GAZ_JOINTS}-line samples "
-                                  f"(joint 1..{GAZ_JOINTS} per sample)")
+            raise FileFormatError(
+                f"{path}: {arr.size} lines, not a whole number of {GAZ_JOINTS}-line samples "
+                f"(joint 1..{GAZ_JOINTS} per sample)"
+            )
         counts[name] = arr.size // per_sample
     n = min(counts.values())
     shortest = GAZ_FILES[min(counts, key=counts.__getitem__)]
     longer = [GAZ_FILES[name] for name, count in counts.items() if count > n]
     for name, count in counts.items():
         if count > n + 1:
-            raise FileFormatError(f"{where / GAZ_FILES[name]}: {count} samples, but {shortest} has {n}; expected the "
-                                  "same count in the four files (one sample missing at the end is accepted)")
-    notes = [f"truncated to the common length of {n} samples: {', '.join(longer)} had one sample more"
-             ] if longer else []
-    arrays = {name: arr[:n * (1 if name == "time" else GAZ_JOINTS)] for name, arr in columns.items()}
-    log = RobotLog(time=arrays["time"], q=arrays["q"].reshape(n, GAZ_JOINTS), dq=arrays["dq"].reshape(n, GAZ_JOINTS),
-                   tau=arrays["tau"].reshape(n, GAZ_JOINTS), meta=_gaz_meta(folder, where, notes))
+            raise FileFormatError(
+                f"{where / GAZ_FILES[name]}: {count} samples, but {shortest} has {n}; expected the "
+                "same count in the four files (one sample missing at the end is accepted)"
+            )
+    notes = (
+        [f"truncated to the common length of {n} samples: {', '.join(longer)} had one sample more"] if longer else []
+    )
+    arrays = {name: arr[: n * (1 if name == "time" else GAZ_JOINTS)] for name, arr in columns.items()}
+    log = RobotLog(
+        time=arrays["time"],
+        q=arrays["q"].reshape(n, GAZ_JOINTS),
+        dq=arrays["dq"].reshape(n, GAZ_JOINTS),
+        tau=arrays["tau"].reshape(n, GAZ_JOINTS),
+        meta=_gaz_meta(folder, where, notes),
+    )
     return _validated(log, folder, GAZ_JOINTS)
 
 
@@ -186,21 +226,32 @@ def _validated(log: RobotLog, path: Path, n_joints: int | None) -> RobotLog:
 
 # ---------------------------------------------------------------------------------------------- Franka CSV
 
+
 def csv_columns(n_joints: int = 7) -> dict[str, list[str]]:
     """The CSV column names of each RobotLog field, as libfranka / franka_ros users name the
     robot-state members: time; q, dq, tau_J (-> tau), tau_d (-> tau_cmd), q_d (-> q_cmd), dq_d
     (-> dq_cmd), tau_ext (-> tau_ext, Franka's tau_ext_hat_filtered) with suffixes 0..n-1;
     O_T_EE0..15 (-> tool_pose) and O_T_EE_d0..15 (-> tool_target), column-major 4x4 as libfranka
     stores them; O_F_ext_hat_K0..5 (-> wrench); gripper_width; phase (integer labels or names)."""
+
     def joints(prefix: str) -> list[str]:
         return [f"{prefix}{i}" for i in range(n_joints)]
 
-    return {"time": ["time"], "q": joints("q"), "dq": joints("dq"), "tau": joints("tau_J"),
-            "tau_cmd": joints("tau_d"), "q_cmd": joints("q_d"), "dq_cmd": joints("dq_d"),
-            "tau_ext": joints("tau_ext"), "tool_pose": [f"O_T_EE{i}" for i in range(16)],
-            "tool_target": [f"O_T_EE_d{i}" for i in range(16)],
-            "wrench": [f"O_F_ext_hat_K{i}" for i in range(6)], "gripper_width": ["gripper_width"],
-            "phase": ["phase"]}
+    return {
+        "time": ["time"],
+        "q": joints("q"),
+        "dq": joints("dq"),
+        "tau": joints("tau_J"),
+        "tau_cmd": joints("tau_d"),
+        "q_cmd": joints("q_d"),
+        "dq_cmd": joints("dq_d"),
+        "tau_ext": joints("tau_ext"),
+        "tool_pose": [f"O_T_EE{i}" for i in range(16)],
+        "tool_target": [f"O_T_EE_d{i}" for i in range(16)],
+        "wrench": [f"O_F_ext_hat_K{i}" for i in range(6)],
+        "gripper_width": ["gripper_width"],
+        "phase": ["phase"],
+    }
 
 
 def _csv_preamble(path: Path, lines: list[str]) -> tuple[int, dict[str, Any]]:
@@ -211,19 +262,21 @@ def _csv_preamble(path: Path, lines: list[str]) -> tuple[int, dict[str, Any]]:
         body = lines[i].lstrip()[1:].strip()
         if body.startswith("meta:"):
             try:
-                extra = json.loads(body[len("meta:"):], parse_constant=reject_json_constant)
+                extra = json.loads(body[len("meta:") :], parse_constant=reject_json_constant)
             except ValueError as exc:
                 raise FileFormatError(f"{path}: line {i + 1}: the meta comment is not strict JSON ({exc})") from None
             if not isinstance(extra, dict):
-                raise FileFormatError(f"{path}: line {i + 1}: the meta comment is a JSON {type(extra).__name__}; "
-                                      "expected a JSON object")
+                raise FileFormatError(
+                    f"{path}: line {i + 1}: the meta comment is a JSON {type(extra).__name__}; expected a JSON object"
+                )
             meta.update(extra)
             if "end_effector" in extra:
                 meta.pop("end_effector_assumed", None)
         i += 1
     if i == len(lines):
-        raise FileFormatError(f"{path}: no header row; expected a CSV with a header of columns time, q0.., dq0.., "
-                              "tau_J0..")
+        raise FileFormatError(
+            f"{path}: no header row; expected a CSV with a header of columns time, q0.., dq0.., tau_J0.."
+        )
     return i, meta
 
 
@@ -235,12 +288,15 @@ def _csv_fields(path: Path, header: list[str], n_joints: int | None) -> dict[str
     present = {field: names for field, names in groups.items() if any(name in header for name in names)}
     required = ["time", "q", "dq"] + ([] if "tau_cmd" in present else ["tau"])
     missing = [name for field in required for name in groups[field] if name not in header]
-    missing += [name for field, names in present.items() if field not in required for name in names
-                if name not in header]
+    missing += [
+        name for field, names in present.items() if field not in required for name in names if name not in header
+    ]
     if missing:
-        raise FileFormatError(f"{path}: missing column(s) {', '.join(missing)}; expected at least time, "
-                              f"q0..q{n_joints - 1}, dq0..dq{n_joints - 1} and tau_J0..tau_J{n_joints - 1} "
-                              f"(or tau_d0..tau_d{n_joints - 1})")
+        raise FileFormatError(
+            f"{path}: missing column(s) {', '.join(missing)}; expected at least time, "
+            f"q0..q{n_joints - 1}, dq0..dq{n_joints - 1} and tau_J0..tau_J{n_joints - 1} "
+            f"(or tau_d0..tau_d{n_joints - 1})"
+        )
     return present
 
 
@@ -256,14 +312,17 @@ def _parse_phase(path: Path, cells: list[str], first_line: int) -> NDArray[np.in
         except ValueError:
             value = math.nan
         if not value.is_integer():
-            raise FileFormatError(f"{path}: line {first_line + r} (data row {r + 1}), column phase: {cell!r}; expected "
-                                  f"an integer label 0..{len(PHASES) - 1} or one of {list(PHASES)}")
+            raise FileFormatError(
+                f"{path}: line {first_line + r} (data row {r + 1}), column phase: {cell!r}; expected "
+                f"an integer label 0..{len(PHASES) - 1} or one of {list(PHASES)}"
+            )
         labels[r] = int(value)
     return labels
 
 
-def _parse_numbers(path: Path, rows: list[list[str]], header: list[str], names: list[str], first_line: int
-                   ) -> NDArray[np.float64]:
+def _parse_numbers(
+    path: Path, rows: list[list[str]], header: list[str], names: list[str], first_line: int
+) -> NDArray[np.float64]:
     idx = [header.index(name) for name in names]
     table = [[row[j] for j in idx] for row in rows]
     try:
@@ -274,8 +333,9 @@ def _parse_numbers(path: Path, rows: list[list[str]], header: list[str], names: 
                 try:
                     float(cell)
                 except ValueError:
-                    raise FileFormatError(f"{path}: line {first_line + r} (data row {r + 1}), column {name}: "
-                                          f"{cell!r} is not a number") from None
+                    raise FileFormatError(
+                        f"{path}: line {first_line + r} (data row {r + 1}), column {name}: {cell!r} is not a number"
+                    ) from None
         raise
 
 
@@ -320,7 +380,7 @@ def read_franka_csv(path: str | os.PathLike[str], n_joints: int | None = 7) -> R
         if field == "phase":
             arrays["phase"] = _parse_phase(path, [row[header.index("phase")] for row in data], first_line)
             continue
-        block = table[:, col:col + len(names)]
+        block = table[:, col : col + len(names)]
         col += len(names)
         if field in ("tool_pose", "tool_target"):  # column-major: entry i is X[i % 4, i // 4]
             block = block.reshape(-1, 4, 4).transpose(0, 2, 1)
@@ -363,6 +423,7 @@ def write_franka_csv(log: RobotLog, path: str | os.PathLike[str]) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------- any format
+
 
 def load_log(path: str | os.PathLike[str], n_joints: int | None = 7) -> RobotLog:
     """Read and validate a robot log (see `sim2real.log.validate_log`; `n_joints` None accepts any

@@ -82,8 +82,18 @@ class LinkRegressor:
         w_prev = np.zeros((T, 3))
         al_prev = np.zeros((T, 3))
         a_prev = np.broadcast_to(-self.gravity, (T, 3))
-        out = {k: np.empty((T, N_ARM) + s) for k, s in (("R", (3, 3)), ("o", (3,)), ("z", (3,)), ("p", (3,)),
-                                                          ("w", (3,)), ("alpha", (3,)), ("a", (3,)))}
+        out = {
+            k: np.empty((T, N_ARM) + s)
+            for k, s in (
+                ("R", (3, 3)),
+                ("o", (3,)),
+                ("z", (3,)),
+                ("p", (3,)),
+                ("w", (3,)),
+                ("alpha", (3,)),
+                ("a", (3,)),
+            )
+        }
         for j in range(N_ARM):
             u = self.axis[j]
             R_WF = R_prev @ self.R_PF[j]
@@ -95,8 +105,8 @@ class LinkRegressor:
             R_WM = R_WF @ R_FM
             R = R_WM @ self.R_CM[j].T
             o = p - R @ self.p_CM[j]
-            w = w_prev + z * dq[:, j:j + 1]
-            alpha = al_prev + z * ddq[:, j:j + 1] + np.cross(w_prev, z) * dq[:, j:j + 1]
+            w = w_prev + z * dq[:, j : j + 1]
+            alpha = al_prev + z * ddq[:, j : j + 1] + np.cross(w_prev, z) * dq[:, j : j + 1]
             r = p - o_prev
             a_p = a_prev + np.cross(al_prev, r) + np.cross(w_prev, np.cross(w_prev, r))
             r = o - p
@@ -131,10 +141,9 @@ class LinkRegressor:
         fW = np.einsum("tkij,tkpj->tkpi", R, f)
         Y = np.zeros((T, N_ARM, N_ARM, 10))  # joint, body, param
         for jt in range(N_ARM):
-            lever = o[:, jt:, :] - p[:, jt:jt + 1, :]  # (T, bodies >= jt, 3)
-            zc = np.cross(np.broadcast_to(z[:, jt:jt + 1, :], lever.shape), lever)
-            Y[:, jt, jt:] = (np.einsum("tkpi,ti->tkp", nW[:, jt:], z[:, jt])
-                             + np.einsum("tkpi,tki->tkp", fW[:, jt:], zc))
+            lever = o[:, jt:, :] - p[:, jt : jt + 1, :]  # (T, bodies >= jt, 3)
+            zc = np.cross(np.broadcast_to(z[:, jt : jt + 1, :], lever.shape), lever)
+            Y[:, jt, jt:] = np.einsum("tkpi,ti->tkp", nW[:, jt:], z[:, jt]) + np.einsum("tkpi,tki->tkp", fW[:, jt:], zc)
         return Y.reshape(T, N_ARM, N_ARM * 10)
 
 

@@ -29,8 +29,19 @@ from goflow_common.errors import FileFormatError, InputError
 from goflow_common.files import check_output_file, reject_json_constant, to_strict_json, write_atomic
 
 __all__ = [
-    "RobotLog", "PHASES", "UNITS", "FIELDS", "TORQUE_SIDES", "POSITION_SIDES", "MIN_SAMPLES", "LOG_FORMAT",
-    "validate_log", "save_log", "read_npz_log", "slice_log", "with_meta",
+    "RobotLog",
+    "PHASES",
+    "UNITS",
+    "FIELDS",
+    "TORQUE_SIDES",
+    "POSITION_SIDES",
+    "MIN_SAMPLES",
+    "LOG_FORMAT",
+    "validate_log",
+    "save_log",
+    "read_npz_log",
+    "slice_log",
+    "with_meta",
 ]
 
 #: Phase names, in the order of their integer labels in `RobotLog.phase`.
@@ -38,8 +49,18 @@ PHASES: tuple[str, ...] = ("free", "approach", "contact", "insertion")
 
 #: The unit each signal must be given in (metadata "units" entries are checked against these).
 UNITS: dict[str, str] = {
-    "time": "s", "q": "rad", "dq": "rad/s", "tau": "N m", "tau_cmd": "N m", "q_cmd": "rad",
-    "dq_cmd": "rad/s", "tau_ext": "N m", "tool_pose": "m", "tool_target": "m", "wrench": "N, N m", "gripper_width": "m",
+    "time": "s",
+    "q": "rad",
+    "dq": "rad/s",
+    "tau": "N m",
+    "tau_cmd": "N m",
+    "q_cmd": "rad",
+    "dq_cmd": "rad/s",
+    "tau_ext": "N m",
+    "tool_pose": "m",
+    "tool_target": "m",
+    "wrench": "N, N m",
+    "gripper_width": "m",
 }
 
 
@@ -91,8 +112,21 @@ class RobotLog:
 
 
 #: Every array field of RobotLog, in the order they are stored and documented.
-FIELDS: tuple[str, ...] = ("time", "q", "dq", "tau", "tau_cmd", "q_cmd", "dq_cmd", "tau_ext",
-                           "tool_pose", "tool_target", "wrench", "gripper_width", "phase")
+FIELDS: tuple[str, ...] = (
+    "time",
+    "q",
+    "dq",
+    "tau",
+    "tau_cmd",
+    "q_cmd",
+    "dq_cmd",
+    "tau_ext",
+    "tool_pose",
+    "tool_target",
+    "wrench",
+    "gripper_width",
+    "phase",
+)
 #: Values of meta["torque_side"]: torques measured after the gearbox (Franka's tau_J) or before it.
 TORQUE_SIDES: tuple[str, ...] = ("link", "motor")
 #: Values of meta["position_side"]: positions measured on the link (default) or the motor (reflected).
@@ -110,9 +144,13 @@ Q_LIMIT = 2 * math.pi + 0.5  # [rad]
 DQ_LIMIT = 20.0  # [rad/s]
 TAU_LIMIT = 1000.0  # [N m]
 _LIMITS: dict[str, tuple[float, str, str]] = {
-    "q": (Q_LIMIT, "rad", "degrees"), "q_cmd": (Q_LIMIT, "rad", "degrees"),
-    "dq": (DQ_LIMIT, "rad/s", "deg/s"), "dq_cmd": (DQ_LIMIT, "rad/s", "deg/s"),
-    "tau": (TAU_LIMIT, "N m", "mN m"), "tau_cmd": (TAU_LIMIT, "N m", "mN m"), "tau_ext": (TAU_LIMIT, "N m", "mN m"),
+    "q": (Q_LIMIT, "rad", "degrees"),
+    "q_cmd": (Q_LIMIT, "rad", "degrees"),
+    "dq": (DQ_LIMIT, "rad/s", "deg/s"),
+    "dq_cmd": (DQ_LIMIT, "rad/s", "deg/s"),
+    "tau": (TAU_LIMIT, "N m", "mN m"),
+    "tau_cmd": (TAU_LIMIT, "N m", "mN m"),
+    "tau_ext": (TAU_LIMIT, "N m", "mN m"),
 }
 MAX_SPAN = 86400.0  # [s] one day
 MAX_STEP = 1.0  # [s]
@@ -122,6 +160,7 @@ ROTATION_TOL = 1e-3  # max |R^T R - I| of a tool pose's rotation part
 
 
 # ---------------------------------------------------------------------------------------------- validation
+
 
 def validate_log(log: RobotLog, n_joints: int | None = 7) -> RobotLog:
     """Check every contract of `log` and return it normalised: arrays float64 (phase int64),
@@ -159,8 +198,10 @@ def _as_array(value: Any, name: str) -> NDArray[Any]:
         if arr.dtype.kind in "iu":
             return arr.astype(np.int64)
         if arr.dtype.kind != "f":
-            raise InputError(f"phase holds {arr.dtype} values; expected integer labels 0..{len(PHASES) - 1} "
-                             f"indexing PHASES {list(PHASES)}")
+            raise InputError(
+                f"phase holds {arr.dtype} values; expected integer labels 0..{len(PHASES) - 1} "
+                f"indexing PHASES {list(PHASES)}"
+            )
         return arr
     try:
         arr = np.array(value, dtype=np.float64)
@@ -172,8 +213,9 @@ def _as_array(value: Any, name: str) -> NDArray[Any]:
 def _expected_shape(name: str, n_samples: int, n: int) -> tuple[int, ...]:
     if name in _JOINT_FIELDS:
         return (n_samples, n)
-    return {"tool_pose": (n_samples, 4, 4), "tool_target": (n_samples, 4, 4),
-            "wrench": (n_samples, 6)}.get(name, (n_samples,))
+    return {"tool_pose": (n_samples, 4, 4), "tool_target": (n_samples, 4, 4), "wrench": (n_samples, 6)}.get(
+        name, (n_samples,)
+    )
 
 
 def _checked_arrays(log: RobotLog, n_joints: int | None) -> dict[str, Any]:
@@ -181,8 +223,10 @@ def _checked_arrays(log: RobotLog, n_joints: int | None) -> dict[str, Any]:
         if getattr(log, name) is None:
             raise InputError(f"{name} is missing; expected {what}")
     if all(getattr(log, name) is None for name in _DRIVES):
-        raise InputError("tau, tau_cmd and q_cmd are all missing; expected at least one of them (measured "
-                         "torques, commanded torques or commanded positions)")
+        raise InputError(
+            "tau, tau_cmd and q_cmd are all missing; expected at least one of them (measured "
+            "torques, commanded torques or commanded positions)"
+        )
     time = _as_array(log.time, "time")
     if time.ndim != 1:
         raise InputError(f"time has shape {time.shape}; expected (T,)")
@@ -242,21 +286,29 @@ def _check_time(time: NDArray[np.float64]) -> None:
     if back.size:
         k = int(back[0]) + 1
         if dt[k - 1] == 0:
-            run = int(np.argmax(dt[k - 1:] != 0)) if np.any(dt[k - 1:] != 0) else len(dt) - k + 1
+            run = int(np.argmax(dt[k - 1 :] != 0)) if np.any(dt[k - 1 :] != 0) else len(dt) - k + 1
             stall = f" and for {run} samples: a stalled logger clock" if run > 1 else ""
-            raise InputError(f"time repeats at sample {k}: t = {float(time[k])!r} s as at sample {k - 1}{stall}; "
-                             "expected strictly increasing timestamps")
-        raise InputError(f"time goes back at sample {k}: t = {float(time[k])!r} s after {float(time[k - 1])!r} s; "
-                         "expected strictly increasing timestamps")
+            raise InputError(
+                f"time repeats at sample {k}: t = {float(time[k])!r} s as at sample {k - 1}{stall}; "
+                "expected strictly increasing timestamps"
+            )
+        raise InputError(
+            f"time goes back at sample {k}: t = {float(time[k])!r} s after {float(time[k - 1])!r} s; "
+            "expected strictly increasing timestamps"
+        )
     span = float(time[-1] - time[0])
     if span > MAX_SPAN:
-        raise InputError(f"time spans {span:.6g} s; expected at most one day ({MAX_SPAN:g} s): the timestamps "
-                         "look like ms or ns, expected s")
+        raise InputError(
+            f"time spans {span:.6g} s; expected at most one day ({MAX_SPAN:g} s): the timestamps "
+            "look like ms or ns, expected s"
+        )
     jumps = np.flatnonzero(dt > MAX_STEP)
     if jumps.size:
         k = int(jumps[0]) + 1
-        raise InputError(f"time jumps by {dt[k - 1]:.6g} s at sample {k}; expected steps of at most "
-                         f"{MAX_STEP:g} s: the timestamps look like ms or ns, expected s")
+        raise InputError(
+            f"time jumps by {dt[k - 1]:.6g} s at sample {k}; expected steps of at most "
+            f"{MAX_STEP:g} s: the timestamps look like ms or ns, expected s"
+        )
 
 
 def _check_ranges(arrays: dict[str, Any], time: NDArray[np.float64]) -> None:
@@ -264,25 +316,33 @@ def _check_ranges(arrays: dict[str, Any], time: NDArray[np.float64]) -> None:
         arr = arrays[name]
         if arr is not None and (over := np.abs(arr) > bound).any():
             _, entry, where = _at(name, arr, over, time)
-            raise InputError(f"{name} out of range: {entry} ({where}) is beyond +-{bound:.6g} {unit}; it looks "
-                             f"like {looks}, expected {unit}")
+            raise InputError(
+                f"{name} out of range: {entry} ({where}) is beyond +-{bound:.6g} {unit}; it looks "
+                f"like {looks}, expected {unit}"
+            )
     width = arrays["gripper_width"]
     if width is not None and (bad := (width > MAX_GRIPPER_WIDTH) | (width < -0.01)).any():
         _, entry, where = _at("gripper_width", width, bad, time)
-        raise InputError(f"gripper_width out of range: {entry} ({where}); expected a width in [0, "
-                         f"{MAX_GRIPPER_WIDTH:g}] m (millimetres?)")
+        raise InputError(
+            f"gripper_width out of range: {entry} ({where}); expected a width in [0, "
+            f"{MAX_GRIPPER_WIDTH:g}] m (millimetres?)"
+        )
     phase = arrays["phase"]
     if phase is not None:
         if phase.dtype.kind == "f":
             if (frac := phase != np.round(phase)).any():
                 _, entry, where = _at("phase", phase, frac, time)
-                raise InputError(f"phase label {entry} ({where}) is not an integer; expected labels 0.."
-                                 f"{len(PHASES) - 1} indexing PHASES {list(PHASES)}")
+                raise InputError(
+                    f"phase label {entry} ({where}) is not an integer; expected labels 0.."
+                    f"{len(PHASES) - 1} indexing PHASES {list(PHASES)}"
+                )
             phase = arrays["phase"] = phase.astype(np.int64)
         if (bad := (phase < 0) | (phase >= len(PHASES))).any():
             _, entry, where = _at("phase", phase, bad, time)
-            raise InputError(f"phase label out of range: {entry} ({where}); expected 0..{len(PHASES) - 1} "
-                             f"indexing PHASES {list(PHASES)}")
+            raise InputError(
+                f"phase label out of range: {entry} ({where}); expected 0..{len(PHASES) - 1} "
+                f"indexing PHASES {list(PHASES)}"
+            )
 
 
 def _check_poses(arrays: dict[str, Any], time: NDArray[np.float64]) -> None:
@@ -293,23 +353,31 @@ def _check_poses(arrays: dict[str, Any], time: NDArray[np.float64]) -> None:
         last = np.abs(X[:, 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
         if (bad := last > 1e-9).any():
             k = int(np.argmax(bad))
-            raise InputError(f"{name} is not a rigid transform at sample {k} (t = {time[k]:.6g} s): last row "
-                             f"{X[k, 3].tolist()}; expected [0, 0, 0, 1]")
+            raise InputError(
+                f"{name} is not a rigid transform at sample {k} (t = {time[k]:.6g} s): last row "
+                f"{X[k, 3].tolist()}; expected [0, 0, 0, 1]"
+            )
         R = X[:, :3, :3]
         err = np.abs(np.einsum("kji,kjl->kil", R, R) - np.eye(3)).max(axis=(1, 2))
         if (bad := err > ROTATION_TOL).any():
             k = int(np.argmax(bad))
-            raise InputError(f"{name} is not a rigid transform at sample {k} (t = {time[k]:.6g} s): its rotation "
-                             f"part is not orthonormal (max |R^T R - I| = {err[k]:.3g}; expected <= {ROTATION_TOL:g})")
+            raise InputError(
+                f"{name} is not a rigid transform at sample {k} (t = {time[k]:.6g} s): its rotation "
+                f"part is not orthonormal (max |R^T R - I| = {err[k]:.3g}; expected <= {ROTATION_TOL:g})"
+            )
         if (bad := np.linalg.det(R) < 0).any():
             k = int(np.argmax(bad))
-            raise InputError(f"{name} is not a rigid transform at sample {k} (t = {time[k]:.6g} s): its rotation "
-                             "part is a reflection (det = -1); expected a rotation")
+            raise InputError(
+                f"{name} is not a rigid transform at sample {k} (t = {time[k]:.6g} s): its rotation "
+                "part is a reflection (det = -1); expected a rotation"
+            )
         if (bad := np.abs(X[:, :3, 3]) > MAX_TRANSLATION).any():
             k, i = np.unravel_index(int(np.argmax(bad)), bad.shape)
-            raise InputError(f"{name} translation out of range: {name}[{k}, {i}, 3] = {X[k, i, 3]:.6g} (sample {k}, "
-                             f"t = {time[k]:.6g} s) is beyond +-{MAX_TRANSLATION:g} m; it looks like millimetres, "
-                             "expected m")
+            raise InputError(
+                f"{name} translation out of range: {name}[{k}, {i}, 3] = {X[k, i, 3]:.6g} (sample {k}, "
+                f"t = {time[k]:.6g} s) is beyond +-{MAX_TRANSLATION:g} m; it looks like millimetres, "
+                "expected m"
+            )
 
 
 def _lists(obj: Any) -> Any:
@@ -336,8 +404,9 @@ def _checked_meta(meta: Any, arrays: dict[str, Any]) -> dict[str, Any]:
         raise InputError(f"meta units = {units!r}; expected a dict signal -> unit, as UNITS")
     for key, unit in units.items():
         if key not in UNITS:
-            raise InputError(f"meta units names {key!r}, which is not a signal of a log; expected keys among "
-                             f"{list(UNITS)}")
+            raise InputError(
+                f"meta units names {key!r}, which is not a signal of a log; expected keys among {list(UNITS)}"
+            )
         if unit != UNITS[key]:
             raise InputError(f"meta units for {key} = {unit!r}; expected {UNITS[key]!r}")
     meta["units"] = {**{name: UNITS[name] for name in FIELDS if name in UNITS and arrays[name] is not None}, **units}
@@ -362,6 +431,7 @@ def _checked_meta(meta: Any, arrays: dict[str, Any]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------------------- files
 
+
 def save_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:
     """Validate `log` (any joint count) and write it to `path` (a .npz name) atomically: one array
     per present field, named as the field, plus "meta" (the metadata as a strict-JSON string in a
@@ -376,8 +446,9 @@ def save_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:
     check_output_file(path, "robot log")
     arrays = {name: getattr(log, name) for name in FIELDS if getattr(log, name) is not None}
     buf = io.BytesIO()
-    np.savez_compressed(buf, format=np.array(LOG_FORMAT), meta=np.array(json.dumps(log.meta, allow_nan=False)),
-                        **arrays)
+    np.savez_compressed(
+        buf, format=np.array(LOG_FORMAT), meta=np.array(json.dumps(log.meta, allow_nan=False)), **arrays
+    )
     return write_atomic(path, buf.getvalue())
 
 
@@ -396,8 +467,10 @@ def read_npz_log(path: str | os.PathLike[str]) -> RobotLog:
         with np.load(path, allow_pickle=False) as data:
             unknown = sorted(set(data.files) - set(FIELDS) - {"meta", "format"})
             if unknown:
-                raise FileFormatError(f"{path}: not a robot log: unknown arrays {unknown}; expected arrays among "
-                                      f"{list(FIELDS)} plus 'meta' and 'format'")
+                raise FileFormatError(
+                    f"{path}: not a robot log: unknown arrays {unknown}; expected arrays among "
+                    f"{list(FIELDS)} plus 'meta' and 'format'"
+                )
             contents = {name: data[name] for name in data.files}
     except FileFormatError:
         raise
@@ -418,8 +491,9 @@ def read_npz_log(path: str | os.PathLike[str]) -> RobotLog:
     if meta is None:
         raise FileFormatError(f"{path}: no 'meta' array; expected a {what}")
     if not (meta.ndim == 0 and meta.dtype.kind == "U"):
-        raise FileFormatError(f"{path}: meta has dtype {meta.dtype} and shape {meta.shape}; expected a JSON "
-                              "string (0-d unicode array)")
+        raise FileFormatError(
+            f"{path}: meta has dtype {meta.dtype} and shape {meta.shape}; expected a JSON string (0-d unicode array)"
+        )
     try:
         meta_obj = json.loads(str(meta[()]), parse_constant=reject_json_constant)
     except ValueError as exc:
@@ -430,6 +504,7 @@ def read_npz_log(path: str | os.PathLike[str]) -> RobotLog:
 
 
 # ---------------------------------------------------------------------------------------------- helpers
+
 
 def slice_log(log: RobotLog, start: int, stop: int) -> RobotLog:
     """Samples start..stop-1 of `log` (0 <= start < stop <= T; InputError otherwise), arrays

@@ -51,8 +51,7 @@ Array = NDArray[np.float64]
 N_JOINTS = 7
 
 #: The frequency bands [Hz] in which log_statistics reports the torque-noise PSD.
-TAU_BANDS: tuple[tuple[float, float], ...] = ((2, 5), (5, 10), (10, 20), (20, 60), (60, 100), (100, 200),
-                                              (200, 500))
+TAU_BANDS: tuple[tuple[float, float], ...] = ((2, 5), (5, 10), (10, 20), (20, 60), (60, 100), (100, 200), (200, 500))
 #: The frequency bands [Hz] in which log_statistics reports the velocity-noise PSD.
 DQ_BANDS: tuple[tuple[float, float], ...] = ((2, 40), (60, 100), (200, 500))
 _SMOOTH_CORNER = 1.0  # [Hz] the slow motion removed before the noise PSDs: a zero-phase low-pass at it
@@ -144,8 +143,12 @@ class LoggerConfig:
         check_number(self.gap_min, name + "gap_min", 0.0, 0.5)
         check_number(self.gap_max, name + "gap_max", self.gap_min, 0.5)
         check_number(self.drift_ppm, name + "drift_ppm", -1000.0, 1000.0)
-        for field in ("stale_probability", "state_repeat_probability", "tau_repeat_probability",
-                      "dq_repeat_probability"):
+        for field in (
+            "stale_probability",
+            "state_repeat_probability",
+            "tau_repeat_probability",
+            "dq_repeat_probability",
+        ):
             check_number(getattr(self, field), name + field, 0.0, 1.0, high_open=True)
         runs = self.stale_run_lengths
         if isinstance(runs, (str, bytes)) or not isinstance(runs, Sequence) or not runs:
@@ -178,32 +181,52 @@ class LoggerConfig:
 #:   are at rest (the amplitude grows by 1 + speed_gain |dq|).
 PANDA_LOGGER = LoggerConfig(
     tau_psd=(1.6e-4, 3.5e-4, 2.7e-4, 1.8e-4, 5.5e-6, 8.1e-6, 6.4e-6),
-    tau_corner=50.0, tau_order=4,
-    vibration_low=14.0, vibration_high=60.0,
+    tau_corner=50.0,
+    tau_order=4,
+    vibration_low=14.0,
+    vibration_high=60.0,
     vibration_psd=(1.9e-4, 2.1e-4, 1.75e-4, 8.0e-4, 0.0, 1.2e-5, 0.0),
-    floor_psd=(1.2e-5, 2.5e-5, 1.45e-5, 1.45e-5, 1.8e-5, 2.45e-5, 1.4e-6), floor_low=50.0, floor_high=200.0,
+    floor_psd=(1.2e-5, 2.5e-5, 1.45e-5, 1.45e-5, 1.8e-5, 2.45e-5, 1.4e-6),
+    floor_low=50.0,
+    floor_high=200.0,
     speed_gain=(1.36, 1.51, 0.68, 0.86, 0.68, 0.58, 0.15),
-    dq_psd=(6.2e-7, 6.35e-7, 5.3e-7, 7.3e-7, 5.7e-7, 9.4e-7, 7.8e-7), dq_corner=45.0, dq_order=1,
-    q_step=0.0, digits=6,
-    step_min=6.8e-4, step_median=1.0e-3, step_spread=0.42, step_correlation=0.65,
-    gap_rate=4 / 21.0, gap_min=8.4e-3, gap_max=8.8e-3, drift_ppm=20.0,
+    dq_psd=(6.2e-7, 6.35e-7, 5.3e-7, 7.3e-7, 5.7e-7, 9.4e-7, 7.8e-7),
+    dq_corner=45.0,
+    dq_order=1,
+    q_step=0.0,
+    digits=6,
+    step_min=6.8e-4,
+    step_median=1.0e-3,
+    step_spread=0.42,
+    step_correlation=0.65,
+    gap_rate=4 / 21.0,
+    gap_min=8.4e-3,
+    gap_max=8.8e-3,
+    drift_ppm=20.0,
     stale_probability=1027 / (20543 - 1131),
     stale_run_lengths=(964 / 1027, 35 / 1027, 22 / 1027, 5 / 1027, 0, 0, 0, 0, 0, 0, 1 / 1027),
-    state_repeat_probability=0.0052, tau_repeat_probability=0.0045, dq_repeat_probability=0.0009,
+    state_repeat_probability=0.0052,
+    tau_repeat_probability=0.0045,
+    dq_repeat_probability=0.0009,
 )
 
 
 # ---------------------------------------------------------------------------------------------- the logger
 
+
 def _poll_times(t0: float, t1: float, cfg: LoggerConfig, rng: np.random.Generator) -> Array:
     """Polling instants in [t0, t1]: jittered AR(1) log-normal steps and gaps."""
     span = t1 - t0
-    mean = cfg.step_min + (cfg.step_median - cfg.step_min) * math.exp(0.5 * cfg.step_spread ** 2)
+    mean = cfg.step_min + (cfg.step_median - cfg.step_min) * math.exp(0.5 * cfg.step_spread**2)
     n = int(span / max(mean, 1e-5) * 1.2) + 64
     while True:
         e = rng.standard_normal(n)
-        x = signal.lfilter([math.sqrt(1.0 - cfg.step_correlation ** 2)], [1.0, -cfg.step_correlation],
-                           e, zi=[cfg.step_correlation * rng.standard_normal()])[0]
+        x = signal.lfilter(
+            [math.sqrt(1.0 - cfg.step_correlation**2)],
+            [1.0, -cfg.step_correlation],
+            e,
+            zi=[cfg.step_correlation * rng.standard_normal()],
+        )[0]
         steps = cfg.step_min + (cfg.step_median - cfg.step_min) * np.exp(cfg.step_spread * x)
         gap = rng.random(n) < cfg.gap_rate * steps
         steps[gap] = rng.uniform(cfg.gap_min, cfg.gap_max, int(gap.sum()))
@@ -240,10 +263,13 @@ def _repeat_rows(values: dict[str, Array | None], cfg: LoggerConfig, rng: np.ran
     for start, length in zip(starts, runs):
         if start < max(1, k_free):
             continue
-        stale[start:start + length] = True
+        stale[start : start + length] = True
         k_free = start + length + 1
-    groups = {"state": (cfg.state_repeat_probability, ("q", "dq")), "tau": (cfg.tau_repeat_probability, ("tau",)),
-              "dq": (cfg.dq_repeat_probability, ("dq",))}
+    groups = {
+        "state": (cfg.state_repeat_probability, ("q", "dq")),
+        "tau": (cfg.tau_repeat_probability, ("tau",)),
+        "dq": (cfg.dq_repeat_probability, ("dq",)),
+    }
     partial = {key: (rng.random(n) < p) & ~stale for key, (p, _) in groups.items()}
     for k in range(1, n):
         if stale[k]:
@@ -282,8 +308,10 @@ def apply_logger(truth: RobotLog, config: LoggerConfig | None = None, seed: int 
         raise InputError("truth.tau is missing; expected the true link-side joint torques")
     extra = {f: getattr(truth, f) for f in ("tool_pose", "tool_target", "wrench", "gripper_width")}
     if any(v is not None for v in extra.values()):
-        raise InputError(f"truth has {[k for k, v in extra.items() if v is not None]}; expected only joint "
-                         "signals, time and phase (the logger models joint sensors)")
+        raise InputError(
+            f"truth has {[k for k, v in extra.items() if v is not None]}; expected only joint "
+            "signals, time and phase (the logger models joint sensors)"
+        )
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x10661]))
     t = _poll_times(float(truth.time[0]), float(truth.time[-1]), cfg, rng)
     n = t.shape[0]
@@ -326,6 +354,7 @@ def apply_logger(truth: RobotLog, config: LoggerConfig | None = None, seed: int 
 
 
 # ---------------------------------------------------------------------------------------------- statistics
+
 
 def _uniform(log: RobotLog, arr: Array) -> tuple[Array, float]:
     """`arr` linearly interpolated on a uniform grid of the log's median step, ends cut by _EDGE."""
@@ -415,12 +444,15 @@ def log_statistics(log: RobotLog) -> dict[str, Any]:
         low, high = vib[speed[:, j] <= lo, j], vib[speed[:, j] >= hi, j]
         ratio.append(float(np.var(high) / np.var(low)) if np.var(low) > 0 else float("nan"))
     return {
-        "duration": span, "samples": log.n_samples,
-        "step_ms": dict(zip(("p0.1", "p5", "p50", "p95", "p99.9"),
-                            (np.percentile(dt, [0.1, 5, 50, 95, 99.9]) * 1e3).tolist())),
+        "duration": span,
+        "samples": log.n_samples,
+        "step_ms": dict(
+            zip(("p0.1", "p5", "p50", "p95", "p99.9"), (np.percentile(dt, [0.1, 5, 50, 95, 99.9]) * 1e3).tolist())
+        ),
         "step_mean_ms": float(dt.mean() * 1e3),
         "step_autocorr": float(np.dot(d[:-1], d[1:]) / np.dot(d, d)) if d.size > 2 and d.any() else 0.0,
-        "gaps_per_minute": float(gaps.size / span * 60.0), "max_gap_ms": float(dt.max() * 1e3),
+        "gaps_per_minute": float(gaps.size / span * 60.0),
+        "max_gap_ms": float(dt.max() * 1e3),
         "stale_fraction": float(stale.mean()),
         "repeat_fraction": {name: float(_repeats(getattr(log, name)).mean()) for name in ("q", "dq", "tau")},
         "q_step": q_step,

@@ -64,8 +64,16 @@ from sim2real.catalogue import CATALOGUE, effect
 from sim2real.diagnosis import Diagnosis, DiagnosisConfig, Evidence, Progress, analyse
 from sim2real.effects import Candidate
 
-__all__ = ["POSE_COLUMNS", "PERCEPTION_EFFECTS", "ALPHAS", "make_perception_log", "perception_evidence",
-           "perception_config", "diagnose_perception", "offset_jacobians"]
+__all__ = [
+    "POSE_COLUMNS",
+    "PERCEPTION_EFFECTS",
+    "ALPHAS",
+    "make_perception_log",
+    "perception_evidence",
+    "perception_config",
+    "diagnose_perception",
+    "offset_jacobians",
+]
 
 Array = NDArray[np.float64]
 
@@ -85,14 +93,18 @@ def _check_effects(effects: dict) -> dict[str, float]:
     InputError naming an unknown effect, one that is not a perception effect, an unknown parameter
     or a value outside the catalogue's range."""
     if not isinstance(effects, dict):
-        raise InputError(f"effects is {type(effects).__name__}; expected a dict such as "
-                         "{'camera_offset': {'dx': 0.01, 'dy': 0.0, 'dz': 0.0}}")
+        raise InputError(
+            f"effects is {type(effects).__name__}; expected a dict such as "
+            "{'camera_offset': {'dx': 0.01, 'dy': 0.0, 'dz': 0.0}}"
+        )
     out = {"dx": 0.0, "dy": 0.0, "dz": 0.0}
     for name, params in effects.items():
         eff = effect(name)  # InputError for an unknown name
         if eff.place != "perception":
-            raise InputError(f"effect {name!r} acts in {eff.place!r}; the perception log takes only "
-                             f"perception effects {list(PERCEPTION_EFFECTS)}")
+            raise InputError(
+                f"effect {name!r} acts in {eff.place!r}; the perception log takes only "
+                f"perception effects {list(PERCEPTION_EFFECTS)}"
+            )
         if not isinstance(params, dict):
             raise InputError(f"effect {name!r}: parameters {params!r}; expected a dict {{param: value}}")
         for pname, value in params.items():
@@ -102,14 +114,16 @@ def _check_effects(effects: dict) -> dict[str, float]:
             except (TypeError, ValueError):
                 raise InputError(f"{name}.{pname} = {value!r}; expected a number [{spec.unit}]") from None
             if not (spec.low <= v <= spec.high):
-                raise InputError(f"{name}.{pname} = {v:g} {spec.unit}; expected a value in "
-                                 f"[{spec.low:g}, {spec.high:g}] {spec.unit}")
+                raise InputError(
+                    f"{name}.{pname} = {v:g} {spec.unit}; expected a value in [{spec.low:g}, {spec.high:g}] {spec.unit}"
+                )
             out[pname] = v
     return out
 
 
-def make_perception_log(effects: dict, scenes: int = 8, seed: int = 0, camera: str = "scene", *,
-                        depth_bias: float = 0.0) -> dict[str, Any]:
+def make_perception_log(
+    effects: dict, scenes: int = 8, seed: int = 0, camera: str = "scene", *, depth_bias: float = 0.0
+) -> dict[str, Any]:
     """Run the scene camera's first look on `scenes` random scenes (perception.scenes.random_scenes
     from `seed`) in a reality with `effects` ({} or {"camera_offset": {"dx", "dy", "dz"} [m], camera
     frame, each in the catalogue's range}): the image is rendered from the offset (true) camera,
@@ -179,11 +193,23 @@ def make_perception_log(effects: dict, scenes: int = 8, seed: int = 0, camera: s
             m[2] = truth[s, i, 2] + wrap(m[2] - truth[s, i, 2], post.period)  # the nearest symmetric yaw
             mean[s, i], std[s, i] = m, post.std()
         seconds[s] = time.perf_counter() - t0
-    return {"gears": np.array(gears), "mean": mean, "std": std, "truth": truth, "seen": seen,
-            "informative": informative, "period": np.array([models[g].period for g in gears], float),
-            "top": np.array([models[g].height_map().top for g in gears], float), "X_WC": nominal.X_PC.GetAsMatrix4(),
-            "offset": offset, "seconds": seconds, "camera": camera, "seed": int(seed),
-            "effects": json.dumps(effects, sort_keys=True), "depth_bias": float(depth_bias)}
+    return {
+        "gears": np.array(gears),
+        "mean": mean,
+        "std": std,
+        "truth": truth,
+        "seen": seen,
+        "informative": informative,
+        "period": np.array([models[g].period for g in gears], float),
+        "top": np.array([models[g].height_map().top for g in gears], float),
+        "X_WC": nominal.X_PC.GetAsMatrix4(),
+        "offset": offset,
+        "seconds": seconds,
+        "camera": camera,
+        "seed": int(seed),
+        "effects": json.dumps(effects, sort_keys=True),
+        "depth_bias": float(depth_bias),
+    }
 
 
 def _ray_shift(X_WC: Array, P: Array, d: Array) -> Array:
@@ -251,8 +277,10 @@ def _check_log(log: dict) -> None:
     if missing:
         raise InputError(f"perception log lacks {missing}; expected a log from make_perception_log")
     if np.shape(log["mean"])[1:] != (3, 3) or list(log["gears"]) != ["small", "medium", "large"]:
-        raise InputError(f"perception log: gears {list(log['gears'])}, mean {np.shape(log['mean'])}; "
-                         "expected gears small, medium, large and (scenes, 3, 3) poses")
+        raise InputError(
+            f"perception log: gears {list(log['gears'])}, mean {np.shape(log['mean'])}; "
+            "expected gears small, medium, large and (scenes, 3, 3) poses"
+        )
 
 
 def perception_evidence(log: dict) -> Evidence:
@@ -280,7 +308,7 @@ def perception_evidence(log: dict) -> Evidence:
                 v = std[m, i, k]
                 v = v[np.isfinite(v)]
                 if len(v):
-                    ref[i, k] = max(float(np.sqrt(np.mean(v ** 2))), 1e-6)
+                    ref[i, k] = max(float(np.sqrt(np.mean(v**2))), 1e-6)
                     break
     scale = np.where(seen[..., None], np.minimum(1.0, ref[None] / np.where(seen[..., None], std, 1.0)), 0.0)
     scale = np.nan_to_num(scale)
@@ -293,7 +321,7 @@ def perception_evidence(log: dict) -> Evidence:
     floor[0:6] = np.nan_to_num(ref[:, :2].reshape(6), nan=1e-5)
     yaw_ref = ref[:, 2][np.isfinite(ref[:, 2])]
     if len(yaw_ref):
-        floor[6] = max(float(np.sqrt(np.mean(yaw_ref ** 2) / 3)), 1e-5)
+        floor[6] = max(float(np.sqrt(np.mean(yaw_ref**2) / 3)), 1e-5)
     # the camera_offset candidates
     J_rigid = np.zeros((T, 3, 2, 3))
     J_ray = np.zeros((T, 3, 2, 3))
@@ -311,23 +339,50 @@ def perception_evidence(log: dict) -> Evidence:
         J = (1.0 - a) * J_rigid + a * J_ray  # (T, gear, xy, 3)
         feats = np.zeros((T, 7, 3))
         feats[:, 0:6, :] = J.reshape(T, 6, 3)
-        pool.append(Candidate("camera_offset", {"alpha": a}, {_CHANNEL: feats}, {}, ["dx", "dy", "dz"], bounds,
-                              lambda coef: {"dx": float(coef[0]), "dy": float(coef[1]), "dz": float(coef[2])}))
+        pool.append(
+            Candidate(
+                "camera_offset",
+                {"alpha": a},
+                {_CHANNEL: feats},
+                {},
+                ["dx", "dy", "dz"],
+                bounds,
+                lambda coef: {"dx": float(coef[0]), "dy": float(coef[1]), "dz": float(coef[2])},
+            )
+        )
     valid = n_seen > 0
     mask = np.zeros((T, 7), dtype=bool)
     mask[:, 0:6] = np.repeat(use, 2, axis=1)
     mask[:, 6] = valid
     effects = json.loads(str(log.get("effects", "{}")))
-    meta = {"source": "perception", "camera": str(log.get("camera", "scene")), "scenes": T,
-            "seed": int(log.get("seed", 0)), "seen": int(np.asarray(log["seen"]).sum()),
-            "informative": int(use.sum()), "truth": effects}
-    return Evidence(residual={_CHANNEL: residual}, labels={_CHANNEL: list(POSE_COLUMNS)}, valid=valid,
-                    phase=np.zeros(T, dtype=np.int64), regions={"informative posterior": mask},
-                    pool={"camera_offset": pool}, audit=None, x=np.repeat(np.arange(T, dtype=float)[:, None], 7, 1),
-                    x_label="scene", time=np.arange(T, dtype=float), meta=meta, floor={_CHANNEL: floor},
-                    notes=[f"perception channel: {int(seen.sum())} gears seen of {3 * T} in {T} scenes, "
-                           f"{int(use.sum())} with an informative posterior; residual = posterior "
-                           "mean - true pose, a wider posterior's row scaled by its precision"])
+    meta = {
+        "source": "perception",
+        "camera": str(log.get("camera", "scene")),
+        "scenes": T,
+        "seed": int(log.get("seed", 0)),
+        "seen": int(np.asarray(log["seen"]).sum()),
+        "informative": int(use.sum()),
+        "truth": effects,
+    }
+    return Evidence(
+        residual={_CHANNEL: residual},
+        labels={_CHANNEL: list(POSE_COLUMNS)},
+        valid=valid,
+        phase=np.zeros(T, dtype=np.int64),
+        regions={"informative posterior": mask},
+        pool={"camera_offset": pool},
+        audit=None,
+        x=np.repeat(np.arange(T, dtype=float)[:, None], 7, 1),
+        x_label="scene",
+        time=np.arange(T, dtype=float),
+        meta=meta,
+        floor={_CHANNEL: floor},
+        notes=[
+            f"perception channel: {int(seen.sum())} gears seen of {3 * T} in {T} scenes, "
+            f"{int(use.sum())} with an informative posterior; residual = posterior "
+            "mean - true pose, a wider posterior's row scaled by its precision"
+        ],
+    )
 
 
 def perception_config(log: dict, **changes: Any) -> DiagnosisConfig:
@@ -342,19 +397,25 @@ def perception_config(log: dict, **changes: Any) -> DiagnosisConfig:
     return DiagnosisConfig(**{"blocks": blocks, "folds": folds, "bootstrap": 200, **changes})
 
 
-def diagnose_perception(log: dict, config: DiagnosisConfig | None = None, progress: Progress | None = None
-                        ) -> Diagnosis:
+def diagnose_perception(
+    log: dict, config: DiagnosisConfig | None = None, progress: Progress | None = None
+) -> Diagnosis:
     """Where, which and how far for a perception log (sim2real.diagnosis.analyse on
     `perception_evidence(log)`; `config` defaults to `perception_config(log)`, and one whose
     blocks exceed the log's valid scenes raises InputError). The Diagnosis's channel is "pose"."""
     ev = perception_evidence(log)
     c = config or perception_config(log)
     if c.blocks > int(ev.valid.sum()):
-        raise InputError(f"DiagnosisConfig.blocks = {c.blocks}; the log has {int(ev.valid.sum())} scenes "
-                         "with a gear seen (one block needs at least one)")
+        raise InputError(
+            f"DiagnosisConfig.blocks = {c.blocks}; the log has {int(ev.valid.sum())} scenes "
+            "with a gear seen (one block needs at least one)"
+        )
     if c.effects is not None:
         ev.pool = {k: v for k, v in ev.pool.items() if k in c.effects}
     d = analyse(ev, c, progress)
-    d.extra["perception"] = {"informative": ev.meta["informative"], "scenes": ev.meta["scenes"],
-                             "true_offset": np.asarray(log.get("offset", np.zeros(3)), float).tolist()}
+    d.extra["perception"] = {
+        "informative": ev.meta["informative"],
+        "scenes": ev.meta["scenes"],
+        "true_offset": np.asarray(log.get("offset", np.zeros(3)), float).tolist(),
+    }
     return d

@@ -25,7 +25,7 @@ def _contact(vectors: NDArray[np.float64]) -> NDArray[np.bool_]:
     deviations of a k-vector (the noise from the robust spread of sample-to-sample differences)."""
     d = np.diff(vectors, axis=0)
     sigma = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
-    level = 5.0 * float(np.sqrt(np.sum(sigma ** 2))) + 1e-9
+    level = 5.0 * float(np.sqrt(np.sum(sigma**2))) + 1e-9
     return np.linalg.norm(vectors, axis=1) > level
 
 

@@ -36,8 +36,16 @@ from sim2real.catalogue import CATALOGUE
 from sim2real.log import RobotLog
 from sim2real.validation import drag_torque, drifting_sensor, ripple_torque
 
-__all__ = ["UNIT_SETTINGS", "REALISTIC_PAIRS", "SNRS", "RealisticCase", "realistic_cases", "make_case_log",
-           "run_realistic", "summarize_realistic"]
+__all__ = [
+    "UNIT_SETTINGS",
+    "REALISTIC_PAIRS",
+    "SNRS",
+    "RealisticCase",
+    "realistic_cases",
+    "make_case_log",
+    "run_realistic",
+    "summarize_realistic",
+]
 
 Array = NDArray[np.float64]
 
@@ -52,22 +60,36 @@ UNIT_SETTINGS: dict[str, dict[str, Any]] = {
     # one link heavier and another's centre of mass moved: a uniform scale of every link's mass and
     # inertia is a scale of the rigid-body torque, which a torque-only log cannot tell from a
     # torque sensor's scale (that direction is in the identifiability warnings, not in the grid)
-    "link_inertia": {"mass_scale": [1.0, 1.0, 1.0, 1.1, 1.0, 1.0, 1.0], "com_shift": [0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.0]},
+    "link_inertia": {
+        "mass_scale": [1.0, 1.0, 1.0, 1.1, 1.0, 1.0, 1.0],
+        "com_shift": [0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.0],
+    },
     "torque_scale": {"k": 0.97},
     "torque_delay": {"d": 0.005},
     "joint_inertia": {"dJ": 0.05},
     "backlash_motor": {"b": 0.005},
 }
 SCALED: dict[str, tuple[str, ...]] = {
-    "coulomb": ("fc",), "stribeck": ("fs",), "viscous": ("fv",), "payload": ("dm",), "torque_offset": ("offset",),
-    "link_inertia": ("mass_scale", "com_shift"), "torque_scale": ("k",), "torque_delay": ("d",), "joint_inertia": ("dJ",),
+    "coulomb": ("fc",),
+    "stribeck": ("fs",),
+    "viscous": ("fv",),
+    "payload": ("dm",),
+    "torque_offset": ("offset",),
+    "link_inertia": ("mass_scale", "com_shift"),
+    "torque_scale": ("k",),
+    "torque_delay": ("d",),
+    "joint_inertia": ("dJ",),
     "backlash_motor": ("b",),
 }
 #: Effects outside the catalogue: a unit size of their one parameter (the functions live in
 #: sim2real.validation; the diagnosis never sees them).
 OUTSIDE_UNITS: dict[str, float] = {"ripple": 0.1, "drag": 0.2, "drift": 0.2}
-REALISTIC_PAIRS: tuple[tuple[str, str], ...] = (("coulomb", "payload"), ("viscous", "torque_offset"),
-                                                ("link_inertia", "coulomb"), ("torque_scale", "joint_inertia"))
+REALISTIC_PAIRS: tuple[tuple[str, str], ...] = (
+    ("coulomb", "payload"),
+    ("viscous", "torque_offset"),
+    ("link_inertia", "coulomb"),
+    ("torque_scale", "joint_inertia"),
+)
 SNRS: tuple[float, ...] = (8.0, 2.5)
 
 
@@ -84,8 +106,9 @@ class RealisticCase:
     layout: str
 
 
-def realistic_cases(seeds: tuple[int, ...] = (0, 1, 2), effects: tuple[str, ...] | None = None,
-                    noise_seeds: int = 2) -> list[RealisticCase]:
+def realistic_cases(
+    seeds: tuple[int, ...] = (0, 1, 2), effects: tuple[str, ...] | None = None, noise_seeds: int = 2
+) -> list[RealisticCase]:
     """The grid: every torque-only effect x SNR x seed, the pairs, `noise_seeds` noise-only logs per
     seed and the effects outside the catalogue; layouts alternate with the seed."""
     out = []
@@ -110,8 +133,10 @@ def realistic_cases(seeds: tuple[int, ...] = (0, 1, 2), effects: tuple[str, ...]
 
 # ---------------------------------------------------------------------------------------------- logs
 
+
 def _reality(duration: float, seed: int, sensors: str, noise: bool = True):
     from sim2real.reality import RealityConfig
+
     return RealityConfig(duration=duration, seed=seed, end_effector="none", sensors=sensors, noise=noise)
 
 
@@ -153,8 +178,7 @@ def _nominal(duration: float, seed: int) -> tuple[Array, Array]:
     return clean_res, np.std(noisy_res[nvalid], axis=0)
 
 
-def _effect_torque(effects: dict[str, dict[str, Any]], extra: Any, sense: Any, duration: float, seed: int
-                   ) -> Array:
+def _effect_torque(effects: dict[str, dict[str, Any]], extra: Any, sense: Any, duration: float, seed: int) -> Array:
     """The in-band RMS per joint (7,) of what the effects add to the tau residual (noise-free)."""
     from sim2real.reality import make_arm_log
 
@@ -182,8 +206,9 @@ def _snr(torque: Array, noise: Array) -> float:
     return float(np.sqrt(np.mean((torque / noise) ** 2)))
 
 
-def make_case_log(case: RealisticCase, duration: float = 20.0, folder: str | Path | None = None
-                  ) -> tuple[RobotLog, dict[str, Any]]:
+def make_case_log(
+    case: RealisticCase, duration: float = 20.0, folder: str | Path | None = None
+) -> tuple[RobotLog, dict[str, Any]]:
     """The case's torque-only realistic log, written in its layout under `folder` (None: a
     temporary folder) and read back, and its truth: the settings, each effect's SNR, the in-band
     effect torque per joint and the in-band noise per joint."""
@@ -203,25 +228,37 @@ def make_case_log(case: RealisticCase, duration: float = 20.0, folder: str | Pat
         else:
             unit = _effect_torque({name: UNIT_SETTINGS[name]}, None, None, duration, case.seed)
             settings[name] = _scale(name, case.snr / max(_snr(unit, noise), 1e-9))
-    torque = (_effect_torque(settings, extra, sense, duration, case.seed) if case.effects else np.zeros(7))
+    torque = _effect_torque(settings, extra, sense, duration, case.seed) if case.effects else np.zeros(7)
     for name in case.effects:
-        alone = torque if len(case.effects) == 1 else _effect_torque({name: settings[name]}, None, None, duration,
-                                                                       case.seed)
+        alone = (
+            torque
+            if len(case.effects) == 1
+            else _effect_torque({name: settings[name]}, None, None, duration, case.seed)
+        )
         snrs[name] = _snr(alone, noise)
     log = _torque_only(make_arm_log(settings, _reality(duration, case.seed, "panda"), extra_torque=extra))
     if sense is not None:
         log = sense(log)
     with tempfile.TemporaryDirectory() as tmp:
         where = Path(folder) if folder is not None else Path(tmp)
-        path = write_gaz_layout(log, where / case.name) if case.layout == "gaz" else write_franka_csv(
-            log, where / f"{case.name}.csv")
+        path = (
+            write_gaz_layout(log, where / case.name)
+            if case.layout == "gaz"
+            else write_franka_csv(log, where / f"{case.name}.csv")
+        )
         loaded = load_log(path)
-    truth = {"settings": settings, "snr": snrs, "effect_torque": torque.tolist(), "noise": noise.tolist(),
-             "largest_joint": int(np.argmax(torque)) + 1 if case.effects else None}
+    truth = {
+        "settings": settings,
+        "snr": snrs,
+        "effect_torque": torque.tolist(),
+        "noise": noise.tolist(),
+        "largest_joint": int(np.argmax(torque)) + 1 if case.effects else None,
+    }
     return loaded, truth
 
 
 # ---------------------------------------------------------------------------------------------- scoring
+
 
 def run_realistic(case: RealisticCase, duration: float = 20.0, config: Any = None) -> dict[str, Any]:
     """Make the case's log, diagnose it without its truth, score it; plain data."""
@@ -239,24 +276,39 @@ def run_realistic(case: RealisticCase, duration: float = 20.0, config: Any = Non
     elif case.kind == "outside":
         right = label == "unexplained"
     else:
-        right = set(chosen[:len(case.effects)]) == set(case.effects)
+        right = set(chosen[: len(case.effects)]) == set(case.effects)
     tau = [r for r in s["where"]["channels"] if r["channel"] == "tau"]
     torque = np.asarray(truth["effect_torque"])
     # right when the joint ranked first carries the largest effect torque, or one within 10 % of it
     # (a friction of one level on every joint is a near tie between joints)
-    where_right = (None if truth["largest_joint"] is None
-                   else bool(tau and torque[tau[0]["joint"] - 1] >= 0.9 * torque.max()))
+    where_right = (
+        None if truth["largest_joint"] is None else bool(tau and torque[tau[0]["joint"] - 1] >= 0.9 * torque.max())
+    )
     a = d.arrays
     ci = list(d.channels).index("tau")
     observed = np.std(a["residual"][a["valid"], ci], axis=0)
     floor = a["floor"][ci]
-    return {"case": case.name, "kind": case.kind, "effects": list(case.effects), "snr": case.snr,
-            "seed": case.seed, "layout": case.layout, "truth": truth, "selected": chosen, "verdict": label,
-            "right": bool(right), "where_right": where_right, "top_joint": tau[0]["joint"] if tau else None,
-            "floor_ratio": (floor / observed).tolist(), "closed": s["verdict"].get("closed"),
-            "selected_params": {r["effect"]: {k: v["value"] for k, v in r["params"].items() if k != "base"}
-                                for r in s["selected"]},
-            "make_s": made, "diagnose_s": time.perf_counter() - start - made}
+    return {
+        "case": case.name,
+        "kind": case.kind,
+        "effects": list(case.effects),
+        "snr": case.snr,
+        "seed": case.seed,
+        "layout": case.layout,
+        "truth": truth,
+        "selected": chosen,
+        "verdict": label,
+        "right": bool(right),
+        "where_right": where_right,
+        "top_joint": tau[0]["joint"] if tau else None,
+        "floor_ratio": (floor / observed).tolist(),
+        "closed": s["verdict"].get("closed"),
+        "selected_params": {
+            r["effect"]: {k: v["value"] for k, v in r["params"].items() if k != "base"} for r in s["selected"]
+        },
+        "make_s": made,
+        "diagnose_s": time.perf_counter() - start - made,
+    }
 
 
 def summarize_realistic(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -270,20 +322,28 @@ def summarize_realistic(results: list[dict[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, rows in groups.items():
         where = [r["where_right"] for r in rows if r["where_right"] is not None]
-        out[key] = {"cases": len(rows), "right": float(np.mean([r["right"] for r in rows])),
-                    "where_right": float(np.mean(where)) if where else None,
-                    "verdicts": {v: sum(r["verdict"] == v for r in rows) for v in ("explained", "unexplained", "no gap")},
-                    "diagnose_s_median": float(np.median([r["diagnose_s"] for r in rows]))}
+        out[key] = {
+            "cases": len(rows),
+            "right": float(np.mean([r["right"] for r in rows])),
+            "where_right": float(np.mean(where)) if where else None,
+            "verdicts": {v: sum(r["verdict"] == v for r in rows) for v in ("explained", "unexplained", "no gap")},
+            "diagnose_s_median": float(np.median([r["diagnose_s"] for r in rows])),
+        }
     noise = [r["floor_ratio"] for r in results if r["kind"] == "noise"]
     if noise:
         x = np.asarray(noise)
-        out["floor_check"] = {"logs": len(noise), "mean": x.mean(axis=0).tolist(), "min": x.min(axis=0).tolist(),
-                              "max": x.max(axis=0).tolist()}
+        out["floor_check"] = {
+            "logs": len(noise),
+            "mean": x.mean(axis=0).tolist(),
+            "min": x.min(axis=0).tolist(),
+            "max": x.max(axis=0).tolist(),
+        }
     per_effect: dict[str, dict[str, Any]] = {}
     for r in results:
         if r["kind"] == "single":
-            e = per_effect.setdefault(f"{r['effects'][0]} (SNR {r['snr']:g})", {"n": 0, "right": 0, "where": 0,
-                                                                               "missed_as": []})
+            e = per_effect.setdefault(
+                f"{r['effects'][0]} (SNR {r['snr']:g})", {"n": 0, "right": 0, "where": 0, "missed_as": []}
+            )
             e["n"] += 1
             e["right"] += int(r["right"])
             e["where"] += int(bool(r["where_right"]))

@@ -47,17 +47,35 @@ from goflow_common.config import config_to_dict
 from goflow_common.errors import InputError, SimulationError
 from sim2real.arm import END_EFFECTORS, N_ARM, ArmModel, arm_plant
 from sim2real.catalogue import ARM_EFFECTS, effect
-from sim2real.effects import (BACKLASH_DAMPING, BACKLASH_MOTOR_FRACTION, BACKLASH_MOTOR_INERTIA_MIN,
-                              BACKLASH_STIFFNESS, STRIBECK_SIGN_VELOCITY, backlash_motor_inertia)
+from sim2real.effects import (
+    BACKLASH_DAMPING,
+    BACKLASH_MOTOR_FRACTION,
+    BACKLASH_MOTOR_INERTIA_MIN,
+    BACKLASH_STIFFNESS,
+    STRIBECK_SIGN_VELOCITY,
+    backlash_motor_inertia,
+)
 from sim2real.clean import interpolate
 from sim2real.log import UNITS, RobotLog
 from sim2real.logger import apply_logger
 from sim2real.trajectory import default_base_frequency, exciting_trajectory
 
-__all__ = ["RealityConfig", "SENSORS", "make_arm_log", "resolve_effects", "ExtraTorque", "KP", "KD",
-           "STRIBECK_SIGN_VELOCITY",
-           "BACKLASH_MOTOR_FRACTION", "BACKLASH_STIFFNESS", "BACKLASH_DAMPING", "MOTOR_INERTIA_MIN",
-           "STOP_STIFFNESS", "STOP_DAMPING"]
+__all__ = [
+    "RealityConfig",
+    "SENSORS",
+    "make_arm_log",
+    "resolve_effects",
+    "ExtraTorque",
+    "KP",
+    "KD",
+    "STRIBECK_SIGN_VELOCITY",
+    "BACKLASH_MOTOR_FRACTION",
+    "BACKLASH_STIFFNESS",
+    "BACKLASH_DAMPING",
+    "MOTOR_INERTIA_MIN",
+    "STOP_STIFFNESS",
+    "STOP_DAMPING",
+]
 
 Array = NDArray[np.float64]
 #: Values of RealityConfig.sensors: the ideal logger of the control ticks, or the Panda's (sim2real.logger).
@@ -89,6 +107,7 @@ _MAX_SUBSTEPS = 4  # per control tick with backlash (its stiff mesh wants short 
 
 
 # ---------------------------------------------------------------------------------------------- config
+
 
 @dataclasses.dataclass(frozen=True)
 class RealityConfig:
@@ -141,8 +160,11 @@ class RealityConfig:
             value = getattr(self, gains)
             if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != N_ARM:
                 raise InputError(f"{name}{gains} = {value!r}; expected {N_ARM} gains")
-            object.__setattr__(self, gains, tuple(
-                check_number(v, f"{name}{gains}[{j}]", 0.0, low_open=True) for j, v in enumerate(value)))
+            object.__setattr__(
+                self,
+                gains,
+                tuple(check_number(v, f"{name}{gains}[{j}]", 0.0, low_open=True) for j, v in enumerate(value)),
+            )
         if not isinstance(self.noise, bool):
             raise InputError(f"{name}noise = {self.noise!r}; expected True or False")
         for sigma in ("q_noise", "dq_noise", "tau_noise"):
@@ -151,17 +173,22 @@ class RealityConfig:
         check_choice(self.sensors, SENSORS, name + "sensors")
         ratio = 1.0 / (self.log_rate * self.time_step)
         if abs(ratio - round(ratio)) > 1e-6:
-            raise InputError(f"{name}time_step = {self.time_step:g} s; expected a whole fraction of the "
-                             f"control period 1 / log_rate = {1.0 / self.log_rate:g} s")
+            raise InputError(
+                f"{name}time_step = {self.time_step:g} s; expected a whole fraction of the "
+                f"control period 1 / log_rate = {1.0 / self.log_rate:g} s"
+            )
         if self.base_frequency is not None:
             periods = self.duration * self.base_frequency
             if abs(periods - round(periods)) > 1e-6 or round(periods) < 1:
-                raise InputError(f"{name}base_frequency = {self.base_frequency:g} Hz; expected a whole number "
-                                 f"of periods in duration = {self.duration:g} s (e.g. "
-                                 f"{default_base_frequency(self.duration):g} Hz)")
+                raise InputError(
+                    f"{name}base_frequency = {self.base_frequency:g} Hz; expected a whole number "
+                    f"of periods in duration = {self.duration:g} s (e.g. "
+                    f"{default_base_frequency(self.duration):g} Hz)"
+                )
 
 
 # ---------------------------------------------------------------------------------------------- effects
+
 
 def _param_value(name: str, param: Any, value: Any) -> float | list[float]:
     """`value` of `param` (a catalogue Param) checked: one number, or 7 for a per-joint one."""
@@ -179,14 +206,16 @@ def _param_value(name: str, param: Any, value: Any) -> float | list[float]:
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
             raise InputError(f"{label} = {v!r}; expected a number in [{param.low:g}, {param.high:g}] {param.unit}")
         if not param.low <= v <= param.high:
-            raise InputError(f"{label} = {v:g} {param.unit}; expected a value in [{param.low:g}, "
-                             f"{param.high:g}] {param.unit}")
+            raise InputError(
+                f"{label} = {v:g} {param.unit}; expected a value in [{param.low:g}, {param.high:g}] {param.unit}"
+            )
         out.append(float(v))
     return out if param.per_joint else out[0]
 
 
-def resolve_effects(effects: Mapping[str, Mapping[str, float | Sequence[float]]] | None
-                    ) -> dict[str, dict[str, float | list[float]]]:
+def resolve_effects(
+    effects: Mapping[str, Mapping[str, float | Sequence[float]]] | None,
+) -> dict[str, dict[str, float | list[float]]]:
     """`effects` ({effect: {param: value}}, as catalogue.parse_effect_values returns) checked and
     completed: every parameter of each named effect, a missing one at its catalogue `none` value,
     per-joint ones as lists of 7 floats.
@@ -250,36 +279,60 @@ def _truth(resolved: dict[str, dict[str, Any]]) -> _Truth:
     notes = []
     inertia = REFLECTED_INERTIA + get("rotor_inertia", "dI")
     if (neg := inertia < 0).any():
-        notes.append(f"rotor_inertia: REFLECTED_INERTIA + dI < 0 on joints {(np.flatnonzero(neg) + 1).tolist()}; "
-                     "the simulated reflected inertia is clipped at 0 there")
+        notes.append(
+            f"rotor_inertia: REFLECTED_INERTIA + dI < 0 on joints {(np.flatnonzero(neg) + 1).tolist()}; "
+            "the simulated reflected inertia is clipped at 0 there"
+        )
         inertia = np.maximum(inertia, 0.0)
     viscous = JOINT_DAMPING + get("viscous", "fv")
     if (neg := viscous < 0).any():
-        notes.append(f"viscous: the total viscous coefficient D + fv < 0 on joints "
-                     f"{(np.flatnonzero(neg) + 1).tolist()} (the joint gains energy with speed; the controller "
-                     "has to hold it)")
+        notes.append(
+            f"viscous: the total viscous coefficient D + fv < 0 on joints "
+            f"{(np.flatnonzero(neg) + 1).tolist()} (the joint gains energy with speed; the controller "
+            "has to hold it)"
+        )
     com = np.array([get("payload", f"com_{a}") for a in "xyz"])
     if get("link_inertia", "base") != 0.0:
-        raise InputError(f"effect link_inertia.base = {get('link_inertia', 'base'):g}; expected 0 (the fit's output): "
-                         "make a log with mass_scale, com_shift and inertia_scale")
+        raise InputError(
+            f"effect link_inertia.base = {get('link_inertia', 'base'):g}; expected 0 (the fit's output): "
+            "make a log with mass_scale, com_shift and inertia_scale"
+        )
     b_act, b_mot = get("backlash", "b"), get("backlash_motor", "b")
     if b_act > 0.0 and b_mot > 0.0:
-        raise InputError(f"effects backlash.b = {b_act:g} rad and backlash_motor.b = {b_mot:g} rad name one dead band "
-                         "twice; expected one of them")
-    return _Truth(viscous=viscous, fc=get("coulomb", "fc"), v_smooth=get("coulomb", "v_smooth"),
-                  fs=get("stribeck", "fs"), vs=get("stribeck", "vs"), inertia=inertia,
-                  payload=(get("payload", "dm"), com), offset=get("torque_offset", "offset"),
-                  delay=get("actuation_delay", "delay"), gain=get("torque_gain", "k"),
-                  limit=get("torque_saturation", "s") * TAU_MAX, backlash=max(b_act, b_mot),
-                  kp_scale=get("controller_gain", "kp_scale"), kd_scale=get("controller_gain", "kd_scale"),
-                  notes=tuple(notes),
-                  links=(get("link_inertia", "mass_scale"), get("link_inertia", "com_shift"),
-                         get("link_inertia", "inertia_scale")),
-                  joint_inertia=get("joint_inertia", "dJ"), sensor_scale=get("torque_scale", "k"),
-                  sensor_delay=get("torque_delay", "d"), motor_position=b_mot > 0.0)
+        raise InputError(
+            f"effects backlash.b = {b_act:g} rad and backlash_motor.b = {b_mot:g} rad name one dead band "
+            "twice; expected one of them"
+        )
+    return _Truth(
+        viscous=viscous,
+        fc=get("coulomb", "fc"),
+        v_smooth=get("coulomb", "v_smooth"),
+        fs=get("stribeck", "fs"),
+        vs=get("stribeck", "vs"),
+        inertia=inertia,
+        payload=(get("payload", "dm"), com),
+        offset=get("torque_offset", "offset"),
+        delay=get("actuation_delay", "delay"),
+        gain=get("torque_gain", "k"),
+        limit=get("torque_saturation", "s") * TAU_MAX,
+        backlash=max(b_act, b_mot),
+        kp_scale=get("controller_gain", "kp_scale"),
+        kd_scale=get("controller_gain", "kd_scale"),
+        notes=tuple(notes),
+        links=(
+            get("link_inertia", "mass_scale"),
+            get("link_inertia", "com_shift"),
+            get("link_inertia", "inertia_scale"),
+        ),
+        joint_inertia=get("joint_inertia", "dJ"),
+        sensor_scale=get("torque_scale", "k"),
+        sensor_delay=get("torque_delay", "d"),
+        motor_position=b_mot > 0.0,
+    )
 
 
 # ---------------------------------------------------------------------------------------------- plant
+
 
 class _Plant:
     """The true arm: Drake's plant with the true rotor inertia and payload, and its implicit step.
@@ -295,12 +348,12 @@ class _Plant:
         self.context = self.plant.CreateDefaultContext()
         self.nq = self.plant.num_positions()
         self.x = np.zeros(2 * self.nq)
-        self.x[N_ARM:self.nq] = FINGER_POSITION
+        self.x[N_ARM : self.nq] = FINGER_POSITION
         self.plant.SetPositionsAndVelocities(self.context, self.x)
         self.two_mass = truth.backlash > 0.0
         if truth.fs.any():  # G(u) = int_0^u exp(-(s / vs)^2) tanh(s / 0.002) ds, constant beyond the grid
             grid = np.linspace(0.0, 8.0 * truth.vs + 20.0 * STRIBECK_SIGN_VELOCITY, 20001)
-            y = np.exp(-(grid / truth.vs) ** 2) * np.tanh(grid / STRIBECK_SIGN_VELOCITY)
+            y = np.exp(-((grid / truth.vs) ** 2)) * np.tanh(grid / STRIBECK_SIGN_VELOCITY)
             self._stribeck_grid = grid
             self._stribeck_integral = np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(grid))])
         self.notes: list[str] = []
@@ -308,8 +361,10 @@ class _Plant:
         self.link_inertia = link_inertia  # the reflected inertia the joint carries (before the sensor)
         self.motor_inertia = backlash_motor_inertia(truth.inertia)
         if self.two_mass and (low := truth.inertia * BACKLASH_MOTOR_FRACTION < MOTOR_INERTIA_MIN).any():
-            self.notes.append(f"backlash: the motor-side inertia is raised to {MOTOR_INERTIA_MIN:g} kg m^2 on joints "
-                              f"{(np.flatnonzero(low) + 1).tolist()}")
+            self.notes.append(
+                f"backlash: the motor-side inertia is raised to {MOTOR_INERTIA_MIN:g} kg m^2 on joints "
+                f"{(np.flatnonzero(low) + 1).tolist()}"
+            )
         for j, index in enumerate(self.plant.GetJointActuatorIndices(arm)[:N_ARM]):
             actuator = self.plant.get_joint_actuator(index)
             actuator.SetRotorInertia(self.context, link_inertia[j] / actuator.default_gear_ratio() ** 2)
@@ -318,10 +373,12 @@ class _Plant:
         if dm != 0.0:
             flange = self.plant.GetBodyByName("panda_link8", arm)
             joint7 = self.plant.GetJointByName("panda_joint7", arm)
-            carried = self.plant.CalcSpatialInertia(self.context, flange.body_frame(),
-                                                    self.plant.GetBodiesKinematicallyAffectedBy([joint7.index()]))
-            _check_payload(carried.get_mass(), carried.get_com(),
-                           carried.CalcRotationalInertia().CopyToFullMatrix3(), dm, com)
+            carried = self.plant.CalcSpatialInertia(
+                self.context, flange.body_frame(), self.plant.GetBodiesKinematicallyAffectedBy([joint7.index()])
+            )
+            _check_payload(
+                carried.get_mass(), carried.get_com(), carried.CalcRotationalInertia().CopyToFullMatrix3(), dm, com
+            )
             own = flange.default_spatial_inertia()
             m = own.get_mass() + dm
             first = own.get_mass() * own.get_com() + dm * com
@@ -343,16 +400,22 @@ class _Plant:
             own = body.default_spatial_inertia()
             m = own.get_mass() * mass_scale[k]
             c = own.get_com() + np.array([0.0, 0.0, shift[k]])
-            I_c = own.Shift(own.get_com()).CalcRotationalInertia().CopyToFullMatrix3() * mass_scale[k] * inertia_scale[k]
-            body.SetSpatialInertiaInBodyFrame(self.context, SpatialInertia.MakeFromCentralInertia(
-                m, c, RotationalInertia(I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2])))
+            I_c = (
+                own.Shift(own.get_com()).CalcRotationalInertia().CopyToFullMatrix3() * mass_scale[k] * inertia_scale[k]
+            )
+            body.SetSpatialInertiaInBodyFrame(
+                self.context,
+                SpatialInertia.MakeFromCentralInertia(
+                    m, c, RotationalInertia(I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2])
+                ),
+            )
 
     def rigid(self, q: Array, v: Array) -> tuple[Array, Array]:
         """M (7, 7) with the link-side rotor inertia and the joint_inertia effect's dJ, and
         c(q, v) - g(q) (7,), fingers held still."""
         x = self.x
         x[:N_ARM] = q
-        x[self.nq:self.nq + N_ARM] = v
+        x[self.nq : self.nq + N_ARM] = v
         p, c = self.plant, self.context
         p.SetPositionsAndVelocities(c, x)
         M = p.CalcMassMatrix(c)[:N_ARM, :N_ARM] + np.diag(self.truth.joint_inertia)
@@ -373,11 +436,11 @@ class _Plant:
             dP += t.fc * th
             ddP += t.fc * (1.0 - th * th) / t.v_smooth
         if t.fs.any():
-            e = np.exp(-(u / t.vs) ** 2)
+            e = np.exp(-((u / t.vs) ** 2))
             sg = np.tanh(u / STRIBECK_SIGN_VELOCITY)
             P += t.fs * np.interp(np.abs(u), self._stribeck_grid, self._stribeck_integral)
             dP += t.fs * e * sg
-            ddP += t.fs * e * ((1.0 - sg * sg) / STRIBECK_SIGN_VELOCITY - 2.0 * u / t.vs ** 2 * sg)
+            ddP += t.fs * e * ((1.0 - sg * sg) / STRIBECK_SIGN_VELOCITY - 2.0 * u / t.vs**2 * sg)
         return P, dP, ddP
 
     def step(self, state: tuple[Array, ...], tau_a: Array, h: float) -> tuple[Array, ...] | None:
@@ -442,10 +505,19 @@ class _Step:
         delta = self.delta0 + h * rel
         excess = np.maximum(np.abs(delta) - self.half, 0.0)
         spring = BACKLASH_STIFFNESS * np.sign(delta) * excess + self.damper * rel  # on the link; -spring on the motor
-        phi += (0.5 * (self.J_m * dw) @ dw - h * self.tau_a @ w + 0.5 * BACKLASH_STIFFNESS * excess @ excess
-                + 0.5 * h * (self.damper * rel) @ rel)
-        return (phi, g - h * spring, self.J_m * dw - h * self.tau_a + h * spring, curv,
-                BACKLASH_STIFFNESS * h * (excess > 0.0) + self.damper)
+        phi += (
+            0.5 * (self.J_m * dw) @ dw
+            - h * self.tau_a @ w
+            + 0.5 * BACKLASH_STIFFNESS * excess @ excess
+            + 0.5 * h * (self.damper * rel) @ rel
+        )
+        return (
+            phi,
+            g - h * spring,
+            self.J_m * dw - h * self.tau_a + h * spring,
+            curv,
+            BACKLASH_STIFFNESS * h * (excess > 0.0) + self.damper,
+        )
 
     def direction(self, g: Array, gw: Array | None, curv: Array, S: Array | None) -> tuple[Array, Array | None]:
         """The Newton direction; where the Hessian is not positive definite (the Stribeck hump, a
@@ -510,23 +582,31 @@ def _check_payload(mass: float, com: Array, inertia: Array, dm: float, p: Array)
     m = mass + dm
     where = f"payload dm = {dm:g} kg at com ({p[0]:g}, {p[1]:g}, {p[2]:g}) m"
     if m <= 1e-6:
-        raise InputError(f"{where} leaves the bodies the flange carries with mass {m:.4g} kg (they have "
-                         f"{mass:.4g} kg); expected dm > {-mass:.4g} kg")
+        raise InputError(
+            f"{where} leaves the bodies the flange carries with mass {m:.4g} kg (they have "
+            f"{mass:.4g} kg); expected dm > {-mass:.4g} kg"
+        )
     c = (mass * com + dm * p) / m
     I_o = inertia + dm * (p @ p * np.eye(3) - np.outer(p, p))
     I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
     ev = np.sort(np.linalg.eigvalsh(I_c))
     tol = 1e-9 + 1e-6 * abs(ev).max()
     if ev[0] < -tol or ev[0] + ev[1] < ev[2] - tol:
-        raise InputError(f"{where} leaves the bodies the flange carries with a non-physical inertia (principal "
-                         f"moments {np.round(ev, 6).tolist()} kg m^2 about their centre of mass: negative or "
-                         "breaking the triangle inequality); expected a removal the carried bodies can give up")
+        raise InputError(
+            f"{where} leaves the bodies the flange carries with a non-physical inertia (principal "
+            f"moments {np.round(ev, 6).tolist()} kg m^2 about their centre of mass: negative or "
+            "breaking the triangle inequality); expected a removal the carried bodies can give up"
+        )
 
 
 # ---------------------------------------------------------------------------------------------- simulation
 
-def make_arm_log(effects: Mapping[str, Mapping[str, float | Sequence[float]]] | None = None,
-                 config: RealityConfig | None = None, extra_torque: ExtraTorque | None = None) -> RobotLog:
+
+def make_arm_log(
+    effects: Mapping[str, Mapping[str, float | Sequence[float]]] | None = None,
+    config: RealityConfig | None = None,
+    extra_torque: ExtraTorque | None = None,
+) -> RobotLog:
     """Simulate the arm with `effects` and log it.
 
     Arguments:
@@ -571,28 +651,62 @@ def make_arm_log(effects: Mapping[str, Mapping[str, float | Sequence[float]]] | 
     run.simulate()
     units = {name: UNITS[name] for name in ("time", "q", "dq", "tau", "tau_cmd", "q_cmd", "dq_cmd")}
     meta = {
-        "robot": "panda", "joint_names": list(ARM_JOINT_NAMES), "units": units,
-        "end_effector": cfg.end_effector, "torque_side": "link",
+        "robot": "panda",
+        "joint_names": list(ARM_JOINT_NAMES),
+        "units": units,
+        "end_effector": cfg.end_effector,
+        "torque_side": "link",
         "position_side": "motor" if truth.motor_position else "link",
-        "controller": {"law": "computed_torque_pd", "kp": list(cfg.kp), "kd": list(cfg.kd),
-                       "rate": cfg.log_rate, "feedforward": "nominal ArmModel total torque at the reference"},
+        "controller": {
+            "law": "computed_torque_pd",
+            "kp": list(cfg.kp),
+            "kd": list(cfg.kd),
+            "rate": cfg.log_rate,
+            "feedforward": "nominal ArmModel total torque at the reference",
+        },
         "source": "goflow simulated reality (sim2real/reality.py)",
-        "truth": resolved, "reality": config_to_dict(cfg),
-        "simulation": {"plant_step": run.dt / run.substeps, "base_frequency": run.base_frequency,
-                       "backlash": {"motor_fraction": BACKLASH_MOTOR_FRACTION, "stiffness": BACKLASH_STIFFNESS,
-                                    "damping": BACKLASH_DAMPING}},
+        "truth": resolved,
+        "reality": config_to_dict(cfg),
+        "simulation": {
+            "plant_step": run.dt / run.substeps,
+            "base_frequency": run.base_frequency,
+            "backlash": {
+                "motor_fraction": BACKLASH_MOTOR_FRACTION,
+                "stiffness": BACKLASH_STIFFNESS,
+                "damping": BACKLASH_DAMPING,
+            },
+        },
         "notes": list(truth.notes) + plant.notes + run.notes(),
     }
     if extra_torque is not None:
         meta["extra_torque"] = ".".join(getattr(extra_torque, key, "?") for key in ("__module__", "__qualname__"))
     if cfg.sensors == "panda":  # the logger records the truth: the measurements less their noise
         nq, ndq, ntau = run.noise
-        return apply_logger(RobotLog(time=run.time, q=run.q_meas - nq, dq=run.dq_meas - ndq, tau=run.tau_meas - ntau,
-                                     tau_cmd=run.tau_cmd, q_cmd=run.q_ref, dq_cmd=run.dq_ref,
-                                     phase=np.zeros(run.time.shape[0], dtype=np.int64), meta=meta), seed=cfg.seed)
-    return RobotLog(time=run.time, q=run.q_meas, dq=run.dq_meas, tau=run.tau_meas, tau_cmd=run.tau_cmd,
-                    q_cmd=run.q_ref, dq_cmd=run.dq_ref, phase=np.zeros(run.time.shape[0], dtype=np.int64),
-                    meta=meta)
+        return apply_logger(
+            RobotLog(
+                time=run.time,
+                q=run.q_meas - nq,
+                dq=run.dq_meas - ndq,
+                tau=run.tau_meas - ntau,
+                tau_cmd=run.tau_cmd,
+                q_cmd=run.q_ref,
+                dq_cmd=run.dq_ref,
+                phase=np.zeros(run.time.shape[0], dtype=np.int64),
+                meta=meta,
+            ),
+            seed=cfg.seed,
+        )
+    return RobotLog(
+        time=run.time,
+        q=run.q_meas,
+        dq=run.dq_meas,
+        tau=run.tau_meas,
+        tau_cmd=run.tau_cmd,
+        q_cmd=run.q_ref,
+        dq_cmd=run.dq_ref,
+        phase=np.zeros(run.time.shape[0], dtype=np.int64),
+        meta=meta,
+    )
 
 
 class _Run:
@@ -603,8 +717,9 @@ class _Run:
         n = int(round(cfg.duration * cfg.log_rate)) + 1
         self.dt = 1.0 / cfg.log_rate
         self.time = np.arange(n) * self.dt
-        traj = exciting_trajectory(cfg.duration, cfg.seed, cfg.harmonics, cfg.base_frequency,
-                                   cfg.speed_fraction, cfg.limit_margin)
+        traj = exciting_trajectory(
+            cfg.duration, cfg.seed, cfg.harmonics, cfg.base_frequency, cfg.speed_fraction, cfg.limit_margin
+        )
         self.base_frequency = traj.omega / (2.0 * math.pi)
         self.q_ref, self.dq_ref, ddq_ref = traj(self.time)
         self.feedforward = ArmModel(cfg.end_effector).terms(self.q_ref, self.dq_ref, ddq_ref).total
@@ -620,7 +735,8 @@ class _Run:
         self.substeps = substeps
         self.lag = truth.delay * cfg.log_rate  # the delay in control ticks
         self.q_meas, self.dq_meas, self.tau_meas, self.tau_cmd, self.delivered = (
-            np.empty((n, N_ARM)) for _ in range(5))
+            np.empty((n, N_ARM)) for _ in range(5)
+        )
         self.stops: dict[int, float] = {}
 
     def _initial_state(self) -> tuple[Array, ...]:
@@ -647,8 +763,10 @@ class _Run:
         if new is not None:
             return new
         if depth >= _MAX_SPLITS:
-            raise SimulationError(f"the simulated arm's implicit step failed at t = {a * self.dt:.4f} s "
-                                  f"(step {(b - a) * self.dt:.3g} s) with effects {self.names}")
+            raise SimulationError(
+                f"the simulated arm's implicit step failed at t = {a * self.dt:.4f} s "
+                f"(step {(b - a) * self.dt:.3g} s) with effects {self.names}"
+            )
         mid = 0.5 * (a + b)
         return self._advance(self._advance(state, a, mid, depth + 1), mid, b, depth + 1)
 
@@ -699,9 +817,11 @@ class _Run:
         finite = all(np.isfinite(s).all() for s in state)
         if not finite or (np.abs(v) > _SPEED_DIVERGED).any():
             j = int(np.argmax(np.where(np.isfinite(v), np.abs(v), np.inf)))
-            raise SimulationError(f"the simulated arm diverged at t = {time:.4f} s (joint {j + 1}: dq = {v[j]:.4g} "
-                                  f"rad/s) with effects {self.names}; the controller cannot hold the arm with "
-                                  "these values")
+            raise SimulationError(
+                f"the simulated arm diverged at t = {time:.4f} s (joint {j + 1}: dq = {v[j]:.4g} "
+                f"rad/s) with effects {self.names}; the controller cannot hold the arm with "
+                "these values"
+            )
         for j in np.flatnonzero((q > Q_MAX) | (q < Q_MIN)):
             self.stops.setdefault(int(j), time)
 
@@ -712,6 +832,8 @@ class _Run:
         saturated = np.abs(cmd) > self.truth.limit
         if saturated.any():
             joints = (np.flatnonzero(saturated.any(axis=0)) + 1).tolist()
-            out.append(f"the actuators saturated on {int(saturated.any(axis=1).sum())} of {cmd.shape[0]} samples "
-                       f"(joints {joints})")
+            out.append(
+                f"the actuators saturated on {int(saturated.any(axis=1).sum())} of {cmd.shape[0]} samples "
+                f"(joints {joints})"
+            )
         return out

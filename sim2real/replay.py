@@ -116,7 +116,7 @@ class Replay:
     @property
     def noise_gain(self) -> float:
         """The factor by which the torque filter scales white noise's standard deviation."""
-        return 1.0 if self.kernel is None else float(np.sqrt(np.sum(self.kernel ** 2)))
+        return 1.0 if self.kernel is None else float(np.sqrt(np.sum(self.kernel**2)))
 
     def forward(self, torque: NDArray[np.float64]) -> NDArray[np.float64]:
         """The k-step integral of M_total^-1 torque dt (T, 7): how a torque perturbation of the
@@ -128,8 +128,8 @@ class Replay:
         k = self.forward_steps
         T = acc.shape[0]
         for start in range(0, T, k):  # re-synchronised to the log at each window's start
-            seg = np.cumsum(acc[start:start + k], axis=0)
-            out[start + 1:start + len(seg)] = seg[:-1]
+            seg = np.cumsum(acc[start : start + k], axis=0)
+            out[start + 1 : start + len(seg)] = seg[:-1]
         return out
 
     def _inverse_mass(self) -> NDArray[np.float64]:
@@ -166,7 +166,7 @@ def matched_kernel(window: int, hold: str = "zoh") -> NDArray[np.float64]:
         cols[i + hi - first + 1, c] += scale
         cols[i + lo - first + 1, c] -= scale
     target = np.zeros(len(g) + 2)
-    target[1:1 + len(g)] = g
+    target[1 : 1 + len(g)] = g
     s, *_ = np.linalg.lstsq(cols, target, rcond=None)
     return s / s.sum()
 
@@ -208,8 +208,10 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
     dt = float(log.time[1] - log.time[0])
     window = max(5, int(round(c.derivative_window / dt)) | 1)
     if log.n_samples < 4 * window:
-        raise InputError(f"log has {log.n_samples} samples; expected at least {4 * window} "
-                         f"(4 derivative windows of {c.derivative_window} s)")
+        raise InputError(
+            f"log has {log.n_samples} samples; expected at least {4 * window} "
+            f"(4 derivative windows of {c.derivative_window} s)"
+        )
     ee = c.end_effector or log.meta.get("end_effector", "hand")
     model = ArmModel(ee)
     check_choice(c.torque_hold, ("zoh", "sample"), "ReplayConfig.torque_hold")
@@ -244,10 +246,25 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
         residual["cmd"] = commanded - terms.total
         if law is not None:
             residual["ctrl"] = commanded - law
-    rep = Replay(log=log, dt=dt, q=q_t, dq=dq_s, ddq=ddq, terms=terms, model=model, residual=residual,
-                 valid=np.ones(log.n_samples, dtype=bool), forward_steps=c.forward_steps,
-                 tau_cmd=tau_cmd, law=law, rotor_in_tau=rotor_in_tau, kernel=kernel,
-                 window=window, velocity_source=c.velocity_source, torque_hold=c.torque_hold)
+    rep = Replay(
+        log=log,
+        dt=dt,
+        q=q_t,
+        dq=dq_s,
+        ddq=ddq,
+        terms=terms,
+        model=model,
+        residual=residual,
+        valid=np.ones(log.n_samples, dtype=bool),
+        forward_steps=c.forward_steps,
+        tau_cmd=tau_cmd,
+        law=law,
+        rotor_in_tau=rotor_in_tau,
+        kernel=kernel,
+        window=window,
+        velocity_source=c.velocity_source,
+        torque_hold=c.torque_hold,
+    )
     measured = {"tau": log.tau, "cmd": commanded}
     for ch in ("tau", "cmd"):  # the measured torque through the filter; the model's side is smooth
         if ch in residual and kernel is not None:
@@ -260,8 +277,10 @@ def replay(log: RobotLog, config: ReplayConfig | None = None) -> Replay:
         # about the logged states (M and h taken there); residual = logged - predicted.
         residual["dq"] = -rep.forward(tau_cmd - terms.total)
     if not residual:
-        raise InputError("log has none of tau, tau_cmd, or q_cmd/dq_cmd with meta controller gains; "
-                         "expected measured or commanded torques to replay")
+        raise InputError(
+            "log has none of tau, tau_cmd, or q_cmd/dq_cmd with meta controller gains; "
+            "expected measured or commanded torques to replay"
+        )
     half = window // 2 + max(1, c.forward_steps)
     rep.valid[:half] = False
     rep.valid[-half:] = False

@@ -35,77 +35,132 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
     v = s["verdict"]
     L = [f"# {title}", ""]
     src = s["log"].get("source", "")
-    L += [f"Log: {src or 'in memory'}; end effector {s['log'].get('end_effector', 'hand')!r}; "
-          f"channels {', '.join(s['channels'])}.", ""]
+    L += [
+        f"Log: {src or 'in memory'}; end effector {s['log'].get('end_effector', 'hand')!r}; "
+        f"channels {', '.join(s['channels'])}.",
+        "",
+    ]
     pre = s.get("preprocessing", {})
     if pre:
         L += ["## The log as the diagnosis reads it", ""]
         cl = pre.get("clean", {})
         if cl:
-            L.append(f"- {cl['samples_in']} samples; {cl['stale_dropped']} stale repeats dropped "
-                     f"({100 * cl['stale_share']:.1f} %); period {1e3 * cl['period']:.3f} ms"
-                     + ("" if cl["uniform"] else f" (resampled; steps {cl['step_percentiles_ms']['1']:.2f}-"
-                        f"{cl['step_percentiles_ms']['99']:.2f} ms, 1-99 %)")
-                     + (f"; {cl['gaps']} gaps (longest {cl['longest_gap_ms']:.1f} ms), their {cl['not_fresh']} "
-                        "grid points not fitted" if cl["gaps"] else ""))
+            L.append(
+                f"- {cl['samples_in']} samples; {cl['stale_dropped']} stale repeats dropped "
+                f"({100 * cl['stale_share']:.1f} %); period {1e3 * cl['period']:.3f} ms"
+                + (
+                    ""
+                    if cl["uniform"]
+                    else f" (resampled; steps {cl['step_percentiles_ms']['1']:.2f}-"
+                    f"{cl['step_percentiles_ms']['99']:.2f} ms, 1-99 %)"
+                )
+                + (
+                    f"; {cl['gaps']} gaps (longest {cl['longest_gap_ms']:.1f} ms), their {cl['not_fresh']} "
+                    "grid points not fitted"
+                    if cl["gaps"]
+                    else ""
+                )
+            )
         b = pre.get("band")
         if b:
-            L.append(f"- analysis band: below {b['cutoff_hz']:.3g} Hz ({b['reason']}), sampled at "
-                     f"{b['rate_hz']:.3g} Hz; the noise floor is read from the residual's spectrum in "
-                     f"{b['reference_hz'][0]:.3g}-{b['reference_hz'][1]:.3g} Hz")
+            L.append(
+                f"- analysis band: below {b['cutoff_hz']:.3g} Hz ({b['reason']}), sampled at "
+                f"{b['rate_hz']:.3g} Hz; the noise floor is read from the residual's spectrum in "
+                f"{b['reference_hz'][0]:.3g}-{b['reference_hz'][1]:.3g} Hz"
+            )
         for ch, f in pre.get("floor", {}).items():
-            L.append(f"- noise floor of {ch} in the band: {_fmt(f['in_band'])} (broadband spread "
-                     f"{_fmt(f['broadband_std'])})")
+            L.append(
+                f"- noise floor of {ch} in the band: {_fmt(f['in_band'])} (broadband spread {_fmt(f['broadband_std'])})"
+            )
         for name, why in pre.get("untestable", {}).items():
             L.append(f"- not testable on this log: {name}: {why}")
         L.append("")
-    L += ["## Verdict", "", f"**{v['label']}**: {v['text']}.",
-          f"Held-out residual, in noise-floor variances: {v['heldout_before']:.3g} before, "
-          f"{v['heldout_after']:.3g} after (a log with no gap reads {v.get('floor_level', 1.0):.3g}: 1 per column "
-          "at its noise floor, less where the floor is the channel's resolution).", ""]
+    L += [
+        "## Verdict",
+        "",
+        f"**{v['label']}**: {v['text']}.",
+        f"Held-out residual, in noise-floor variances: {v['heldout_before']:.3g} before, "
+        f"{v['heldout_after']:.3g} after (a log with no gap reads {v.get('floor_level', 1.0):.3g}: 1 per column "
+        "at its noise floor, less where the floor is the channel's resolution).",
+        "",
+    ]
     if v.get("structure"):
-        L += ["Structure left after the selection (what a generic function predicts of the rest on held-out "
-              "blocks, beyond a constant; a share of the excess or of what the selection leaves of at least its "
-              "threshold turns the verdict unexplained):", "",
-              "| in | gain [noise var.] | 95 % interval | share of the excess | share of what is left | left |",
-              "|---|---|---|---|---|---|"]
+        L += [
+            "Structure left after the selection (what a generic function predicts of the rest on held-out "
+            "blocks, beyond a constant; a share of the excess or of what the selection leaves of at least its "
+            "threshold turns the verdict unexplained):",
+            "",
+            "| in | gain [noise var.] | 95 % interval | share of the excess | share of what is left | left |",
+            "|---|---|---|---|---|---|",
+        ]
         for st in v["structure"]:
-            L.append(f"| {st['basis']} | {st['gain']:.3g} | {st['low']:.3g} .. {st['high']:.3g} | "
-                     f"{100 * st['share']:.1f} % | {100 * st['share_rest']:.1f} % | "
-                     f"{'yes' if st['left'] else 'no'} |")
+            L.append(
+                f"| {st['basis']} | {st['gain']:.3g} | {st['low']:.3g} .. {st['high']:.3g} | "
+                f"{100 * st['share']:.1f} % | {100 * st['share_rest']:.1f} % | "
+                f"{'yes' if st['left'] else 'no'} |"
+            )
         L.append("")
     w = s["where"]
-    L += ["## Where", "", "Residual RMS against the noise floor per channel and joint, the largest excess (in the "
-          "channel's unit, N m for torques) first:", "",
-          "| channel | column | RMS | noise floor | excess RMS | ratio | share of excess (noise var.) |",
-          "|---|---|---|---|---|---|---|"]
+    L += [
+        "## Where",
+        "",
+        "Residual RMS against the noise floor per channel and joint, the largest excess (in the "
+        "channel's unit, N m for torques) first:",
+        "",
+        "| channel | column | RMS | noise floor | excess RMS | ratio | share of excess (noise var.) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in w["channels"][:14]:
-        L.append(f"| {r['channel']} | {r['column']} | {r['rms']:.3g} | {r['floor']:.3g} | {r.get('excess_rms', 0.0):.3g} | "
-                 f"{r['ratio']:.3g} | {100 * r['excess_share']:.0f} % |")
-    L += ["", f"Carrying the excess: {', '.join(w['carry']) or 'nothing above 1.5 x the floor'}. "
-          f"Phase with the largest excess per sample: {w['dominant_phase']}.", "",
-          "Regions (mean squared ratio in the region over the overall one; > 1: the gap concentrates there):", "",
-          "| region | lift |", "|---|---|"]
+        L.append(
+            f"| {r['channel']} | {r['column']} | {r['rms']:.3g} | {r['floor']:.3g} | {r.get('excess_rms', 0.0):.3g} | "
+            f"{r['ratio']:.3g} | {100 * r['excess_share']:.0f} % |"
+        )
+    L += [
+        "",
+        f"Carrying the excess: {', '.join(w['carry']) or 'nothing above 1.5 x the floor'}. "
+        f"Phase with the largest excess per sample: {w['dominant_phase']}.",
+        "",
+        "Regions (mean squared ratio in the region over the overall one; > 1: the gap concentrates there):",
+        "",
+        "| region | lift |",
+        "|---|---|",
+    ]
     for name, lift in sorted(w["region_lift"].items(), key=lambda kv: -kv[1]):
         L.append(f"| {name} | {lift:.2f} |")
-    L += ["", "## Model audit", "", "| change to the nominal model | held-out after | closed | verdict |",
-          "|---|---|---|---|"]
+    L += [
+        "",
+        "## Model audit",
+        "",
+        "| change to the nominal model | held-out after | closed | verdict |",
+        "|---|---|---|---|",
+    ]
     for a in s["audit"]:
         L.append(f"| {a['change']} | {a['heldout_after']:.3g} | {100 * a['closed']:.0f} % | {a['verdict']} |")
-    L += ["", "## Which effect", "", "Each catalogue effect fitted alone on training blocks, scored on held-out "
-          "blocks (gain in noise variances, 95 % block-bootstrap interval):", "",
-          "| effect | setting | held-out | gain | interval | closes | significant |", "|---|---|---|---|---|---|---|"]
+    L += [
+        "",
+        "## Which effect",
+        "",
+        "Each catalogue effect fitted alone on training blocks, scored on held-out "
+        "blocks (gain in noise variances, 95 % block-bootstrap interval):",
+        "",
+        "| effect | setting | held-out | gain | interval | closes | significant |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in s["ranking"]:
         closes = "-" if r["closed"] is None else f"{100 * r['closed']:.0f} %"
-        L.append(f"| {r['effect']} | {_fmt(r['setting']) if r['setting'] else ''} | {r['heldout']:.3g} | "
-                 f"{r['gain']:.3g} | [{r['gain_low']:.3g}, {r['gain_high']:.3g}] | {closes} | "
-                 f"{'yes' if r['significant'] else 'no'} |")
+        L.append(
+            f"| {r['effect']} | {_fmt(r['setting']) if r['setting'] else ''} | {r['heldout']:.3g} | "
+            f"{r['gain']:.3g} | [{r['gain_low']:.3g}, {r['gain_high']:.3g}] | {closes} | "
+            f"{'yes' if r['significant'] else 'no'} |"
+        )
     L += ["", "Selection (forward, then backward elimination; ordered by what each adds to the final set):", ""]
     if not s["selected"]:
         L.append("No effect improves the held-out fit significantly.")
     for r in s["selected"]:
-        L.append(f"- **{r['effect']}** ({r['place']}: {r['meaning']}): gain {r['gain']:.3g} "
-                 f"[{r['gain_low']:.3g}, {r['gain_high']:.3g}]")
+        L.append(
+            f"- **{r['effect']}** ({r['place']}: {r['meaning']}): gain {r['gain']:.3g} "
+            f"[{r['gain_low']:.3g}, {r['gain_high']:.3g}]"
+        )
         for pname, p in r["params"].items():
             L.append(f"  - {pname} = {_fmt(p['value'])} {p['unit']} (95 %: {_fmt(p['low'])} .. {_fmt(p['high'])})")
         if r["bound_hits"]:
@@ -116,26 +171,54 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
         L += ["", "Identifiability:", ""] + [f"- {x}" for x in s["warnings"]]
     fr = s.get("friction")
     if fr:
-        L += ["", "Friction opposing motion (the model's joint damping plus " + ", ".join(fr["effects"]) +
-              ") [N m], 95 % intervals, per joint and speed:", "",
-              "| speed [rad/s] | " + " | ".join(f"J{j + 1}" for j in range(7)) + " |", "|---|" + "---|" * 7]
+        L += [
+            "",
+            "Friction opposing motion (the model's joint damping plus "
+            + ", ".join(fr["effects"])
+            + ") [N m], 95 % intervals, per joint and speed:",
+            "",
+            "| speed [rad/s] | " + " | ".join(f"J{j + 1}" for j in range(7)) + " |",
+            "|---|" + "---|" * 7,
+        ]
         for i, v_ in enumerate(fr["speeds"]):
-            L.append(f"| {v_:g} | " + " | ".join(f"{fr['value'][i][j]:.3g} ({fr['low'][i][j]:.3g}..{fr['high'][i][j]:.3g})"
-                                             for j in range(7)) + " |")
+            L.append(
+                f"| {v_:g} | "
+                + " | ".join(
+                    f"{fr['value'][i][j]:.3g} ({fr['low'][i][j]:.3g}..{fr['high'][i][j]:.3g})" for j in range(7)
+                )
+                + " |"
+            )
     hf = s["how_far"]
-    closed = ("no gap to close" if hf["closed_total"] is None
-              else f"{100 * hf['closed_total']:.0f} % of the gap (in RMS) closed toward the floor")
-    L += ["", "## How far", "", f"Overall, weighted: {hf['weighted_before']:.3g} -> {hf['weighted_after']:.3g} "
-          f"noise variances; {closed}.", "",
-          "| channel | column | before | after | floor | closed |", "|---|---|---|---|---|---|"]
+    closed = (
+        "no gap to close"
+        if hf["closed_total"] is None
+        else f"{100 * hf['closed_total']:.0f} % of the gap (in RMS) closed toward the floor"
+    )
+    L += [
+        "",
+        "## How far",
+        "",
+        f"Overall, weighted: {hf['weighted_before']:.3g} -> {hf['weighted_after']:.3g} noise variances; {closed}.",
+        "",
+        "| channel | column | before | after | floor | closed |",
+        "|---|---|---|---|---|---|",
+    ]
     o = hf["overall"]
     for ci, c in enumerate(s["channels"]):
         for j in range(7):
             cl = o["closed"][ci][j]
-            L.append(f"| {c} | {s['columns'][c][j]} | {o['before'][ci][j]:.3g} | {o['after'][ci][j]:.3g} | {o['floor'][ci][j]:.3g} | "
-                     f"{'-' if cl is None or cl != cl else f'{100 * cl:.0f} %'} |")
+            L.append(
+                f"| {c} | {s['columns'][c][j]} | {o['before'][ci][j]:.3g} | {o['after'][ci][j]:.3g} | {o['floor'][ci][j]:.3g} | "
+                f"{'-' if cl is None or cl != cl else f'{100 * cl:.0f} %'} |"
+            )
     if len(hf["phases"]) > 1:
-        L += ["", "Per phase (mean over joints of the RMS, first channel):", "", "| phase | before | after |", "|---|---|---|"]
+        L += [
+            "",
+            "Per phase (mean over joints of the RMS, first channel):",
+            "",
+            "| phase | before | after |",
+            "|---|---|---|",
+        ]
         for name, t in hf["phases"].items():
             L.append(f"| {name} | {np.mean(t['before'][0]):.3g} | {np.mean(t['after'][0]):.3g} |")
     for key in ("downstream",):
@@ -148,12 +231,14 @@ def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     import matplotlib.pyplot as plt
+
     plt.close(fig)
     return buf.getvalue()
 
 
 def _figures(d: Diagnosis) -> dict[str, bytes]:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -181,8 +266,14 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
 
     w = s["where"]
     labels = ["all"] + list(w["phases"]) + list(w["regions"])
-    mats = [np.array([[next(r["ratio"] for r in w["channels"] if r["channel"] == c and r["joint"] == j + 1)
-                       for j in range(7)] for c in d.channels])]
+    mats = [
+        np.array(
+            [
+                [next(r["ratio"] for r in w["channels"] if r["channel"] == c and r["joint"] == j + 1) for j in range(7)]
+                for c in d.channels
+            ]
+        )
+    ]
     mats += [np.asarray(w["phases"][p]["ratio"]) for p in w["phases"]]
     mats += [np.asarray(w["regions"][r]["ratio"]) for r in w["regions"]]
     grid = np.concatenate(mats, axis=0)
@@ -201,8 +292,12 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     gains = np.array([r["gain"] for r in s["ranking"]][::-1])
     lo = np.array([r["gain_low"] for r in s["ranking"]][::-1])
     hi = np.array([r["gain_high"] for r in s["ranking"]][::-1])
-    ax.barh(names, gains, xerr=[np.maximum(gains - lo, 0), np.maximum(hi - gains, 0)],
-            color=["C2" if r else "C7" for r in [x["significant"] for x in s["ranking"]][::-1]])
+    ax.barh(
+        names,
+        gains,
+        xerr=[np.maximum(gains - lo, 0), np.maximum(hi - gains, 0)],
+        color=["C2" if r else "C7" for r in [x["significant"] for x in s["ranking"]][::-1]],
+    )
     ax.set_xlabel("held-out gain [noise variances] (95 % interval)")
     ax.set_title("which effect: each alone")
     out["ranking.png"] = _png(fig)
@@ -226,8 +321,9 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     return out
 
 
-def write_report(d: Diagnosis, out: str | Path, title: str = "Sim-to-real gap diagnosis",
-                 extra: dict[str, Any] | None = None) -> list[Path]:
+def write_report(
+    d: Diagnosis, out: str | Path, title: str = "Sim-to-real gap diagnosis", extra: dict[str, Any] | None = None
+) -> list[Path]:
     """Write report.md, report.json and the figures into folder `out` (checked first); `extra`
     is merged into report.json. Returns the paths written."""
     folder = check_output_dir(out, "diagnosis output folder")
@@ -235,6 +331,7 @@ def write_report(d: Diagnosis, out: str | Path, title: str = "Sim-to-real gap di
     if extra:
         summary.update(extra)
     import json
+
     files: dict[str, bytes] = {
         "report.json": (json.dumps(to_strict_json(summary), indent=1, allow_nan=False) + "\n").encode(),
         "report.md": render_markdown(d, title).encode(),

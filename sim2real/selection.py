@@ -15,9 +15,26 @@ from sim2real.config import DiagnosisConfig
 from sim2real.effects import Candidate
 from sim2real.fitting import Design, Model, bootstrap_mean
 
-__all__ = ["Scored", "Selection", "block_folds", "best_setting", "score", "rank_effects", "select", "greedy", "exchange",
-           "order_by_contribution",
-           "params_with_intervals", "selected_effects", "simplest_within_error", "complexity", "overlap", "identifiability_warnings", "heldout_prediction", "REFINE_STEPS"]
+__all__ = [
+    "Scored",
+    "Selection",
+    "block_folds",
+    "best_setting",
+    "score",
+    "rank_effects",
+    "select",
+    "greedy",
+    "exchange",
+    "order_by_contribution",
+    "params_with_intervals",
+    "selected_effects",
+    "simplest_within_error",
+    "complexity",
+    "overlap",
+    "identifiability_warnings",
+    "heldout_prediction",
+    "REFINE_STEPS",
+]
 
 Array = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -79,8 +96,9 @@ def score(design: Design, cands: list[Candidate], folds) -> Scored:
     return Scored(cands, sse, thetas)
 
 
-def params_with_intervals(design: Design, cands: list[Candidate], n: int, rng: np.random.Generator
-                           ) -> list[dict[str, Any]]:
+def params_with_intervals(
+    design: Design, cands: list[Candidate], n: int, rng: np.random.Generator
+) -> list[dict[str, Any]]:
     """Each candidate's fitted catalogue parameters (all blocks) with block-bootstrap 95 %
     intervals and bound hits."""
     model = Model(design, cands)
@@ -97,7 +115,7 @@ def params_with_intervals(design: Design, cands: list[Candidate], n: int, rng: n
     for i, (cand, coef) in enumerate(free_all):
         values = cand.to_params(coef)
         samples = [cand.to_params(model.free_params(b)[i][1]) for b in boots]
-        b = bounds[k:k + len(coef)]
+        b = bounds[k : k + len(coef)]
         hits = [cand.names[m] for m in range(len(coef)) if np.isclose(coef[m], b[m, 0]) or np.isclose(coef[m], b[m, 1])]
         k += len(coef)
         params = {}
@@ -155,9 +173,16 @@ class Selection:
     best_single: dict[str, Candidate]
 
 
-def rank_effects(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored, excess0: float,
-                 c: DiagnosisConfig, rng: np.random.Generator, say: Progress
-                 ) -> tuple[list[dict[str, Any]], dict[str, Candidate]]:
+def rank_effects(
+    design: Design,
+    pool: dict[str, list[Candidate]],
+    folds,
+    base: Scored,
+    excess0: float,
+    c: DiagnosisConfig,
+    rng: np.random.Generator,
+    say: Progress,
+) -> tuple[list[dict[str, Any]], dict[str, Candidate]]:
     """Each effect of the pool alone at its best setting: held-out residual, gain over the nominal
     with its 95 % Bayesian block-bootstrap interval, closed share and significance; sorted by gain.
     Returns (ranking, the best single candidate per effect)."""
@@ -173,17 +198,33 @@ def rank_effects(design: Design, pool: dict[str, list[Candidate]], folds, base: 
         e = s.sse.sum() / n_rows.sum()
         diff = (base.sse - s.sse) / np.maximum(n_rows, 1)
         lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
-        ranking.append({"effect": name, "setting": cand.setting, "heldout": float(e),
-                        "gain": float(e0 - e), "gain_low": lo, "gain_high": hi,
-                        "closed": float((e0 - e) / excess0) if excess0 >= 0.05 else None,
-                        "significant": bool(lo > 0)})
+        ranking.append(
+            {
+                "effect": name,
+                "setting": cand.setting,
+                "heldout": float(e),
+                "gain": float(e0 - e),
+                "gain_low": lo,
+                "gain_high": hi,
+                "closed": float((e0 - e) / excess0) if excess0 >= 0.05 else None,
+                "significant": bool(lo > 0),
+            }
+        )
     say("effects", len(pool), len(pool))
     ranking.sort(key=lambda r: -r["gain"])
     return ranking, best_single
 
 
-def greedy(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored, best_single: dict[str, Candidate],
-           excess0: float, c: DiagnosisConfig, rng: np.random.Generator) -> Selection:
+def greedy(
+    design: Design,
+    pool: dict[str, list[Candidate]],
+    folds,
+    base: Scored,
+    best_single: dict[str, Candidate],
+    excess0: float,
+    c: DiagnosisConfig,
+    rng: np.random.Generator,
+) -> Selection:
     """Forward selection (add the effect that lowers the held-out residual most with those chosen,
     while its added gain is significant and at least max(min_gain x excess, min_gain_abs)), then
     backward elimination (drop one whose removal costs less), the rest ordered by what each adds."""
@@ -207,14 +248,23 @@ def greedy(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored
         if lo <= 0 or gain < max(c.min_gain * excess0, c.min_gain_abs):
             break
         chosen.append(cand)
-        steps.append({"effect": cand.name, "setting": cand.setting, "gain": gain, "gain_low": lo, "gain_high": hi,
-                      "heldout_after": float(s.sse.sum() / n_rows.sum())})
+        steps.append(
+            {
+                "effect": cand.name,
+                "setting": cand.setting,
+                "gain": gain,
+                "gain_low": lo,
+                "gain_high": hi,
+                "heldout_after": float(s.sse.sum() / n_rows.sum()),
+            }
+        )
         current = s
+
     # backward elimination: drop a selected effect the others make redundant (greedy forward steps
     # can take a flexible effect first that the right ones later explain away); then order the
     # effects by what each adds to the final set (its held-out loss when removed)
     def marginal(k: int) -> tuple[float, float, float, Scored]:
-        rest = score(design, chosen[:k] + chosen[k + 1:], folds)
+        rest = score(design, chosen[:k] + chosen[k + 1 :], folds)
         diff = (rest.sse - current.sse) / np.maximum(n_rows, 1)
         lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
         return float((rest.sse.sum() - current.sse.sum()) / n_rows.sum()), lo, hi, rest
@@ -233,8 +283,16 @@ def greedy(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored
     return Selection(chosen, steps, current, best_single)
 
 
-def select(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored, best_single: dict[str, Candidate],
-           excess0: float, c: DiagnosisConfig, rng: np.random.Generator) -> Selection:
+def select(
+    design: Design,
+    pool: dict[str, list[Candidate]],
+    folds,
+    base: Scored,
+    best_single: dict[str, Candidate],
+    excess0: float,
+    c: DiagnosisConfig,
+    rng: np.random.Generator,
+) -> Selection:
     """Forward selection, backward elimination and exchange (see `greedy` and `exchange`), the
     final set ordered by what each effect adds to it, with the gain's interval."""
     first = greedy(design, pool, folds, base, best_single, excess0, c, rng)
@@ -246,22 +304,36 @@ def select(design: Design, pool: dict[str, list[Candidate]], folds, base: Scored
     return order_by_contribution(design, folds, chosen, current, best_single, c, rng)
 
 
-def order_by_contribution(design: Design, folds, chosen: list[Candidate], current: Scored,
-                          best_single: dict[str, Candidate], c: DiagnosisConfig, rng: np.random.Generator
-                          ) -> Selection:
+def order_by_contribution(
+    design: Design,
+    folds,
+    chosen: list[Candidate],
+    current: Scored,
+    best_single: dict[str, Candidate],
+    c: DiagnosisConfig,
+    rng: np.random.Generator,
+) -> Selection:
     """The set ordered by what each effect adds to it (its held-out loss when removed), with the
     loss's 95 % block-bootstrap interval."""
     n_rows = design.count
     margins = []
     for k in range(len(chosen)):
-        rest = score(design, chosen[:k] + chosen[k + 1:], folds)
+        rest = score(design, chosen[:k] + chosen[k + 1 :], folds)
         diff = (rest.sse - current.sse) / np.maximum(n_rows, 1)
         lo, hi = bootstrap_mean(diff, c.bootstrap, rng)
         margins.append((float((rest.sse.sum() - current.sse.sum()) / n_rows.sum()), lo, hi))
     order = np.argsort([-m[0] for m in margins])
-    steps = [{"effect": chosen[k].name, "setting": chosen[k].setting, "gain": margins[k][0],
-              "gain_low": margins[k][1], "gain_high": margins[k][2],
-              "heldout_after": float(current.sse.sum() / n_rows.sum())} for k in order]
+    steps = [
+        {
+            "effect": chosen[k].name,
+            "setting": chosen[k].setting,
+            "gain": margins[k][0],
+            "gain_low": margins[k][1],
+            "gain_high": margins[k][2],
+            "heldout_after": float(current.sse.sum() / n_rows.sum()),
+        }
+        for k in order
+    ]
     return Selection([chosen[k] for k in order], steps, current, best_single)
 
 
@@ -286,8 +358,9 @@ def simplest_within_error(trials: list[tuple[list[Candidate], Scored]]) -> tuple
     return cands, s
 
 
-def exchange(design: Design, pool: dict[str, list[Candidate]], folds, chosen: list[Candidate], current: Scored,
-             rounds: int = 3) -> tuple[list[Candidate], Scored]:
+def exchange(
+    design: Design, pool: dict[str, list[Candidate]], folds, chosen: list[Candidate], current: Scored, rounds: int = 3
+) -> tuple[list[Candidate], Scored]:
     """Exchange steps after the greedy selection: each selected effect replaced by each other
     effect of the pool (its setting chosen with the rest), the set kept by `simplest_within_error`
     among the current one and its exchanges; until nothing changes. A flexible effect taken first
@@ -296,7 +369,7 @@ def exchange(design: Design, pool: dict[str, list[Candidate]], folds, chosen: li
     for _ in range(rounds):
         trials = [(chosen, current)]
         for k in range(len(chosen)):
-            rest = chosen[:k] + chosen[k + 1:]
+            rest = chosen[:k] + chosen[k + 1 :]
             for name, options in pool.items():
                 if any(x.name == name for x in chosen):
                     continue
@@ -309,16 +382,18 @@ def exchange(design: Design, pool: dict[str, list[Candidate]], folds, chosen: li
     return chosen, current
 
 
-def selected_effects(design: Design, selection: Selection, c: DiagnosisConfig, rng: np.random.Generator
-                     ) -> list[dict[str, Any]]:
+def selected_effects(
+    design: Design, selection: Selection, c: DiagnosisConfig, rng: np.random.Generator
+) -> list[dict[str, Any]]:
     """The selected effects as the report lists them: step, fitted parameters with intervals (and
     the bootstrap samples under "_samples"), meaning and place."""
     selected = []
     if selection.chosen:
         fitted = params_with_intervals(design, selection.chosen, min(c.bootstrap, 200), rng)
         for step, fit in zip(selection.steps, fitted):
-            selected.append({**step, **fit, "meaning": CATALOGUE[step["effect"]].meaning,
-                             "place": CATALOGUE[step["effect"]].place})
+            selected.append(
+                {**step, **fit, "meaning": CATALOGUE[step["effect"]].meaning, "place": CATALOGUE[step["effect"]].place}
+            )
     return selected
 
 
@@ -333,8 +408,10 @@ def identifiability_warnings(design: Design, ranking: list[dict[str, Any]], sele
         for x in chosen:
             ov = overlap(design, x, selection.best_single[r["effect"]])
             if ov > 0.5:
-                warnings.append(f"{r['effect']} alone closes {100 * (r['closed'] or 0.0):.0f} % of the excess, but "
-                                f"{x.name} reproduces {100 * ov:.0f} % of its fit: the log cannot tell them "
-                                "apart well (the selection kept " + x.name + ")")
+                warnings.append(
+                    f"{r['effect']} alone closes {100 * (r['closed'] or 0.0):.0f} % of the excess, but "
+                    f"{x.name} reproduces {100 * ov:.0f} % of its fit: the log cannot tell them "
+                    "apart well (the selection kept " + x.name + ")"
+                )
                 break
     return warnings

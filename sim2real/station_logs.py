@@ -44,10 +44,23 @@ from sim2real.catalogue import CATALOGUE
 from sim2real.log import PHASES, UNITS, RobotLog
 
 __all__ = [
-    "STATION_EFFECTS", "NOMINAL_HOLD", "CONTACT_FORCE_MIN", "APPROACH_HEIGHT", "APPROACH_RADIUS",
-    "INSERTION_DEPTH", "CONTACT_CASE", "GRASP_CASE",
-    "check_station_effects", "station_physics", "make_insertion_env", "make_insertion_log",
-    "replay_insertion", "skill_success", "segment_phases", "phase_residuals", "with_sensor_noise",
+    "STATION_EFFECTS",
+    "NOMINAL_HOLD",
+    "CONTACT_FORCE_MIN",
+    "APPROACH_HEIGHT",
+    "APPROACH_RADIUS",
+    "INSERTION_DEPTH",
+    "CONTACT_CASE",
+    "GRASP_CASE",
+    "check_station_effects",
+    "station_physics",
+    "make_insertion_env",
+    "make_insertion_log",
+    "replay_insertion",
+    "skill_success",
+    "segment_phases",
+    "phase_residuals",
+    "with_sensor_noise",
 ]
 
 #: The catalogue effects the station implements.
@@ -75,6 +88,7 @@ _ARM_JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
 
 # -- effects -> physics ---------------------------------------------------------------------
 
+
 def check_station_effects(effects: Mapping[str, Any] | None) -> dict[str, dict[str, float]]:
     """The effects as {name: {param: value}} with every parameter present, checked.
 
@@ -88,8 +102,10 @@ def check_station_effects(effects: Mapping[str, Any] | None) -> dict[str, dict[s
     out: dict[str, dict[str, float]] = {}
     for name, given in effects.items():
         if name not in STATION_EFFECTS:
-            raise InputError(f"effect {name!r} is not a station effect; expected one of "
-                             f"{list(STATION_EFFECTS)} (arm effects: sim2real.reality)")
+            raise InputError(
+                f"effect {name!r} is not a station effect; expected one of "
+                f"{list(STATION_EFFECTS)} (arm effects: sim2real.reality)"
+            )
         eff = CATALOGUE[name]
         values = {eff.params[0].name: given} if not isinstance(given, Mapping) else dict(given)
         for pname in values:
@@ -97,10 +113,15 @@ def check_station_effects(effects: Mapping[str, Any] | None) -> dict[str, dict[s
         out[name] = {}
         for par in eff.params:
             v = values.get(par.name, par.none)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (
-                    v == par.none or par.low <= v <= par.high):
-                raise InputError(f"effects[{name!r}][{par.name!r}] = {v!r}; expected {par.none:g} (no "
-                                 f"effect) or a number in [{par.low:g}, {par.high:g}] {par.unit}")
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float, np.integer, np.floating))
+                or not (v == par.none or par.low <= v <= par.high)
+            ):
+                raise InputError(
+                    f"effects[{name!r}][{par.name!r}] = {v!r}; expected {par.none:g} (no "
+                    f"effect) or a number in [{par.low:g}, {par.high:g}] {par.unit}"
+                )
             out[name][par.name] = float(v)
     return out
 
@@ -117,13 +138,19 @@ def station_physics(effects: Mapping[str, Any] | None) -> dict[str, ContactOverr
     if mu != 0.0 or scale != 1.0 or d != 0.0:
         contact = ContactOverrides(mu=mu or None, modulus_scale=scale, dissipation=d or None)
     s = e.get("grasp_slip", {}).get("mu_scale", 1.0)
-    hold = None if s == 1.0 else dataclasses.replace(
-        NOMINAL_HOLD, force_limit=s * NOMINAL_HOLD.force_limit, torque_limit=s * NOMINAL_HOLD.torque_limit)
+    hold = (
+        None
+        if s == 1.0
+        else dataclasses.replace(
+            NOMINAL_HOLD, force_limit=s * NOMINAL_HOLD.force_limit, torque_limit=s * NOMINAL_HOLD.torque_limit
+        )
+    )
     return {"contact": contact, "grasp_hold": hold}
 
 
 def _load(skill: Any, gear: str):
     from learning.skill_file import load_skill, Skill
+
     if skill is None:
         return load_skill("insert", gear)
     if isinstance(skill, Skill):
@@ -133,8 +160,13 @@ def _load(skill: Any, gear: str):
     raise InputError(f"skill = {skill!r}; expected None (the shipped skill), a Skill or a skill file path")
 
 
-def make_insertion_env(effects: Mapping[str, Any] | None = None, gear: str = "medium", skill: Any = None,
-                       variant: str = "panda", xi: str | tuple[float, float, float] = "flow") -> gymnasium.Env:
+def make_insertion_env(
+    effects: Mapping[str, Any] | None = None,
+    gear: str = "medium",
+    skill: Any = None,
+    variant: str = "panda",
+    xi: str | tuple[float, float, float] = "flow",
+) -> gymnasium.Env:
     """The skill's GearInsertion env in `variant` with `effects` in its physics, drawing xi from the
     skill's flow (`xi="flow"`) or uniformly over the box (`"uniform"`), as Skill.make_env does, or
     holding every episode at one grasp error (`xi` = (x [m], y [m], yaw [rad]) in the box).
@@ -147,22 +179,31 @@ def make_insertion_env(effects: Mapping[str, Any] | None = None, gear: str = "me
     if sk.gear != gear:
         raise InputError(f"skill {sk.name}-{sk.gear} is for the {sk.gear} gear; expected gear = {gear!r}")
     env = _env(effects, gear, variant, sk.env_id, sk.env_kwargs)
-    env.unwrapped.sampler = (sk.sampler if xi == "flow" else FullDR(sk.space)) if isinstance(xi, str) \
-        else NoDR(sk.space, point=tuple(xi))
+    env.unwrapped.sampler = (
+        (sk.sampler if xi == "flow" else FullDR(sk.space)) if isinstance(xi, str) else NoDR(sk.space, point=tuple(xi))
+    )
     return env
 
 
-def _env(effects: Mapping[str, Any] | None, gear: str, variant: str,
-         env_id: str = "goflow/GearInsertion-v0", env_kwargs: Mapping[str, Any] | None = None) -> gymnasium.Env:
+def _env(
+    effects: Mapping[str, Any] | None,
+    gear: str,
+    variant: str,
+    env_id: str = "goflow/GearInsertion-v0",
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> gymnasium.Env:
     check_choice(variant, ("fast", "panda"), "variant")
     physics = {k: v for k, v in station_physics(effects).items() if v is not None}
     if variant != "panda" and physics:
-        raise InputError(f"variant = {variant!r} with effects {sorted(check_station_effects(effects))}; "
-                         "expected variant 'panda' (only the station models contact and grasp effects)")
+        raise InputError(
+            f"variant = {variant!r} with effects {sorted(check_station_effects(effects))}; "
+            "expected variant 'panda' (only the station models contact and grasp effects)"
+        )
     return gymnasium.make(env_id, **{**dict(env_kwargs or {}), "gear": gear, "variant": variant, **physics})
 
 
 # -- logging --------------------------------------------------------------------------------
+
 
 class _Recorder:
     """Samples the station before each physics step (the step's target already held)."""
@@ -180,8 +221,21 @@ class _Recorder:
         self._target = st.diagram.GetInputPort("X_WT_desired")
         self._inspector = st.scene_graph.model_inspector()
         self._body_of: dict[Any, Any] = {}  # geometry id -> body index, filled lazily
-        self.rows: dict[str, list] = {k: [] for k in ("time", "q", "dq", "tau", "tool_pose", "tool_target",
-                                                      "wrench", "gripper_width", "lateral", "height")}
+        self.rows: dict[str, list] = {
+            k: []
+            for k in (
+                "time",
+                "q",
+                "dq",
+                "tau",
+                "tool_pose",
+                "tool_target",
+                "wrench",
+                "gripper_width",
+                "lateral",
+                "height",
+            )
+        }
 
     def _body(self, gid) -> Any:
         if gid not in self._body_of:
@@ -231,13 +285,24 @@ class _Recorder:
     def log(self, meta: dict[str, Any]) -> RobotLog:
         a = {k: np.asarray(v, dtype=np.float64) for k, v in self.rows.items()}
         phase = segment_phases(a["lateral"], a["height"], np.linalg.norm(a["wrench"][:, :3], axis=1))
-        return RobotLog(time=a["time"], q=a["q"], dq=a["dq"], tau=a["tau"], tau_cmd=a["tau"].copy(),
-                        tool_pose=a["tool_pose"], tool_target=a["tool_target"], wrench=a["wrench"],
-                        gripper_width=a["gripper_width"], phase=phase, meta=meta)
+        return RobotLog(
+            time=a["time"],
+            q=a["q"],
+            dq=a["dq"],
+            tau=a["tau"],
+            tau_cmd=a["tau"].copy(),
+            tool_pose=a["tool_pose"],
+            tool_target=a["tool_target"],
+            wrench=a["wrench"],
+            gripper_width=a["gripper_width"],
+            phase=phase,
+            meta=meta,
+        )
 
 
-def segment_phases(lateral: NDArray[np.float64], height: NDArray[np.float64],
-                   force: NDArray[np.float64]) -> NDArray[np.int64]:
+def segment_phases(
+    lateral: NDArray[np.float64], height: NDArray[np.float64], force: NDArray[np.float64]
+) -> NDArray[np.int64]:
     """Phase labels (indices into PHASES) from the gear's geometry, sample by sample:
 
     - insertion: the shaft is in the bore past both chamfers (the gear's bottom more than
@@ -260,33 +325,58 @@ def segment_phases(lateral: NDArray[np.float64], height: NDArray[np.float64],
     return np.maximum.accumulate(raw) if len(raw) else raw
 
 
-def _meta(gear: str, xi: NDArray[np.float64], seed: int | None, skill_name: str, effects: dict, env,
-          source: str, **extra: Any) -> dict[str, Any]:
+def _meta(
+    gear: str, xi: NDArray[np.float64], seed: int | None, skill_name: str, effects: dict, env, source: str, **extra: Any
+) -> dict[str, Any]:
     c = env.unwrapped.config
     st = env.unwrapped.sim.station
     gains = st.config.gains
     return {
-        "robot": "panda", "joint_names": list(_ARM_JOINTS), "end_effector": f"hand+gear_{gear}",
+        "robot": "panda",
+        "joint_names": list(_ARM_JOINTS),
+        "end_effector": f"hand+gear_{gear}",
         "torque_side": "motor",
-        "units": {k: UNITS[k] for k in ("time", "q", "dq", "tau", "tau_cmd", "tool_pose", "tool_target",
-                                        "wrench", "gripper_width")},
-        "frames": {"base": "W: the Panda's base on the table top, z up",
-                   "tool": "panda_hand_tcp (between the finger pads, z along the approach)",
-                   "wrench": "contact force on the held gear from the plate and shafts, world axes; "
-                             "torque about the tool origin"},
-        "controller": {"law": "cartesian_impedance", "stiffness": gains.stiffness.tolist(),
-                       "damping": gains.damping.tolist(), "control_dt": c.control_dt,
-                       "time_step": c.panda_time_step},
-        "source": source, "license": "generated (goflow sim2real.station_logs)",
-        "task": {"gear": gear, "xi": [float(v) for v in xi], "seed": seed, "skill": skill_name,
-                 "variant": c.variant, "control_dt": c.control_dt, "t_max": c.t_max},
-        "truth": effects, **extra,
+        "units": {
+            k: UNITS[k]
+            for k in ("time", "q", "dq", "tau", "tau_cmd", "tool_pose", "tool_target", "wrench", "gripper_width")
+        },
+        "frames": {
+            "base": "W: the Panda's base on the table top, z up",
+            "tool": "panda_hand_tcp (between the finger pads, z along the approach)",
+            "wrench": "contact force on the held gear from the plate and shafts, world axes; "
+            "torque about the tool origin",
+        },
+        "controller": {
+            "law": "cartesian_impedance",
+            "stiffness": gains.stiffness.tolist(),
+            "damping": gains.damping.tolist(),
+            "control_dt": c.control_dt,
+            "time_step": c.panda_time_step,
+        },
+        "source": source,
+        "license": "generated (goflow sim2real.station_logs)",
+        "task": {
+            "gear": gear,
+            "xi": [float(v) for v in xi],
+            "seed": seed,
+            "skill": skill_name,
+            "variant": c.variant,
+            "control_dt": c.control_dt,
+            "t_max": c.t_max,
+        },
+        "truth": effects,
+        **extra,
     }
 
 
-def make_insertion_log(effects: Mapping[str, Any] | None, gear: str = "medium",
-                       xi: tuple[float, float, float] | None = None, seed: int = 0, skill: Any = None,
-                       variant: str = "panda") -> tuple[RobotLog, bool]:
+def make_insertion_log(
+    effects: Mapping[str, Any] | None,
+    gear: str = "medium",
+    xi: tuple[float, float, float] | None = None,
+    seed: int = 0,
+    skill: Any = None,
+    variant: str = "panda",
+) -> tuple[RobotLog, bool]:
     """One episode of the insertion skill's deterministic policy with `effects` in the physics,
     logged before every physics step (8 ms) and once at the end: (log, success).
 
@@ -331,14 +421,23 @@ def make_insertion_log(effects: Mapping[str, Any] | None, gear: str = "medium",
     extra = {"success": success, "episode_return": float(info.get("episode_return", ret))}
     if "sim_error" in info:
         extra["sim_error"] = str(info["sim_error"])
-    meta = _meta(gear, xi_used, int(seed), f"{sk.name}-{sk.gear}", truth, env,
-                 "simulated reality: the panda station with withheld effects", **extra)
+    meta = _meta(
+        gear,
+        xi_used,
+        int(seed),
+        f"{sk.name}-{sk.gear}",
+        truth,
+        env,
+        "simulated reality: the panda station with withheld effects",
+        **extra,
+    )
     env.close()
     return rec.log(meta), success
 
 
-def with_sensor_noise(log: RobotLog, seed: int = 0, tau: float = 0.05, position: float = 2e-5,
-                      force: float = 0.2) -> RobotLog:
+def with_sensor_noise(
+    log: RobotLog, seed: int = 0, tau: float = 0.05, position: float = 2e-5, force: float = 0.2
+) -> RobotLog:
     """`log` as sensors would record it: white Gaussian noise on the joint torques [N m], the tool
     position [m] and the contact force [N] (the arm reality's torque noise; our choice for the
     others). The simulation itself is noise-free, so a "real" insertion log gets this."""
@@ -347,8 +446,9 @@ def with_sensor_noise(log: RobotLog, seed: int = 0, tau: float = 0.05, position:
     pose[:, :3, 3] += position * rng.standard_normal((log.n_samples, 3))
     wrench = log.wrench.copy()
     wrench[:, :3] += force * rng.standard_normal((log.n_samples, 3))
-    return dataclasses.replace(log, tau=log.tau + tau * rng.standard_normal(log.tau.shape), tool_pose=pose,
-                               wrench=wrench)
+    return dataclasses.replace(
+        log, tau=log.tau + tau * rng.standard_normal(log.tau.shape), tool_pose=pose, wrench=wrench
+    )
 
 
 def replay_insertion(log: RobotLog, effects: Mapping[str, Any] | None) -> RobotLog:
@@ -364,8 +464,7 @@ def replay_insertion(log: RobotLog, effects: Mapping[str, Any] | None) -> RobotL
     truth = check_station_effects(effects)
     task = log.meta.get("task") if isinstance(log.meta, Mapping) else None
     if not isinstance(task, Mapping) or "gear" not in task or "xi" not in task:
-        raise InputError("log.meta['task'] must hold 'gear' and 'xi' (the grasp error) to replay it; "
-                         f"it is {task!r}")
+        raise InputError(f"log.meta['task'] must hold 'gear' and 'xi' (the grasp error) to replay it; it is {task!r}")
     if log.tool_target is None or log.n_samples < 2:
         raise InputError("replay_insertion needs a log with tool_target and at least 2 samples")
     gear = task["gear"]
@@ -402,9 +501,16 @@ def replay_insertion(log: RobotLog, effects: Mapping[str, Any] | None) -> RobotL
     return rec.log(meta)
 
 
-def skill_success(effects: Mapping[str, Any] | None, gear: str = "medium", episodes: int = 10, seed: int = 0,
-                  variant: str = "panda", skill: Any = None, xi: str | tuple[float, float, float] = "flow",
-                  num_envs: int = 1) -> float:
+def skill_success(
+    effects: Mapping[str, Any] | None,
+    gear: str = "medium",
+    episodes: int = 10,
+    seed: int = 0,
+    variant: str = "panda",
+    skill: Any = None,
+    xi: str | tuple[float, float, float] = "flow",
+    num_envs: int = 1,
+) -> float:
     """The success rate of the skill's deterministic policy over `episodes` episodes with `effects`
     in the physics, xi drawn as learning.skill_evaluation.evaluate_skill draws it (the skill's flow or the
     uniform box, reset seed `seed`), or held at one grasp error (`make_insertion_env`): the same
@@ -415,9 +521,10 @@ def skill_success(effects: Mapping[str, Any] | None, gear: str = "medium", episo
     n = max(1, min(check_int(num_envs, "num_envs", 1), episodes))
     sk = _load(skill, gear)
     make_insertion_env(effects, gear, sk, variant, xi).close()  # checks before building n envs
-    vec = gymnasium.vector.SyncVectorEnv([lambda: make_insertion_env(effects, gear, sk, variant, xi)
-                                          for _ in range(n)],
-                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    vec = gymnasium.vector.SyncVectorEnv(
+        [lambda: make_insertion_env(effects, gear, sk, variant, xi) for _ in range(n)],
+        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP,
+    )
     try:
         _, _, successes = sk.agent.evaluate(vec, episodes, deterministic=True, seed=int(seed))
     finally:
@@ -427,13 +534,16 @@ def skill_success(effects: Mapping[str, Any] | None, gear: str = "medium", episo
 
 # -- measurement ------------------------------------------------------------------------------
 
+
 def phase_residuals(log: RobotLog, sim: RobotLog) -> dict[str, dict[str, float]]:
     """Per phase of `log` (its labels), the RMS of sim - log: tool height "z" [m], tool position
     "p" [m] (3-D norm), joint torques "tau" [N m] (over joints) and contact force "force" [N]
     (3-D norm), and the phase's sample count "n". The two logs must share the time base."""
     if sim.n_samples != log.n_samples or not np.allclose(sim.time, log.time):
-        raise InputError(f"sim has {sim.n_samples} samples on another time base than the log's "
-                         f"{log.n_samples}; expected replay_insertion(log, ...)")
+        raise InputError(
+            f"sim has {sim.n_samples} samples on another time base than the log's "
+            f"{log.n_samples}; expected replay_insertion(log, ...)"
+        )
     if log.phase is None:
         raise InputError("log.phase is None; expected a labelled log")
     dp = sim.tool_pose[:, :3, 3] - log.tool_pose[:, :3, 3]
@@ -442,10 +552,13 @@ def phase_residuals(log: RobotLog, sim: RobotLog) -> dict[str, dict[str, float]]
     for k, name in enumerate(PHASES):
         m = log.phase == k
         if m.any():
-            out[name] = {"n": int(m.sum()), "z": float(np.sqrt(np.mean(dp[m, 2] ** 2))),
-                         "p": float(np.sqrt(np.mean(np.sum(dp[m] ** 2, axis=1)))),
-                         "tau": float(np.sqrt(np.mean((sim.tau[m] - log.tau[m]) ** 2))),
-                         "force": float(np.sqrt(np.mean(np.sum(df[m] ** 2, axis=1))))}
+            out[name] = {
+                "n": int(m.sum()),
+                "z": float(np.sqrt(np.mean(dp[m, 2] ** 2))),
+                "p": float(np.sqrt(np.mean(np.sum(dp[m] ** 2, axis=1)))),
+                "tau": float(np.sqrt(np.mean((sim.tau[m] - log.tau[m]) ** 2))),
+                "force": float(np.sqrt(np.mean(np.sum(df[m] ** 2, axis=1)))),
+            }
     return out
 
 
@@ -459,8 +572,12 @@ def _main(argv: list[str] | None = None) -> None:
     from sim2real.catalogue import parse_effect_values
 
     parser = argparse.ArgumentParser(prog="python -m sim2real.station_logs", description=_main.__doc__)
-    parser.add_argument("--effect", action="append", default=None,
-                        help="NAME=VALUE, one case each (default: CONTACT_CASE and GRASP_CASE)")
+    parser.add_argument(
+        "--effect",
+        action="append",
+        default=None,
+        help="NAME=VALUE, one case each (default: CONTACT_CASE and GRASP_CASE)",
+    )
     parser.add_argument("--gear", default="medium")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per success rate (0: none)")
     parser.add_argument("--seed", type=int, default=0, help="the logged episode's xi draw; the rates' seed")
@@ -473,8 +590,10 @@ def _main(argv: list[str] | None = None) -> None:
         t0 = time.perf_counter()
         out["nominal_success"] = skill_success({}, args.gear, args.episodes, args.seed, skill=sk)
         out["seconds_per_episode"] = (time.perf_counter() - t0) / args.episodes
-        print(f"nominal success {out['nominal_success']:.2f} ({args.episodes} episodes, "
-              f"{out['seconds_per_episode']:.2f} s/episode)")
+        print(
+            f"nominal success {out['nominal_success']:.2f} ({args.episodes} episodes, "
+            f"{out['seconds_per_episode']:.2f} s/episode)"
+        )
     for effects in cases:
         t0 = time.perf_counter()
         log, ok = make_insertion_log(effects, args.gear, seed=args.seed, skill=sk)
@@ -483,21 +602,33 @@ def _main(argv: list[str] | None = None) -> None:
         same = replay_insertion(log, effects)
         t_replay = time.perf_counter() - t0
         nominal = replay_insertion(log, {})
-        case = {"effects": effects, "log_success": ok, "log_seconds": t_log, "replay_seconds": t_replay,
-                "samples": log.n_samples, "vs_nominal_replay": phase_residuals(log, nominal),
-                "vs_true_replay": phase_residuals(log, same)}
-        print(f"\n{json.dumps(effects)}: logged episode success {ok} ({log.n_samples} samples, log "
-              f"{t_log:.2f} s, replay {t_replay:.2f} s)")
+        case = {
+            "effects": effects,
+            "log_success": ok,
+            "log_seconds": t_log,
+            "replay_seconds": t_replay,
+            "samples": log.n_samples,
+            "vs_nominal_replay": phase_residuals(log, nominal),
+            "vs_true_replay": phase_residuals(log, same),
+        }
+        print(
+            f"\n{json.dumps(effects)}: logged episode success {ok} ({log.n_samples} samples, log "
+            f"{t_log:.2f} s, replay {t_replay:.2f} s)"
+        )
         for which in ("vs_nominal_replay", "vs_true_replay"):
             for phase, r in case[which].items():
-                print(f"  {which:17s} {phase:9s} n={r['n']:3d}  z {1e3 * r['z']:7.3f} mm  p {1e3 * r['p']:7.3f} mm"
-                      f"  tau {r['tau']:6.3f} N m  force {r['force']:6.2f} N")
+                print(
+                    f"  {which:17s} {phase:9s} n={r['n']:3d}  z {1e3 * r['z']:7.3f} mm  p {1e3 * r['p']:7.3f} mm"
+                    f"  tau {r['tau']:6.3f} N m  force {r['force']:6.2f} N"
+                )
         if args.episodes:
             t0 = time.perf_counter()
             case["success"] = skill_success(effects, args.gear, args.episodes, args.seed, skill=sk)
             case["success_seconds"] = time.perf_counter() - t0
-            print(f"  success with the effect {case['success']:.2f} vs nominal {out['nominal_success']:.2f} "
-                  f"({args.episodes} episodes, {case['success_seconds']:.1f} s)")
+            print(
+                f"  success with the effect {case['success']:.2f} vs nominal {out['nominal_success']:.2f} "
+                f"({args.episodes} episodes, {case['success_seconds']:.1f} s)"
+            )
         out["cases"].append(case)
     if args.json:
         with open(args.json, "w") as f:

@@ -61,13 +61,20 @@ def trend_basis(time: Array, joints: int) -> Array:
 def _fold_rows(starts: NDArray[np.int64], n_samples: int, blocks: NDArray[np.int64]) -> NDArray[np.bool_]:
     rows = np.zeros(n_samples, dtype=bool)
     for b in blocks:
-        rows[starts[b]:starts[b + 1] if b + 1 < len(starts) else n_samples] = True
+        rows[starts[b] : starts[b + 1] if b + 1 < len(starts) else n_samples] = True
     return rows
 
 
-def structure_gains(residual: Array, weight: Array, valid: NDArray[np.bool_], starts: NDArray[np.int64],
-                    folds: list[NDArray[np.int64]], bases: dict[str, Array], n_boot: int,
-                    rng: np.random.Generator) -> list[dict[str, float | str]]:
+def structure_gains(
+    residual: Array,
+    weight: Array,
+    valid: NDArray[np.bool_],
+    starts: NDArray[np.int64],
+    folds: list[NDArray[np.int64]],
+    bases: dict[str, Array],
+    n_boot: int,
+    rng: np.random.Generator,
+) -> list[dict[str, float | str]]:
     """Per basis in `bases` (name -> (T, J, K)): the held-out gain of fitting it (plus a constant)
     to each column of `residual` (T, C, J) over the constant alone, in weighted squares per row
     (`weight` (C, J): inverse noise variances), with the 95 % block-bootstrap interval. Blocks start
@@ -100,6 +107,7 @@ def structure_gains(residual: Array, weight: Array, valid: NDArray[np.bool_], st
                     fitted += np.bincount(block[test], weights=w * (y[test] - X[test] @ coef) ** 2, minlength=n_blocks)
         diff = (plain - fitted) / np.maximum(rows, 1)
         low, high = bootstrap_mean(diff, n_boot, rng)
-        out.append({"basis": name, "gain": float((plain.sum() - fitted.sum()) / max(rows.sum(), 1)),
-                    "low": low, "high": high})
+        out.append(
+            {"basis": name, "gain": float((plain.sum() - fitted.sum()) / max(rows.sum(), 1)), "low": low, "high": high}
+        )
     return out

@@ -75,9 +75,15 @@ def default_base_frequency(duration: float) -> float:
     return periods / duration
 
 
-def exciting_trajectory(duration: float, seed: int, harmonics: int = 5, base_frequency: float | None = None,
-                        speed_fraction: float = 0.65, margin: float = 0.2,
-                        q_start: ArrayLike = Q_HOME) -> FourierTrajectory:
+def exciting_trajectory(
+    duration: float,
+    seed: int,
+    harmonics: int = 5,
+    base_frequency: float | None = None,
+    speed_fraction: float = 0.65,
+    margin: float = 0.2,
+    q_start: ArrayLike = Q_HOME,
+) -> FourierTrajectory:
     """A random exciting trajectory of the Panda's 7 joints that starts and ends at rest at `q_start`.
 
     Arguments:
@@ -108,17 +114,23 @@ def exciting_trajectory(duration: float, seed: int, harmonics: int = 5, base_fre
     harmonics = check_int(harmonics, "harmonics", 2)
     speed_fraction = check_number(speed_fraction, "speed_fraction", 0.0, 1.0, low_open=True)
     margin = check_number(margin, "margin", 0.0)
-    f0 = default_base_frequency(duration) if base_frequency is None else check_number(
-        base_frequency, "base_frequency", 0.0, low_open=True)
+    f0 = (
+        default_base_frequency(duration)
+        if base_frequency is None
+        else check_number(base_frequency, "base_frequency", 0.0, low_open=True)
+    )
     periods = duration * f0
     if abs(periods - round(periods)) > 1e-6 or round(periods) < 1:
-        raise InputError(f"base_frequency = {f0:g} Hz; expected one that fits a whole number of periods "
-                         f"into duration = {duration:g} s (e.g. {default_base_frequency(duration):g} Hz)")
+        raise InputError(
+            f"base_frequency = {f0:g} Hz; expected one that fits a whole number of periods "
+            f"into duration = {duration:g} s (e.g. {default_base_frequency(duration):g} Hz)"
+        )
     q_start = np.asarray(q_start, dtype=np.float64)
     lo, hi = Q_MIN + margin, Q_MAX - margin
     if q_start.shape != (7,) or np.any(q_start < lo) or np.any(q_start > hi):
-        raise InputError(f"q_start = {q_start.tolist()}; expected 7 joint positions at least {margin:g} rad "
-                         f"inside the joint limits")
+        raise InputError(
+            f"q_start = {q_start.tolist()}; expected 7 joint positions at least {margin:g} rad inside the joint limits"
+        )
 
     rng = np.random.default_rng(seed)
     ell = np.arange(1, harmonics + 1, dtype=np.float64)
@@ -130,8 +142,9 @@ def exciting_trajectory(duration: float, seed: int, harmonics: int = 5, base_fre
     unit = FourierTrajectory(q0=(b / (omega * ell)).sum(axis=1), a=a, b=b, omega=omega)  # q(0) = 0
 
     q, dq, ddq = unit(np.linspace(0.0, 1.0 / f0, 4000, endpoint=False))
-    rate_scale = np.minimum(speed_fraction * V_MAX / np.abs(dq).max(axis=0),
-                            speed_fraction * DDQ_MAX / np.abs(ddq).max(axis=0))
+    rate_scale = np.minimum(
+        speed_fraction * V_MAX / np.abs(dq).max(axis=0), speed_fraction * DDQ_MAX / np.abs(ddq).max(axis=0)
+    )
     up, down = q.max(axis=0), -q.min(axis=0)  # excursions above and below q_start (both > 0)
     room_up, room_down = hi - q_start, q_start - lo
     # Each joint runs its excursion either way round; keep the sign that allows the larger scale.
@@ -139,5 +152,4 @@ def exciting_trajectory(duration: float, seed: int, harmonics: int = 5, base_fre
     flip = np.minimum(room_up / down, room_down / up)
     sign = np.where(flip > keep, -1.0, 1.0)
     scale = sign * np.minimum(rate_scale, np.maximum(keep, flip))
-    return FourierTrajectory(q0=q_start + scale * unit.q0, a=scale[:, None] * a, b=scale[:, None] * b,
-                             omega=omega)
+    return FourierTrajectory(q0=q_start + scale * unit.q0, a=scale[:, None] * a, b=scale[:, None] * b, omega=omega)

@@ -30,8 +30,19 @@ from sim2real.log import RobotLog
 if TYPE_CHECKING:
     from sim2real.diagnosis import DiagnosisConfig
 
-__all__ = ["Case", "MAGNITUDES", "FAINT", "PAIRS", "OUTSIDE_EFFECTS", "cases", "run_case", "summarize", "ripple_torque",
-           "drag_torque", "drifting_sensor"]
+__all__ = [
+    "Case",
+    "MAGNITUDES",
+    "FAINT",
+    "PAIRS",
+    "OUTSIDE_EFFECTS",
+    "cases",
+    "run_case",
+    "summarize",
+    "ripple_torque",
+    "drag_torque",
+    "drifting_sensor",
+]
 
 #: Per effect: (large, small) settings; per-joint values apply to every joint.
 MAGNITUDES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
@@ -50,21 +61,33 @@ MAGNITUDES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
 #: Per effect: a setting near the noise floor (the torque sensor's 0.05 N m): the held-out gain
 #: such an effect can give is a fraction of a noise variance.
 FAINT: dict[str, dict[str, Any]] = {
-    "coulomb": {"fc": 0.08}, "stribeck": {"fs": 0.15, "vs": 0.05}, "viscous": {"fv": 0.05},
-    "rotor_inertia": {"dI": 0.01}, "payload": {"dm": 0.08, "com_z": 0.08}, "torque_offset": {"offset": 0.06},
-    "actuation_delay": {"delay": 0.001}, "torque_gain": {"k": 0.99}, "torque_saturation": {"s": 0.6},
-    "backlash": {"b": 0.001}, "controller_gain": {"kp_scale": 0.95},
+    "coulomb": {"fc": 0.08},
+    "stribeck": {"fs": 0.15, "vs": 0.05},
+    "viscous": {"fv": 0.05},
+    "rotor_inertia": {"dI": 0.01},
+    "payload": {"dm": 0.08, "com_z": 0.08},
+    "torque_offset": {"offset": 0.06},
+    "actuation_delay": {"delay": 0.001},
+    "torque_gain": {"k": 0.99},
+    "torque_saturation": {"s": 0.6},
+    "backlash": {"b": 0.001},
+    "controller_gain": {"kp_scale": 0.95},
 }
-PAIRS: tuple[tuple[str, str], ...] = (("coulomb", "payload"), ("viscous", "torque_offset"),
-                                      ("rotor_inertia", "actuation_delay"), ("coulomb", "torque_gain"))
+PAIRS: tuple[tuple[str, str], ...] = (
+    ("coulomb", "payload"),
+    ("viscous", "torque_offset"),
+    ("rotor_inertia", "actuation_delay"),
+    ("coulomb", "torque_gain"),
+)
 RIPPLE_AMPLITUDE = 0.5  # [N m]
 RIPPLE_PERIODS = 6.0  # periods per radian of joint travel
 DRAG = 1.0  # [N m s^2/rad^2] the quadratic drag's coefficient
 DRIFT = 0.4  # [N m] the torque sensors' offset drift over the log
 
 
-def ripple_torque(q: NDArray[np.float64], dq: NDArray[np.float64],
-                  amplitude: float = RIPPLE_AMPLITUDE) -> NDArray[np.float64]:
+def ripple_torque(
+    q: NDArray[np.float64], dq: NDArray[np.float64], amplitude: float = RIPPLE_AMPLITUDE
+) -> NDArray[np.float64]:
     """An out-of-catalogue effect: a joint torque ripple periodic in the joint angle (cogging, a
     worn gear tooth), acting on every joint: -A sin(2 pi n q), A = `amplitude` [N m]."""
     return -amplitude * np.sin(2 * np.pi * RIPPLE_PERIODS * np.asarray(q))
@@ -86,7 +109,9 @@ def drifting_sensor(log: RobotLog, drift: float = DRIFT) -> RobotLog:
 
 #: The effects outside the catalogue, which live only here: name -> (a joint torque acting in the
 #: dynamics, or a change of the measurement) and the place it acts (for "located").
-OUTSIDE_EFFECTS: dict[str, tuple[Callable[..., NDArray[np.float64]] | None, Callable[[RobotLog], RobotLog] | None, str]] = {
+OUTSIDE_EFFECTS: dict[
+    str, tuple[Callable[..., NDArray[np.float64]] | None, Callable[[RobotLog], RobotLog] | None, str]
+] = {
     "ripple": (ripple_torque, None, "dynamics"),
     "drag": (drag_torque, None, "dynamics"),
     "drift": (None, drifting_sensor, "sensing"),
@@ -112,8 +137,13 @@ class Case:
         return out
 
 
-def cases(magnitudes: tuple[str, ...] = ("large", "small", "faint"), seeds: tuple[int, ...] = (0, 1),
-          effects: tuple[str, ...] | None = None, pairs: bool = True, outside: bool = True) -> list[Case]:
+def cases(
+    magnitudes: tuple[str, ...] = ("large", "small", "faint"),
+    seeds: tuple[int, ...] = (0, 1),
+    effects: tuple[str, ...] | None = None,
+    pairs: bool = True,
+    outside: bool = True,
+) -> list[Case]:
     """The validation grid: every effect x magnitude x seed, then the pairs and the effects outside
     the catalogue (each seed)."""
     out = []
@@ -136,8 +166,9 @@ def _expected_channels(names: tuple[str, ...]) -> set[str]:
     chans: set[str] = set()
     for name in names:
         place = CATALOGUE[name].place if name in CATALOGUE else OUTSIDE_EFFECTS[name][2]
-        chans |= {"dynamics": {"tau", "cmd"}, "sensing": {"tau"}, "actuation": {"cmd"},
-                  "controller": {"ctrl"}}.get(place, set())
+        chans |= {"dynamics": {"tau", "cmd"}, "sensing": {"tau"}, "actuation": {"cmd"}, "controller": {"ctrl"}}.get(
+            place, set()
+        )
         if name == "rotor_inertia":
             chans = (chans - {"tau"}) | {"cmd"}
     return chans
@@ -174,14 +205,25 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
         k = len(case.effects)
         top1 = set(chosen[:k]) == set(case.effects)
     located = (carry in _expected_channels(case.effects) and s["where"]["dominant_phase"] == "free") or not active
-    return {"case": case.name, "effects": list(case.effects), "magnitude": case.magnitude, "seed": case.seed,
-            "active": active, "selected": chosen, "verdict": s["verdict"]["label"], "top1": bool(top1),
-            "structure_left": [st["basis"] for st in structure if st["left"]],
-            "structure": [{k: st[k] for k in ("basis", "gain", "low", "share", "share_rest")} for st in structure],
-            "located": bool(located),
-            "top_channel": carry, "closed": s["how_far"]["closed_total"],  # None: no gap above the floor
-            "heldout_before": s["verdict"]["heldout_before"], "heldout_after": s["verdict"]["heldout_after"],
-            "make_s": made, "diagnose_s": time.perf_counter() - start - made}
+    return {
+        "case": case.name,
+        "effects": list(case.effects),
+        "magnitude": case.magnitude,
+        "seed": case.seed,
+        "active": active,
+        "selected": chosen,
+        "verdict": s["verdict"]["label"],
+        "top1": bool(top1),
+        "structure_left": [st["basis"] for st in structure if st["left"]],
+        "structure": [{k: st[k] for k in ("basis", "gain", "low", "share", "share_rest")} for st in structure],
+        "located": bool(located),
+        "top_channel": carry,
+        "closed": s["how_far"]["closed_total"],  # None: no gap above the floor
+        "heldout_before": s["verdict"]["heldout_before"],
+        "heldout_after": s["verdict"]["heldout_after"],
+        "make_s": made,
+        "diagnose_s": time.perf_counter() - start - made,
+    }
 
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -194,17 +236,23 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
         if not rows:
             continue
         gaps = [r["closed"] for r in rows if r["closed"] is not None]
-        out[mag] = {"cases": len(rows), "top1": float(np.mean([r["top1"] for r in rows])),
-                    "located": float(np.mean([r["located"] for r in rows])),
-                    "no_gap": len(rows) - len(gaps), "inactive": sum(not r.get("active", True) for r in rows),
-                    "explained": float(np.mean([r["verdict"] == "explained" for r in rows])),
-                    "closed_median": float(np.median(gaps)) if gaps else None,
-                    "closed_ge_80": float(np.mean([g >= 0.8 for g in gaps])) if gaps else None}
+        out[mag] = {
+            "cases": len(rows),
+            "top1": float(np.mean([r["top1"] for r in rows])),
+            "located": float(np.mean([r["located"] for r in rows])),
+            "no_gap": len(rows) - len(gaps),
+            "inactive": sum(not r.get("active", True) for r in rows),
+            "explained": float(np.mean([r["verdict"] == "explained" for r in rows])),
+            "closed_median": float(np.median(gaps)) if gaps else None,
+            "closed_ge_80": float(np.mean([g >= 0.8 for g in gaps])) if gaps else None,
+        }
     per_effect: dict[str, dict[str, Any]] = {}
     for r in results:
         if r["magnitude"] in ("large", "small", "faint"):
-            e = per_effect.setdefault(f"{r['effects'][0]} ({r['magnitude']})", {"n": 0, "top1": 0.0, "located": 0.0,
-                                                                              "closed": [], "inactive": 0})
+            e = per_effect.setdefault(
+                f"{r['effects'][0]} ({r['magnitude']})",
+                {"n": 0, "top1": 0.0, "located": 0.0, "closed": [], "inactive": 0},
+            )
             e["n"] += 1
             e["inactive"] += int(not r.get("active", True))
             e["top1"] += r["top1"] / 1.0

@@ -22,7 +22,7 @@ def rms_table(y: Array, floor: Array, mask: Array) -> dict[str, Any]:
     """RMS (C, 7) of y (T, C, 7) over mask (T, 7) or (T,), and its ratio to the floor."""
     m = mask if mask.ndim == 2 else np.repeat(mask[:, None], 7, axis=1)
     n = m.sum(axis=0)  # (7,)
-    ms = np.einsum("tj,tcj->cj", m, y ** 2) / np.maximum(n, 1)
+    ms = np.einsum("tj,tcj->cj", m, y**2) / np.maximum(n, 1)
     rms = np.sqrt(ms)
     return {"rms": rms, "ratio": rms / floor, "samples": n}
 
@@ -35,15 +35,24 @@ def where_table(ev: Evidence, design: Design, floor: Array) -> dict[str, Any]:
     y = design.y
     valid = ev.valid
     base = rms_table(y, floor, valid.astype(float))
-    excess = np.maximum(base["rms"] ** 2 - floor ** 2, 0.0) / floor ** 2  # in noise variances
+    excess = np.maximum(base["rms"] ** 2 - floor**2, 0.0) / floor**2  # in noise variances
     share = excess / max(excess.sum(), 1e-12)
     channels = []
     for ci, c in enumerate(design.channels):
         for j in range(7):
             rms, fl = float(base["rms"][ci, j]), float(floor[ci, j])
-            channels.append({"channel": c, "joint": j + 1, "column": ev.labels[c][j], "rms": rms, "floor": fl,
-                             "ratio": float(base["ratio"][ci, j]), "excess_share": float(share[ci, j]),
-                             "excess_rms": float(np.sqrt(max(rms ** 2 - fl ** 2, 0.0)))})
+            channels.append(
+                {
+                    "channel": c,
+                    "joint": j + 1,
+                    "column": ev.labels[c][j],
+                    "rms": rms,
+                    "floor": fl,
+                    "ratio": float(base["ratio"][ci, j]),
+                    "excess_share": float(share[ci, j]),
+                    "excess_rms": float(np.sqrt(max(rms**2 - fl**2, 0.0))),
+                }
+            )
     # ranked by the excess in the channel's own unit (N m): the joint with the largest torque error
     # first, whatever its noise (a quiet wrist joint's small error is a large ratio, not a large torque)
     channels.sort(key=lambda r: -r["excess_rms"])
@@ -53,8 +62,11 @@ def where_table(ev: Evidence, design: Design, floor: Array) -> dict[str, Any]:
         if m.sum() < 10:
             continue
         t = rms_table(y, floor, m.astype(float))
-        phases[name] = {"samples": int(m.sum()), "ratio": t["ratio"].tolist(),
-                        "excess": float(np.sum(np.maximum(t["ratio"] ** 2 - 1, 0)))}
+        phases[name] = {
+            "samples": int(m.sum()),
+            "ratio": t["ratio"].tolist(),
+            "excess": float(np.sum(np.maximum(t["ratio"] ** 2 - 1, 0))),
+        }
     regions = {}
     for name, m in ev.regions.items():
         t = rms_table(y, floor, (m & valid[:, None]).astype(float))
@@ -71,10 +83,16 @@ def where_table(ev: Evidence, design: Design, floor: Array) -> dict[str, Any]:
     region_lift = {}
     for name, r in regions.items():  # mean ratio^2 in the region over the overall one, per channel
         ratio = np.asarray(r["ratio"])
-        region_lift[name] = float(np.nanmean(ratio ** 2 / np.maximum(base["ratio"] ** 2, 1e-12)))
-    return {"channels": channels, "phases": phases, "regions": regions, "carry": carry,
-            "dominant_phase": dominant_phase, "region_lift": region_lift,
-            "excess_total": float(excess.sum() / excess.size)}
+        region_lift[name] = float(np.nanmean(ratio**2 / np.maximum(base["ratio"] ** 2, 1e-12)))
+    return {
+        "channels": channels,
+        "phases": phases,
+        "regions": regions,
+        "carry": carry,
+        "dominant_phase": dominant_phase,
+        "region_lift": region_lift,
+        "excess_total": float(excess.sum() / excess.size),
+    }
 
 
 def rank_by_prediction(where: dict[str, Any], design: Design, pred: Array, valid: NDArray[np.bool_]) -> None:

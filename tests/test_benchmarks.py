@@ -46,12 +46,15 @@ def test_the_shipped_pick_model_is_what_grasp_map_derives_from_its_picks(tmp_pat
     assert {"command", "date", "commit"} <= set(written)
 
 
-@pytest.mark.parametrize("text, named", [
-    ('{"pick_model": {"small": {"closing": [0, 1e-6]}}}', "pick_model['small']"),
-    ('{"pick_model": {"small": {"closing": [0, -1], "along": [0, 0], "yaw": [0, 0]}}}', "std >= 0"),
-    ('{"thresholds": {}}', "expected"),
-    ('{"pick_model": NaN}', "not a pick-model file"),
-])
+@pytest.mark.parametrize(
+    "text, named",
+    [
+        ('{"pick_model": {"small": {"closing": [0, 1e-6]}}}', "pick_model['small']"),
+        ('{"pick_model": {"small": {"closing": [0, -1], "along": [0, 0], "yaw": [0, 0]}}}', "std >= 0"),
+        ('{"thresholds": {}}', "expected"),
+        ('{"pick_model": NaN}', "not a pick-model file"),
+    ],
+)
 def test_a_bad_pick_model_file_is_refused_by_name(tmp_path, text, named):
     path = tmp_path / "bad.json"
     path.write_text(text)

@@ -15,8 +15,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: package -> layer; an import may point only to a lower layer (or within its own package)
-LAYERS = {"goflow_common": 0, "assembly": 1, "perception": 2, "learning": 2, "planning": 3, "sim2real": 3,
-          "goflow_cli": 4}
+LAYERS = {
+    "goflow_common": 0,
+    "assembly": 1,
+    "perception": 2,
+    "learning": 2,
+    "planning": 3,
+    "sim2real": 3,
+    "goflow_cli": 4,
+}
 
 
 def module_files(root: Path = ROOT) -> dict[str, Path]:
@@ -45,10 +52,9 @@ def imports_of(name: str, path: Path, modules: set[str]) -> set[str]:
             base = node.module or ""
             if node.level:  # relative: resolved against this module's package
                 package = name.split(".") if is_package else name.split(".")[:-1]
-                package = package[:len(package) - node.level + 1]
+                package = package[: len(package) - node.level + 1]
                 base = ".".join([*package, base] if base else package)
-            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
-                       for alias in node.names]
+            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base for alias in node.names]
         else:
             continue
         for target in targets:
@@ -127,11 +133,18 @@ def test_dependencies_point_down_the_layers():
 
 
 def test_the_checks_catch_a_cycle_and_an_upward_import():
-    graph = {"assembly.a": {"assembly.b"}, "assembly.b": {"assembly.a", "learning.x"},
-             "learning.x": {"goflow_common.errors"}, "perception.y": {"learning.x"}, "goflow_common.errors": set()}
+    graph = {
+        "assembly.a": {"assembly.b"},
+        "assembly.b": {"assembly.a", "learning.x"},
+        "learning.x": {"goflow_common.errors"},
+        "perception.y": {"learning.x"},
+        "goflow_common.errors": set(),
+    }
     assert cycles(graph) == [["assembly.a", "assembly.b"]]
-    assert layer_violations(graph) == ["assembly.b -> learning.x (layer 1 assembly -> layer 2 learning)",
-                                       "perception.y -> learning.x (layer 2 perception -> layer 2 learning)"]
+    assert layer_violations(graph) == [
+        "assembly.b -> learning.x (layer 1 assembly -> layer 2 learning)",
+        "perception.y -> learning.x (layer 2 perception -> layer 2 learning)",
+    ]
 
 
 if __name__ == "__main__":

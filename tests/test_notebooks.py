@@ -51,8 +51,13 @@ def execute(nb, probe: str | None = None) -> str | None:
     if probe is not None:
         nb.cells.append(nbformat.v4.new_code_cell(probe))
     try:
-        nbclient.NotebookClient(nb, timeout=CELL_TIMEOUT_S, kernel_name=KERNEL, record_timing=False,
-                                resources={"metadata": {"path": str(NOTEBOOK_DIR)}}).execute()
+        nbclient.NotebookClient(
+            nb,
+            timeout=CELL_TIMEOUT_S,
+            kernel_name=KERNEL,
+            record_timing=False,
+            resources={"metadata": {"path": str(NOTEBOOK_DIR)}},
+        ).execute()
     finally:
         cell = nb.cells.pop() if probe is not None else None
     if cell is None:
@@ -68,8 +73,7 @@ def _check_scripted_assembly(summary: dict) -> None:
     for name, gear in summary["gears"].items():
         assert set(gear) == {"inserted", "lateral_error_m", "height_error_m", "time_s"}
         assert gear["inserted"] is True, (name, gear)
-        assert gear["lateral_error_m"] < SEATED_LATERAL_TOL and gear["height_error_m"] < SEATED_HEIGHT_TOL, (
-            name, gear)
+        assert gear["lateral_error_m"] < SEATED_LATERAL_TOL and gear["height_error_m"] < SEATED_HEIGHT_TOL, (name, gear)
         assert gear["time_s"] > 0
     assert summary["sim_time_s"] > sum(g["time_s"] for g in summary["gears"].values())
     assert summary["wall_time_s"] > 0
@@ -92,8 +96,10 @@ def _check_planned_assembly(out: dict) -> None:
 #: notebook -> (probe printing its results as JSON, the check of them)
 RESULTS: dict[str, tuple[str, Callable[[dict], None]]] = {
     "01_station.ipynb": ("import json; print(json.dumps(summary))", _check_scripted_assembly),
-    "04_assembly.ipynb": ('import json; print(json.dumps({"summary": summary, "log": built.run().log}))',
-                          _check_planned_assembly),
+    "04_assembly.ipynb": (
+        'import json; print(json.dumps({"summary": summary, "log": built.run().log}))',
+        _check_planned_assembly,
+    ),
 }
 
 
@@ -105,7 +111,8 @@ def test_kernel_runs_this_interpreter_in_the_notebooks_folder():
     nb = nbformat.v4.new_notebook()
     prefix, cwd = execute(nb, "import os, sys\nprint(sys.prefix)\nprint(os.getcwd())").splitlines()
     assert Path(prefix).resolve() == Path(sys.prefix).resolve(), (
-        f"the {KERNEL!r} kernel runs in {prefix}; expected this interpreter's {sys.prefix}")
+        f"the {KERNEL!r} kernel runs in {prefix}; expected this interpreter's {sys.prefix}"
+    )
     assert Path(cwd).resolve() == NOTEBOOK_DIR
 
 
@@ -124,7 +131,8 @@ def test_notebook_is_stored_executed_and_small(path: Path):
     nb = nbformat.read(path, as_version=4)
     code = [c for c in nb.cells if c.cell_type == "code"]
     assert [c.execution_count for c in code] == list(range(1, len(code) + 1)), (
-        f"{path.name}: not stored as executed top to bottom; {refresh}")
+        f"{path.name}: not stored as executed top to bottom; {refresh}"
+    )
     for i, cell in enumerate(code):
         assert "execution" not in cell.metadata, f"{path.name}: code cell {i} stores timing metadata; {refresh}"
         for out in cell.outputs:
@@ -166,7 +174,9 @@ def store(path: Path) -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) < 2:
-        sys.exit("usage: python tests/test_notebooks.py NOTEBOOK.ipynb [...]; executes each from notebooks/ "
-                 "and stores it with its outputs")
+        sys.exit(
+            "usage: python tests/test_notebooks.py NOTEBOOK.ipynb [...]; executes each from notebooks/ "
+            "and stores it with its outputs"
+        )
     for arg in sys.argv[1:]:
         store(Path(arg).resolve())

@@ -31,8 +31,10 @@ REPOSITORY = "marcocognetti/FrankaEmikaPandaDynModel"
 COMMIT = "24d85ce4e648e2e894c832bfeee9b16711eb1a1a"
 FOLDER = "matlab/data/Exciting_Traj/Trajectory_1"
 AUTHORS = "C. Gaz, M. Cognetti, A. Oliva, P. Robuffo Giordano, A. De Luca"
-TITLE = ("Dynamic Identification of the Franka Emika Panda Robot With Retrieval of Feasible Parameters Using "
-         "Penalty-Based Optimization")
+TITLE = (
+    "Dynamic Identification of the Franka Emika Panda Robot With Retrieval of Feasible Parameters Using "
+    "Penalty-Based Optimization"
+)
 CITATION = f'{AUTHORS}, "{TITLE}", IEEE Robotics and Automation Letters 4(4), 2019'
 COMMAND = ".venv/bin/python tools/convert_gaz2019.py"
 
@@ -62,10 +64,10 @@ Load it with `sim2real.importers.load_log("data/panda-gaz2019/log.npz")`.
 
 | field | shape | unit | from |
 |---|---|---|---|
-| time | ({log.n_samples},) | s | rbt_log/{GAZ_FILES['time']} |
-| q | ({log.n_samples}, 7) | rad | rbt_log/{GAZ_FILES['q']} (measured joint positions) |
-| dq | ({log.n_samples}, 7) | rad/s | rbt_log/{GAZ_FILES['dq']} (measured joint velocities) |
-| tau | ({log.n_samples}, 7) | N m | rbt_log/{GAZ_FILES['tau']} (measured link-side torques tau_J) |
+| time | ({log.n_samples},) | s | rbt_log/{GAZ_FILES["time"]} |
+| q | ({log.n_samples}, 7) | rad | rbt_log/{GAZ_FILES["q"]} (measured joint positions) |
+| dq | ({log.n_samples}, 7) | rad/s | rbt_log/{GAZ_FILES["dq"]} (measured joint velocities) |
+| tau | ({log.n_samples}, 7) | N m | rbt_log/{GAZ_FILES["tau"]} (measured link-side torques tau_J) |
 
 There are no commanded torques or targets, tool poses, wrenches, gripper widths or phase labels
 in this log (those fields are absent). Meta: robot `franka_panda`, end_effector `none`,
@@ -94,8 +96,14 @@ def convert(source: Path, out: Path) -> Path:
     log = read_gaz_layout(source)
     # the authors' README: the arm carried no hand (a stated end effector, not the layout's guess)
     log = dataclasses.replace(log, meta={k: v for k, v in log.meta.items() if k != "end_effector_assumed"})
-    log = with_meta(log, end_effector="none", source=f"https://github.com/{REPOSITORY}/tree/{COMMIT}/{FOLDER}", license="GPL-3.0",
-                    citation=CITATION, converted_by=COMMAND)
+    log = with_meta(
+        log,
+        end_effector="none",
+        source=f"https://github.com/{REPOSITORY}/tree/{COMMIT}/{FOLDER}",
+        license="GPL-3.0",
+        citation=CITATION,
+        converted_by=COMMAND,
+    )
     check_output_dir(out, "output folder")
     npz = save_log(log, out / "log.npz")
     write_atomic(out / "LICENSE", license_path.read_bytes())

@@ -17,8 +17,7 @@ _ENVS = {
     "goflow/Walker2d-v0": ("assembly.envs.locomotion:Walker2dEnv", {}),
     "goflow/HalfCheetah-v0": ("assembly.envs.locomotion:HalfCheetahEnv", {}),
     "goflow/Humanoid-v0": ("assembly.envs.locomotion:HumanoidEnv", {}),
-    "goflow/GearInsertion-v0": ("assembly.envs.gear_insertion:GearInsertionEnv",
-                                {"gear": "medium", "variant": "fast"}),
+    "goflow/GearInsertion-v0": ("assembly.envs.gear_insertion:GearInsertionEnv", {"gear": "medium", "variant": "fast"}),
 }
 
 # Batched vector envs (N copies in one Drake diagram, assembly/envs/batched.py): what
@@ -33,5 +32,6 @@ VECTOR_ENVS = {
 
 for _env_id, (_entry_point, _kwargs) in _ENVS.items():
     if _env_id not in gymnasium.registry:  # importing twice (e.g. importlib test mode) must not warn
-        gymnasium.register(id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs),
-                           vector_entry_point=VECTOR_ENVS.get(_env_id))
+        gymnasium.register(
+            id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs), vector_entry_point=VECTOR_ENVS.get(_env_id)
+        )

@@ -41,9 +41,22 @@ from assembly.envs.drake_sim import PlantAccess, advance, point_contact_properti
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
-__all__ = ["AntConfig", "AntEnv", "AntLayout", "AntModel", "NOMINAL_TORSO_MASS", "SEED_J_T", "add_ant",
-           "add_ground", "ant_layout", "exclude_self_contact", "initial_row", "observe", "plant_config",
-           "step_reward"]
+__all__ = [
+    "AntConfig",
+    "AntEnv",
+    "AntLayout",
+    "AntModel",
+    "NOMINAL_TORSO_MASS",
+    "SEED_J_T",
+    "add_ant",
+    "add_ground",
+    "ant_layout",
+    "exclude_self_contact",
+    "initial_row",
+    "observe",
+    "plant_config",
+    "step_reward",
+]
 
 # -- the seed's task (docs/envs.md#ant names the files these come from) ---------------------------
 SEED_J_T = 700.0  # paper appendix A.1 (the code's yaml says 650)
@@ -63,12 +76,20 @@ JOINT_DAMPING = 0.1  # [N m s/rad]
 ARMATURE = 0.01  # [kg m^2] reflected rotor inertia per joint
 # legs and the signs (x, y) of their direction from the torso centre
 LEGS = ("front_left", "front_right", "back_left", "back_right")
-_LEG_SIGNS = {"front_left": (1.0, 1.0), "front_right": (-1.0, 1.0),
-              "back_left": (-1.0, -1.0), "back_right": (1.0, -1.0)}
+_LEG_SIGNS = {
+    "front_left": (1.0, 1.0),
+    "front_right": (-1.0, 1.0),
+    "back_left": (-1.0, -1.0),
+    "back_right": (1.0, -1.0),
+}
 # nv_ant: ankle_1 axis (-1, 1, 0) range [30, 100]; ankle_2 (1, 1, 0) [-100, -30];
 # ankle_3 (-1, 1, 0) [-100, -30]; ankle_4 (1, 1, 0) [30, 100] deg.
-_ANKLE = {"front_left": ((-1.0, 1.0, 0.0), 1.0), "front_right": ((1.0, 1.0, 0.0), -1.0),
-          "back_left": ((-1.0, 1.0, 0.0), -1.0), "back_right": ((1.0, 1.0, 0.0), 1.0)}
+_ANKLE = {
+    "front_left": ((-1.0, 1.0, 0.0), 1.0),
+    "front_right": ((1.0, 1.0, 0.0), -1.0),
+    "back_left": ((-1.0, 1.0, 0.0), -1.0),
+    "back_right": ((1.0, 1.0, 0.0), 1.0),
+}
 INITIAL_ANKLE = 0.785  # [rad] magnitude (Isaac Lab ANT_CFG default joint_pos)
 
 
@@ -125,21 +146,35 @@ class AntConfig:
             check_number(getattr(self, name), f"AntConfig.{name}", 0.0, low_open=True)
         for name in ("friction", "hunt_crossley_dissipation", "reset_noise_scale", "termination_height"):
             check_number(getattr(self, name), f"AntConfig.{name}", 0.0)
-        for name in ("progress_weight", "alive_reward", "up_weight", "heading_weight", "actions_cost", "energy_cost",
-                     "dof_vel_scale", "joint_limit_cost", "death_cost"):
+        for name in (
+            "progress_weight",
+            "alive_reward",
+            "up_weight",
+            "heading_weight",
+            "actions_cost",
+            "energy_cost",
+            "dof_vel_scale",
+            "joint_limit_cost",
+            "death_cost",
+        ):
             check_number(getattr(self, name), f"AntConfig.{name}")
         if self.success_threshold is not None:
             check_number(self.success_threshold, "AntConfig.success_threshold")
         check_choice(self.terminate_when_unhealthy, (True, False), "AntConfig.terminate_when_unhealthy")
         ratio = self.control_dt / self.time_step
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(f"Ant: control_dt ({self.control_dt:g} s) must be an integer multiple of "
-                             f"time_step ({self.time_step:g} s)")
-        check_choice(self.contact_approximation, ("lagged", "similar", "sap", "tamsi"),
-                     "AntConfig.contact_approximation")
+            raise InputError(
+                f"Ant: control_dt ({self.control_dt:g} s) must be an integer multiple of "
+                f"time_step ({self.time_step:g} s)"
+            )
+        check_choice(
+            self.contact_approximation, ("lagged", "similar", "sap", "tamsi"), "AntConfig.contact_approximation"
+        )
         if self.initial_height <= self.termination_height:
-            raise InputError(f"Ant: initial_height {self.initial_height} m must exceed termination_height "
-                             f"{self.termination_height} m")
+            raise InputError(
+                f"Ant: initial_height {self.initial_height} m must exceed termination_height "
+                f"{self.termination_height} m"
+            )
 
     @property
     def rate_scale(self) -> float:
@@ -157,8 +192,9 @@ def plant_config(config: AntConfig):
     """The MultibodyPlantConfig of the ant's plant (discrete step, point contact, approximation)."""
     from pydrake.multibody.plant import MultibodyPlantConfig
 
-    return MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
-                                discrete_contact_approximation=config.contact_approximation)
+    return MultibodyPlantConfig(
+        time_step=config.time_step, contact_model="point", discrete_contact_approximation=config.contact_approximation
+    )
 
 
 @dataclass(frozen=True)
@@ -202,13 +238,15 @@ def add_ant(plant, config: AntConfig, instance=None) -> AntModel:
     for end in aux_ends:
         m_torso += capsule_inertia(end)
     torso = plant.AddRigidBody("torso", instance, m_torso)
-    geometries = [plant.RegisterCollisionGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso",
-                                                  _props(config))]
+    geometries = [
+        plant.RegisterCollisionGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso", _props(config))
+    ]
     plant.RegisterVisualGeometry(torso, RigidTransform(), Sphere(TORSO_RADIUS), "torso", [0.9, 0.4, 0.1, 1])
     for i, end in enumerate(aux_ends):
         shape = Capsule(LIMB_RADIUS, float(np.linalg.norm(end)))
-        geometries.append(plant.RegisterCollisionGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}",
-                                                          _props(config)))
+        geometries.append(
+            plant.RegisterCollisionGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}", _props(config))
+        )
         plant.RegisterVisualGeometry(torso, capsule_pose(end), shape, f"aux_{i + 1}", [0.2, 0.8, 0.2, 1])
 
     joints, actuators = [], []
@@ -220,19 +258,22 @@ def add_ant(plant, config: AntConfig, instance=None) -> AntModel:
         shin = plant.AddRigidBody(f"{leg}_shin", instance, capsule_inertia(shin_end))
         for body, end in ((thigh, thigh_end), (shin, shin_end)):
             shape = Capsule(LIMB_RADIUS, float(np.linalg.norm(end)))
-            geometries.append(plant.RegisterCollisionGeometry(body, capsule_pose(end), shape, body.name(),
-                                                              _props(config)))
+            geometries.append(
+                plant.RegisterCollisionGeometry(body, capsule_pose(end), shape, body.name(), _props(config))
+            )
             plant.RegisterVisualGeometry(body, capsule_pose(end), shape, body.name(), [0.8, 0.2, 0.2, 1])
-        hip_frame = plant.AddFrame(_fixed_frame(f"{leg}_hip_parent", torso.body_frame(),
-                                                RigidTransform(aux_ends[i])))
-        hip = plant.AddJoint(RevoluteJoint(f"hip_{i + 1}", hip_frame, thigh.body_frame(),
-                                           [0.0, 0.0, 1.0], -HIP_LIMIT, HIP_LIMIT, JOINT_DAMPING))
+        hip_frame = plant.AddFrame(_fixed_frame(f"{leg}_hip_parent", torso.body_frame(), RigidTransform(aux_ends[i])))
+        hip = plant.AddJoint(
+            RevoluteJoint(
+                f"hip_{i + 1}", hip_frame, thigh.body_frame(), [0.0, 0.0, 1.0], -HIP_LIMIT, HIP_LIMIT, JOINT_DAMPING
+            )
+        )
         axis, sign = _ANKLE[leg]
-        lo, hi = (ANKLE_RANGE if sign > 0 else (-ANKLE_RANGE[1], -ANKLE_RANGE[0]))
-        ankle_frame = plant.AddFrame(_fixed_frame(f"{leg}_ankle_parent", thigh.body_frame(),
-                                                  RigidTransform(thigh_end)))
-        ankle = plant.AddJoint(RevoluteJoint(f"ankle_{i + 1}", ankle_frame, shin.body_frame(),
-                                             np.asarray(axis), lo, hi, JOINT_DAMPING))
+        lo, hi = ANKLE_RANGE if sign > 0 else (-ANKLE_RANGE[1], -ANKLE_RANGE[0])
+        ankle_frame = plant.AddFrame(_fixed_frame(f"{leg}_ankle_parent", thigh.body_frame(), RigidTransform(thigh_end)))
+        ankle = plant.AddJoint(
+            RevoluteJoint(f"ankle_{i + 1}", ankle_frame, shin.body_frame(), np.asarray(axis), lo, hi, JOINT_DAMPING)
+        )
         for joint in (hip, ankle):
             act = plant.AddJointActuator(f"{joint.name()}_motor", joint, config.effort_limit)
             act.set_default_rotor_inertia(ARMATURE)
@@ -247,10 +288,12 @@ def add_ground(plant, config: AntConfig) -> Any:
     from pydrake.geometry import Box, HalfSpace
     from pydrake.math import RigidTransform
 
-    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
-                                             _props(config))
-    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
-                                 [0.5, 0.5, 0.5, 1])
+    ground = plant.RegisterCollisionGeometry(
+        plant.world_body(), RigidTransform(), HalfSpace(), "ground", _props(config)
+    )
+    plant.RegisterVisualGeometry(
+        plant.world_body(), RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground", [0.5, 0.5, 0.5, 1]
+    )
     return ground
 
 
@@ -259,7 +302,8 @@ def exclude_self_contact(scene_graph, model: AntModel) -> None:
     from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
 
     scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(list(model.geometries))))
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(list(model.geometries)))
+    )
 
 
 def _build(config: AntConfig):
@@ -279,6 +323,7 @@ def _build(config: AntConfig):
 
 def _fixed_frame(name, parent_frame, X):
     from pydrake.multibody.tree import FixedOffsetFrame
+
     return FixedOffsetFrame(name, parent_frame, X)
 
 
@@ -320,8 +365,17 @@ def ant_layout(plant, model: AntModel, columns: NDArray[np.int64]) -> AntLayout:
     q_default = np.zeros(len(model.joints))
     for i, leg in enumerate(LEGS):
         q_default[2 * i + 1] = _ANKLE[leg][1] * INITIAL_ANKLE
-    return AntLayout(nq, quat, pos, joint_q, joint_v, np.concatenate([pos[2:], quat, joint_q, v_lin, v_ang, joint_v]),
-                     0.5 * (upper + lower), 0.5 * (upper - lower), q_default)
+    return AntLayout(
+        nq,
+        quat,
+        pos,
+        joint_q,
+        joint_v,
+        np.concatenate([pos[2:], quat, joint_q, v_lin, v_ang, joint_v]),
+        0.5 * (upper + lower),
+        0.5 * (upper - lower),
+        q_default,
+    )
 
 
 def initial_row(config: AntConfig, layout: AntLayout, width: int, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -336,7 +390,7 @@ def initial_row(config: AntConfig, layout: AntLayout, width: int, rng: np.random
     if s > 0:
         row[layout.joint_q] += rng.uniform(-s, s, size=len(layout.joint_q))
         row[layout.pos[2]] += rng.uniform(-s, s)
-        row[layout.nq:] += s * rng.standard_normal(width - layout.nq)
+        row[layout.nq :] += s * rng.standard_normal(width - layout.nq)
     row[layout.joint_q] = np.clip(row[layout.joint_q], layout.q_mid - layout.q_half, layout.q_mid + layout.q_half)
     return row
 
@@ -349,8 +403,13 @@ def observe(layout: AntLayout, rows: NDArray[np.float64]) -> NDArray[np.float32]
     return obs.astype(np.float32)
 
 
-def step_reward(config: AntConfig, layout: AntLayout, x_before: NDArray[np.float64], rows: NDArray[np.float64],
-                actions: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray]]:
+def step_reward(
+    config: AntConfig,
+    layout: AntLayout,
+    x_before: NDArray[np.float64],
+    rows: NDArray[np.float64],
+    actions: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray]]:
     """Rewards (N,), terminations (N,) and the info arrays (x_position, forward_progress,
     torso_height, healthy) of one control step: torso x before it (N,), state rows after it (N,
     nq + nv), the clipped actions (N, 8)."""
@@ -364,24 +423,31 @@ def step_reward(config: AntConfig, layout: AntLayout, x_before: NDArray[np.float
     dx = rows[:, layout.pos[0]] - x_before
     at_limit = np.count_nonzero(np.abs(rows[:, layout.joint_q] - layout.q_mid) > 0.98 * layout.q_half, axis=1)
     heading = cfg.heading_weight * np.where(heading_proj > 0.8, 1.0, heading_proj / 0.8)
-    rate = (cfg.alive_reward + np.where(up_proj > 0.93, cfg.up_weight, 0.0) + heading
-            - cfg.actions_cost * rowwise_dot(a, a)
-            - cfg.energy_cost * cfg.dof_vel_scale * np.abs(a * rows[:, layout.joint_v]).sum(axis=1)
-            - cfg.joint_limit_cost * at_limit)
+    rate = (
+        cfg.alive_reward
+        + np.where(up_proj > 0.93, cfg.up_weight, 0.0)
+        + heading
+        - cfg.actions_cost * rowwise_dot(a, a)
+        - cfg.energy_cost * cfg.dof_vel_scale * np.abs(a * rows[:, layout.joint_v]).sum(axis=1)
+        - cfg.joint_limit_cost * at_limit
+    )
     reward = cfg.progress_weight * dx + cfg.rate_scale * rate
     unhealthy = height < cfg.termination_height
     terminated = unhealthy & cfg.terminate_when_unhealthy
     reward = np.where(terminated, cfg.death_cost, reward)
-    info = {"x_position": rows[:, layout.pos[0]].copy(), "forward_progress": dx, "torso_height": height.copy(),
-            "healthy": ~unhealthy}
+    info = {
+        "x_position": rows[:, layout.pos[0]].copy(),
+        "forward_progress": dx,
+        "torso_height": height.copy(),
+        "healthy": ~unhealthy,
+    }
     return reward, terminated, info
 
 
 class AntEnv(PlantAccess, ParamEnv):
     """Run forward for 2 s with a quadruped whose torso mass xi is drawn per episode."""
 
-    def __init__(self, config: AntConfig | None = None, *, sampler: Sampler | None = None,
-                 **overrides: Any) -> None:
+    def __init__(self, config: AntConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
         self.config = cfg = config_with_overrides(AntConfig, config, overrides, "AntEnv")
         self.space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))
         super().__init__(self.space, sampler)
@@ -391,8 +457,7 @@ class AntEnv(PlantAccess, ParamEnv):
 
         # Silence Drake's "half spaces are not supported for deformable contact" (we have none).
         with quiet_drake():
-            (self._diagram, self._plant, self._torso, self._joints, self._actuators,
-             m_torso) = _build(cfg)
+            (self._diagram, self._plant, self._torso, self._joints, self._actuators, m_torso) = _build(cfg)
             self._simulator = Simulator(self._diagram)
             self._simulator.Initialize()
         plant = self._plant
@@ -429,7 +494,8 @@ class AntEnv(PlantAccess, ParamEnv):
         mass = float(xi[0])
         # Mass and rotational inertia scale together (same unit inertia, same COM).
         self._torso.SetSpatialInertiaInBodyFrame(
-            self._plant_context, SpatialInertia(mass, self._com0, self._unit_inertia0))
+            self._plant_context, SpatialInertia(mass, self._com0, self._unit_inertia0)
+        )
         self._context.SetTime(0.0)
         x = initial_row(self.config, self._layout, self._nq + self._nv, self.np_random)
         self._plant.SetPositionsAndVelocities(self._plant_context, x)
@@ -447,8 +513,9 @@ class AntEnv(PlantAccess, ParamEnv):
         advance(self._simulator, self._k * self.control_dt, f"AntEnv (torso mass {self._xi_value():g} kg)")
         x = np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
         if not np.all(np.isfinite(x)):
-            raise SimulationError(f"AntEnv: non-finite state at t = {self._k * self.control_dt:g} s "
-                                  f"(torso mass {self._xi_value():g} kg)")
+            raise SimulationError(
+                f"AntEnv: non-finite state at t = {self._k * self.control_dt:g} s (torso mass {self._xi_value():g} kg)"
+            )
         return x
 
     def _xi_value(self) -> float:
@@ -463,8 +530,7 @@ class AntEnv(PlantAccess, ParamEnv):
         self._set_initial_state(xi)
         return self._observe(self._state)
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         a = np.clip(action, -1.0, 1.0)
         x_before = self._state[self._layout.pos[0]]
         x = self._advance(a, clipped=True)

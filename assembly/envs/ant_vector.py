@@ -36,14 +36,29 @@ class AntVectorEnv(BatchedEnv):
 
     _owner = "AntVectorEnv"
 
-    def __init__(self, num_envs: int = 1, config: ant.AntConfig | None = None, *, sampler: Sampler | None = None,
-                 max_episode_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: ant.AntConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        max_episode_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(ant.AntConfig, config, overrides, self._owner)
         space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))
         steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
-        super().__init__(n, space, sampler, spaces.Box(-np.inf, np.inf, shape=(27,), dtype=np.float32),
-                         spaces.Box(-1.0, 1.0, shape=(8,), dtype=np.float32), cfg.control_dt, steps, cfg.j_t())
+        super().__init__(
+            n,
+            space,
+            sampler,
+            spaces.Box(-np.inf, np.inf, shape=(27,), dtype=np.float32),
+            spaces.Box(-1.0, 1.0, shape=(8,), dtype=np.float32),
+            cfg.control_dt,
+            steps,
+            cfg.j_t(),
+        )
         self._build()
 
     def _build(self) -> None:
@@ -90,15 +105,18 @@ class AntVectorEnv(BatchedEnv):
 
         for i, (mass,) in zip(idx, xi):  # mass and rotational inertia scale together
             self._copies[i].torso.SetSpatialInertiaInBodyFrame(
-                self._plant_context, SpatialInertia(float(mass), self._com0, self._unit_inertia0))
+                self._plant_context, SpatialInertia(float(mass), self._com0, self._unit_inertia0)
+            )
 
     def _rest_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
-        rest = ant.initial_row(replace(self.config, reset_noise_scale=0.0), self._layout, self._columns.shape[1],
-                               np.random.default_rng(0))  # no noise: nothing is drawn
+        rest = ant.initial_row(
+            replace(self.config, reset_noise_scale=0.0), self._layout, self._columns.shape[1], np.random.default_rng(0)
+        )  # no noise: nothing is drawn
         return np.tile(rest, (len(idx), 1))
 
-    def _reset_copies(self, idx: NDArray[np.int64], xi: NDArray[np.float64],
-                      rngs: list[np.random.Generator]) -> NDArray[np.float32]:
+    def _reset_copies(
+        self, idx: NDArray[np.int64], xi: NDArray[np.float64], rngs: list[np.random.Generator]
+    ) -> NDArray[np.float32]:
         width = self._columns.shape[1]
         rows = np.array([ant.initial_row(self.config, self._layout, width, rng) for rng in rngs])
         if len(idx) == self.num_envs:  # a full reset restarts the clock, as the single env does

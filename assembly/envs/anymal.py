@@ -53,10 +53,32 @@ from goflow_common.checks import check_choice, check_number
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
 
-__all__ = ["AnymalConfig", "AnymalEnv", "AnymalLayout", "AnymalModel", "FootTimers", "JOINT_NAMES", "LEGS",
-           "NOMINAL_BASE_MASS", "SEED_J_T", "add_anymal", "add_ground", "anymal_layout", "anymal_space", "base_motion",
-           "contact_slots", "contacts", "desired_order", "exclude_self_contact", "hip_damping", "initial_row",
-           "joint_loads", "observe", "plant_config", "reward_terms"]
+__all__ = [
+    "AnymalConfig",
+    "AnymalEnv",
+    "AnymalLayout",
+    "AnymalModel",
+    "FootTimers",
+    "JOINT_NAMES",
+    "LEGS",
+    "NOMINAL_BASE_MASS",
+    "SEED_J_T",
+    "add_anymal",
+    "add_ground",
+    "anymal_layout",
+    "anymal_space",
+    "base_motion",
+    "contact_slots",
+    "contacts",
+    "desired_order",
+    "exclude_self_contact",
+    "hip_damping",
+    "initial_row",
+    "joint_loads",
+    "observe",
+    "plant_config",
+    "reward_terms",
+]
 
 # -- the seed's task (goflow/environments/anymal/anymal_env.py, agents/GOFLOW.yaml) --------------
 SEED_J_T = 1.5  # paper appendix A.1 and GOFLOW.yaml success_threshold
@@ -129,15 +151,38 @@ class AnymalConfig:
     success_threshold: float | None = None  # J_T; None: the paper's 1.5 re-derived (see module doc)
 
     def __post_init__(self) -> None:
-        for name in ("time_step", "control_dt", "t_max", "point_stiffness", "kp", "effort_limit",
-                     "initial_height", "friction_speed"):
+        for name in (
+            "time_step",
+            "control_dt",
+            "t_max",
+            "point_stiffness",
+            "kp",
+            "effort_limit",
+            "initial_height",
+            "friction_speed",
+        ):
             check_number(getattr(self, name), f"AnymalConfig.{name}", 0.0, low_open=True)
-        for name in ("friction", "hunt_crossley_dissipation", "kd", "action_scale", "reset_noise_scale",
-                     "contact_force_threshold"):
+        for name in (
+            "friction",
+            "hunt_crossley_dissipation",
+            "kd",
+            "action_scale",
+            "reset_noise_scale",
+            "contact_force_threshold",
+        ):
             check_number(getattr(self, name), f"AnymalConfig.{name}", 0.0)
-        for name in ("lin_vel_weight", "yaw_rate_weight", "z_vel_weight", "ang_vel_weight", "joint_torque_weight",
-                     "joint_accel_weight", "action_rate_weight", "feet_air_time_weight",
-                     "undesired_contact_weight", "flat_orientation_weight"):
+        for name in (
+            "lin_vel_weight",
+            "yaw_rate_weight",
+            "z_vel_weight",
+            "ang_vel_weight",
+            "joint_torque_weight",
+            "joint_accel_weight",
+            "action_rate_weight",
+            "feet_air_time_weight",
+            "undesired_contact_weight",
+            "flat_orientation_weight",
+        ):
             check_number(getattr(self, name), f"AnymalConfig.{name}")
         if self.success_threshold is not None:
             check_number(self.success_threshold, "AnymalConfig.success_threshold")
@@ -150,8 +195,10 @@ class AnymalConfig:
         check_choice(self.contact_approximation, ("lagged", "similar", "sap"), "AnymalConfig.contact_approximation")
         ratio = self.control_dt / self.time_step
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(f"Anymal: control_dt ({self.control_dt:g} s) must be an integer multiple of "
-                             f"time_step ({self.time_step:g} s)")
+            raise InputError(
+                f"Anymal: control_dt ({self.control_dt:g} s) must be an integer multiple of "
+                f"time_step ({self.time_step:g} s)"
+            )
 
     def j_t(self) -> float:
         """J_T for this config: the paper's 1.5 scaled to our episode length (docs/envs.md#anymal)."""
@@ -183,9 +230,12 @@ def plant_config(config: AnymalConfig):
     sampled output ports)."""
     from pydrake.multibody.plant import MultibodyPlantConfig
 
-    return MultibodyPlantConfig(time_step=config.time_step, contact_model="point",
-                                discrete_contact_approximation=config.contact_approximation,
-                                use_sampled_output_ports=True)
+    return MultibodyPlantConfig(
+        time_step=config.time_step,
+        contact_model="point",
+        discrete_contact_approximation=config.contact_approximation,
+        use_sampled_output_ports=True,
+    )
 
 
 @dataclass(frozen=True)
@@ -237,14 +287,16 @@ def add_anymal(plant, config: AnymalConfig, instance=None) -> AnymalModel:
         thigh = plant.AddRigidBody(f"{leg}_THIGH", instance, _inertia(THIGH_MASS, mirror(THIGH_COM), THIGH_INERTIA))
         shank = plant.AddRigidBody(f"{leg}_SHANK", instance, _inertia(SHANK_MASS, mirror(SHANK_COM), SHANK_INERTIA))
         lo, hi = HAA_RANGE if sy > 0 else (-HAA_RANGE[1], -HAA_RANGE[0])
-        chain = ((f"{leg}_HAA", base, hip, HAA_OFFSET, (1.0, 0.0, 0.0), lo, hi),
-                 (f"{leg}_HFE", hip, thigh, HFE_OFFSET, (0.0, 1.0, 0.0), -math.inf, math.inf),
-                 (f"{leg}_KFE", thigh, shank, KFE_OFFSET, (0.0, 1.0, 0.0), -math.inf, math.inf))
+        chain = (
+            (f"{leg}_HAA", base, hip, HAA_OFFSET, (1.0, 0.0, 0.0), lo, hi),
+            (f"{leg}_HFE", hip, thigh, HFE_OFFSET, (0.0, 1.0, 0.0), -math.inf, math.inf),
+            (f"{leg}_KFE", thigh, shank, KFE_OFFSET, (0.0, 1.0, 0.0), -math.inf, math.inf),
+        )
         for name, parent, child, offset, axis, lower, upper in chain:
-            frame = plant.AddFrame(FixedOffsetFrame(f"{name}_parent", parent.body_frame(),
-                                                    RigidTransform(np.asarray(mirror(offset)))))
-            joint = plant.AddJoint(RevoluteJoint(name, frame, child.body_frame(), np.asarray(axis),
-                                                 lower, upper, 0.0))
+            frame = plant.AddFrame(
+                FixedOffsetFrame(f"{name}_parent", parent.body_frame(), RigidTransform(np.asarray(mirror(offset))))
+            )
+            joint = plant.AddJoint(RevoluteJoint(name, frame, child.body_frame(), np.asarray(axis), lower, upper, 0.0))
             act = plant.AddJointActuator(f"{name}_drive", joint, config.effort_limit)
             act.set_controller_gains(PdControllerGains(p=config.kp, d=config.kd))
             joints.append(joint)
@@ -254,12 +306,24 @@ def add_anymal(plant, config: AnymalConfig, instance=None) -> AnymalModel:
         thighs.append(segment(thigh, mirror(THIGH_TOP), knee, THIGH_RADIUS, f"{leg}_thigh", [0.2, 0.2, 0.2, 1]))
         foot = np.asarray(mirror(FOOT_OFFSET))
         shanks.append(segment(shank, (0.0, 0.0, 0.0), foot, SHANK_RADIUS, f"{leg}_shank", [0.3, 0.3, 0.3, 1]))
-        feet.append(plant.RegisterCollisionGeometry(shank, RigidTransform(foot), Sphere(FOOT_RADIUS),
-                                                    f"{leg}_foot", _props(config)))
-        plant.RegisterVisualGeometry(shank, RigidTransform(foot), Sphere(FOOT_RADIUS), f"{leg}_foot",
-                                     [0.1, 0.1, 0.1, 1])
-    return AnymalModel(base, tuple(joints), tuple(actuators), tuple(haa), tuple(base_geoms), tuple(thighs),
-                       tuple(feet), tuple(base_geoms + thighs + shanks + feet))
+        feet.append(
+            plant.RegisterCollisionGeometry(
+                shank, RigidTransform(foot), Sphere(FOOT_RADIUS), f"{leg}_foot", _props(config)
+            )
+        )
+        plant.RegisterVisualGeometry(
+            shank, RigidTransform(foot), Sphere(FOOT_RADIUS), f"{leg}_foot", [0.1, 0.1, 0.1, 1]
+        )
+    return AnymalModel(
+        base,
+        tuple(joints),
+        tuple(actuators),
+        tuple(haa),
+        tuple(base_geoms),
+        tuple(thighs),
+        tuple(feet),
+        tuple(base_geoms + thighs + shanks + feet),
+    )
 
 
 def add_ground(plant, config: AnymalConfig) -> Any:
@@ -267,10 +331,12 @@ def add_ground(plant, config: AnymalConfig) -> Any:
     from pydrake.geometry import Box, HalfSpace
     from pydrake.math import RigidTransform
 
-    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
-                                             _props(config))
-    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground",
-                                 [0.5, 0.5, 0.5, 1])
+    ground = plant.RegisterCollisionGeometry(
+        plant.world_body(), RigidTransform(), HalfSpace(), "ground", _props(config)
+    )
+    plant.RegisterVisualGeometry(
+        plant.world_body(), RigidTransform([0, 0, -0.005]), Box(20, 20, 0.01), "ground", [0.5, 0.5, 0.5, 1]
+    )
     return ground
 
 
@@ -279,7 +345,8 @@ def exclude_self_contact(scene_graph, model: AnymalModel) -> None:
     from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
 
     scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(list(model.geometries))))
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(list(model.geometries)))
+    )
 
 
 def _build(config: AnymalConfig):
@@ -297,6 +364,7 @@ def _build(config: AnymalConfig):
 
 
 # -- per-step math, for N robots at once (AnymalEnv is N = 1) ------------------------------------
+
 
 @dataclass(frozen=True)
 class AnymalLayout:
@@ -324,11 +392,16 @@ def anymal_layout(plant, model: AnymalModel, columns: NDArray[np.int64]) -> Anym
 
     fb_q = model.base.floating_positions_start()
     fb_v = nq_plant + model.base.floating_velocities_start_in_v()
-    return AnymalLayout(sum(1 for c in columns if c < nq_plant), rows(range(fb_q, fb_q + 4)),
-                        rows(range(fb_q + 4, fb_q + 7)), rows(range(fb_v, fb_v + 3)), rows(range(fb_v + 3, fb_v + 6)),
-                        rows(j.position_start() for j in model.joints),
-                        rows(nq_plant + j.velocity_start() for j in model.joints),
-                        rows(nq_plant + j.velocity_start() for j in model.haa))
+    return AnymalLayout(
+        sum(1 for c in columns if c < nq_plant),
+        rows(range(fb_q, fb_q + 4)),
+        rows(range(fb_q + 4, fb_q + 7)),
+        rows(range(fb_v, fb_v + 3)),
+        rows(range(fb_v + 3, fb_v + 6)),
+        rows(j.position_start() for j in model.joints),
+        rows(nq_plant + j.velocity_start() for j in model.joints),
+        rows(nq_plant + j.velocity_start() for j in model.haa),
+    )
 
 
 def desired_order(model: AnymalModel) -> NDArray[np.int64]:
@@ -338,8 +411,9 @@ def desired_order(model: AnymalModel) -> NDArray[np.int64]:
     return np.argsort(np.argsort(index))
 
 
-def initial_row(config: AnymalConfig, layout: AnymalLayout, width: int,
-                rng: np.random.Generator) -> NDArray[np.float64]:
+def initial_row(
+    config: AnymalConfig, layout: AnymalLayout, width: int, rng: np.random.Generator
+) -> NDArray[np.float64]:
     """A robot's reset state row (`width` = its nq + nv): the default pose at initial_height, at
     rest, with the reset noise drawn from rng (joint angles, then base angular and linear velocity)."""
     row = np.zeros(width)
@@ -364,8 +438,9 @@ _R_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
 _R_SCALE = np.array([-2.0, 2.0, 2.0, 2.0, -2.0, 2.0, 2.0, 2.0, -2.0])
 
 
-def base_motion(layout: AnymalLayout, rows: NDArray[np.float64]
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+def base_motion(
+    layout: AnymalLayout, rows: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Base linear velocity, angular velocity and projected gravity, (N, 3) each, in the base
     frame, of state rows (N, nq + nv); `quaternion_rotation` row by row, to the last bit."""
     q = rows[:, layout.quat]
@@ -382,18 +457,32 @@ def base_motion(layout: AnymalLayout, rows: NDArray[np.float64]
     return v_b, w_b, -R[:, 2]  # R^T (0, 0, -1)
 
 
-def observe(config: AnymalConfig, layout: AnymalLayout, rows: NDArray[np.float64], v_b: NDArray[np.float64],
-            w_b: NDArray[np.float64], g_b: NDArray[np.float64], actions: NDArray[np.float64]) -> NDArray[np.float32]:
+def observe(
+    config: AnymalConfig,
+    layout: AnymalLayout,
+    rows: NDArray[np.float64],
+    v_b: NDArray[np.float64],
+    w_b: NDArray[np.float64],
+    g_b: NDArray[np.float64],
+    actions: NDArray[np.float64],
+) -> NDArray[np.float32]:
     """Observations (N, 48): v_b, w_b, g_b, the command, joint angles minus the default pose,
     joint rates, the last clipped actions (N, 12)."""
     command = np.broadcast_to(np.asarray(config.command), (len(rows), 3))
-    obs = np.concatenate([v_b, w_b, g_b, command, rows[:, layout.joint_q] - np.asarray(DEFAULT_POSE),
-                          rows[:, layout.joint_v], actions], axis=1)
+    obs = np.concatenate(
+        [v_b, w_b, g_b, command, rows[:, layout.joint_q] - np.asarray(DEFAULT_POSE), rows[:, layout.joint_v], actions],
+        axis=1,
+    )
     return obs.astype(np.float32)
 
 
-def hip_damping(config: AnymalConfig, layout: AnymalLayout, friction: NDArray[np.float64],
-                loads: NDArray[np.float64], rows: NDArray[np.float64]) -> NDArray[np.float64]:
+def hip_damping(
+    config: AnymalConfig,
+    layout: AnymalLayout,
+    friction: NDArray[np.float64],
+    loads: NDArray[np.float64],
+    rows: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """The HAA damping (N, 4) [N m s/rad] that holds each hip's friction for the coming control
     step: mu (|f| + |tau|) / max(|v|, v_s) of the current load and rate. At |v| >= v_s it opposes
     the motion with the Coulomb torque of the load; below, it is a stiff viscous regularization.
@@ -421,8 +510,9 @@ def contact_slots(models: list[AnymalModel]) -> tuple[dict[Any, int], int]:
     return slots, len(slots) // max(1, len(models))
 
 
-def contacts(results, slots: dict[Any, int], per_robot: int, n: int, threshold: float
-             ) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.bool_]]:
+def contacts(
+    results, slots: dict[Any, int], per_robot: int, n: int, threshold: float
+) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.bool_]]:
     """(base in contact (N,), number of thighs in contact (N,), each foot in contact (N, 4)) from
     the plant's ContactResults: a geometry is in contact when its net contact force exceeds
     `threshold` [N]."""
@@ -440,7 +530,7 @@ def contacts(results, slots: dict[Any, int], per_robot: int, n: int, threshold: 
             force[b] = force[b] + 1.0 * f
     touching = (np.sqrt(rowwise_dot(force, force)) > threshold).reshape(n, per_robot)
     nb = per_robot - 8
-    return touching[:, :nb].any(axis=1), touching[:, nb:nb + 4].sum(axis=1), touching[:, nb + 4:]
+    return touching[:, :nb].any(axis=1), touching[:, nb : nb + 4].sum(axis=1), touching[:, nb + 4 :]
 
 
 class FootTimers:
@@ -467,10 +557,19 @@ class FootTimers:
         return np.where(first, self.last_air - 0.5, 0.0).sum(axis=1)
 
 
-def reward_terms(config: AnymalConfig, dt: float, v_b: NDArray[np.float64], w_b: NDArray[np.float64],
-                 g_b: NDArray[np.float64], tau: NDArray[np.float64], qdd: NDArray[np.float64],
-                 actions: NDArray[np.float64], last_actions: NDArray[np.float64], air_reward: NDArray[np.float64],
-                 thighs: NDArray[np.int64]) -> dict[str, NDArray[np.float64]]:
+def reward_terms(
+    config: AnymalConfig,
+    dt: float,
+    v_b: NDArray[np.float64],
+    w_b: NDArray[np.float64],
+    g_b: NDArray[np.float64],
+    tau: NDArray[np.float64],
+    qdd: NDArray[np.float64],
+    actions: NDArray[np.float64],
+    last_actions: NDArray[np.float64],
+    air_reward: NDArray[np.float64],
+    thighs: NDArray[np.int64],
+) -> dict[str, NDArray[np.float64]]:
     """The seed's ten reward terms (N,) each, times dt: base motion (N, 3 each), joint torques
     and accelerations (N, 12), this step's and the last clipped actions (N, 12), the feet's air
     reward (N,) and the thighs in contact (N,)."""
@@ -502,21 +601,22 @@ def _exp(x: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _square(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.array([v ** 2 for v in x.tolist()])
+    return np.array([v**2 for v in x.tolist()])
 
 
 def anymal_space() -> ParamSpace:
     """xi's box: the base mass [0, 200] kg, then the LF, RF, LH, RH HAA friction coefficients [0, 0.1]."""
-    return ParamSpace((Param("base_mass", 0.0, 200.0, "kg", nominal=NOMINAL_BASE_MASS),)
-                      + tuple(Param(f"{leg}_HAA_friction", 0.0, 0.1, "1", nominal=0.0) for leg in LEGS))
+    return ParamSpace(
+        (Param("base_mass", 0.0, 200.0, "kg", nominal=NOMINAL_BASE_MASS),)
+        + tuple(Param(f"{leg}_HAA_friction", 0.0, 0.1, "1", nominal=0.0) for leg in LEGS)
+    )
 
 
 class AnymalEnv(PlantAccess, ParamEnv):
     """Track 1 m/s forward for 5 s with an ANYmal-C-sized quadruped whose base mass and hip joint
     frictions xi are drawn per episode."""
 
-    def __init__(self, config: AnymalConfig | None = None, *, sampler: Sampler | None = None,
-                 **overrides: Any) -> None:
+    def __init__(self, config: AnymalConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
         self.config = cfg = config_with_overrides(AnymalConfig, config, overrides, "AnymalEnv")
         self.space = anymal_space()
         super().__init__(self.space, sampler)
@@ -546,8 +646,9 @@ class AnymalEnv(PlantAccess, ParamEnv):
         # Desired-state port: [q_d; v_d] ordered by actuator index; action i is joint i's.
         self._act_order = desired_order(model)
         self._desired = np.zeros(24)
-        self._desired_input = HeldInput(plant.get_desired_state_input_port(self._base.model_instance()),
-                                        self._plant_context, self._desired)
+        self._desired_input = HeldInput(
+            plant.get_desired_state_input_port(self._base.model_instance()), self._plant_context, self._desired
+        )
         self._actuation_input = HeldInput(plant.get_actuation_input_port(), self._plant_context, np.zeros(12))
         self._net_actuation_port = plant.get_net_actuation_output_port()
         self._accel_port = plant.get_generalized_acceleration_output_port()
@@ -576,7 +677,8 @@ class AnymalEnv(PlantAccess, ParamEnv):
 
         # Mass and rotational inertia scale together (same unit inertia, same COM); 0 kg is allowed.
         self._base.SetSpatialInertiaInBodyFrame(
-            self._plant_context, SpatialInertia(float(xi[0]), self._base_com, self._base_unit_inertia))
+            self._plant_context, SpatialInertia(float(xi[0]), self._base_com, self._base_unit_inertia)
+        )
         self._friction = np.asarray(xi[1:5], dtype=np.float64).copy()
         for joint in self._haa:
             joint.SetDamping(self._plant_context, 0.0)
@@ -600,8 +702,9 @@ class AnymalEnv(PlantAccess, ParamEnv):
         """Hold the targets of a clipped action (and the hip friction) for one control step; return [q; v]."""
         self._set_targets(action)
         if self._friction.any():
-            damping = hip_damping(self.config, self._layout, self._friction[None], self._haa_load[None],
-                                  self._state[None])[0]
+            damping = hip_damping(
+                self.config, self._layout, self._friction[None], self._haa_load[None], self._state[None]
+            )[0]
             for joint, mu, d in zip(self._haa, self._friction, damping):
                 if mu > 0.0:
                     joint.SetDamping(self._plant_context, float(d))
@@ -609,8 +712,9 @@ class AnymalEnv(PlantAccess, ParamEnv):
         advance(self._simulator, self._k * self.control_dt, f"AnymalEnv (xi {self._xi_text()})")
         x = np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
         if not np.all(np.isfinite(x)):
-            raise SimulationError(f"AnymalEnv: non-finite state at t = {self._k * self.control_dt:g} s "
-                                  f"(xi {self._xi_text()})")
+            raise SimulationError(
+                f"AnymalEnv: non-finite state at t = {self._k * self.control_dt:g} s (xi {self._xi_text()})"
+            )
         if self._friction.any():
             self._haa_load = joint_loads(self._reaction_port.Eval(self._plant_context), self._haa_index)[0]
         return x
@@ -625,8 +729,7 @@ class AnymalEnv(PlantAccess, ParamEnv):
         x = self._state[None]
         return observe(self.config, self._layout, x, *base_motion(self._layout, x), self._action[None])[0]
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         cfg = self.config
         a = np.clip(action, -1.0, 1.0)
         x = self._advance(a)
@@ -635,16 +738,21 @@ class AnymalEnv(PlantAccess, ParamEnv):
         v_b, w_b, g_b = base_motion(self._layout, rows)
         tau = np.asarray(self._net_actuation_port.Eval(self._plant_context))[None]
         qdd = self._accel_port.Eval(self._plant_context)[self._v_joint][None]
-        base_contact, thighs, feet = contacts(self._contact_port.Eval(self._plant_context), self._slots,
-                                              self._per_robot, 1, cfg.contact_force_threshold)
+        base_contact, thighs, feet = contacts(
+            self._contact_port.Eval(self._plant_context), self._slots, self._per_robot, 1, cfg.contact_force_threshold
+        )
         air_reward = self._feet.update(feet, self.control_dt)
-        terms = reward_terms(cfg, self.control_dt, v_b, w_b, g_b, tau, qdd, a[None], self._action[None], air_reward,
-                             thighs)
+        terms = reward_terms(
+            cfg, self.control_dt, v_b, w_b, g_b, tau, qdd, a[None], self._action[None], air_reward, thighs
+        )
         self.last_reward_terms = {k: float(v[0]) for k, v in terms.items()}
         reward = sum(self.last_reward_terms.values())
         self._action = a
         terminated = bool(base_contact[0]) and cfg.terminate_on_base_contact
         obs = observe(cfg, self._layout, rows, v_b, w_b, g_b, a[None])[0]
-        info = {"base_height": float(x[self._layout.pos[2]]), "forward_velocity": float(v_b[0, 0]),
-                "base_contact": bool(base_contact[0])}
+        info = {
+            "base_height": float(x[self._layout.pos[2]]),
+            "forward_velocity": float(v_b[0, 0]),
+            "base_contact": bool(base_contact[0]),
+        }
         return obs, float(reward), bool(terminated), info

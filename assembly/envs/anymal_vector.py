@@ -37,14 +37,28 @@ class AnymalVectorEnv(BatchedEnv):
 
     _owner = "AnymalVectorEnv"
 
-    def __init__(self, num_envs: int = 1, config: anymal.AnymalConfig | None = None, *,
-                 sampler: Sampler | None = None, max_episode_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: anymal.AnymalConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        max_episode_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(anymal.AnymalConfig, config, overrides, self._owner)
         steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
-        super().__init__(n, anymal.anymal_space(), sampler,
-                         spaces.Box(-np.inf, np.inf, shape=(48,), dtype=np.float32),
-                         spaces.Box(-1.0, 1.0, shape=(12,), dtype=np.float32), cfg.control_dt, steps, cfg.j_t())
+        super().__init__(
+            n,
+            anymal.anymal_space(),
+            sampler,
+            spaces.Box(-np.inf, np.inf, shape=(48,), dtype=np.float32),
+            spaces.Box(-1.0, 1.0, shape=(12,), dtype=np.float32),
+            cfg.control_dt,
+            steps,
+            cfg.j_t(),
+        )
         self._build()
         #: The last step's ten reward terms, (N,) each (AnymalEnv.last_reward_terms per copy).
         self.last_reward_terms: dict[str, NDArray[np.float64]] = {}
@@ -86,8 +100,10 @@ class AnymalVectorEnv(BatchedEnv):
         # One desired-state port per model instance: [q_d; v_d] ordered by actuator index.
         self._act_order = anymal.desired_order(self._copies[0])
         self._desired = np.zeros((n, 24))
-        self._desired_inputs = [HeldInput(plant.get_desired_state_input_port(c.base.model_instance()), ctx,
-                                          self._desired[i]) for i, c in enumerate(self._copies)]
+        self._desired_inputs = [
+            HeldInput(plant.get_desired_state_input_port(c.base.model_instance()), ctx, self._desired[i])
+            for i, c in enumerate(self._copies)
+        ]
         self._actuation_input = HeldInput(plant.get_actuation_input_port(), ctx, np.zeros(plant.num_actuators()))
         self._net_actuation_port = plant.get_net_actuation_output_port()
         self._accel_port = plant.get_generalized_acceleration_output_port()
@@ -109,7 +125,8 @@ class AnymalVectorEnv(BatchedEnv):
         for i, row in zip(idx, xi):  # mass and rotational inertia scale together; 0 kg is allowed
             copy = self._copies[i]
             copy.base.SetSpatialInertiaInBodyFrame(
-                self._plant_context, SpatialInertia(float(row[0]), self._base_com, self._base_unit_inertia))
+                self._plant_context, SpatialInertia(float(row[0]), self._base_com, self._base_unit_inertia)
+            )
             for joint in copy.haa:
                 joint.SetDamping(self._plant_context, 0.0)
         self._friction[idx] = xi[:, 1:5]
@@ -121,12 +138,14 @@ class AnymalVectorEnv(BatchedEnv):
             self._desired_inputs[i].set(self._desired[i])
 
     def _rest_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
-        rest = anymal.initial_row(replace(self.config, reset_noise_scale=0.0), self._layout, self._columns.shape[1],
-                                  np.random.default_rng(0))  # no noise: nothing is drawn
+        rest = anymal.initial_row(
+            replace(self.config, reset_noise_scale=0.0), self._layout, self._columns.shape[1], np.random.default_rng(0)
+        )  # no noise: nothing is drawn
         return np.tile(np.concatenate((rest, np.zeros(_TASK))), (len(idx), 1))
 
-    def _reset_copies(self, idx: NDArray[np.int64], xi: NDArray[np.float64],
-                      rngs: list[np.random.Generator]) -> NDArray[np.float32]:
+    def _reset_copies(
+        self, idx: NDArray[np.int64], xi: NDArray[np.float64], rngs: list[np.random.Generator]
+    ) -> NDArray[np.float32]:
         width = self._columns.shape[1]
         rows = np.array([anymal.initial_row(self.config, self._layout, width, rng) for rng in rngs])
         if len(idx) == self.num_envs:  # a full reset restarts the clock, as the single env does
@@ -148,8 +167,9 @@ class AnymalVectorEnv(BatchedEnv):
     def _get_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         rows = self._rows(idx)
         f = self._feet
-        return np.concatenate((rows, self._action[idx], self._load[idx], f.air[idx], f.contact[idx], f.last_air[idx]),
-                              axis=1)
+        return np.concatenate(
+            (rows, self._action[idx], self._load[idx], f.air[idx], f.contact[idx], f.last_air[idx]), axis=1
+        )
 
     def _set_state(self, idx: NDArray[np.int64], state: NDArray[np.float64]) -> None:
         width = self._columns.shape[1]
@@ -183,16 +203,21 @@ class AnymalVectorEnv(BatchedEnv):
         v_b, w_b, g_b = anymal.base_motion(self._layout, rows)
         tau = np.asarray(self._net_actuation_port.Eval(ctx))[self._tau_index]
         qdd = np.asarray(self._accel_port.Eval(ctx))[self._accel_index]
-        base_contact, thighs, feet = anymal.contacts(self._contact_port.Eval(ctx), self._slots, self._per_robot, n,
-                                                     cfg.contact_force_threshold)
+        base_contact, thighs, feet = anymal.contacts(
+            self._contact_port.Eval(ctx), self._slots, self._per_robot, n, cfg.contact_force_threshold
+        )
         air_reward = self._feet.update(feet, cfg.control_dt)
-        self.last_reward_terms = anymal.reward_terms(cfg, cfg.control_dt, v_b, w_b, g_b, tau, qdd, a, self._action,
-                                                     air_reward, thighs)
+        self.last_reward_terms = anymal.reward_terms(
+            cfg, cfg.control_dt, v_b, w_b, g_b, tau, qdd, a, self._action, air_reward, thighs
+        )
         reward = sum(self.last_reward_terms.values())
         obs = anymal.observe(cfg, self._layout, rows, v_b, w_b, g_b, a)
         self._action = a
         terminated = base_contact & cfg.terminate_on_base_contact
         reward[~np.isfinite(rows).all(axis=1)] = np.nan
-        info = {"base_height": rows[:, self._layout.pos[2]], "forward_velocity": v_b[:, 0],
-                "base_contact": base_contact}
+        info = {
+            "base_height": rows[:, self._layout.pos[2]],
+            "forward_velocity": v_b[:, 0],
+            "base_contact": base_contact,
+        }
         return obs, reward, terminated, info

@@ -31,6 +31,7 @@ from goflow_common.errors import SimulationError
 
 __all__ = ["ParamEnv", "SimulationError", "clipped_float32", "quaternion_rotation"]
 
+
 def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[np.float32]:
     """values clipped to [-high, high] as a float32 array, in plain Python (an env's per-step path:
     numpy calls between AdvanceTo calls cost several times their isolated time)."""
@@ -43,9 +44,13 @@ def quaternion_rotation(q: ArrayLike) -> NDArray[np.float64]:
     """R_WB of the quaternion q = (w, x, y, z) (Drake's floating-body order), normalized first: a
     discrete plant's quaternion drifts slightly off unit length."""
     w, x, y, z = np.asarray(q, dtype=np.float64) / math.sqrt(float(np.dot(q, q)))
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 class ParamEnv(gymnasium.Env):
@@ -71,8 +76,7 @@ class ParamEnv(gymnasium.Env):
         """Put the model in its initial state for parameters xi; return the first observation."""
         raise NotImplementedError
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         """Apply a validated action for control_dt; return (obs, reward, terminated, extra info).
         Raise SimulationError if the physics step fails."""
         raise NotImplementedError
@@ -89,11 +93,14 @@ class ParamEnv(gymnasium.Env):
     @sampler.setter
     def sampler(self, sampler: Sampler) -> None:
         if not isinstance(sampler, Sampler):
-            raise TypeError(f"{type(self).__name__}: sampler must implement assembly.samplers.Sampler, "
-                            f"got {type(sampler).__name__}")
+            raise TypeError(
+                f"{type(self).__name__}: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}"
+            )
         if sampler.space != self.space:
-            raise ValueError(f"{type(self).__name__}: the sampler's ParamSpace differs from the "
-                             "environment's (env vs sampler): " + "; ".join(self.space.diff(sampler.space)))
+            raise ValueError(
+                f"{type(self).__name__}: the sampler's ParamSpace differs from the "
+                "environment's (env vs sampler): " + "; ".join(self.space.diff(sampler.space))
+            )
         self._sampler = sampler
 
     @property
@@ -114,22 +121,23 @@ class ParamEnv(gymnasium.Env):
         """xi as a float array of shape (d,) inside the box; ValueError naming the problem."""
         arr = np.asarray(xi, dtype=np.float64)
         if arr.shape != (self.space.dim,):
-            raise ValueError(f"{what} has shape {arr.shape}, expected shape ({self.space.dim},) for "
-                             f"parameters {self.space.names}")
+            raise ValueError(
+                f"{what} has shape {arr.shape}, expected shape ({self.space.dim},) for parameters {self.space.names}"
+            )
         return self.space.validate(arr, what=what)
 
     def _choose_xi(self, options: dict[str, Any] | None) -> NDArray[np.float64]:
         options = options or {}
         unknown = sorted(set(options) - {"xi"})
         if unknown:
-            raise ValueError(f"{type(self).__name__}.reset: unknown options {unknown}; "
-                             "the only option is 'xi'")
+            raise ValueError(f"{type(self).__name__}.reset: unknown options {unknown}; the only option is 'xi'")
         if "xi" in options:
             return self.validate_xi(options["xi"], what="reset options['xi']")
         return self.space.validate(self.sampler.sample(1, self.np_random), what="sampler output")[0]
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Start an episode at options["xi"] if given (validated), else at a draw from the sampler."""
         super().reset(seed=seed)
         self._xi = self._choose_xi(options)
@@ -147,26 +155,22 @@ class ParamEnv(gymnasium.Env):
             raise ValueError(f"{type(self).__name__}.step: action must be finite, got {a.tolist()}")
         return a
 
-    def step(self, action: ArrayLike
-             ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+    def step(self, action: ArrayLike) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """Advance one control step; see the module docstring for the ending rules."""
         if self._done or self._xi is None:
-            raise RuntimeError(f"{type(self).__name__}.step called on a finished episode: "
-                               "call reset() first")
+            raise RuntimeError(f"{type(self).__name__}.step called on a finished episode: call reset() first")
         a = self._check_action(action)
         try:
             obs, reward, terminated, extra = self._step_model(a)
         except SimulationError as exc:
             self._done = True
             info = self._info()
-            info.update(sim_error=str(exc), episode_return=self._return,
-                        success=self._return >= self.success_threshold)
+            info.update(sim_error=str(exc), episode_return=self._return, success=self._return >= self.success_threshold)
             return self._obs.copy(), 0.0, False, True, info
         self._obs = obs if type(obs) is np.ndarray and obs.dtype == np.float32 else np.asarray(obs, dtype=np.float32)
         self._steps += 1
         self._return += float(reward)
-        truncated = (not terminated and self.max_episode_steps is not None
-                     and self._steps >= self.max_episode_steps)
+        truncated = not terminated and self.max_episode_steps is not None and self._steps >= self.max_episode_steps
         info = self._info()
         info.update(extra)
         if terminated or truncated:

@@ -78,9 +78,17 @@ class BatchedEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
     _owner = "BatchedEnv"
 
-    def __init__(self, num_envs: int, space: ParamSpace, sampler: Sampler | None,
-                 single_observation_space: gymnasium.spaces.Box, single_action_space: gymnasium.spaces.Box,
-                 control_dt: float, max_episode_steps: int | None, success_threshold: float) -> None:
+    def __init__(
+        self,
+        num_envs: int,
+        space: ParamSpace,
+        sampler: Sampler | None,
+        single_observation_space: gymnasium.spaces.Box,
+        single_action_space: gymnasium.spaces.Box,
+        control_dt: float,
+        max_episode_steps: int | None,
+        success_threshold: float,
+    ) -> None:
         self.num_envs = check_num_envs(num_envs, self._owner)
         self.space = space
         self.sampler = FullDR(space) if sampler is None else sampler
@@ -108,14 +116,16 @@ class BatchedEnv(VectorEnv):
         """Write xi[k] (parameter units) into copy idx[k]'s part of the Context."""
         raise NotImplementedError
 
-    def _reset_copies(self, idx: NDArray[np.int64], xi: NDArray[np.float64],
-                      rngs: Sequence[np.random.Generator]) -> NDArray[np.float32]:
+    def _reset_copies(
+        self, idx: NDArray[np.int64], xi: NDArray[np.float64], rngs: Sequence[np.random.Generator]
+    ) -> NDArray[np.float32]:
         """Put copies idx in their initial state for xi (already applied), drawing what the single
         env draws at reset from rngs[k] in the same order; return their first observations."""
         raise NotImplementedError
 
-    def _step_copies(self, actions: NDArray[np.float64]
-                     ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray]]:
+    def _step_copies(
+        self, actions: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray]]:
         """Advance every copy one control period under validated actions (N, m); return obs (N, o),
         rewards (N,), terminated (N,) and per-copy extra info arrays. A copy whose state is not
         finite gets a NaN reward (the base ends it; a reason of the subclass's own goes in
@@ -163,11 +173,14 @@ class BatchedEnv(VectorEnv):
     @sampler.setter
     def sampler(self, sampler: Sampler) -> None:
         if not isinstance(sampler, Sampler):
-            raise TypeError(f"{self._owner}: sampler must implement assembly.samplers.Sampler, "
-                            f"got {type(sampler).__name__}")
+            raise TypeError(
+                f"{self._owner}: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}"
+            )
         if sampler.space != self.space:
-            raise ValueError(f"{self._owner}: the sampler's ParamSpace differs from the environment's "
-                             "(env vs sampler): " + "; ".join(self.space.diff(sampler.space)))
+            raise ValueError(
+                f"{self._owner}: the sampler's ParamSpace differs from the environment's "
+                "(env vs sampler): " + "; ".join(self.space.diff(sampler.space))
+            )
         self._sampler = sampler
 
     def set_attr(self, name: str, values: Any) -> None:
@@ -177,8 +190,10 @@ class BatchedEnv(VectorEnv):
             raise AttributeError(f"{self._owner}.set_attr: only 'sampler' can be set, got {name!r}")
         if isinstance(values, (list, tuple)):
             if len(values) != self.num_envs or any(v is not values[0] for v in values):
-                raise ValueError(f"{self._owner}.set_attr('sampler', ...): the copies share one sampler; "
-                                 "give one sampler (or the same one num_envs times)")
+                raise ValueError(
+                    f"{self._owner}.set_attr('sampler', ...): the copies share one sampler; "
+                    "give one sampler (or the same one num_envs times)"
+                )
             values = values[0]
         self.sampler = values
 
@@ -223,8 +238,10 @@ class BatchedEnv(VectorEnv):
         if xi.shape == (d,):
             xi = np.tile(xi, (n, 1))
         if xi.shape != (n, d):
-            raise ValueError(f"{self._owner}.reset: options['xi'] has shape {xi.shape}, expected ({d},) "
-                             f"or ({n}, {d}) for parameters {self.space.names}")
+            raise ValueError(
+                f"{self._owner}.reset: options['xi'] has shape {xi.shape}, expected ({d},) "
+                f"or ({n}, {d}) for parameters {self.space.names}"
+            )
         for i in range(n):
             self.space.validate(xi[i], what=f"reset options['xi'] of copy {i}")
         return xi
@@ -242,11 +259,16 @@ class BatchedEnv(VectorEnv):
     def _info(self) -> dict[str, Any]:
         n = self.num_envs
         every = np.ones(n, dtype=bool)
-        return {"xi": self._xi.copy(), "_xi": every,
-                "critic_obs": np.concatenate((self._obs, self._xi_normalized), axis=1), "_critic_obs": every.copy()}
+        return {
+            "xi": self._xi.copy(),
+            "_xi": every,
+            "critic_obs": np.concatenate((self._obs, self._xi_normalized), axis=1),
+            "_critic_obs": every.copy(),
+        }
 
-    def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def reset(
+        self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Start every copy's episode (see the module docstring for seeds and options["xi"])."""
         given = self._check_options(options)
         self._seed(seed)
@@ -262,9 +284,9 @@ class BatchedEnv(VectorEnv):
             raise ValueError(f"{self._owner}.step: actions must be finite; copy {int(bad[0])} got {a[bad[0]].tolist()}")
         return a
 
-    def _step_guarded(self, actions: NDArray[np.float64]
-                      ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray],
-                                 dict[int, str]]:
+    def _step_guarded(
+        self, actions: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], dict[str, NDArray], dict[int, str]]:
         """`_step_copies`, with the copies that fail found and named: {index: message}."""
         before = self._get_state(np.arange(self.num_envs))
         try:
@@ -279,8 +301,12 @@ class BatchedEnv(VectorEnv):
             obs, reward, terminated, extra = self._step_copies(actions)
             return obs, reward, terminated, extra, failed
         bad = np.flatnonzero(~np.isfinite(reward))
-        failed = {int(i): self._step_failures.get(int(i), f"copy {int(i)}: non-finite state after step "
-                                                           f"{int(self._steps[i]) + 1}") for i in bad}
+        failed = {
+            int(i): self._step_failures.get(
+                int(i), f"copy {int(i)}: non-finite state after step {int(self._steps[i]) + 1}"
+            )
+            for i in bad
+        }
         self._step_failures = {}
         return obs, reward, terminated, extra, failed
 
@@ -291,10 +317,10 @@ class BatchedEnv(VectorEnv):
         twin, zero = self._twin, np.zeros(1, dtype=np.int64)
         failed = {}
         for i in range(self.num_envs):
-            twin._apply_xi(zero, self._xi[i:i + 1])
-            twin._set_state(zero, before[i:i + 1])
+            twin._apply_xi(zero, self._xi[i : i + 1])
+            twin._set_state(zero, before[i : i + 1])
             try:
-                _, reward, _, _ = twin._step_copies(actions[i:i + 1])
+                _, reward, _, _ = twin._step_copies(actions[i : i + 1])
                 if not math.isfinite(float(reward[0])):
                     failed[i] = f"copy {i}: " + twin._step_failures.get(0, "non-finite state")
                 twin._step_failures = {}
@@ -304,8 +330,9 @@ class BatchedEnv(VectorEnv):
             raise SimulationError(f"{self._owner}: the batched step failed, but no copy fails alone: {message}")
         return failed
 
-    def step(self, actions: ArrayLike) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_],
-                                                NDArray[np.bool_], dict[str, Any]]:
+    def step(
+        self, actions: ArrayLike
+    ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
         """Advance every copy one control period; ended copies are reset in the same step."""
         if self._obs is None:
             raise RuntimeError(f"{self._owner}.step called before reset()")

@@ -42,11 +42,13 @@ from assembly.samplers import Sampler
 __all__ = ["CartpoleConfig", "CartpoleEnv", "CARTPOLE_SPACE"]
 
 #: GoFlow paper appendix A.1 DR box; the nominal point is the box centre (NoDR's default).
-CARTPOLE_SPACE = ParamSpace((
-    Param("pole_mass", 0.01, 20.0, "kg"),
-    Param("cart_mass", 0.01, 20.0, "kg"),
-    Param("slider_friction", 0.0, 1.0, "1"),  # Coulomb coefficient of the cart on its rail
-))
+CARTPOLE_SPACE = ParamSpace(
+    (
+        Param("pole_mass", 0.01, 20.0, "kg"),
+        Param("cart_mass", 0.01, 20.0, "kg"),
+        Param("slider_friction", 0.0, 1.0, "1"),  # Coulomb coefficient of the cart on its rail
+    )
+)
 
 
 @dataclass(frozen=True)
@@ -73,8 +75,17 @@ class CartpoleConfig:
     success_threshold: float = 54.0  # J_T from the seed's 50 (docs/envs.md#horizon-and-j_t)
 
     def __post_init__(self) -> None:
-        for name in ("t_max", "control_dt", "sim_dt", "max_force", "slider_limit", "pole_length", "wheel_radius",
-                     "contact_stiffness", "contact_dissipation"):
+        for name in (
+            "t_max",
+            "control_dt",
+            "sim_dt",
+            "max_force",
+            "slider_limit",
+            "pole_length",
+            "wheel_radius",
+            "contact_stiffness",
+            "contact_dissipation",
+        ):
             check_number(getattr(self, name), f"CartpoleConfig.{name}", 0.0, low_open=True)
         for name in ("slider_damping", "initial_pole_angle"):
             check_number(getattr(self, name), f"CartpoleConfig.{name}", 0.0)
@@ -82,8 +93,10 @@ class CartpoleConfig:
             check_number(getattr(self, name), f"CartpoleConfig.{name}")
         ratio = self.control_dt / self.sim_dt
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(f"Cartpole: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
-                             f"of sim_dt ({self.sim_dt:g} s)")
+            raise InputError(
+                f"Cartpole: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
+                f"of sim_dt ({self.sim_dt:g} s)"
+            )
         check_number(self.pole_com, "CartpoleConfig.pole_com", 0.0, self.pole_length, low_open=True)
         if not np.all(check_finite_array(self.cart_size, "CartpoleConfig.cart_size", (3,)) > 0):
             raise InputError(f"CartpoleConfig.cart_size = {self.cart_size!r}; expected three lengths > 0 [m]")
@@ -116,8 +129,14 @@ def add_cartpole(plant, cfg: CartpoleConfig, instance=None, y: float = 0.0) -> C
     rail along x at lateral offset y [m] (the joint coordinates do not depend on y)."""
     from pydrake.geometry import Box, Sphere
     from pydrake.math import RigidTransform
-    from pydrake.multibody.tree import (FixedOffsetFrame, PrismaticJoint, RevoluteJoint, SpatialInertia,
-                                        UnitInertia, default_model_instance)
+    from pydrake.multibody.tree import (
+        FixedOffsetFrame,
+        PrismaticJoint,
+        RevoluteJoint,
+        SpatialInertia,
+        UnitInertia,
+        default_model_instance,
+    )
 
     instance = default_model_instance() if instance is None else instance
     # Massless carriage between the x slider and the vertical joint; the cart and pole above it
@@ -129,19 +148,38 @@ def add_cartpole(plant, cfg: CartpoleConfig, instance=None, y: float = 0.0) -> C
     rail = plant.world_frame()
     if y != 0.0:
         rail = plant.AddFrame(FixedOffsetFrame("rail", plant.world_frame(), RigidTransform([0.0, y, 0.0]), instance))
-    slider = plant.AddJoint(PrismaticJoint("slider_to_cart", rail, carriage.body_frame(),
-                                           [1.0, 0.0, 0.0], -cfg.slider_limit, cfg.slider_limit,
-                                           cfg.slider_damping))
-    vertical = plant.AddJoint(PrismaticJoint("cart_vertical", carriage.body_frame(), cart.body_frame(), [0.0, 0.0, 1.0]))
+    slider = plant.AddJoint(
+        PrismaticJoint(
+            "slider_to_cart",
+            rail,
+            carriage.body_frame(),
+            [1.0, 0.0, 0.0],
+            -cfg.slider_limit,
+            cfg.slider_limit,
+            cfg.slider_damping,
+        )
+    )
+    vertical = plant.AddJoint(
+        PrismaticJoint("cart_vertical", carriage.body_frame(), cart.body_frame(), [0.0, 0.0, 1.0])
+    )
     hinge = plant.AddJoint(RevoluteJoint("cart_to_pole", cart.body_frame(), pole.body_frame(), [0.0, 1.0, 0.0]))
     actuator = plant.AddJointActuator("slider_force", slider)
-    wheel = plant.RegisterCollisionGeometry(cart, RigidTransform([0.0, 0.0, -0.5 * cfg.cart_size[2]]),
-                                            Sphere(cfg.wheel_radius), "wheel", wheel_contact(0.0, cfg))
+    wheel = plant.RegisterCollisionGeometry(
+        cart,
+        RigidTransform([0.0, 0.0, -0.5 * cfg.cart_size[2]]),
+        Sphere(cfg.wheel_radius),
+        "wheel",
+        wheel_contact(0.0, cfg),
+    )
     # A box, not a HalfSpace (which makes Drake warn about deformable contact).
     name = "ground" if instance == default_model_instance() else f"ground_{plant.GetModelInstanceName(instance)}"
-    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, y, -0.5]),
-                                             Box(4.0 * cfg.slider_limit + 2.0, 2.0, 1.0), name,
-                                             wheel_contact(0.0, cfg))
+    ground = plant.RegisterCollisionGeometry(
+        plant.world_body(),
+        RigidTransform([0.0, y, -0.5]),
+        Box(4.0 * cfg.slider_limit + 2.0, 2.0, 1.0),
+        name,
+        wheel_contact(0.0, cfg),
+    )
     # SAP with its default "lagged" approximation: it enforces the slider limits, and stays stable
     # for 0.02 kg carts hitting them; TAMSI (~4x faster) ignores joint limits and diverges on stiff
     # end stops, and SAP's "sap"/"similar" approximations make a sliding cart float (normal
@@ -154,8 +192,9 @@ class CartpoleEnv(PlantEnv):
 
     _owner = "Cartpole"
 
-    def __init__(self, config: CartpoleConfig | None = None, *, sampler: Sampler | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self, config: CartpoleConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+    ) -> None:
         self.config = config_with_overrides(CartpoleConfig, config, overrides, "CartpoleEnv")
         super().__init__(CARTPOLE_SPACE, sampler)
         cfg = self.config
@@ -204,8 +243,9 @@ class CartpoleEnv(PlantEnv):
         if mu != self._friction_set:
             source = self._plant.get_source_id()
             for gid in self._geometries:  # equal coefficients combine to the same mu
-                self._scene_graph.AssignRole(self._sg_context, source, gid, wheel_contact(mu, self.config),
-                                             RoleAssign.kReplace)
+                self._scene_graph.AssignRole(
+                    self._sg_context, source, gid, wheel_contact(mu, self.config), RoleAssign.kReplace
+                )
             self._friction_set = mu
 
     def _initial_plant_state(self, xi: NDArray[np.float64], theta0: float = 0.0) -> NDArray[np.float64]:
@@ -226,8 +266,12 @@ class CartpoleEnv(PlantEnv):
     def _reward(self, state: list[float]) -> float:
         cfg = self.config
         theta = self._wrap(state[2])
-        return (cfg.rew_alive + cfg.rew_pole_angle * theta * theta + cfg.rew_cart_vel * abs(state[3])
-                + cfg.rew_pole_vel * abs(state[5]))
+        return (
+            cfg.rew_alive
+            + cfg.rew_pole_angle * theta * theta
+            + cfg.rew_cart_vel * abs(state[3])
+            + cfg.rew_pole_vel * abs(state[5])
+        )
 
     # -- ParamEnv ------------------------------------------------------------------------------
 
@@ -239,8 +283,7 @@ class CartpoleEnv(PlantEnv):
         self._start(xi, state)
         return self._observe(state.tolist())
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         force = self.config.max_force * min(1.0, max(-1.0, float(action[0])))
         state = self._advance(force)
         return self._observe(state), self._reward(state), False, {}

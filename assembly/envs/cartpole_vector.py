@@ -16,7 +16,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
-from assembly.envs.cartpole import (CARTPOLE_SPACE, CartpoleConfig, wheel_contact, add_cartpole, cart_height)
+from assembly.envs.cartpole import CARTPOLE_SPACE, CartpoleConfig, wheel_contact, add_cartpole, cart_height
 from assembly.envs.drake_sim import HeldInput, filter_between_copies
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
@@ -31,16 +31,30 @@ class CartpoleVectorEnv(BatchedEnv):
 
     _owner = "CartpoleVectorEnv"
 
-    def __init__(self, num_envs: int = 1, config: CartpoleConfig | None = None, *, sampler: Sampler | None = None,
-                 max_episode_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: CartpoleConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        max_episode_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(CartpoleConfig, config, overrides, self._owner)
         self._obs_high = np.array((cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0))
         high = self._obs_high.astype(np.float32)
         steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
-        super().__init__(n, CARTPOLE_SPACE, sampler, spaces.Box(-high, high, dtype=np.float32),
-                         spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32), cfg.control_dt, steps,
-                         cfg.success_threshold)
+        super().__init__(
+            n,
+            CARTPOLE_SPACE,
+            sampler,
+            spaces.Box(-high, high, dtype=np.float32),
+            spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32),
+            cfg.control_dt,
+            steps,
+            cfg.success_threshold,
+        )
         self._build()
 
     def _build(self) -> None:
@@ -51,8 +65,9 @@ class CartpoleVectorEnv(BatchedEnv):
         cfg, n = self.config, self.num_envs
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=cfg.sim_dt)
-        self._copies = [add_cartpole(plant, cfg, plant.AddModelInstance(f"cartpole_{i}"), _SPACING * i)
-                        for i in range(n)]
+        self._copies = [
+            add_cartpole(plant, cfg, plant.AddModelInstance(f"cartpole_{i}"), _SPACING * i) for i in range(n)
+        ]
         plant.Finalize()
         filter_between_copies(scene_graph, [c.geometries for c in self._copies])
         self._diagram = builder.Build()
@@ -87,8 +102,9 @@ class CartpoleVectorEnv(BatchedEnv):
             copy.cart.SetMass(self._plant_context, float(cart_mass))
             if mu != self._friction_set[i]:
                 for gid in copy.geometries:
-                    self._scene_graph.AssignRole(self._sg_context, source, gid, wheel_contact(float(mu), self.config),
-                                                 RoleAssign.kReplace)
+                    self._scene_graph.AssignRole(
+                        self._sg_context, source, gid, wheel_contact(float(mu), self.config), RoleAssign.kReplace
+                    )
                 self._friction_set[i] = mu
 
     def _rest(self, xi: NDArray[np.float64], theta0: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -101,8 +117,9 @@ class CartpoleVectorEnv(BatchedEnv):
     def _rest_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         return self._rest(self._xi[idx], np.zeros(len(idx)))
 
-    def _reset_copies(self, idx: NDArray[np.int64], xi: NDArray[np.float64],
-                      rngs: list[np.random.Generator]) -> NDArray[np.float32]:
+    def _reset_copies(
+        self, idx: NDArray[np.int64], xi: NDArray[np.float64], rngs: list[np.random.Generator]
+    ) -> NDArray[np.float32]:
         a = self.config.initial_pole_angle
         theta0 = np.array([float(rng.uniform(-a, a)) if a > 0 else 0.0 for rng in rngs])
         rows = self._rest(xi, theta0)
@@ -140,7 +157,11 @@ class CartpoleVectorEnv(BatchedEnv):
         self._advance_period()
         rows = self._get_state(np.arange(self.num_envs))
         theta = (rows[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
-        reward = (cfg.rew_alive + cfg.rew_pole_angle * theta * theta + cfg.rew_cart_vel * np.abs(rows[:, 3])
-                  + cfg.rew_pole_vel * np.abs(rows[:, 5]))
+        reward = (
+            cfg.rew_alive
+            + cfg.rew_pole_angle * theta * theta
+            + cfg.rew_cart_vel * np.abs(rows[:, 3])
+            + cfg.rew_pole_vel * np.abs(rows[:, 5])
+        )
         reward[~np.isfinite(rows).all(axis=1)] = np.nan
         return self._observe(rows), reward, np.zeros(self.num_envs, dtype=bool), {}

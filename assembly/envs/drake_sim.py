@@ -38,8 +38,12 @@ def point_contact_properties(stiffness: float, dissipation: float, friction: flo
     from pydrake.multibody.plant import CoulombFriction
 
     props = ProximityProperties()
-    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness,
-                       friction=CoulombFriction(friction, friction), properties=props)
+    AddContactMaterial(
+        dissipation=dissipation,
+        point_stiffness=stiffness,
+        friction=CoulombFriction(friction, friction),
+        properties=props,
+    )
     return props
 
 
@@ -70,9 +74,14 @@ def advance(simulator: Simulator, t: float, owner: str) -> None:
         raise SimulationError(f"{owner}: Drake failed advancing to t = {t:.4f} s: {exc}") from exc
 
 
-def rollout_fixed_inputs(simulator: Simulator, held: HeldInput, inputs: NDArray[np.float64], dt: float,
-                         read_state: Callable[[], NDArray[np.float64]], owner: str
-                         ) -> NDArray[np.float64]:
+def rollout_fixed_inputs(
+    simulator: Simulator,
+    held: HeldInput,
+    inputs: NDArray[np.float64],
+    dt: float,
+    read_state: Callable[[], NDArray[np.float64]],
+    owner: str,
+) -> NDArray[np.float64]:
     """Hold each row of `inputs` for `dt` in turn, from the simulator's current time; return
     read_state() after every step, stacked."""
     t0 = simulator.get_context().get_time()
@@ -92,7 +101,7 @@ def filter_between_copies(scene_graph, copies: Sequence[Sequence[Any]]) -> None:
     manager = scene_graph.collision_filter_manager()
     later = [gid for copy in copies for gid in copy]
     for copy in copies[:-1]:
-        later = later[len(copy):]
+        later = later[len(copy) :]
         manager.Apply(CollisionFilterDeclaration().ExcludeBetween(GeometrySet(list(copy)), GeometrySet(later)))
 
 
@@ -162,8 +171,9 @@ class PlantEnv(ParamEnv):
         """The plant state the last reset started from (None before the first reset)."""
         return None if self._initial_state is None else self._initial_state.copy()
 
-    def bare_rollout(self, xi: ArrayLike, actions: ArrayLike,
-                     initial_state: ArrayLike | None = None) -> NDArray[np.float64]:
+    def bare_rollout(
+        self, xi: ArrayLike, actions: ArrayLike, initial_state: ArrayLike | None = None
+    ) -> NDArray[np.float64]:
         """Advance the bare Drake simulator through `actions` (T, action dim) with no gym wrapper.
 
         Starts from `initial_state` (default: the state the last reset started from, else
@@ -178,5 +188,10 @@ class PlantEnv(ParamEnv):
         self._done = True
         self._start(xi, np.asarray(initial_state, dtype=np.float64))
         return rollout_fixed_inputs(
-            self._simulator, self._input, inputs, self.control_dt,
-            lambda: self._plant.GetPositionsAndVelocities(self._plant_context), f"{self._owner}.bare_rollout")
+            self._simulator,
+            self._input,
+            inputs,
+            self.control_dt,
+            lambda: self._plant.GetPositionsAndVelocities(self._plant_context),
+            f"{self._owner}.bare_rollout",
+        )

@@ -56,7 +56,12 @@ from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from assembly.world import (
-    ContactOverrides, GraspHold, grasp_with_error, insertion_error, is_seated, nominal_grasp,
+    ContactOverrides,
+    GraspHold,
+    grasp_with_error,
+    insertion_error,
+    is_seated,
+    nominal_grasp,
 )
 
 VARIANTS = ("fast", "panda")
@@ -98,24 +103,38 @@ class GearInsertionConfig:
         check_choice(self.variant, VARIANTS, "GearInsertionConfig.variant")
         for name in ("grasp_hold", "contact"):
             if getattr(self, name) is not None and self.variant != "panda":
-                raise InputError(f"GearInsertionConfig.{name} = {getattr(self, name)!r}; expected None "
-                                 f"for variant {self.variant!r} (only the panda variant models it)")
-        for name in ("grasp_xy", "grasp_yaw", "control_dt", "t_max", "start_height", "shaping_near",
-                     "shaping_far", "fast_time_step", "panda_time_step"):
+                raise InputError(
+                    f"GearInsertionConfig.{name} = {getattr(self, name)!r}; expected None "
+                    f"for variant {self.variant!r} (only the panda variant models it)"
+                )
+        for name in (
+            "grasp_xy",
+            "grasp_yaw",
+            "control_dt",
+            "t_max",
+            "start_height",
+            "shaping_near",
+            "shaping_far",
+            "fast_time_step",
+            "panda_time_step",
+        ):
             check_number(getattr(self, name), f"GearInsertionConfig.{name}", 0.0, low_open=True)
         for name in ("success_threshold", "shaping_weight", "progress_weight"):
             check_number(getattr(self, name), f"GearInsertionConfig.{name}")
         for name in ("action_scale", "workspace"):  # per action: x, y, z [m], yaw [rad]
             value = getattr(self, name)
             if not np.all(check_finite_array(value, f"GearInsertionConfig.{name}", (4,)) > 0):
-                raise InputError(f"GearInsertionConfig.{name} = {value!r}; expected 4 numbers > 0 "
-                                 "(x, y, z [m], yaw [rad])")
+                raise InputError(
+                    f"GearInsertionConfig.{name} = {value!r}; expected 4 numbers > 0 (x, y, z [m], yaw [rad])"
+                )
         for name in ("fast_time_step", "panda_time_step"):
             dt = getattr(self, name)
             steps = self.control_dt / dt
             if abs(steps - round(steps)) >= 1e-9:
-                raise InputError(f"GearInsertionConfig.{name} = {dt!r}; expected a step that divides "
-                                 f"control_dt = {self.control_dt} into whole physics steps")
+                raise InputError(
+                    f"GearInsertionConfig.{name} = {dt!r}; expected a step that divides "
+                    f"control_dt = {self.control_dt} into whole physics steps"
+                )
         check_int(self.history, "GearInsertionConfig.history", 2)
 
 
@@ -132,9 +151,13 @@ def tool_down_pose(p: np.ndarray, yaw: float) -> RigidTransform:
 
 def grasp_error_space(c: GearInsertionConfig) -> ParamSpace:
     """xi: the grasp error (x, y [m] along the tool's axes, yaw [rad]) over the config's box."""
-    return ParamSpace((Param("x", -c.grasp_xy, c.grasp_xy, "m"),
-                       Param("y", -c.grasp_xy, c.grasp_xy, "m"),
-                       Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad")))
+    return ParamSpace(
+        (
+            Param("x", -c.grasp_xy, c.grasp_xy, "m"),
+            Param("y", -c.grasp_xy, c.grasp_xy, "m"),
+            Param("yaw", -c.grasp_yaw, c.grasp_yaw, "rad"),
+        )
+    )
 
 
 def observation_space(c: GearInsertionConfig) -> spaces.Box:
@@ -155,17 +178,21 @@ def seated_and_start(c: GearInsertionConfig, X_WS: RigidTransform) -> tuple[NDAr
 def insertion_reward(c: GearInsertionConfig, seated: bool, d: float, d_before: float) -> float:
     """The step reward: 1 when seated, two tanh shaping terms in the distance d [m] to the seat, and
     progress (d_before - d)."""
-    return (float(seated) + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
-            + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far)) + c.progress_weight * (d_before - d))
+    return (
+        float(seated)
+        + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_near))
+        + c.shaping_weight * (1.0 - math.tanh(d / c.shaping_far))
+        + c.progress_weight * (d_before - d)
+    )
 
 
 class GearInsertionEnv(ParamEnv):
     """Insert a gear held with grasp error xi = (x, y, yaw) onto its shaft."""
 
-    def __init__(self, config: GearInsertionConfig | None = None, *, sampler: Sampler | None = None,
-                 **overrides: Any) -> None:
-        self.config = c = config_with_overrides(GearInsertionConfig, config, overrides,
-                                                "GearInsertionEnv")
+    def __init__(
+        self, config: GearInsertionConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+    ) -> None:
+        self.config = c = config_with_overrides(GearInsertionConfig, config, overrides, "GearInsertionEnv")
         super().__init__(grasp_error_space(c), sampler)
         self._set_timing(c.control_dt, c.t_max, c.success_threshold)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
@@ -223,8 +250,7 @@ class GearInsertionEnv(ParamEnv):
         self._d = math.hypot(*self.insertion_error())
         return self._observation()
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         self._sim.advance(self._target(action), self.control_dt)
         pose = self._sim.tool_pose()
         if not np.all(np.isfinite(pose)):
@@ -235,8 +261,7 @@ class GearInsertionEnv(ParamEnv):
         d = math.hypot(lateral, height)
         reward = insertion_reward(self.config, seated, d, self._d)
         self._d = d
-        return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral,
-                                                    "height_error": height}
+        return self._observation(), reward, False, {"seated": seated, "lateral_error": lateral, "height_error": height}
 
 
 class _FastSim:
@@ -244,8 +269,11 @@ class _FastSim:
 
     def __init__(self, c: GearInsertionConfig) -> None:
         from assembly.insertion_model import (
-            FastInsertionConfig, build_fast_insertion, gravity_feedforward,
+            FastInsertionConfig,
+            build_fast_insertion,
+            gravity_feedforward,
         )
+
         self.model = build_fast_insertion(FastInsertionConfig(gear=c.gear, time_step=c.fast_time_step))
         self.X_WS = self.model.X_WS(c.gear)
         self._gear = c.gear
@@ -285,10 +313,14 @@ class _PandaSim:
         from assembly.cameras import CamerasConfig
         from assembly.station import StationConfig, build_station
         from assembly.world import WorldConfig
-        self.station = build_station(StationConfig(
-            world=WorldConfig(gears=(), held_gear=c.gear, grasp_hold=c.grasp_hold, contact=c.contact),
-            time_step=c.panda_time_step,
-            cameras=CamerasConfig(scene=None, wrist=None)))
+
+        self.station = build_station(
+            StationConfig(
+                world=WorldConfig(gears=(), held_gear=c.gear, grasp_hold=c.grasp_hold, contact=c.contact),
+                time_step=c.panda_time_step,
+                cameras=CamerasConfig(scene=None, wrist=None),
+            )
+        )
         self.X_WS = self.station.models.X_WS(c.gear)
         self._gear = c.gear
         self.context = self.station.diagram.CreateDefaultContext()
@@ -304,6 +336,7 @@ class _PandaSim:
 
     def prepare(self, X_WT_start: RigidTransform) -> None:
         from assembly.panda_ik import solve_tool_ik
+
         self._q_start = solve_tool_ik(X_WT_start)
         self._X_start = X_WT_start
 

@@ -19,11 +19,23 @@ from numpy.typing import NDArray
 
 from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
 from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
-from assembly.envs.gear_insertion import (GearInsertionConfig, tool_down_pose, grasp_error_space, insertion_reward,
-                                          observation_space, seated_and_start)
+from assembly.envs.gear_insertion import (
+    GearInsertionConfig,
+    tool_down_pose,
+    grasp_error_space,
+    insertion_reward,
+    observation_space,
+    seated_and_start,
+)
 from assembly.insertion_law import InsertionLaw, PoseHistory
-from assembly.insertion_model import (FastInsertionConfig, FastInsertionModel, add_fast_fixtures, add_fast_tool,
-                                      fast_plant_config, gravity_feedforward)
+from assembly.insertion_model import (
+    FastInsertionConfig,
+    FastInsertionModel,
+    add_fast_fixtures,
+    add_fast_tool,
+    fast_plant_config,
+    gravity_feedforward,
+)
 from assembly.samplers import Sampler
 from assembly.world import grasp_with_error, insertion_error, is_seated
 from goflow_common.config import config_with_overrides
@@ -37,17 +49,33 @@ class GearInsertionVectorEnv(BatchedEnv):
 
     _owner = "GearInsertionVectorEnv"
 
-    def __init__(self, num_envs: int = 1, config: GearInsertionConfig | None = None, *,
-                 sampler: Sampler | None = None, max_episode_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: GearInsertionConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        max_episode_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         n = check_num_envs(num_envs, self._owner)
         self.config = c = config_with_overrides(GearInsertionConfig, config, overrides, self._owner)
         if c.variant != "fast":
-            raise InputError(f"{self._owner}: variant {c.variant!r} has no batched env; expected 'fast' "
-                             "(use vectorization_mode='sync' for the full station)")
+            raise InputError(
+                f"{self._owner}: variant {c.variant!r} has no batched env; expected 'fast' "
+                "(use vectorization_mode='sync' for the full station)"
+            )
         steps = episode_steps(c.t_max, c.control_dt, max_episode_steps)
-        super().__init__(n, grasp_error_space(c), sampler, observation_space(c),
-                         spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32), c.control_dt, steps,
-                         c.success_threshold)
+        super().__init__(
+            n,
+            grasp_error_space(c),
+            sampler,
+            observation_space(c),
+            spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32),
+            c.control_dt,
+            steps,
+            c.success_threshold,
+        )
         self._build()
 
     def _build(self) -> None:
@@ -62,8 +90,14 @@ class GearInsertionVectorEnv(BatchedEnv):
         X_WP = add_fast_fixtures(plant, fast)
         copies = [add_fast_tool(plant, fast, plant.AddModelInstance(f"tool_{i}")) for i in range(n)]
         plant.Finalize()
-        geometries = [[g for body in (plant.GetBodyIndices(tool.model_instance()) + plant.GetBodyIndices(held.instance))
-                       for g in plant.GetCollisionGeometriesForBody(plant.get_body(body))] for tool, held in copies]
+        geometries = [
+            [
+                g
+                for body in (plant.GetBodyIndices(tool.model_instance()) + plant.GetBodyIndices(held.instance))
+                for g in plant.GetCollisionGeometriesForBody(plant.get_body(body))
+            ]
+            for tool, held in copies
+        ]
         filter_between_copies(scene_graph, geometries)
         self._diagram = builder.Build()
         self._plant = plant
@@ -77,13 +111,16 @@ class GearInsertionVectorEnv(BatchedEnv):
         self._desired = []
         for tool, _ in copies:
             plant.get_actuation_input_port(tool.model_instance()).FixValue(self._pc, feedforward)
-            self._desired.append(HeldInput(plant.get_desired_state_input_port(tool.model_instance()), self._pc,
-                                           np.zeros(8)))
+            self._desired.append(
+                HeldInput(plant.get_desired_state_input_port(tool.model_instance()), self._pc, np.zeros(8))
+            )
         nq, nv = plant.num_positions(), plant.num_velocities()
-        q = np.array([plant.GetPositionsFromArray(tool.model_instance(), np.arange(nq, dtype=float))
-                      for tool, _ in copies]).astype(int)
-        v = np.array([plant.GetVelocitiesFromArray(tool.model_instance(), np.arange(nv, dtype=float))
-                      for tool, _ in copies]).astype(int)
+        q = np.array(
+            [plant.GetPositionsFromArray(tool.model_instance(), np.arange(nq, dtype=float)) for tool, _ in copies]
+        ).astype(int)
+        v = np.array(
+            [plant.GetVelocitiesFromArray(tool.model_instance(), np.arange(nv, dtype=float)) for tool, _ in copies]
+        ).astype(int)
         self._columns = np.concatenate((q, nq + v), axis=1)  # (n, 8): x y z yaw and their rates
         X_WS = self._model.X_WS(c.gear)
         self._X_SW = X_WS.inverse()
@@ -108,8 +145,9 @@ class GearInsertionVectorEnv(BatchedEnv):
         rows[:, :8] = np.concatenate((self._q_start, np.zeros(4)))
         return rows
 
-    def _reset_copies(self, idx: NDArray[np.int64], xi: NDArray[np.float64],
-                      rngs: list[np.random.Generator]) -> NDArray[np.float32]:
+    def _reset_copies(
+        self, idx: NDArray[np.int64], xi: NDArray[np.float64], rngs: list[np.random.Generator]
+    ) -> NDArray[np.float32]:
         if len(idx) == self.num_envs:  # a full reset restarts the clock, as the single env does
             self._context.SetTime(0.0)
         full = self._plant.GetPositionsAndVelocities(self._pc).copy()

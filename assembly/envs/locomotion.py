@@ -69,8 +69,9 @@ class LocomotionConfig:
     def __post_init__(self) -> None:
         if self.params is not None:
             if isinstance(self.params, str) or not all(isinstance(p, str) for p in self.params) or not self.params:
-                raise InputError(f"LocomotionConfig.params must be a non-empty list of parameter names, "
-                                 f"got {self.params!r}")
+                raise InputError(
+                    f"LocomotionConfig.params must be a non-empty list of parameter names, got {self.params!r}"
+                )
             object.__setattr__(self, "params", tuple(self.params))
         for name in ("time_step", "point_stiffness", "dissipation"):
             if getattr(self, name) is not None:
@@ -83,8 +84,9 @@ class LocomotionConfig:
         if self.success_threshold is not None:
             check_number(self.success_threshold, "LocomotionConfig.success_threshold")
         check_choice(self.terminate_when_unhealthy, (True, False), "LocomotionConfig.terminate_when_unhealthy")
-        check_choice(self.contact_approximation, ("lagged", "similar", "sap", "tamsi"),
-                     "LocomotionConfig.contact_approximation")
+        check_choice(
+            self.contact_approximation, ("lagged", "similar", "sap", "tamsi"), "LocomotionConfig.contact_approximation"
+        )
 
 
 @dataclass(frozen=True)
@@ -107,8 +109,9 @@ class LocomotionEnv(ParamEnv):
 
     task: ClassVar[_Task]
 
-    def __init__(self, config: LocomotionConfig | None = None, *, sampler: Sampler | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self, config: LocomotionConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+    ) -> None:
         self.config = cfg = config_with_overrides(LocomotionConfig, config, overrides, type(self).__name__)
         task = self.task
         spec = read_mjcf(_model_file(cfg.xml_file or task.xml))
@@ -129,8 +132,11 @@ class LocomotionEnv(ParamEnv):
         space = ParamSpace(tuple(p for p, _, _ in self._params))
         super().__init__(space, sampler)
         threshold = task.reward_threshold if cfg.success_threshold is None else cfg.success_threshold
-        self._set_timing(time_step * self.frame_skip, time_step * self.frame_skip * cfg.horizon,
-                         math.inf if threshold is None else threshold)
+        self._set_timing(
+            time_step * self.frame_skip,
+            time_step * self.frame_skip * cfg.horizon,
+            math.inf if threshold is None else threshold,
+        )
         self.reset_noise_scale = task.reset_noise_scale if cfg.reset_noise_scale is None else cfg.reset_noise_scale
 
         from pydrake.systems.analysis import Simulator
@@ -192,7 +198,7 @@ class LocomotionEnv(ParamEnv):
         knees start 2 degrees outside their range)."""
         x = self.model.from_mujoco(np.asarray(qpos, float), np.asarray(qvel, float))
         plant = self.model.plant
-        x[:self._nq] = np.clip(x[:self._nq], self._q_low, self._q_high)
+        x[: self._nq] = np.clip(x[: self._nq], self._q_low, self._q_high)
         plant.SetPositionsAndVelocities(self._plant_context, x)
         self._simulator.Initialize()
 
@@ -254,8 +260,7 @@ class LocomotionEnv(ParamEnv):
     def _healthy(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> bool:
         return True
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         task = self.task
         x_before = self._forward_position(self.mujoco_state()[0])
         qpos, qvel = self._advance(action)
@@ -268,8 +273,13 @@ class LocomotionEnv(ParamEnv):
         obs = self._observe(qpos, qvel)
         reward = forward + survive - ctrl_cost - self._extra_cost()
         terminated = (not healthy) and self.config.terminate_when_unhealthy
-        info = {"x_position": x_after, "x_velocity": velocity, "reward_forward": forward,
-                "reward_ctrl": -ctrl_cost, "reward_survive": survive}
+        info = {
+            "x_position": x_after,
+            "x_velocity": velocity,
+            "reward_forward": forward,
+            "reward_ctrl": -ctrl_cost,
+            "reward_survive": survive,
+        }
         return obs, float(reward), bool(terminated), info
 
     def _extra_cost(self) -> float:
@@ -295,11 +305,23 @@ def _planar_observation(qpos: NDArray[np.float64], qvel: NDArray[np.float64], cl
 class HopperEnv(LocomotionEnv):
     """Hopper-v5 on Drake; xi: 4 link masses, thigh and leg damping."""
 
-    task = _Task("hopper.xml", 4, 5e-3, 1e-3, 1.0, 1.0, 3800.0, (
-        ("torso_mass", "mass", ("torso",), "kg"), ("thigh_mass", "mass", ("thigh",), "kg"),
-        ("leg_mass", "mass", ("leg",), "kg"), ("foot_mass", "mass", ("foot",), "kg"),
-        ("thigh_damping", "damping", ("thigh_joint",), "N m s/rad"),
-        ("leg_damping", "damping", ("leg_joint",), "N m s/rad")))
+    task = _Task(
+        "hopper.xml",
+        4,
+        5e-3,
+        1e-3,
+        1.0,
+        1.0,
+        3800.0,
+        (
+            ("torso_mass", "mass", ("torso",), "kg"),
+            ("thigh_mass", "mass", ("thigh",), "kg"),
+            ("leg_mass", "mass", ("leg",), "kg"),
+            ("foot_mass", "mass", ("foot",), "kg"),
+            ("thigh_damping", "damping", ("thigh_joint",), "N m s/rad"),
+            ("leg_damping", "damping", ("leg_joint",), "N m s/rad"),
+        ),
+    )
 
     def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
         return _planar_observation(qpos, qvel, clip=True)
@@ -312,12 +334,24 @@ class HopperEnv(LocomotionEnv):
 class Walker2dEnv(LocomotionEnv):
     """Walker2d-v5 on Drake; xi: 4 link masses (legs in pairs), hip and knee damping, floor friction."""
 
-    task = _Task("walker2d_v5.xml", 4, 5e-3, 1e-3, 1.0, 1.0, None, (
-        ("torso_mass", "mass", ("torso",), "kg"), ("thigh_mass", "mass", ("thigh", "thigh_left"), "kg"),
-        ("leg_mass", "mass", ("leg", "leg_left"), "kg"), ("foot_mass", "mass", ("foot", "foot_left"), "kg"),
-        ("hip_damping", "damping", ("thigh_joint", "thigh_left_joint"), "N m s/rad"),
-        ("knee_damping", "damping", ("leg_joint", "leg_left_joint"), "N m s/rad"),
-        ("floor_friction", "friction", ("foot_geom",), "1")))
+    task = _Task(
+        "walker2d_v5.xml",
+        4,
+        5e-3,
+        1e-3,
+        1.0,
+        1.0,
+        None,
+        (
+            ("torso_mass", "mass", ("torso",), "kg"),
+            ("thigh_mass", "mass", ("thigh", "thigh_left"), "kg"),
+            ("leg_mass", "mass", ("leg", "leg_left"), "kg"),
+            ("foot_mass", "mass", ("foot", "foot_left"), "kg"),
+            ("hip_damping", "damping", ("thigh_joint", "thigh_left_joint"), "N m s/rad"),
+            ("knee_damping", "damping", ("leg_joint", "leg_left_joint"), "N m s/rad"),
+            ("floor_friction", "friction", ("foot_geom",), "1"),
+        ),
+    )
 
     def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
         return _planar_observation(qpos, qvel, clip=True)
@@ -330,11 +364,21 @@ class HalfCheetahEnv(LocomotionEnv):
     """HalfCheetah-v5 on Drake; xi: 7 body masses, 6 joint dampings, floor friction."""
 
     _links = ("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot")
-    task = _Task("half_cheetah.xml", 5, 0.1, 0.1, 1.0, 0.0, 4800.0, (
-        ("torso_mass", "mass", ("torso",), "kg"),
-        *((f"{n}_mass", "mass", (n,), "kg") for n in _links),
-        *((f"{n}_damping", "damping", (n,), "N m s/rad") for n in _links),
-        ("floor_friction", "friction", ("bfoot",), "1")))
+    task = _Task(
+        "half_cheetah.xml",
+        5,
+        0.1,
+        0.1,
+        1.0,
+        0.0,
+        4800.0,
+        (
+            ("torso_mass", "mass", ("torso",), "kg"),
+            *((f"{n}_mass", "mass", (n,), "kg") for n in _links),
+            *((f"{n}_damping", "damping", (n,), "N m s/rad") for n in _links),
+            ("floor_friction", "friction", ("bfoot",), "1"),
+        ),
+    )
 
     def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
         return _planar_observation(qpos, qvel, clip=False)
@@ -347,15 +391,53 @@ class HumanoidEnv(LocomotionEnv):
     """Humanoid-v5 on Drake (348-dim observation with MuJoCo's com-based quantities); xi: 13
     body masses, 17 joint dampings."""
 
-    _bodies = ("torso", "lwaist", "pelvis", "right_thigh", "right_shin", "right_foot", "left_thigh",
-               "left_shin", "left_foot", "right_upper_arm", "right_lower_arm", "left_upper_arm",
-               "left_lower_arm")
-    _joints = ("abdomen_z", "abdomen_y", "abdomen_x", "right_hip_x", "right_hip_z", "right_hip_y",
-               "right_knee", "left_hip_x", "left_hip_z", "left_hip_y", "left_knee", "right_shoulder1",
-               "right_shoulder2", "right_elbow", "left_shoulder1", "left_shoulder2", "left_elbow")
-    task = _Task("humanoid.xml", 5, 1e-2, 0.1, 1.25, 5.0, None, (
-        *((f"{n}_mass", "mass", (n,), "kg") for n in _bodies),
-        *((f"{n}_damping", "damping", (n,), "N m s/rad") for n in _joints)))
+    _bodies = (
+        "torso",
+        "lwaist",
+        "pelvis",
+        "right_thigh",
+        "right_shin",
+        "right_foot",
+        "left_thigh",
+        "left_shin",
+        "left_foot",
+        "right_upper_arm",
+        "right_lower_arm",
+        "left_upper_arm",
+        "left_lower_arm",
+    )
+    _joints = (
+        "abdomen_z",
+        "abdomen_y",
+        "abdomen_x",
+        "right_hip_x",
+        "right_hip_z",
+        "right_hip_y",
+        "right_knee",
+        "left_hip_x",
+        "left_hip_z",
+        "left_hip_y",
+        "left_knee",
+        "right_shoulder1",
+        "right_shoulder2",
+        "right_elbow",
+        "left_shoulder1",
+        "left_shoulder2",
+        "left_elbow",
+    )
+    task = _Task(
+        "humanoid.xml",
+        5,
+        1e-2,
+        0.1,
+        1.25,
+        5.0,
+        None,
+        (
+            *((f"{n}_mass", "mass", (n,), "kg") for n in _bodies),
+            *((f"{n}_damping", "damping", (n,), "N m s/rad") for n in _joints),
+        ),
+    )
     contact_cost_weight = 5e-7
     contact_cost_max = 10.0
 
@@ -403,8 +485,16 @@ class HumanoidEnv(LocomotionEnv):
 
     def _observe(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> NDArray[np.float32]:
         q = self._quantities = self.com_quantities()  # the contact cost of this step reads them
-        return np.concatenate([qpos[2:], qvel, q["cinert"].ravel(), q["cvel"].ravel(),
-                               q["qfrc_actuator"][self._hinge_order()], q["cfrc_ext"].ravel()]).astype(np.float32)
+        return np.concatenate(
+            [
+                qpos[2:],
+                qvel,
+                q["cinert"].ravel(),
+                q["cvel"].ravel(),
+                q["qfrc_actuator"][self._hinge_order()],
+                q["cfrc_ext"].ravel(),
+            ]
+        ).astype(np.float32)
 
     def _hinge_order(self) -> NDArray[np.int64]:
         """Actuator rows in qvel (hinge joint) order, for qfrc_actuator[6:]."""

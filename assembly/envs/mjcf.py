@@ -33,8 +33,16 @@ from numpy.typing import NDArray
 from assembly.envs.base import quaternion_rotation
 from goflow_common.errors import InputError
 
-__all__ = ["MjcfSpec", "MjcfPlant", "ContactSettings", "gymnasium_asset", "read_mjcf", "build_plant",
-           "pair_friction", "drake_coefficient"]
+__all__ = [
+    "MjcfSpec",
+    "MjcfPlant",
+    "ContactSettings",
+    "gymnasium_asset",
+    "read_mjcf",
+    "build_plant",
+    "pair_friction",
+    "drake_coefficient",
+]
 
 #: Drake's floor coefficient; each robot geometry's coefficient is solved so that Drake's pair
 #: combination 2ab/(a+b) equals MuJoCo's pair value (any floor value above half the largest works).
@@ -50,8 +58,10 @@ def gymnasium_asset(file_name: str) -> Path:
         raise InputError("gymnasium is not installed; its MuJoCo assets hold the model files") from exc
     path = Path(gymnasium.__file__).parent / "envs" / "mujoco" / "assets" / file_name
     if not path.is_file():
-        raise InputError(f"MuJoCo model file {file_name!r} not found at {path} (gymnasium "
-                         f"{gymnasium.__version__}); expected one of gymnasium's MuJoCo assets")
+        raise InputError(
+            f"MuJoCo model file {file_name!r} not found at {path} (gymnasium "
+            f"{gymnasium.__version__}); expected one of gymnasium's MuJoCo assets"
+        )
     return path
 
 
@@ -130,7 +140,7 @@ def read_mjcf(path: str | Path) -> MjcfSpec:
         raise InputError(f"{path.name}: no world geom to stand on")
     actuators = []
     act = root.find("actuator")
-    for motor in ([] if act is None else list(act)):
+    for motor in [] if act is None else list(act):
         if motor.tag != "motor" or motor.get("joint") is None:
             raise InputError(f"{path.name}: actuator <{motor.tag}> is not a joint motor (unsupported)")
         lo, hi = _floats(attr(motor, "motor", "ctrlrange", "-inf inf"), 2)
@@ -144,17 +154,31 @@ def read_mjcf(path: str | Path) -> MjcfSpec:
             raise InputError(f"{path.name}: tendon {tendon.get('name')!r} is not inert ({sorted(keys)}); unsupported")
         if act is not None and any(a.get("tendon") == tendon.get("name") for a in act):
             raise InputError(f"{path.name}: tendon {tendon.get('name')!r} is actuated; unsupported")
-    return MjcfSpec(path, timestep, total_mass, tuple(joints), joint_types, stiffness, tuple(bodies),
-                    geoms, tuple(actuators), floor, parents)
+    return MjcfSpec(
+        path,
+        timestep,
+        total_mass,
+        tuple(joints),
+        joint_types,
+        stiffness,
+        tuple(bodies),
+        geoms,
+        tuple(actuators),
+        floor,
+        parents,
+    )
 
 
 def _geom_entry(geom: ET.Element, attr, body: str) -> dict[str, Any]:
     if geom.get("name") is None:
         raise InputError("every MJCF geom needs a name (the Drake geometry is matched by it)")
-    return {"body": body, "contype": int(attr(geom, "geom", "contype", "1")),
-            "conaffinity": int(attr(geom, "geom", "conaffinity", "1")),
-            "condim": int(attr(geom, "geom", "condim", "3")),
-            "friction": _floats(attr(geom, "geom", "friction", "1 0.005 0.0001"))[0]}
+    return {
+        "body": body,
+        "contype": int(attr(geom, "geom", "contype", "1")),
+        "conaffinity": int(attr(geom, "geom", "conaffinity", "1")),
+        "condim": int(attr(geom, "geom", "condim", "3")),
+        "friction": _floats(attr(geom, "geom", "friction", "1 0.005 0.0001"))[0],
+    }
 
 
 #: MuJoCo's default contact time constant (geom solref[0]) [s], and gravity [m/s^2].
@@ -219,7 +243,7 @@ class MjcfPlant:
 
     def to_mujoco(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(qpos, qvel) in MuJoCo's order and conventions from Drake's state x = [q; v]."""
-        q, v = x[:self.nq], x[self.nq:]
+        q, v = x[: self.nq], x[self.nq :]
         qpos, qvel = q[self.q_index], v[self.v_index]
         if self.free:  # Drake q: quat wxyz, xyz; v: w_W, v_W. MuJoCo: xyz, quat; v_W, w_B
             quat = q[0:4] / np.linalg.norm(q[0:4])
@@ -255,8 +279,14 @@ def drake_coefficient(pair: float) -> float:
 
 def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     """The Drake plant of `spec`'s file with the dropped features rebuilt (module docstring)."""
-    from pydrake.geometry import (AddContactMaterial, CollisionFilterDeclaration, GeometrySet,
-                                  ProximityProperties, Role, RoleAssign)
+    from pydrake.geometry import (
+        AddContactMaterial,
+        CollisionFilterDeclaration,
+        GeometrySet,
+        ProximityProperties,
+        Role,
+        RoleAssign,
+    )
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
     from pydrake.multibody.tree import RevoluteSpring
@@ -266,8 +296,11 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
 
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
-        MultibodyPlantConfig(time_step=contact.time_step, contact_model="point",
-                             discrete_contact_approximation=contact.approximation), builder)
+        MultibodyPlantConfig(
+            time_step=contact.time_step, contact_model="point", discrete_contact_approximation=contact.approximation
+        ),
+        builder,
+    )
     with quiet_drake():  # the parser lists every attribute it drops; we rebuild them
         Parser(plant).AddModelsFromString(chained_joints_xml(spec.path), "xml")
     joints = {name: plant.GetJointByName(name) for name in spec.joints if spec.joint_types[name] != "free"}
@@ -283,13 +316,17 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     for name, joint, g, c_lo, c_hi in spec.actuators:
         actuator = plant.GetJointActuatorByName(name) if plant.HasJointActuatorNamed(name) else None
         if actuator is None:
-            actuator = next(a for a in (plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices())
-                            if a.joint().name() == joint)
+            actuator = next(
+                a
+                for a in (plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices())
+                if a.joint().name() == joint
+            )
         actuator.set_effort_limit(abs(g) * max(abs(c_lo), abs(c_hi)))
         gear.append(g), lo.append(c_lo), hi.append(c_hi), act_joints.append(joints[joint])
     plant.Finalize()
-    if [plant.get_joint_actuator(i).joint().name() for i in plant.GetJointActuatorIndices()] != \
-            [a[1] for a in spec.actuators]:
+    if [plant.get_joint_actuator(i).joint().name() for i in plant.GetJointActuatorIndices()] != [
+        a[1] for a in spec.actuators
+    ]:
         raise InputError(f"{spec.path.name}: Drake's actuator order differs from the file's")
 
     # Contact: MuJoCo's pair friction through per-geometry coefficients, Drake's compliance.
@@ -307,8 +344,9 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
         for key in ("coulomb_friction", "point_contact_stiffness", "hunt_crossley_dissipation"):
             if props.HasProperty("material", key):
                 props.RemoveProperty("material", key)
-        AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness,
-                           friction=CoulombFriction(mu, mu), properties=props)
+        AddContactMaterial(
+            dissipation=dissipation, point_stiffness=stiffness, friction=CoulombFriction(mu, mu), properties=props
+        )
         scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
         if name != spec.floor:
             floor_friction[gid] = pair_friction(spec, name)
@@ -319,12 +357,13 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
     declaration = CollisionFilterDeclaration()
     for i, a in enumerate(names):
         ga = spec.geoms[a]
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             gb = spec.geoms[b]
             collide = bool(ga["contype"] & gb["conaffinity"]) or bool(gb["contype"] & ga["conaffinity"])
             same = ga["body"] == gb["body"]
             family = "world" not in (ga["body"], gb["body"]) and (
-                parent.get(ga["body"]) == gb["body"] or parent.get(gb["body"]) == ga["body"])
+                parent.get(ga["body"]) == gb["body"] or parent.get(gb["body"]) == ga["body"]
+            )
             if not collide or same or family:
                 declaration.ExcludeBetween(GeometrySet(geometry_ids[a]), GeometrySet(geometry_ids[b]))
     scene_graph.collision_filter_manager().Apply(declaration)
@@ -340,9 +379,24 @@ def build_plant(spec: MjcfSpec, contact: ContactSettings) -> MjcfPlant:
         q_index.append(joints[name].position_start())
         v_index.append(joints[name].velocity_start())
     actuated = np.array([j.velocity_start() for j in act_joints], dtype=np.int64)
-    return MjcfPlant(spec, diagram, plant, scene_graph, bodies, masses, actuated, np.array(gear), np.array(lo),
-                     np.array(hi), np.array(q_index, dtype=np.int64), np.array(v_index, dtype=np.int64), free,
-                     floor_friction, geometry_ids, joints)
+    return MjcfPlant(
+        spec,
+        diagram,
+        plant,
+        scene_graph,
+        bodies,
+        masses,
+        actuated,
+        np.array(gear),
+        np.array(lo),
+        np.array(hi),
+        np.array(q_index, dtype=np.int64),
+        np.array(v_index, dtype=np.int64),
+        free,
+        floor_friction,
+        geometry_ids,
+        joints,
+    )
 
 
 def chained_joints_xml(path: Path) -> str:
@@ -366,8 +420,9 @@ def chained_joints_xml(path: Path) -> str:
             outer.append(joint)
             if i == len(joints) - 1:
                 break
-            inner = ET.SubElement(outer, "body", {"name": name if i == len(joints) - 2 else
-                                                  f"{name}__{joints[i + 1].get('name')}"})
+            inner = ET.SubElement(
+                outer, "body", {"name": name if i == len(joints) - 2 else f"{name}__{joints[i + 1].get('name')}"}
+            )
             outer = inner
         for el in rest:
             outer.append(el)

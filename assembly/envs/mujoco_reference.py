@@ -17,8 +17,12 @@ from goflow_common.errors import InputError
 __all__ = ["ORIGINALS", "reference_env", "PairedRollout", "paired_rollout", "random_action_episodes"]
 
 #: our id -> gymnasium's original
-ORIGINALS = {"goflow/Hopper-v0": "Hopper-v5", "goflow/Walker2d-v0": "Walker2d-v5",
-             "goflow/HalfCheetah-v0": "HalfCheetah-v5", "goflow/Humanoid-v0": "Humanoid-v5"}
+ORIGINALS = {
+    "goflow/Hopper-v0": "Hopper-v5",
+    "goflow/Walker2d-v0": "Walker2d-v5",
+    "goflow/HalfCheetah-v0": "HalfCheetah-v5",
+    "goflow/Humanoid-v0": "Humanoid-v5",
+}
 
 
 def reference_env(env_id: str):
@@ -61,12 +65,17 @@ def paired_rollout(ours, ref, actions: NDArray[np.float64], seed: int) -> Paired
         _, r_ref, *_ = ref.step(a)
         r_ours = ours.step_physics(a)  # past a termination too: we compare the physics
         rows.append((ours.mujoco_state()[0], ref.data.qpos.copy(), r_ours, r_ref))
-    return PairedRollout(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
-                         np.array([r[2] for r in rows]), np.array([r[3] for r in rows]))
+    return PairedRollout(
+        np.array([r[0] for r in rows]),
+        np.array([r[1] for r in rows]),
+        np.array([r[2] for r in rows]),
+        np.array([r[3] for r in rows]),
+    )
 
 
-def random_action_episodes(env, episodes: int, seed: int, max_steps: int = 1000,
-                           reset_options: dict | None = None) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def random_action_episodes(
+    env, episodes: int, seed: int, max_steps: int = 1000, reset_options: dict | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Returns and lengths of `episodes` episodes of uniform random actions (at most `max_steps`)."""
     rng = np.random.default_rng(seed)
     returns, lengths = [], []

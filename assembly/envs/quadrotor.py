@@ -79,8 +79,18 @@ class QuadrotorConfig:
     success_threshold: float = 15.0  # J_T (paper appendix A.1)
 
     def __post_init__(self) -> None:
-        for name in ("t_max", "control_dt", "sim_dt", "nominal_mass", "thrust_to_weight", "arm_length",
-                     "collision_radius", "distance_scale", "angular_damping", "max_angular_rate"):
+        for name in (
+            "t_max",
+            "control_dt",
+            "sim_dt",
+            "nominal_mass",
+            "thrust_to_weight",
+            "arm_length",
+            "collision_radius",
+            "distance_scale",
+            "angular_damping",
+            "max_angular_rate",
+        ):
             check_number(getattr(self, name), f"QuadrotorConfig.{name}", 0.0, low_open=True)
         for name in ("moment_ratio", "goal_xy_range"):
             check_number(getattr(self, name), f"QuadrotorConfig.{name}", 0.0)
@@ -88,15 +98,18 @@ class QuadrotorConfig:
             check_number(getattr(self, name), f"QuadrotorConfig.{name}")
         ratio = self.control_dt / self.sim_dt
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(f"Quadrotor: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
-                             f"of sim_dt ({self.sim_dt:g} s)")
+            raise InputError(
+                f"Quadrotor: control_dt ({self.control_dt:g} s) must be a positive integer multiple "
+                f"of sim_dt ({self.sim_dt:g} s)"
+            )
         if not np.all(check_finite_array(self.inertia, "QuadrotorConfig.inertia", (3,)) > 0):
             raise InputError(f"QuadrotorConfig.inertia = {self.inertia!r}; expected three moments > 0 [kg m^2]")
         check_finite_array(self.start_position, "QuadrotorConfig.start_position", (3,))
         lo, hi = check_finite_array(self.goal_z_range, "QuadrotorConfig.goal_z_range", (2,))
         if not lo <= hi:
-            raise InputError(f"QuadrotorConfig.goal_z_range = {self.goal_z_range!r}; expected (low, high) with "
-                             "low <= high [m]")
+            raise InputError(
+                f"QuadrotorConfig.goal_z_range = {self.goal_z_range!r}; expected (low, high) with low <= high [m]"
+            )
 
     @property
     def max_rotor_thrust(self) -> float:
@@ -128,8 +141,7 @@ def add_quadrotor(plant, cfg: QuadrotorConfig, instance=None):
     from pydrake.math import RigidTransform
     from pydrake.geometry import Sphere
     from pydrake.multibody.plant import DiscreteContactApproximation
-    from pydrake.multibody.tree import (QuaternionFloatingJoint, SpatialInertia, UnitInertia,
-                                        default_model_instance)
+    from pydrake.multibody.tree import QuaternionFloatingJoint, SpatialInertia, UnitInertia, default_model_instance
 
     instance = default_model_instance() if instance is None else instance
     unit = UnitInertia(*(np.asarray(cfg.inertia) / cfg.nominal_mass))
@@ -137,8 +149,15 @@ def add_quadrotor(plant, cfg: QuadrotorConfig, instance=None):
     # Rotor aerodynamic damping of the body rotation, applied implicitly by the discrete solver. Without
     # it a light drone under bang-bang thrusts spins up without bound and the explicit gyroscopic
     # term diverges (NaN within 0.2 s at 0.05 kg); PhysX (the seed) damps and caps angular velocity.
-    plant.AddJoint(QuaternionFloatingJoint("body_free", plant.world_frame(), body.body_frame(),
-                                           angular_damping=cfg.angular_damping, translational_damping=0.0))
+    plant.AddJoint(
+        QuaternionFloatingJoint(
+            "body_free",
+            plant.world_frame(),
+            body.body_frame(),
+            angular_damping=cfg.angular_damping,
+            translational_damping=0.0,
+        )
+    )
     plant.RegisterCollisionGeometry(body, RigidTransform(), Sphere(cfg.collision_radius), "body", _contact())
     # SAP "lagged" (Drake's default, explicit here): TAMSI is ~3.5x faster while the drone rests on
     # the ground but failed (NaN) in 31 of 90 bang-bang episodes across the mass box; lagged in none.
@@ -151,8 +170,9 @@ def add_ground(plant):
     from pydrake.geometry import Box
     from pydrake.math import RigidTransform
 
-    return plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.5]),
-                                           Box(200.0, 200.0, 1.0), "ground", _contact())
+    return plant.RegisterCollisionGeometry(
+        plant.world_body(), RigidTransform([0.0, 0.0, -0.5]), Box(200.0, 200.0, 1.0), "ground", _contact()
+    )
 
 
 def add_propellers(builder, plant, cfg: QuadrotorConfig, bodies):
@@ -162,8 +182,11 @@ def add_propellers(builder, plant, cfg: QuadrotorConfig, bodies):
     from pydrake.multibody.plant import Propeller, PropellerInfo
 
     positions, spins = rotor_layout(cfg)
-    infos = [PropellerInfo(body.index(), RigidTransform(p), 1.0, s * cfg.moment_ratio)
-             for body in bodies for p, s in zip(positions, spins)]
+    infos = [
+        PropellerInfo(body.index(), RigidTransform(p), 1.0, s * cfg.moment_ratio)
+        for body in bodies
+        for p, s in zip(positions, spins)
+    ]
     propellers = builder.AddSystem(Propeller(infos))
     propellers.set_name("propellers")
     builder.Connect(propellers.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
@@ -176,8 +199,9 @@ class QuadrotorEnv(PlantEnv):
 
     _owner = "Quadrotor"
 
-    def __init__(self, config: QuadrotorConfig | None = None, *, sampler: Sampler | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self, config: QuadrotorConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+    ) -> None:
         self.config = config_with_overrides(QuadrotorConfig, config, overrides, "QuadrotorEnv")
         super().__init__(QUADROTOR_SPACE, sampler)
         cfg = self.config
@@ -249,9 +273,11 @@ class QuadrotorEnv(PlantEnv):
         goal_b = (a0 * ex + a1 * ey + a2 * ez, b0 * ex + b1 * ey + b2 * ez, c0 * ex + c1 * ey + c2 * ez)
         obs = clipped_float32(v_b + w_b + g_b + goal_b, self._obs_high)
         d = math.sqrt(goal_b[0] ** 2 + goal_b[1] ** 2 + goal_b[2] ** 2)
-        reward = self.control_dt * (cfg.rew_lin_vel * (v_b[0] ** 2 + v_b[1] ** 2 + v_b[2] ** 2)
-                                    + cfg.rew_ang_vel * (w_b[0] ** 2 + w_b[1] ** 2 + w_b[2] ** 2)
-                                    + cfg.rew_distance * (1.0 - math.tanh(d / cfg.distance_scale)))
+        reward = self.control_dt * (
+            cfg.rew_lin_vel * (v_b[0] ** 2 + v_b[1] ** 2 + v_b[2] ** 2)
+            + cfg.rew_ang_vel * (w_b[0] ** 2 + w_b[1] ** 2 + w_b[2] ** 2)
+            + cfg.rew_distance * (1.0 - math.tanh(d / cfg.distance_scale))
+        )
         return obs, reward
 
     # -- ParamEnv ------------------------------------------------------------------------------
@@ -268,8 +294,7 @@ class QuadrotorEnv(PlantEnv):
         self._start(xi, state)
         return self._observe_and_reward(state.tolist())[0]
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         half = 0.5 * self.config.max_rotor_thrust  # `thrusts`, on floats (the per-step path)
         state = self._advance(np.array([half * (min(1.0, max(-1.0, a)) + 1.0) for a in action.tolist()]))
         limit = self.config.max_angular_rate
@@ -277,7 +302,8 @@ class QuadrotorEnv(PlantEnv):
             raise SimulationError(
                 f"Quadrotor (mass {float(self._xi[0]):g} kg): body rate ({state[7]:.3g}, {state[8]:.3g}, {state[9]:.3g}) "
                 f"rad/s at t = {self._k * self.control_dt:.2f} s is beyond max_angular_rate = {limit:g} rad/s: "
-                "the discrete step diverged")
+                "the discrete step diverged"
+            )
         obs, reward = self._observe_and_reward(state)
         return obs, reward, False, {}
 

@@ -30,16 +30,30 @@ class QuadrotorVectorEnv(BatchedEnv):
 
     _owner = "QuadrotorVectorEnv"
 
-    def __init__(self, num_envs: int = 1, config: QuadrotorConfig | None = None, *, sampler: Sampler | None = None,
-                 max_episode_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: QuadrotorConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        max_episode_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(QuadrotorConfig, config, overrides, self._owner)
         self._obs_high = np.array((200.0,) * 3 + (500.0,) * 3 + (1.0,) * 3 + (500.0,) * 3)
         high = self._obs_high.astype(np.float32)
         steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)
-        super().__init__(n, QUADROTOR_SPACE, sampler, spaces.Box(-high, high, dtype=np.float32),
-                         spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32), cfg.control_dt, steps,
-                         cfg.success_threshold)
+        super().__init__(
+            n,
+            QUADROTOR_SPACE,
+            sampler,
+            spaces.Box(-high, high, dtype=np.float32),
+            spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32),
+            cfg.control_dt,
+            steps,
+            cfg.success_threshold,
+        )
         self._build()
 
     def _build(self) -> None:
@@ -88,8 +102,9 @@ class QuadrotorVectorEnv(BatchedEnv):
     def _rest_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         return np.concatenate((self._start_rows(len(idx)), self._goal[idx]), axis=1)
 
-    def _reset_copies(self, idx: NDArray[np.int64], xi: NDArray[np.float64],
-                      rngs: list[np.random.Generator]) -> NDArray[np.float32]:
+    def _reset_copies(
+        self, idx: NDArray[np.int64], xi: NDArray[np.float64], rngs: list[np.random.Generator]
+    ) -> NDArray[np.float32]:
         cfg = self.config
         r = cfg.goal_xy_range
         for i, rng in zip(idx, rngs):  # QuadrotorEnv's draws, in its order
@@ -120,8 +135,9 @@ class QuadrotorVectorEnv(BatchedEnv):
     def _make_twin(self) -> QuadrotorVectorEnv:
         return QuadrotorVectorEnv(1, self.config)
 
-    def _observe_and_reward(self, rows: NDArray[np.float64], goal: NDArray[np.float64]
-                            ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    def _observe_and_reward(
+        self, rows: NDArray[np.float64], goal: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
         """QuadrotorEnv._observe_and_reward for every row, in the same operation order."""
         cfg = self.config
         qw, qx, qy, qz, px, py, pz, wx, wy, wz, vx, vy, vz = rows.T
@@ -137,9 +153,11 @@ class QuadrotorVectorEnv(BatchedEnv):
         obs = np.stack(v_b + w_b + (-a2, -b2, -c2) + goal_b, axis=1)
         obs = np.clip(obs, -self._obs_high, self._obs_high).astype(np.float32)
         d = np.sqrt(goal_b[0] ** 2 + goal_b[1] ** 2 + goal_b[2] ** 2)
-        reward = self.control_dt * (cfg.rew_lin_vel * (v_b[0] ** 2 + v_b[1] ** 2 + v_b[2] ** 2)
-                                    + cfg.rew_ang_vel * (w_b[0] ** 2 + w_b[1] ** 2 + w_b[2] ** 2)
-                                    + cfg.rew_distance * (1.0 - np.tanh(d / cfg.distance_scale)))
+        reward = self.control_dt * (
+            cfg.rew_lin_vel * (v_b[0] ** 2 + v_b[1] ** 2 + v_b[2] ** 2)
+            + cfg.rew_ang_vel * (w_b[0] ** 2 + w_b[1] ** 2 + w_b[2] ** 2)
+            + cfg.rew_distance * (1.0 - np.tanh(d / cfg.distance_scale))
+        )
         return obs, reward
 
     def _step_copies(self, actions: NDArray[np.float64]):
@@ -155,6 +173,7 @@ class QuadrotorVectorEnv(BatchedEnv):
         for i in np.flatnonzero(over):
             self._step_failures[int(i)] = (
                 f"mass {float(self._xi[i, 0]):g} kg: body rate ({rates[i, 0]:.3g}, {rates[i, 1]:.3g}, "
-                f"{rates[i, 2]:.3g}) rad/s beyond max_angular_rate = {limit:g} rad/s: the discrete step diverged")
+                f"{rates[i, 2]:.3g}) rad/s beyond max_angular_rate = {limit:g} rad/s: the discrete step diverged"
+            )
         reward[over | ~np.isfinite(rows).all(axis=1)] = np.nan
         return obs, reward, np.zeros(self.num_envs, dtype=bool), {}

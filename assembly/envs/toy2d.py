@@ -146,7 +146,7 @@ class Toy2DEnv(ParamEnv):
         return c.sigma_max * (c.sigma_min / c.sigma_max) ** np.minimum(self._energy(p), 1.0)
 
     def _p_success(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        return -np.expm1(-self.config.tolerance**2 / (2.0 * self._sigma(p) ** 2))
+        return -np.expm1(-(self.config.tolerance**2) / (2.0 * self._sigma(p) ** 2))
 
     def energy(self, points: ArrayLike) -> Any:
         """Energy E at points [dimensionless]; ~1 on a centre, -> 0 far from all."""
@@ -172,15 +172,15 @@ class Toy2DEnv(ParamEnv):
         noisy = xi + self._noise_scale * self.np_random.standard_normal(2)
         return np.clip(noisy, -self._obs_bound, self._obs_bound).astype(np.float32)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Start an episode at options["xi"] if given (validated), else at a draw from the sampler."""
         obs, info = super().reset(seed=seed, options=options)
         info["noise_scale"] = self._noise_scale
         return obs, info
 
-    def _step_model(self, action: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
+    def _step_model(self, action: NDArray[np.float64]) -> tuple[NDArray[np.float32], float, bool, dict[str, Any]]:
         """Score the guess `action` (2,) [m]; the episode always terminates after this step."""
         error = float(np.linalg.norm(action - self._xi))
         reward = 1.0 if error < self.config.tolerance else 0.0

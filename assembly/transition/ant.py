@@ -14,10 +14,12 @@ from assembly.transition.drake import DrakeTransitionSim
 
 __all__ = ["ANT_SPACE", "AntTransitionSim"]
 
-ANT_SPACE = ParamSpace((
-    Param("torso_mass", 0.01, 20.0, "kg"),  # the env's box (paper appendix A.1)
-    Param("leg_damping", 0.0, 2.0, "N m s/rad", nominal=0.1),  # all 8 joints (nv_ant: 0.1)
-))
+ANT_SPACE = ParamSpace(
+    (
+        Param("torso_mass", 0.01, 20.0, "kg"),  # the env's box (paper appendix A.1)
+        Param("leg_damping", 0.0, 2.0, "N m s/rad", nominal=0.1),  # all 8 joints (nv_ant: 0.1)
+    )
+)
 
 
 class AntTransitionSim(DrakeTransitionSim):
@@ -64,7 +66,8 @@ class AntTransitionSim(DrakeTransitionSim):
         if self._set == (mass, damping):
             return
         self._torso.SetSpatialInertiaInBodyFrame(
-            self._plant_context, SpatialInertia(mass, self._com0, self._unit_inertia0))
+            self._plant_context, SpatialInertia(mass, self._com0, self._unit_inertia0)
+        )
         for j in self._joints:
             j.SetDampingVector(self._plant_context, [damping])
         self._set = (mass, damping)
@@ -104,7 +107,8 @@ class AntTransitionSim(DrakeTransitionSim):
         fb_v = self._torso.floating_velocities_start_in_v()
         qj = np.array([j.position_start() for j in self._joints])
         vj = np.array([j.velocity_start() for j in self._joints])
-        quat = s[fb_q:fb_q + 4] / max(float(np.linalg.norm(s[fb_q:fb_q + 4])), 1e-12)
-        obs = np.concatenate([[s[fb_q + 6]], quat, s[qj], s[nq + fb_v + 3:nq + fb_v + 6],
-                              s[nq + fb_v:nq + fb_v + 3], s[nq + vj]])
+        quat = s[fb_q : fb_q + 4] / max(float(np.linalg.norm(s[fb_q : fb_q + 4])), 1e-12)
+        obs = np.concatenate(
+            [[s[fb_q + 6]], quat, s[qj], s[nq + fb_v + 3 : nq + fb_v + 6], s[nq + fb_v : nq + fb_v + 3], s[nq + vj]]
+        )
         return obs.astype(np.float32)

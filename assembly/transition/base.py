@@ -86,8 +86,9 @@ class TransitionSim(Protocol):
         ...
 
 
-def check_step_args(sim: Any, states: ArrayLike, actions: ArrayLike, xi: ArrayLike
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+def check_step_args(
+    sim: Any, states: ArrayLike, actions: ArrayLike, xi: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Validate a batch for `sim.step`.
 
     Arguments:
@@ -110,11 +111,11 @@ def check_step_args(sim: Any, states: ArrayLike, actions: ArrayLike, xi: ArrayLi
         raise ValueError(f"{name}.step: states has shape {s.shape}, expected (n, {sim.state_dim})")
     n = s.shape[0]
     if a.shape != (n, sim.action_dim):
-        raise ValueError(f"{name}.step: actions has shape {a.shape}, "
-                         f"expected ({n}, {sim.action_dim})")
+        raise ValueError(f"{name}.step: actions has shape {a.shape}, expected ({n}, {sim.action_dim})")
     if x.shape != (n, sim.space.dim):
-        raise ValueError(f"{name}.step: xi has shape {x.shape}, expected ({n}, {sim.space.dim}) "
-                         f"for parameters {sim.space.names}")
+        raise ValueError(
+            f"{name}.step: xi has shape {x.shape}, expected ({n}, {sim.space.dim}) for parameters {sim.space.names}"
+        )
     for what, arr in (("states", s), ("actions", a)):
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{name}.step: {what} must be finite")
@@ -198,8 +199,7 @@ class BatchTransitionSim:
                 out[i] = self._step_row(s[i], a[i])
         return out
 
-    def _step_row(self, state: NDArray[np.float64], action: NDArray[np.float64]
-                  ) -> NDArray[np.float64]:
+    def _step_row(self, state: NDArray[np.float64], action: NDArray[np.float64]) -> NDArray[np.float64]:
         """One control step from `state` under the parameters last applied; NaN on failure."""
         self._set_state(state)
         self._apply_action(state, action)

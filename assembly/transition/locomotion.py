@@ -11,8 +11,13 @@ from numpy.typing import ArrayLike, NDArray
 from assembly.envs.drake_sim import quiet_drake
 from assembly.transition.drake import DrakeTransitionSim
 
-__all__ = ["LocomotionTransitionSim", "HopperTransitionSim", "Walker2dTransitionSim",
-           "HalfCheetahTransitionSim", "HumanoidTransitionSim"]
+__all__ = [
+    "LocomotionTransitionSim",
+    "HopperTransitionSim",
+    "Walker2dTransitionSim",
+    "HalfCheetahTransitionSim",
+    "HumanoidTransitionSim",
+]
 
 
 class LocomotionTransitionSim(DrakeTransitionSim):

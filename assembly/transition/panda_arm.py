@@ -28,12 +28,14 @@ from goflow_common.config import config_with_overrides
 
 __all__ = ["PandaArmConfig", "PandaArmSim", "PANDA_ARM_SPACE"]
 
-PANDA_ARM_SPACE = ParamSpace((
-    Param("link4_mass", 1.5, 6.0, "kg", nominal=3.587895),  # URDF panda_link4
-    Param("link7_mass", 0.2, 3.0, "kg", nominal=0.735522),  # URDF panda_link7 (+ any payload)
-    Param("damping_scale", 0.0, 3.0, "1", nominal=1.0),  # x the model's joint damping
-    Param("friction_scale", 0.0, 2.0, "1", nominal=1.0),  # x Gaz et al.'s friction amplitudes
-))
+PANDA_ARM_SPACE = ParamSpace(
+    (
+        Param("link4_mass", 1.5, 6.0, "kg", nominal=3.587895),  # URDF panda_link4
+        Param("link7_mass", 0.2, 3.0, "kg", nominal=0.735522),  # URDF panda_link7 (+ any payload)
+        Param("damping_scale", 0.0, 3.0, "1", nominal=1.0),  # x the model's joint damping
+        Param("friction_scale", 0.0, 2.0, "1", nominal=1.0),  # x Gaz et al.'s friction amplitudes
+    )
+)
 
 
 @dataclass(frozen=True)
@@ -52,8 +54,9 @@ class PandaArmConfig:
                 raise ValueError(f"PandaArmConfig.{name} must be > 0, got {getattr(self, name)!r}")
         ratio = self.control_dt / self.time_step
         if abs(ratio - round(ratio)) > 1e-9:
-            raise ValueError(f"PandaArmConfig: control_dt {self.control_dt} s must be a multiple "
-                             f"of time_step {self.time_step} s")
+            raise ValueError(
+                f"PandaArmConfig: control_dt {self.control_dt} s must be a multiple of time_step {self.time_step} s"
+            )
 
 
 class PandaArmSim(DrakeTransitionSim):
@@ -83,8 +86,7 @@ class PandaArmSim(DrakeTransitionSim):
         self.space = PANDA_ARM_SPACE
         self.control_dt = cfg.control_dt
         builder = DiagramBuilder()
-        plant_config = MultibodyPlantConfig(time_step=cfg.time_step,
-                                            discrete_contact_approximation="lagged")
+        plant_config = MultibodyPlantConfig(time_step=cfg.time_step, discrete_contact_approximation="lagged")
         plant, _ = AddMultibodyPlant(plant_config, builder)
         arm_path, _ = panda_model_paths()
         (model,) = model_parser(plant).AddModels(str(arm_path))
@@ -100,8 +102,9 @@ class PandaArmSim(DrakeTransitionSim):
         self._joints = [plant.GetJointByName(f"panda_joint{i}", model) for i in range(1, 8)]
         self._damping0 = np.array([j.default_damping_vector()[0] for j in self._joints])
         self._friction0 = np.asarray(_FRICTION_A, dtype=np.float64)
-        self._effort = np.array([plant.get_joint_actuator(i).effort_limit()
-                                 for i in plant.GetJointActuatorIndices(model)])
+        self._effort = np.array(
+            [plant.get_joint_actuator(i).effort_limit() for i in plant.GetJointActuatorIndices(model)]
+        )
         self._q_home = np.asarray(Q_HOME, dtype=np.float64)
         self._lower = plant.GetPositionLowerLimits()
         self._upper = plant.GetPositionUpperLimits()
@@ -128,11 +131,11 @@ class PandaArmSim(DrakeTransitionSim):
         self._act_port.FixValue(self._plant_context, self._torques(state, action))
         self._force_port.FixValue(self._plant_context, self._joint_friction(state))
 
-    def _torques(self, state: NDArray[np.float64], action: NDArray[np.float64]
-                 ) -> NDArray[np.float64]:
+    def _torques(self, state: NDArray[np.float64], action: NDArray[np.float64]) -> NDArray[np.float64]:
         """Actuation [N m]: nominal gravity compensation + clipped action x scale x effort."""
-        return (self.gravity_compensation(state[:7])
-                + np.clip(action, -1.0, 1.0) * self.config.action_scale * self._effort)
+        return (
+            self.gravity_compensation(state[:7]) + np.clip(action, -1.0, 1.0) * self.config.action_scale * self._effort
+        )
 
     def _joint_friction(self, state: NDArray[np.float64]) -> NDArray[np.float64]:
         """Smooth Coulomb friction [N m] at the state's joint speeds, for the applied scale."""

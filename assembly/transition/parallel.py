@@ -50,8 +50,7 @@ class ParallelTransitionSim:
         from assembly.transition.registry import make_transition_sim
 
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ValueError(f"ParallelTransitionSim: workers must be an integer >= 1, "
-                             f"got {workers!r}")
+            raise ValueError(f"ParallelTransitionSim: workers must be an integer >= 1, got {workers!r}")
         self._local = make_transition_sim(env_id, **kwargs)
         self.env_id, self.space = env_id, self._local.space
         self.state_dim, self.action_dim = self._local.state_dim, self._local.action_dim

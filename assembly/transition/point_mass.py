@@ -14,10 +14,12 @@ from goflow_common.config import config_with_overrides
 
 __all__ = ["POINT_MASS_SPACE", "PointMassConfig", "PointMassSim"]
 
-POINT_MASS_SPACE = ParamSpace((
-    Param("mass", 0.5, 5.0, "kg"),
-    Param("damping", 0.1, 5.0, "N s/m"),
-))
+POINT_MASS_SPACE = ParamSpace(
+    (
+        Param("mass", 0.5, 5.0, "kg"),
+        Param("damping", 0.1, 5.0, "N s/m"),
+    )
+)
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,6 @@ def make_transition_sim(env_id: str, **kwargs: Any) -> TransitionSim:
         UnknownOptionError: `env_id` is not registered (the message lists the known ids).
     """
     if env_id not in TRANSITION_SIMS:
-        raise UnknownOptionError(f"no step-from-state simulator for env {env_id!r}; "
-                                 f"known: {sorted(TRANSITION_SIMS)}")
+        raise UnknownOptionError(f"no step-from-state simulator for env {env_id!r}; known: {sorted(TRANSITION_SIMS)}")
     module, _, attr = TRANSITION_SIMS[env_id].partition(":")
     return getattr(importlib.import_module(module), attr)(**kwargs)

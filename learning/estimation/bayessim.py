@@ -36,8 +36,16 @@ from learning.estimation.common import Budget, check_sim_budget, segment_rows
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import EPS, GaussianMixtureAggregate, logit
 
-__all__ = ["BayesSimConfig", "BayesSimSimulations", "MDN", "fit_bayessim", "fit_mdn", "min_sim_calls",
-           "simulate_bayessim", "summary_stats"]
+__all__ = [
+    "BayesSimConfig",
+    "BayesSimSimulations",
+    "MDN",
+    "fit_bayessim",
+    "fit_mdn",
+    "min_sim_calls",
+    "simulate_bayessim",
+    "summary_stats",
+]
 
 
 @dataclass
@@ -62,12 +70,12 @@ def min_sim_calls(config: BayesSimConfig, data: TransitionDataset) -> tuple[int,
     """Simulator calls BayesSim needs at least: 2 simulated segments (a mean and a spread of the
     summary statistics), and how they add up (InputError if no trajectory holds one segment)."""
     segment_rows(data, config.segment_length)
-    return 2 * config.segment_length, (f"2 simulated segments x {config.segment_length} transitions, set by the "
-                                       "option segment_length")
+    return 2 * config.segment_length, (
+        f"2 simulated segments x {config.segment_length} transitions, set by the option segment_length"
+    )
 
 
-def summary_stats(states: np.ndarray, actions: np.ndarray, next_states: np.ndarray,
-                  scale: np.ndarray) -> np.ndarray:
+def summary_stats(states: np.ndarray, actions: np.ndarray, next_states: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """Summary statistics of segments: inputs (..., L, ds/da); output (..., 2 ds + ds da)."""
     delta = (next_states - states) / scale
     cross = np.einsum("...tk,...tl->...kl", delta, actions) / delta.shape[-2]
@@ -92,8 +100,8 @@ class MDN(nn.Module):
         out = self.head(self.body(x))
         k, d = self.k, self.d
         logw = torch.log_softmax(out[:, :k], dim=-1)
-        mean = out[:, k:k + k * d].reshape(-1, k, d)
-        std = nn.functional.softplus(out[:, k + k * d:].reshape(-1, k, d)) + self.min_std
+        mean = out[:, k : k + k * d].reshape(-1, k, d)
+        std = nn.functional.softplus(out[:, k + k * d :].reshape(-1, k, d)) + self.min_std
         return logw, mean, std
 
     def log_prob(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -129,8 +137,8 @@ def simulate_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> Baye
     stats = []
     chunk = 256
     for start in range(0, n_sims, chunk):
-        u = u_train[start:start + chunk]
-        rows = which[start:start + chunk]
+        u = u_train[start : start + chunk]
+        rows = which[start : start + chunk]
         pred = budget.step_rows(rows.reshape(-1), np.repeat(u, config.segment_length, axis=0))
         pred = pred.reshape(len(u), config.segment_length, -1)
         stats.append(summary_stats(data.states[rows], data.actions[rows], pred, budget.scale))
@@ -140,8 +148,7 @@ def simulate_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> Baye
     return BayesSimSimulations(u=u_train[ok], stats=x_train[ok], observed=x_obs, simulations=int(n_sims))
 
 
-def fit_mdn(sims: BayesSimSimulations, config: BayesSimConfig, seed: int
-            ) -> tuple[GaussianMixtureAggregate, dict]:
+def fit_mdn(sims: BayesSimSimulations, config: BayesSimConfig, seed: int) -> tuple[GaussianMixtureAggregate, dict]:
     """Train the MDN on the simulations (standardized statistics -> logit(u)) and average its
     posteriors over the observed segments. The seed fixes the MDN's initialization and its batches
     (the caller's torch RNG state is left as it was)."""
@@ -160,7 +167,7 @@ def fit_mdn(sims: BayesSimSimulations, config: BayesSimConfig, seed: int
     for _ in range(config.epochs):
         perm = torch.randperm(len(xt), generator=gen)
         for start in range(0, len(xt), config.batch_size):
-            idx = perm[start:start + config.batch_size]
+            idx = perm[start : start + config.batch_size]
             loss = -mdn.log_prob(xt[idx], yt[idx]).mean()
             opt.zero_grad()
             loss.backward()
@@ -170,8 +177,11 @@ def fit_mdn(sims: BayesSimSimulations, config: BayesSimConfig, seed: int
         final_nll = float(-mdn.log_prob(xt, yt).mean())
     dist = GaussianMixtureAggregate(logw.exp().double().numpy(), mean.double().numpy(), std.double().numpy())
     train_wall, train_cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
-    return dist, {"train_nll": final_nll if math.isfinite(final_nll) else None,
-                  "train_seconds": train_wall, "train_cpu_seconds": train_cpu}
+    return dist, {
+        "train_nll": final_nll if math.isfinite(final_nll) else None,
+        "train_seconds": train_wall,
+        "train_cpu_seconds": train_cpu,
+    }
 
 
 def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[GaussianMixtureAggregate, dict]:
@@ -182,6 +192,11 @@ def fit_bayessim(budget: Budget, config: BayesSimConfig, seed: int) -> tuple[Gau
     sims = simulate_bayessim(budget, config, seed)
     dist, fit = fit_mdn(sims, config, seed)
     budget.snapshot(dist, simulations=len(sims.u))
-    return dist, {"simulations": sims.simulations, "valid_simulations": len(sims.u),
-                  "train_nll": fit["train_nll"], "observed_segments": len(sims.observed),
-                  "train_seconds": fit["train_seconds"], "train_cpu_seconds": fit["train_cpu_seconds"]}
+    return dist, {
+        "simulations": sims.simulations,
+        "valid_simulations": len(sims.u),
+        "train_nll": fit["train_nll"],
+        "observed_segments": len(sims.observed),
+        "train_seconds": fit["train_seconds"],
+        "train_cpu_seconds": fit["train_cpu_seconds"],
+    }

@@ -21,9 +21,16 @@ __all__ = ["CollectConfig", "collect", "collect_to_file", "DEFAULT_STEPS"]
 
 #: Steps per trajectory by default: the env's episode length (Cartpole, Ant: 2 s), 1 s of the arm;
 #: 100 steps of the locomotion envs (Hopper, Walker2d 0.8 s, HalfCheetah 5 s, Humanoid 1.5 s).
-DEFAULT_STEPS = {"goflow/PointMass-v0": 40, "goflow/Cartpole-v0": 120, "goflow/Ant-v0": 128,
-                 "goflow/PandaArm-v0": 100, "goflow/Hopper-v0": 100, "goflow/Walker2d-v0": 100,
-                 "goflow/HalfCheetah-v0": 100, "goflow/Humanoid-v0": 100}
+DEFAULT_STEPS = {
+    "goflow/PointMass-v0": 40,
+    "goflow/Cartpole-v0": 120,
+    "goflow/Ant-v0": 128,
+    "goflow/PandaArm-v0": 100,
+    "goflow/Hopper-v0": 100,
+    "goflow/Walker2d-v0": 100,
+    "goflow/HalfCheetah-v0": 100,
+    "goflow/Humanoid-v0": 100,
+}
 
 
 @dataclass
@@ -48,8 +55,9 @@ class CollectConfig:
         elif self.target.kind != self.xi:
             raise ValueError(f"collect: xi={self.xi!r} but target.kind={self.target.kind!r}")
         if self.policy != "random" and not Path(self.policy).is_file():
-            raise ValueError(f"collect: policy must be 'random' or the path of a PPO checkpoint; "
-                             f"{self.policy!r} is not a file")
+            raise ValueError(
+                f"collect: policy must be 'random' or the path of a PPO checkpoint; {self.policy!r} is not a file"
+            )
 
 
 def _load_policy(path: str) -> Callable[[NDArray[np.float32]], NDArray[np.float64]]:
@@ -68,8 +76,9 @@ def _load_policy(path: str) -> Callable[[NDArray[np.float32]], NDArray[np.float6
     return lambda obs: np.asarray(agent.act(obs, deterministic=True), dtype=np.float64)
 
 
-def collect(config: CollectConfig, progress: bool = False, command: str = ""
-            ) -> tuple[TransitionDataset, NDArray[np.float64]]:
+def collect(
+    config: CollectConfig, progress: bool = False, command: str = ""
+) -> tuple[TransitionDataset, NDArray[np.float64]]:
     """Run `episodes` trajectories, each with its own true xi; return (dataset, true xi (E, d))."""
     sim = make_transition_sim(config.env)
     steps = int(config.steps or DEFAULT_STEPS.get(config.env, 100))
@@ -94,20 +103,32 @@ def collect(config: CollectConfig, progress: bool = False, command: str = ""
             kept.append(true_xi[e])
     if not rows:
         raise RuntimeError(f"collect: no trajectory of {config.env} produced a single valid step")
-    collection = {"xi": config.xi, "target": target_description(config.target), "policy": config.policy,
-                  "episodes": len(kept), "steps_per_episode": steps, "seed": config.seed,
-                  "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                  "command": command}
-    ds = TransitionDataset(env_id=config.env, space=sim.space,
-                           states=np.array([r[0] for r in rows]), actions=np.array([r[1] for r in rows]),
-                           next_states=np.array([r[2] for r in rows]),
-                           episode=np.array([r[3] for r in rows], dtype=np.int64),
-                           control_dt=float(sim.control_dt), collection=collection)
+    collection = {
+        "xi": config.xi,
+        "target": target_description(config.target),
+        "policy": config.policy,
+        "episodes": len(kept),
+        "steps_per_episode": steps,
+        "seed": config.seed,
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "command": command,
+    }
+    ds = TransitionDataset(
+        env_id=config.env,
+        space=sim.space,
+        states=np.array([r[0] for r in rows]),
+        actions=np.array([r[1] for r in rows]),
+        next_states=np.array([r[2] for r in rows]),
+        episode=np.array([r[3] for r in rows], dtype=np.int64),
+        control_dt=float(sim.control_dt),
+        collection=collection,
+    )
     return ds, np.array(kept)
 
 
-def collect_to_file(config: CollectConfig, out: str | Path, progress: bool = False, command: str = ""
-                    ) -> TransitionDataset:
+def collect_to_file(
+    config: CollectConfig, out: str | Path, progress: bool = False, command: str = ""
+) -> TransitionDataset:
     """collect() and save the dataset (with its truth) to `out`; `command` is recorded as provenance."""
     ds, truth = collect(config, progress=progress, command=command)
     save_dataset(out, ds, truth)

@@ -44,8 +44,14 @@ class Budget:
     def __post_init__(self) -> None:
         self.max_calls = check_int(self.max_calls, "sim_budget", 1)
         self.scale = self.data.delta_scale()
-        self._bar = tqdm(total=self.max_calls, initial=self.calls, disable=not self.progress, desc=self.desc,
-                         unit="call", unit_scale=True)
+        self._bar = tqdm(
+            total=self.max_calls,
+            initial=self.calls,
+            disable=not self.progress,
+            desc=self.desc,
+            unit="call",
+            unit_scale=True,
+        )
         self._t0 = time.perf_counter()
         self._paused = 0.0
 
@@ -106,8 +112,10 @@ def check_sim_budget(sim_budget: int, method: str, need: tuple[int, str]) -> Non
     add up), as the methods' `min_sim_calls(config, data)` return it."""
     calls, why = need
     if sim_budget < calls:
-        raise InputError(f"sim_budget = {sim_budget}; {method} needs at least {calls} simulator calls for one "
-                         f"iteration on this dataset ({why})")
+        raise InputError(
+            f"sim_budget = {sim_budget}; {method} needs at least {calls} simulator calls for one "
+            f"iteration on this dataset ({why})"
+        )
 
 
 def segment_rows(data: TransitionDataset, length: int) -> NDArray[np.int64]:
@@ -117,15 +125,18 @@ def segment_rows(data: TransitionDataset, length: int) -> NDArray[np.int64]:
     for e in range(data.num_episodes):
         rows = data.episode_rows(e)
         for k in range(len(rows) // length):
-            out.append(rows[k * length:(k + 1) * length])
+            out.append(rows[k * length : (k + 1) * length])
     if not out:
-        raise InputError(f"segment_length = {length}; no trajectory has {length} transitions (the longest has "
-                         f"{max(len(data.episode_rows(e)) for e in range(data.num_episodes))})")
+        raise InputError(
+            f"segment_length = {length}; no trajectory has {length} transitions (the longest has "
+            f"{max(len(data.episode_rows(e)) for e in range(data.num_episodes))})"
+        )
     return np.array(out, dtype=np.int64)
 
 
-def prediction_loss(pred: NDArray[np.float64], target: NDArray[np.float64], scale: NDArray[np.float64]
-                    ) -> NDArray[np.float64]:
+def prediction_loss(
+    pred: NDArray[np.float64], target: NDArray[np.float64], scale: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """l_pred per (sample, row): mean over state dims of ((s'_sim - s'_log) / scale)^2, (M, R);
     failed simulations (NaN) get FAILED_LOSS."""
     err = ((pred - target[None]) / scale) ** 2

@@ -35,8 +35,7 @@ from numpy.typing import NDArray
 from assembly.params import ParamSpace
 from goflow_common.errors import FileFormatError
 
-__all__ = ["DatasetError", "TransitionDataset", "save_dataset", "load_dataset", "load_truth",
-           "FORMAT", "VERSION"]
+__all__ = ["DatasetError", "TransitionDataset", "save_dataset", "load_dataset", "load_truth", "FORMAT", "VERSION"]
 
 FORMAT = "goflow-transitions"
 VERSION = 1
@@ -82,9 +81,16 @@ class TransitionDataset:
 
 
 def _meta(ds: TransitionDataset) -> dict[str, Any]:
-    return {"format": FORMAT, "version": VERSION, "env_id": ds.env_id, **ds.space.to_dict(),
-            "state_dim": int(ds.states.shape[1]), "action_dim": int(ds.actions.shape[1]),
-            "control_dt": float(ds.control_dt), "collection": ds.collection}
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "env_id": ds.env_id,
+        **ds.space.to_dict(),
+        "state_dim": int(ds.states.shape[1]),
+        "action_dim": int(ds.actions.shape[1]),
+        "control_dt": float(ds.control_dt),
+        "collection": ds.collection,
+    }
 
 
 def save_dataset(path: str | Path, data: TransitionDataset, true_xi: NDArray[np.float64]) -> Path:
@@ -93,9 +99,15 @@ def save_dataset(path: str | Path, data: TransitionDataset, true_xi: NDArray[np.
     _check_arrays(str(path), data, np.asarray(true_xi, dtype=np.float64))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, meta=np.array(json.dumps(_meta(data))), states=data.states,
-                        actions=data.actions, next_states=data.next_states,
-                        episode=data.episode.astype(np.int64), true_xi=np.asarray(true_xi, dtype=np.float64))
+    np.savez_compressed(
+        tmp,
+        meta=np.array(json.dumps(_meta(data))),
+        states=data.states,
+        actions=data.actions,
+        next_states=data.next_states,
+        episode=data.episode.astype(np.int64),
+        true_xi=np.asarray(true_xi, dtype=np.float64),
+    )
     tmp.replace(path)
     return path
 
@@ -110,8 +122,11 @@ def _read(path: str | Path) -> tuple[str, dict[str, Any], dict[str, NDArray]]:
     if not Path(path).is_file():
         raise _fail(p, "no such file (expected a .npz written by `goflow collect`)")
     if not zipfile.is_zipfile(path):  # np.load would take it for a pickle and suggest loading it unsafely
-        raise _fail(p, "not a readable .npz archive (truncated or foreign file: not a zip archive); expected one "
-                       "written by `goflow collect`")
+        raise _fail(
+            p,
+            "not a readable .npz archive (truncated or foreign file: not a zip archive); expected one "
+            "written by `goflow collect`",
+        )
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
@@ -131,8 +146,9 @@ def _read(path: str | Path) -> tuple[str, dict[str, Any], dict[str, NDArray]]:
     if not isinstance(meta, dict):
         raise _fail(p, f"'meta' must be a JSON object, got {type(meta).__name__}")
     if meta.get("format") != FORMAT or meta.get("version") != VERSION:
-        raise _fail(p, f"format/version is {meta.get('format')!r}/{meta.get('version')!r}, "
-                       f"expected {FORMAT!r}/{VERSION}")
+        raise _fail(
+            p, f"format/version is {meta.get('format')!r}/{meta.get('version')!r}, expected {FORMAT!r}/{VERSION}"
+        )
     for key in ("env_id", "params", "state_dim", "action_dim", "control_dt"):
         if key not in meta:
             raise _fail(p, f"'meta' lacks {key!r}")
@@ -165,13 +181,19 @@ def _check_arrays(p: str, ds: TransitionDataset, true_xi: NDArray[np.float64] | 
         bad = ~np.isfinite(arr)
         if bad.any():
             r, c = map(int, np.argwhere(bad)[0])
-            raise _fail(p, f"{name!r} has {int(bad.sum())} non-finite value(s) (first: row {r}, column {c} "
-                           f"= {arr[r, c]}); every value must be finite")
+            raise _fail(
+                p,
+                f"{name!r} has {int(bad.sum())} non-finite value(s) (first: row {r}, column {c} "
+                f"= {arr[r, c]}); every value must be finite",
+            )
     outside = np.abs(a) > 1.0
     if outside.any():
         r, c = map(int, np.argwhere(outside)[0])
-        raise _fail(p, f"'actions' has {int(outside.sum())} value(s) outside [-1, 1] (first: row {r}, column {c} "
-                       f"= {a[r, c]:g}); expected normalized actions in [-1, 1]")
+        raise _fail(
+            p,
+            f"'actions' has {int(outside.sum())} value(s) outside [-1, 1] (first: row {r}, column {c} "
+            f"= {a[r, c]:g}); expected normalized actions in [-1, 1]",
+        )
     if ep.min() < 0 or np.any(np.diff(ep) < 0):
         raise _fail(p, "'episode' must be non-negative and non-decreasing (trajectories stored in order)")
     e = int(ep.max()) + 1
@@ -179,8 +201,11 @@ def _check_arrays(p: str, ds: TransitionDataset, true_xi: NDArray[np.float64] | 
         raise _fail(p, f"'episode' skips indices: expected every trajectory 0..{e - 1} to have transitions")
     if true_xi is not None:
         if true_xi.shape != (e, ds.space.dim):
-            raise _fail(p, f"'true_xi' has shape {true_xi.shape}, expected ({e}, {ds.space.dim}): one row per "
-                           f"trajectory, columns {ds.space.names}")
+            raise _fail(
+                p,
+                f"'true_xi' has shape {true_xi.shape}, expected ({e}, {ds.space.dim}): one row per "
+                f"trajectory, columns {ds.space.names}",
+            )
         try:
             ds.space.validate(true_xi, what="'true_xi'")
         except ValueError as exc:
@@ -188,14 +213,23 @@ def _check_arrays(p: str, ds: TransitionDataset, true_xi: NDArray[np.float64] | 
 
 
 def _dataset(p: str, meta: dict[str, Any], arrays: dict[str, NDArray]) -> TransitionDataset:
-    ds = TransitionDataset(env_id=str(meta["env_id"]), space=_space(p, meta),
-                           states=arrays["states"], actions=arrays["actions"],
-                           next_states=arrays["next_states"], episode=arrays["episode"],
-                           control_dt=float(meta["control_dt"]), collection=dict(meta.get("collection", {})))
+    ds = TransitionDataset(
+        env_id=str(meta["env_id"]),
+        space=_space(p, meta),
+        states=arrays["states"],
+        actions=arrays["actions"],
+        next_states=arrays["next_states"],
+        episode=arrays["episode"],
+        control_dt=float(meta["control_dt"]),
+        collection=dict(meta.get("collection", {})),
+    )
     _check_arrays(p, ds, arrays["true_xi"])
     if ds.states.shape[1] != meta["state_dim"] or ds.actions.shape[1] != meta["action_dim"]:
-        raise _fail(p, f"arrays have state/action dims {ds.states.shape[1]}/{ds.actions.shape[1]}, but "
-                       f"'meta' says {meta['state_dim']}/{meta['action_dim']}")
+        raise _fail(
+            p,
+            f"arrays have state/action dims {ds.states.shape[1]}/{ds.actions.shape[1]}, but "
+            f"'meta' says {meta['state_dim']}/{meta['action_dim']}",
+        )
     ds.states = ds.states.astype(np.float64)
     ds.actions = ds.actions.astype(np.float64)
     ds.next_states = ds.next_states.astype(np.float64)
@@ -209,8 +243,11 @@ def load_dataset(path: str | Path, expected_space: ParamSpace | None = None) -> 
     p, meta, arrays = _read(path)
     ds = _dataset(p, meta, arrays)
     if expected_space is not None and ds.space != expected_space:
-        raise _fail(p, "its parameters differ from the simulator's (file vs simulator): "
-                       + "; ".join(ds.space.diff(expected_space)))
+        raise _fail(
+            p,
+            "its parameters differ from the simulator's (file vs simulator): "
+            + "; ".join(ds.space.diff(expected_space)),
+        )
     return ds
 
 

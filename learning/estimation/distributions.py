@@ -19,8 +19,15 @@ import zuko
 from scipy.special import expit
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["UnitBoxDistribution", "FlowDistribution", "TruncNormalProduct", "GaussianMixtureAggregate",
-           "distribution_from_dict", "logit", "EPS"]
+__all__ = [
+    "UnitBoxDistribution",
+    "FlowDistribution",
+    "TruncNormalProduct",
+    "GaussianMixtureAggregate",
+    "distribution_from_dict",
+    "logit",
+    "EPS",
+]
 
 EPS = 1e-6  # u is clipped to [EPS, 1 - EPS] before logit
 
@@ -61,8 +68,9 @@ def _outside(u: NDArray[np.float64]) -> NDArray[np.bool_]:
 class FlowDistribution:
     """p(u) for u = sigmoid(y), y = y_scale * w, w ~ a zuko RealNVP flow (y_scale widens the start)."""
 
-    def __init__(self, dim: int, transforms: int = 4, hidden: tuple[int, ...] = (64, 64),
-                 y_scale: float = 1.5, seed: int = 0) -> None:
+    def __init__(
+        self, dim: int, transforms: int = 4, hidden: tuple[int, ...] = (64, 64), y_scale: float = 1.5, seed: int = 0
+    ) -> None:
         if dim < 1:
             raise ValueError(f"FlowDistribution: dim must be >= 1, got {dim}")
         self.dim, self.transforms, self.hidden, self.y_scale = int(dim), int(transforms), tuple(hidden), float(y_scale)
@@ -103,9 +111,14 @@ class FlowDistribution:
 
     def to_dict(self) -> dict[str, Any]:
         """Architecture and weights (lists of floats)."""
-        return {"kind": "flow", "dim": self.dim, "transforms": self.transforms, "hidden": list(self.hidden),
-                "y_scale": self.y_scale,
-                "weights": {k: v.detach().cpu().tolist() for k, v in self.flow.state_dict().items()}}
+        return {
+            "kind": "flow",
+            "dim": self.dim,
+            "transforms": self.transforms,
+            "hidden": list(self.hidden),
+            "y_scale": self.y_scale,
+            "weights": {k: v.detach().cpu().tolist() for k, v in self.flow.state_dict().items()},
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FlowDistribution:
@@ -122,8 +135,10 @@ class TruncNormalProduct:
         self.mu = np.asarray(mu, dtype=np.float64).reshape(-1)
         self.sigma = np.asarray(sigma, dtype=np.float64).reshape(-1)
         if self.mu.shape != self.sigma.shape or np.any(self.sigma <= 0) or not np.all(np.isfinite(self.mu)):
-            raise ValueError(f"TruncNormalProduct: need finite mu and positive sigma of one shape, got "
-                             f"{self.mu.tolist()}, {self.sigma.tolist()}")
+            raise ValueError(
+                f"TruncNormalProduct: need finite mu and positive sigma of one shape, got "
+                f"{self.mu.tolist()}, {self.sigma.tolist()}"
+            )
         self.dim = len(self.mu)
         self._a, self._b = (0.0 - self.mu) / self.sigma, (1.0 - self.mu) / self.sigma
 
@@ -167,8 +182,10 @@ class GaussianMixtureAggregate:
         self.stds = np.asarray(stds, dtype=np.float64)
         s, k = self.weights.shape
         if self.means.shape[:2] != (s, k) or self.stds.shape != self.means.shape or np.any(self.stds <= 0):
-            raise ValueError(f"GaussianMixtureAggregate: weights (S, K), means and stds (S, K, d) with "
-                             f"positive stds; got {self.weights.shape}, {self.means.shape}, {self.stds.shape}")
+            raise ValueError(
+                f"GaussianMixtureAggregate: weights (S, K), means and stds (S, K, d) with "
+                f"positive stds; got {self.weights.shape}, {self.means.shape}, {self.stds.shape}"
+            )
         self.weights = self.weights / self.weights.sum(axis=1, keepdims=True)
         self.dim = int(self.means.shape[2])
 
@@ -194,8 +211,12 @@ class GaussianMixtureAggregate:
 
     def to_dict(self) -> dict[str, Any]:
         """Weights, means and stds."""
-        return {"kind": "gmm_aggregate", "weights": self.weights.tolist(), "means": self.means.tolist(),
-                "stds": self.stds.tolist()}
+        return {
+            "kind": "gmm_aggregate",
+            "weights": self.weights.tolist(),
+            "means": self.means.tolist(),
+            "stds": self.stds.tolist(),
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> GaussianMixtureAggregate:

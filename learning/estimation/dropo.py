@@ -52,8 +52,10 @@ class DROPOConfig:
         if self.popsize is not None:
             self.popsize = check_int(self.popsize, "DROPOConfig.popsize", 2)
         if not self.sigma_min < self.init_sigma <= self.sigma_max:
-            raise InputError("DROPOConfig: need 0 < sigma_min < init_sigma <= sigma_max, got "
-                             f"{self.sigma_min}, {self.init_sigma}, {self.sigma_max}")
+            raise InputError(
+                "DROPOConfig: need 0 < sigma_min < init_sigma <= sigma_max, got "
+                f"{self.sigma_min}, {self.init_sigma}, {self.sigma_max}"
+            )
 
 
 def _popsize(config: DROPOConfig, d: int) -> int:
@@ -66,8 +68,10 @@ def min_sim_calls(config: DROPOConfig, data: TransitionDataset) -> tuple[int, st
     budget that moves the estimate off its start."""
     pop = _popsize(config, data.space.dim)
     rows = min(config.transitions, data.num_transitions)
-    return pop * config.samples * rows, (f"one CMA-ES generation: {pop} candidates x {config.samples} samples x "
-                                         f"{rows} transitions, set by the options popsize, samples, transitions")
+    return pop * config.samples * rows, (
+        f"one CMA-ES generation: {pop} candidates x {config.samples} samples x "
+        f"{rows} transitions, set by the options popsize, samples, transitions"
+    )
 
 
 def gaussian_fit_loglik(pred: np.ndarray, target: np.ndarray, epsilon: float) -> float:
@@ -134,5 +138,9 @@ def fit_dropo(budget: Budget, config: DROPOConfig, seed: int) -> tuple[TruncNorm
         budget.snapshot(_dist(best_x, d), generation=gen, best_objective=best_f)
     if not math.isfinite(best_f):  # no candidate scored: the start is no estimate (was `Infinity` in the file)
         raise RuntimeError(f"dropo: no candidate was scored within {budget.max_calls} simulator calls")
-    return _dist(best_x, d), {"generations": gen, "best_objective": best_f, "popsize": es.popsize,
-                              "calls_per_candidate": per_candidate}
+    return _dist(best_x, d), {
+        "generations": gen,
+        "best_objective": best_f,
+        "popsize": es.popsize,
+        "calls_per_candidate": per_candidate,
+    }

@@ -54,8 +54,11 @@ class EstimateConfig:
 
 #: module of learning.estimation -> (its config dataclass, its fit function); "nfpde-softmax" and
 #: "nfpde-cai" are both the module nfpde.
-_IMPLEMENTATIONS = {"nfpde": ("NFPDEConfig", "fit_nfpde"), "dropo": ("DROPOConfig", "fit_dropo"),
-                    "bayessim": ("BayesSimConfig", "fit_bayessim")}
+_IMPLEMENTATIONS = {
+    "nfpde": ("NFPDEConfig", "fit_nfpde"),
+    "dropo": ("DROPOConfig", "fit_dropo"),
+    "bayessim": ("BayesSimConfig", "fit_bayessim"),
+}
 
 
 def _implementation(method: str) -> tuple[Any, type, Any]:
@@ -73,8 +76,9 @@ def min_sim_calls(config: EstimateConfig, data: TransitionDataset) -> tuple[int,
     return module.min_sim_calls(config.method_config(), data)
 
 
-def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None, progress: bool = False
-             ) -> tuple[EstimatedSampler, dict[str, Any], Budget]:
+def estimate(
+    data: TransitionDataset, config: EstimateConfig, sim: Any = None, progress: bool = False
+) -> tuple[EstimatedSampler, dict[str, Any], Budget]:
     """Fit `config.method` to `data` (the simulator: `sim`, else the dataset's env id); return the
     estimate as a Sampler, a JSON-able info dict and the Budget (its trace holds the snapshots).
 
@@ -89,8 +93,10 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None, p
     if own:
         sim = ParallelTransitionSim(data.env_id, workers=config.workers)
     if sim.space != data.space:
-        raise ValueError(f"the dataset's parameters differ from the simulator's ({data.env_id}): "
-                         + "; ".join(data.space.diff(sim.space)))
+        raise ValueError(
+            f"the dataset's parameters differ from the simulator's ({data.env_id}): "
+            + "; ".join(data.space.diff(sim.space))
+        )
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # small networks: threads only contend with the simulator processes
     budget = None
@@ -103,15 +109,24 @@ def estimate(data: TransitionDataset, config: EstimateConfig, sim: Any = None, p
         torch.set_num_threads(threads)
         if own and hasattr(sim, "close"):
             sim.close()
-    info = {"method": config.method, "seed": config.seed, "sim_budget": int(config.sim_budget),
-            "sim_calls": budget.calls, "seconds": budget.seconds, "details": details,
-            "config": dataclasses.asdict(method_config), "env_id": data.env_id,
-            "transitions": data.num_transitions, "episodes": data.num_episodes}
+    info = {
+        "method": config.method,
+        "seed": config.seed,
+        "sim_budget": int(config.sim_budget),
+        "sim_calls": budget.calls,
+        "seconds": budget.seconds,
+        "details": details,
+        "config": dataclasses.asdict(method_config),
+        "env_id": data.env_id,
+        "transitions": data.num_transitions,
+        "episodes": data.num_episodes,
+    }
     return EstimatedSampler.of(data.space, dist), info, budget
 
 
-def estimate_file(data_path: str | Path, out: str | Path, config: EstimateConfig, command: str = "",
-                  progress: bool = False) -> dict[str, Any]:
+def estimate_file(
+    data_path: str | Path, out: str | Path, config: EstimateConfig, command: str = "", progress: bool = False
+) -> dict[str, Any]:
     """Read a dataset (without its truth), estimate, save the estimate file; return its info
     (`command` is recorded as provenance; `progress`: a bar of simulator calls). Nothing is written
     when the estimation fails (a budget below one iteration fails before any simulation)."""

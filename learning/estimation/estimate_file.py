@@ -19,13 +19,20 @@ __all__ = ["ESTIMATE_FORMAT", "save_estimate", "load_estimate"]
 ESTIMATE_FORMAT = "goflow-estimate"
 
 
-def save_estimate(path: str | Path, sampler: EstimatedSampler, method: str, env_id: str,
-                  info: Mapping[str, Any]) -> Path:
+def save_estimate(
+    path: str | Path, sampler: EstimatedSampler, method: str, env_id: str, info: Mapping[str, Any]
+) -> Path:
     """Write the estimate file atomically as strict JSON; return its path.
 
     Raises ValueError (before writing) if any number in it is not finite."""
-    doc = {"format": ESTIMATE_FORMAT, "version": 1, "method": method, "env_id": env_id,
-           "sampler": sampler.state_dict(), "info": dict(info)}
+    doc = {
+        "format": ESTIMATE_FORMAT,
+        "version": 1,
+        "method": method,
+        "env_id": env_id,
+        "sampler": sampler.state_dict(),
+        "info": dict(info),
+    }
     return write_json(path, doc, indent=None, nonfinite="error")
 
 

@@ -35,8 +35,7 @@ from scipy.special import expit, log_softmax
 
 from goflow_common.checks import check_int, check_number
 from goflow_common.errors import InputError
-from learning.estimation.common import (Budget, BudgetExhausted, check_sim_budget, prediction_loss,
-                                        segment_rows)
+from learning.estimation.common import Budget, BudgetExhausted, check_sim_budget, prediction_loss, segment_rows
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import FlowDistribution
 
@@ -70,8 +69,7 @@ class NFPDEConfig:
         for name in ("beta", "tau", "lr", "y_scale"):
             setattr(self, name, check_number(getattr(self, name), f"NFPDEConfig.{name}", 0.0, low_open=True))
         if self.clip is not None:
-            self.clip = check_number(self.clip, "NFPDEConfig.clip", 0.0, 1.0, low_open=True,
-                                     high_open=True)
+            self.clip = check_number(self.clip, "NFPDEConfig.clip", 0.0, 1.0, low_open=True, high_open=True)
         if isinstance(self.hidden, (str, bytes)) or not hasattr(self.hidden, "__iter__"):
             raise InputError(f"NFPDEConfig.hidden = {self.hidden!r}; expected a list of layer widths")
         self.hidden = tuple(check_int(h, f"NFPDEConfig.hidden[{i}]", 1) for i, h in enumerate(self.hidden))
@@ -82,8 +80,10 @@ def min_sim_calls(config: NFPDEConfig, data: TransitionDataset) -> tuple[int, st
     budget that changes the flow (InputError if no trajectory holds one segment)."""
     segments = min(config.segments, len(segment_rows(data, config.segment_length)))
     calls = config.samples * segments * config.segment_length
-    return calls, (f"{config.samples} samples x {segments} segments x {config.segment_length} transitions, "
-                   "set by the options samples, segments, segment_length")
+    return calls, (
+        f"{config.samples} samples x {segments} segments x {config.segment_length} transitions, "
+        "set by the options samples, segments, segment_length"
+    )
 
 
 def _advantages(loss: np.ndarray, config: NFPDEConfig) -> np.ndarray:
@@ -125,7 +125,7 @@ def fit_nfpde(budget: Budget, config: NFPDEConfig, seed: int) -> tuple[FlowDistr
         loss = prediction_loss(pred, data.next_states[rows], budget.scale)  # (M, B * L)
         seg_loss = loss.reshape(config.samples, len(chosen), config.segment_length).mean(axis=2)
         adv = torch.as_tensor(_advantages(seg_loss, config), dtype=torch.float32)
-        batches = (batches + [(y, logp_old, adv)])[-config.replay:]
+        batches = (batches + [(y, logp_old, adv)])[-config.replay :]
         ys = torch.cat([b[0] for b in batches])
         logp_olds = torch.cat([b[1] for b in batches])
         advs = torch.cat([b[2] for b in batches])

@@ -22,8 +22,10 @@ TARGETS = ("gaussian", "mixture", "mixture5")
 
 #: Component means (u_1, u_2) of the L-shaped mixtures: top of the stem, the corner, the end of the
 #: foot; the 5-component L adds the middle of the stem and of the foot.
-L_MEANS = {"mixture": ((0.25, 0.75), (0.25, 0.25), (0.75, 0.25)),
-           "mixture5": ((0.2, 0.8), (0.2, 0.5), (0.2, 0.2), (0.5, 0.2), (0.8, 0.2))}
+L_MEANS = {
+    "mixture": ((0.25, 0.75), (0.25, 0.25), (0.75, 0.25)),
+    "mixture5": ((0.2, 0.8), (0.2, 0.5), (0.2, 0.2), (0.5, 0.2), (0.8, 0.2)),
+}
 
 
 @dataclass(frozen=True)
@@ -43,8 +45,9 @@ class TargetConfig:
         if self.l_means is None:
             object.__setattr__(self, "l_means", L_MEANS.get(self.kind, L_MEANS["mixture"]))
         if not (0 < self.std < 1 and 0 < self.l_std < 1 and 0 < self.mean < 1):
-            raise InputError(f"target mean/std/l_std must lie in (0, 1) (unit box), got "
-                             f"{self.mean}, {self.std}, {self.l_std}")
+            raise InputError(
+                f"target mean/std/l_std must lie in (0, 1) (unit box), got {self.mean}, {self.std}, {self.l_std}"
+            )
         if len(check_finite_array(self.l_means, "TargetConfig.l_means", (None, 2), 0.0, 1.0)) < 1:
             raise InputError("TargetConfig.l_means = (); expected at least one (u_1, u_2) mean in the unit box")
 
@@ -75,8 +78,7 @@ def _components(config: TargetConfig, d: int) -> tuple[NDArray[np.float64], NDAr
     return means, stds
 
 
-def sample_target(config: TargetConfig, space: ParamSpace, n: int, rng: np.random.Generator
-                  ) -> NDArray[np.float64]:
+def sample_target(config: TargetConfig, space: ParamSpace, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
     """n true parameter vectors (n, d) in parameter units."""
     means, stds = _components(config, space.dim)
     k = np.zeros(n, dtype=np.int64) if config.kind == "gaussian" else rng.integers(len(means), size=n)
@@ -89,8 +91,11 @@ def target_description(config: TargetConfig) -> dict[str, Any]:
     if config.kind == "gaussian":
         out.update(mean=config.mean, std=config.std)
     else:
-        out.update(l_means=[list(m) for m in config.l_means], l_std=config.l_std,
-                   other_dims={"mean": config.mean, "std": config.std})
+        out.update(
+            l_means=[list(m) for m in config.l_means],
+            l_std=config.l_std,
+            other_dims={"mean": config.mean, "std": config.std},
+        )
     return out
 
 

@@ -61,8 +61,10 @@ class TransferConfig:
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.eval_every < 1 or self.eval_episodes < 1:
-            raise ValueError(f"TransferConfig: iterations, eval_every and eval_episodes must be >= 1, got "
-                             f"{self.iterations}, {self.eval_every}, {self.eval_episodes}")
+            raise ValueError(
+                f"TransferConfig: iterations, eval_every and eval_episodes must be >= 1, got "
+                f"{self.iterations}, {self.eval_every}, {self.eval_episodes}"
+            )
         check_choice(self.algo, ALGOS, "TransferConfig.algo")
 
 
@@ -81,8 +83,12 @@ def train_and_evaluate(train_sampler: Sampler, true_sampler: Sampler, config: Tr
     t0 = time.perf_counter()
     run = _train_sac if config.algo == "sac" else _train_ppo
     curve = run(probe, train_sampler, true_sampler, config)
-    return {"curve": curve, "final_mean_return": curve[-1][1], "final_success": curve[-1][2],
-            "seconds": time.perf_counter() - t0}
+    return {
+        "curve": curve,
+        "final_mean_return": curve[-1][1],
+        "final_success": curve[-1][2],
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def _train_ppo(probe: Any, train_sampler: Sampler, true_sampler: Sampler, config: TransferConfig) -> list[list[float]]:
@@ -100,8 +106,9 @@ def _train_ppo(probe: Any, train_sampler: Sampler, true_sampler: Sampler, config
             agent.train_iteration(train_envs)
             if it % config.eval_every == 0 or it == config.iterations:
                 _, returns, success = agent.evaluate(eval_envs, config.eval_episodes, seed=config.seed * 7919 + it)
-                curve.append([it * ppo_config.num_envs * ppo_config.num_steps, float(returns.mean()),
-                              float(success.mean())])
+                curve.append(
+                    [it * ppo_config.num_envs * ppo_config.num_steps, float(returns.mean()), float(success.mean())]
+                )
     finally:
         train_envs.close()
         eval_envs.close()
@@ -112,16 +119,16 @@ def _train_sac(probe: Any, train_sampler: Sampler, true_sampler: Sampler, config
     try:
         from stable_baselines3 import SAC
     except ImportError as exc:
-        raise ImportError("TransferConfig(algo='sac') needs stable-baselines3: pip install -e '.[sb3]' "
-                          "(`make test` installs it)") from exc
+        raise ImportError(
+            "TransferConfig(algo='sac') needs stable-baselines3: pip install -e '.[sb3]' (`make test` installs it)"
+        ) from exc
     torch.set_num_threads(1)  # small networks: a second thread only contends with the other runs
     train_env = gymnasium.make(config.env)
     train_env.unwrapped.sampler = train_sampler
     eval_env = gymnasium.make(config.env)
     eval_env.unwrapped.sampler = true_sampler
     cfg = config.sac
-    model = SAC("MlpPolicy", train_env, seed=config.seed, learning_starts=cfg.learning_starts,
-                device="cpu", verbose=0)
+    model = SAC("MlpPolicy", train_env, seed=config.seed, learning_starts=cfg.learning_starts, device="cpu", verbose=0)
 
     def act(obs: NDArray[np.float64]) -> NDArray[np.float64]:
         return model.predict(obs, deterministic=True)[0]
@@ -141,8 +148,9 @@ def _train_sac(probe: Any, train_sampler: Sampler, true_sampler: Sampler, config
     return curve
 
 
-def run_episodes(act: Callable[[NDArray[np.float64]], NDArray[np.float64]], env: gymnasium.Env,
-                 n_episodes: int, seed: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+def run_episodes(
+    act: Callable[[NDArray[np.float64]], NDArray[np.float64]], env: gymnasium.Env, n_episodes: int, seed: int
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """n_episodes whole episodes of `act` on `env`, reset with seeds seed, seed+1, ...: their
     undiscounted returns and successes (info["success"] at the episode's end; False for envs that
     do not report it, such as gymnasium's originals)."""

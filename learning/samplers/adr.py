@@ -46,7 +46,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from assembly.params import ParamSpace
 from assembly.samplers import (
-    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
+    check_sample_args,
+    check_sampler_args,
+    check_state_dict,
+    check_update_inputs,
 )
 from goflow_common.checks import check_int, check_number
 from goflow_common.config import config_to_dict, config_with_overrides
@@ -77,8 +80,9 @@ class ADRConfig:
 
     def __post_init__(self) -> None:
         def num(name: str, lo: float | None, hi: float | None, lo_open: bool = False) -> None:
-            object.__setattr__(self, name, check_number(getattr(self, name), f"ADRConfig.{name}", lo, hi,
-                                                        low_open=lo_open))
+            object.__setattr__(
+                self, name, check_number(getattr(self, name), f"ADRConfig.{name}", lo, hi, low_open=lo_open)
+            )
 
         num("t_minus_ratio", 0.0, 1.0)
         num("step_fraction", 0.0, 1.0, lo_open=True)
@@ -89,7 +93,6 @@ class ADRConfig:
             if v is not None:
                 num(name, None, None)
         object.__setattr__(self, "queue_length", check_int(self.queue_length, "ADRConfig.queue_length", 1))
-
 
 
 class ADRSampler:
@@ -122,7 +125,9 @@ class ADRSampler:
         else:
             self.t_minus = self.t_plus - (1.0 - c.t_minus_ratio) * abs(self.t_plus)
         if not self.t_minus <= self.t_plus:
-            raise ValueError(f"ADR config: need t_minus <= t_plus, got t_minus={self.t_minus:g}, t_plus={self.t_plus:g}")
+            raise ValueError(
+                f"ADR config: need t_minus <= t_plus, got t_minus={self.t_minus:g}, t_plus={self.t_plus:g}"
+            )
 
         self._box_lo = space.low
         self._box_hi = space.high
@@ -292,9 +297,17 @@ class ADRSampler:
             raise ValueError(f"load_state_dict: ADR bounds have shapes {lo.shape}, {hi.shape}, expected ({d},)")
         nom = self.space.nominal()
         ok = np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
-        ok = ok and np.all(self.space.low <= lo) and np.all(lo <= nom) and np.all(nom <= hi) and np.all(hi <= self.space.high)
+        ok = (
+            ok
+            and np.all(self.space.low <= lo)
+            and np.all(lo <= nom)
+            and np.all(nom <= hi)
+            and np.all(hi <= self.space.high)
+        )
         if not ok:
-            raise ValueError(f"load_state_dict: ADR bounds lo={lo.tolist()}, hi={hi.tolist()} are not low <= lo <= nominal <= hi <= high")
+            raise ValueError(
+                f"load_state_dict: ADR bounds lo={lo.tolist()}, hi={hi.tolist()} are not low <= lo <= nominal <= hi <= high"
+            )
         if set(queues) != set(restored.queues):
             raise ValueError("load_state_dict: ADR queues do not match the ParamSpace's dimensions")
         restored.lo, restored.hi, restored.queues = lo, hi, queues

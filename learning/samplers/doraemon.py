@@ -45,7 +45,10 @@ from scipy.special import betaln, digamma, polygamma, xlog1py, xlogy
 
 from assembly.params import ParamSpace
 from assembly.samplers import (
-    check_sample_args, check_sampler_args, check_state_dict, check_update_inputs,
+    check_sample_args,
+    check_sampler_args,
+    check_state_dict,
+    check_update_inputs,
 )
 from goflow_common.checks import check_choice, check_int, check_number
 from goflow_common.config import config_to_dict, config_with_overrides
@@ -97,8 +100,9 @@ class DORAEMONConfig:
 
     def __post_init__(self) -> None:
         def num(name: str, lo: float, hi: float | None) -> None:
-            object.__setattr__(self, name, check_number(getattr(self, name), f"DORAEMONConfig.{name}", lo, hi,
-                                                        low_open=True))
+            object.__setattr__(
+                self, name, check_number(getattr(self, name), f"DORAEMONConfig.{name}", lo, hi, low_open=True)
+            )
 
         num("eps", 0.0, math.inf)
         num("alpha", 0.0, 1.0)
@@ -116,7 +120,6 @@ class DORAEMONConfig:
             )
         object.__setattr__(self, "maxiter", check_int(self.maxiter, "DORAEMONConfig.maxiter", 1))
         check_choice(self.proposal, ("sampler", "uniform"), "DORAEMONConfig.proposal")
-
 
 
 class _Problem:
@@ -456,7 +459,9 @@ class DORAEMONSampler:
         if a.shape != (d,) or b.shape != (d,):
             raise ValueError(f"load_state_dict: Beta parameters have shapes {a.shape}, {b.shape}, expected ({d},)")
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(a > 0) and np.all(b > 0)):
-            raise ValueError(f"load_state_dict: Beta parameters must be finite and positive, got a={a.tolist()}, b={b.tolist()}")
+            raise ValueError(
+                f"load_state_dict: Beta parameters must be finite and positive, got a={a.tolist()}, b={b.tolist()}"
+            )
         restored.a, restored.b, restored.n_updates = a, b, n_updates
         self.__dict__.update(restored.__dict__)
 

@@ -39,27 +39,37 @@ class EstimatedSampler:
             fields. `EstimatedSampler.of(space, dist)` wraps a distribution object directly.
     """
 
-    def __init__(self, space: ParamSpace, success_threshold: float | None = None,
-                 config: EstimatedSamplerConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        space: ParamSpace,
+        success_threshold: float | None = None,
+        config: EstimatedSamplerConfig | Mapping[str, Any] | None = None,
+        **overrides: Any,
+    ) -> None:
         self.success_threshold = check_sampler_args(space, success_threshold, "EstimatedSampler")
         self.config = config_with_overrides(EstimatedSamplerConfig, config, overrides, "EstimatedSampler")
         if not self.config.distribution:
-            raise InputError("EstimatedSampler: config.distribution is empty; expected the to_dict() of a "
-                             "unit-box distribution (learning.estimation.distributions)")
+            raise InputError(
+                "EstimatedSampler: config.distribution is empty; expected the to_dict() of a "
+                "unit-box distribution (learning.estimation.distributions)"
+            )
         self.space = space
         self._set_dist(distribution_from_dict(dict(self.config.distribution)))
         self._log_volume = float(np.log(space.high - space.low).sum())
 
     @classmethod
-    def of(cls, space: ParamSpace, dist: UnitBoxDistribution,
-           success_threshold: float | None = None) -> EstimatedSampler:
+    def of(
+        cls, space: ParamSpace, dist: UnitBoxDistribution, success_threshold: float | None = None
+    ) -> EstimatedSampler:
         """The sampler of distribution object `dist` over `space`."""
         return cls(space, success_threshold, {"distribution": dist.to_dict()})
 
     def _set_dist(self, dist: UnitBoxDistribution) -> None:
         if dist.dim != self.space.dim:
-            raise InputError(f"EstimatedSampler: the distribution has dim {dist.dim}, the space has "
-                             f"{self.space.dim} parameters {self.space.names}")
+            raise InputError(
+                f"EstimatedSampler: the distribution has dim {dist.dim}, the space has "
+                f"{self.space.dim} parameters {self.space.names}"
+            )
         self.dist = dist
 
     def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:

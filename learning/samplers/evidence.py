@@ -46,8 +46,14 @@ class Evidence:
     The rows (`xi`, `signal`) are the kept boundary rows, oldest first, then the window's.
     """
 
-    def __init__(self, dim: int, capacity: int, neighbours: int,
-                 signal_range: tuple[float, float] | None = None, boundary: int = 0) -> None:
+    def __init__(
+        self,
+        dim: int,
+        capacity: int,
+        neighbours: int,
+        signal_range: tuple[float, float] | None = None,
+        boundary: int = 0,
+    ) -> None:
         self.dim, self.capacity, self.neighbours = dim, capacity, neighbours
         self.signal_range, self.boundary = signal_range, boundary
         self.xi = np.zeros((0, dim))
@@ -74,7 +80,7 @@ class Evidence:
                 _, idx = cKDTree(xi).query(xi[old], k=min(self.neighbours + 1, len(signal)))
                 idx = np.asarray(idx).reshape(leaving, -1)
                 on_edge = (feasible[idx] != feasible[old][:, None]).any(axis=1)
-                kept = np.concatenate([kept, old[on_edge]])[-self.boundary:]
+                kept = np.concatenate([kept, old[on_edge]])[-self.boundary :]
             rows = np.concatenate([kept, np.arange(self.kept + leaving, len(signal))])
             self.xi, self.signal, self.kept = xi[rows], signal[rows], len(kept)
         self._tree = None
@@ -144,11 +150,13 @@ class Evidence:
         signal = np.asarray(state.get("signal", []), dtype=np.float64)
         kept = state.get("kept", 0)  # states saved before boundary rows existed hold the window alone
         if len(xi) != len(signal) or not (np.isfinite(xi).all() and np.isfinite(signal).all()):
-            raise InputError(f"evidence state: {len(xi)} rows of xi and {len(signal)} signals, or non-finite values; "
-                             "expected as many finite rows as signals")
+            raise InputError(
+                f"evidence state: {len(xi)} rows of xi and {len(signal)} signals, or non-finite values; "
+                "expected as many finite rows as signals"
+            )
         if check_int(kept, "evidence state: kept", 0) > len(signal):
             raise InputError(f"evidence state: kept = {kept}; expected at most the {len(signal)} rows")
-        kept_rows = np.arange(kept)[-self.boundary:] if self.boundary > 0 else np.arange(0)
-        rows = np.concatenate([kept_rows, np.arange(kept, len(signal))[-self.capacity:]])
+        kept_rows = np.arange(kept)[-self.boundary :] if self.boundary > 0 else np.arange(0)
+        rows = np.concatenate([kept_rows, np.arange(kept, len(signal))[-self.capacity :]])
         self.xi, self.signal, self.kept = xi[rows], signal[rows], len(kept_rows)
         self._tree = None

@@ -66,8 +66,17 @@ class SuccessClassifier:
     def _logit(net: torch.nn.Module, x_unit: torch.Tensor) -> torch.Tensor:
         return net(x_unit * 2.0 - 1.0).squeeze(-1)
 
-    def fit(self, xi_unit: NDArray[np.float64], success: NDArray[np.float64], weights: NDArray[np.float64], *,
-            steps: int, batch: int, lr: float, gen: torch.Generator) -> float | None:
+    def fit(
+        self,
+        xi_unit: NDArray[np.float64],
+        success: NDArray[np.float64],
+        weights: NDArray[np.float64],
+        *,
+        steps: int,
+        batch: int,
+        lr: float,
+        gen: torch.Generator,
+    ) -> float | None:
         """`steps` Adam steps of logistic regression on the rows, each row's loss weighted by
         `weights` (positive, shape (n,)); returns the last loss, or None (nothing fitted) while the
         rows hold only one class.
@@ -90,10 +99,15 @@ class SuccessClassifier:
         optimizer = torch.optim.Adam(self._net.parameters(), lr=lr)
         loss = torch.zeros(())
         for _ in range(steps):
-            xb = torch.cat([x_good[torch.multinomial(w_good, half, replacement=True, generator=gen)],
-                            x_bad[torch.multinomial(w_bad, half, replacement=True, generator=gen)]])
-            loss = (scale * F.binary_cross_entropy_with_logits(self._logit(self._net, xb), target,
-                                                               reduction="none")).mean()
+            xb = torch.cat(
+                [
+                    x_good[torch.multinomial(w_good, half, replacement=True, generator=gen)],
+                    x_bad[torch.multinomial(w_bad, half, replacement=True, generator=gen)],
+                ]
+            )
+            loss = (
+                scale * F.binary_cross_entropy_with_logits(self._logit(self._net, xb), target, reduction="none")
+            ).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -110,8 +124,15 @@ class SuccessClassifier:
         as a uniform design would count it (`Evidence.design_weights`): `steps` Adam steps at
         `FIT_LR`, `FIRST_FIT_FACTOR` times as many while nothing is fitted yet. Returns `fit`'s loss."""
         steps = steps * (1 if self.fitted else FIRST_FIT_FACTOR)
-        return self.fit(evidence.xi, evidence.scaled_signal(), evidence.design_weights(), steps=steps, batch=batch,
-                        lr=FIT_LR, gen=gen)
+        return self.fit(
+            evidence.xi,
+            evidence.scaled_signal(),
+            evidence.design_weights(),
+            steps=steps,
+            batch=batch,
+            lr=FIT_LR,
+            gen=gen,
+        )
 
     def probability(self, xi_unit: NDArray[np.float64] | torch.Tensor) -> NDArray[np.float64]:
         """P(success) at points of the unit box, shape (n,) (zeros before the first fit)."""
@@ -119,15 +140,20 @@ class SuccessClassifier:
         if not self.fitted:
             return np.zeros(len(x))
         with torch.no_grad():
-            logits = (torch.cat([self._logit(self._average, x[i : i + _CHUNK]) for i in range(0, len(x), _CHUNK)])
-                      if len(x) else x[:, 0])
+            logits = (
+                torch.cat([self._logit(self._average, x[i : i + _CHUNK]) for i in range(0, len(x), _CHUNK)])
+                if len(x)
+                else x[:, 0]
+            )
         return torch.sigmoid(logits.double()).numpy()
 
     def state_dict(self) -> dict[str, Any]:
         """JSON-serializable parameters."""
-        return {"fitted": self.fitted,
-                "params": {k: v.flatten().tolist() for k, v in self._net.state_dict().items()},
-                "average": {k: v.flatten().tolist() for k, v in self._average.state_dict().items()}}
+        return {
+            "fitted": self.fitted,
+            "params": {k: v.flatten().tolist() for k, v in self._net.state_dict().items()},
+            "average": {k: v.flatten().tolist() for k, v in self._average.state_dict().items()},
+        }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore what `state_dict` saved (InputError if the shapes do not fit this classifier)."""
@@ -139,8 +165,10 @@ class SuccessClassifier:
             average = {k: torch.tensor(saved[k], dtype=torch.float32).reshape(v.shape) for k, v in own.items()}
             fitted = bool(state["fitted"])
         except (KeyError, TypeError, RuntimeError, ValueError) as exc:
-            raise InputError(f"success classifier state: {exc!r}; expected the state_dict of a {self.hidden} "
-                             f"classifier on {self.dim} parameters") from exc
+            raise InputError(
+                f"success classifier state: {exc!r}; expected the state_dict of a {self.hidden} "
+                f"classifier on {self.dim} parameters"
+            ) from exc
         if not all(torch.isfinite(v).all() for v in [*params.values(), *average.values()]):
             raise InputError("success classifier state: non-finite parameters; expected finite ones")
         self._net.load_state_dict(params)

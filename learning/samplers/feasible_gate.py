@@ -19,8 +19,16 @@ from numpy.typing import NDArray
 
 from learning.samplers.spline_flow import uniform_box
 
-__all__ = ["GATE_DRAWS", "GATE_SEED", "Gate", "draw_where", "estimate_gate", "follow_constraint", "sample_truncated",
-           "truncated_log_density"]
+__all__ = [
+    "GATE_DRAWS",
+    "GATE_SEED",
+    "Gate",
+    "draw_where",
+    "estimate_gate",
+    "follow_constraint",
+    "sample_truncated",
+    "truncated_log_density",
+]
 
 GATE_DRAWS = 16384  # fixed-seed draws behind the truncation's two shares (flow mass in F-hat, box share outside)
 GATE_SEED = 15_485_863  # added to config.seed for those draws
@@ -42,8 +50,14 @@ class Gate(NamedTuple):
     log_share_in: float
 
 
-def estimate_gate(y_flow: torch.Tensor, y_uniform: torch.Tensor, contains: Contains,
-                  log_q: Callable[[torch.Tensor], torch.Tensor], floor: float, log_box: float) -> Gate | None:
+def estimate_gate(
+    y_flow: torch.Tensor,
+    y_uniform: torch.Tensor,
+    contains: Contains,
+    log_q: Callable[[torch.Tensor], torch.Tensor],
+    floor: float,
+    log_box: float,
+) -> Gate | None:
     """The Gate from draws of the flow (`y_flow`) and of the uniform box (`y_uniform`), `log_q` the
     flow's normalized log density; None (no truncation) while the flow puts under 1 % of its mass
     in F-hat or F-hat is empty or the whole box.
@@ -66,8 +80,9 @@ def estimate_gate(y_flow: torch.Tensor, y_uniform: torch.Tensor, contains: Conta
     return Gate(math.log(accept), math.log(outside), share_in)
 
 
-def truncated_log_density(lq: torch.Tensor, inside: torch.Tensor, gate: Gate, delta: float, floor: float,
-                          log_box: float) -> torch.Tensor:
+def truncated_log_density(
+    lq: torch.Tensor, inside: torch.Tensor, gate: Gate, delta: float, floor: float, log_box: float
+) -> torch.Tensor:
     """The truncated sampler's log density (float64) at points where the flow's normalized log
     density is `lq` (float64) and `inside` says whether they lie in F-hat: (1 - delta) x the flow
     in F-hat / its mass there (mixed with `floor` x uniform on F-hat), delta x uniform outside."""
@@ -79,8 +94,16 @@ def truncated_log_density(lq: torch.Tensor, inside: torch.Tensor, gate: Gate, de
     return torch.where(inside, math.log1p(-delta) + in_hat, torch.full_like(lq, outside))
 
 
-def draw_where(draw: Callable[[int], torch.Tensor], contains: Contains, in_hat: bool, n: int, rate: float, dim: int,
-               max_redraws: int, min_rate: float = _GATE_MIN_ACCEPT) -> torch.Tensor:
+def draw_where(
+    draw: Callable[[int], torch.Tensor],
+    contains: Contains,
+    in_hat: bool,
+    n: int,
+    rate: float,
+    dim: int,
+    max_redraws: int,
+    min_rate: float = _GATE_MIN_ACCEPT,
+) -> torch.Tensor:
     """n of `draw`'s points that are (in_hat) or are not in F-hat, by rejection at about `rate`
     (each round sized for at least `min_rate`); RuntimeError after max_redraws + 1 rounds."""
     if n <= 0:
@@ -94,13 +117,23 @@ def draw_where(draw: Callable[[int], torch.Tensor], contains: Contains, in_hat: 
         if need <= 0:
             return torch.cat(out)[:n]
     where = "in" if in_hat else "outside"
-    raise RuntimeError(f"GoFlowSampler: {need} of {n} draws {where} the estimated feasible set still missing after "
-                       f"{max_redraws + 1} rounds of rejection (expected rate {rate:.3g})")
+    raise RuntimeError(
+        f"GoFlowSampler: {need} of {n} draws {where} the estimated feasible set still missing after "
+        f"{max_redraws + 1} rounds of rejection (expected rate {rate:.3g})"
+    )
 
 
-def sample_truncated(n: int, gen: torch.Generator, gate: Gate, delta: float, floor: float,
-                     draw_flow: Callable[[int], torch.Tensor], contains: Contains, dim: int,
-                     max_redraws: int) -> torch.Tensor:
+def sample_truncated(
+    n: int,
+    gen: torch.Generator,
+    gate: Gate,
+    delta: float,
+    floor: float,
+    draw_flow: Callable[[int], torch.Tensor],
+    contains: Contains,
+    dim: int,
+    max_redraws: int,
+) -> torch.Tensor:
     """n draws of the truncated sampler: a delta share of uniform draws outside F-hat, a floor share
     of the rest uniform in F-hat, the others flow draws (`draw_flow`) in F-hat, shuffled."""
     n_out = int((torch.rand(n, generator=gen, dtype=torch.float64) < delta).sum())
@@ -108,16 +141,30 @@ def sample_truncated(n: int, gen: torch.Generator, gate: Gate, delta: float, flo
     if floor > 0.0:
         n_floor = int((torch.rand(n - n_out, generator=gen, dtype=torch.float64) < floor).sum())
     inside = draw_where(draw_flow, contains, True, n - n_out - n_floor, math.exp(gate.log_accept), dim, max_redraws)
-    spread = draw_where(lambda m: uniform_box(m, dim, gen), contains, True, n_floor, math.exp(gate.log_share_in),
-                        dim, max_redraws, min_rate=_FLOOR_MIN_RATE)
-    rest = draw_where(lambda m: uniform_box(m, dim, gen), contains, False, n_out, math.exp(gate.log_outside), dim,
-                      max_redraws)
+    spread = draw_where(
+        lambda m: uniform_box(m, dim, gen),
+        contains,
+        True,
+        n_floor,
+        math.exp(gate.log_share_in),
+        dim,
+        max_redraws,
+        min_rate=_FLOOR_MIN_RATE,
+    )
+    rest = draw_where(
+        lambda m: uniform_box(m, dim, gen), contains, False, n_out, math.exp(gate.log_outside), dim, max_redraws
+    )
     return torch.cat([inside, spread, rest])[torch.randperm(n, generator=gen)]
 
 
-def follow_constraint(level: float, inside: NDArray[np.bool_], log_ratio: NDArray[np.float64],
-                      signal: NDArray[np.float64], level_step: float, leak_target: float
-                      ) -> tuple[float, dict[str, float]]:
+def follow_constraint(
+    level: float,
+    inside: NDArray[np.bool_],
+    log_ratio: NDArray[np.float64],
+    signal: NDArray[np.float64],
+    level_step: float,
+    leak_target: float,
+) -> tuple[float, dict[str, float]]:
     """One dual-ascent step of F-hat's level on a held-out batch: (the new level, what it saw).
 
     `inside`: the batch rows in F-hat (at least one); `log_ratio`: the sampler's log density over
@@ -139,6 +186,9 @@ def follow_constraint(level: float, inside: NDArray[np.bool_], log_ratio: NDArra
     step = level_step * n_eff * (leak - leak_target)
     logit += min(max(step, -_LEVEL_MAX_STEP), _LEVEL_MAX_STEP)
     logit = min(max(logit, _LEVEL_LOGIT[0]), _LEVEL_LOGIT[1])
-    return 1.0 / (1.0 + math.exp(-logit)), {"heldout_in_feasible": float(inside.sum()),
-                                             "heldout_failed": float(failed.sum()), "heldout_leak": leak,
-                                             "heldout_own_share": pi}
+    return 1.0 / (1.0 + math.exp(-logit)), {
+        "heldout_in_feasible": float(inside.sum()),
+        "heldout_failed": float(failed.sum()),
+        "heldout_leak": leak,
+        "heldout_own_share": pi,
+    }

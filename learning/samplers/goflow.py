@@ -79,14 +79,27 @@ from goflow_common.errors import InputError
 from learning.samplers.evidence import Evidence
 from learning.samplers.feasibility import SuccessClassifier
 from learning.samplers.feasible_gate import (
-    GATE_DRAWS, GATE_SEED, Gate, estimate_gate, follow_constraint, sample_truncated, truncated_log_density,
+    GATE_DRAWS,
+    GATE_SEED,
+    Gate,
+    estimate_gate,
+    follow_constraint,
+    sample_truncated,
+    truncated_log_density,
 )
 from learning.samplers.goflow_config import GoFlowConfig, goflow_config_of
 from learning.samplers.goflow_objectives import Loss, descend, fit_loss, paper_loss, target_weights
 from learning.samplers.goflow_proposal import proposal
 from learning.samplers.gradient_update import standardize_returns, update_diagnostics
 from learning.samplers.spline_flow import (
-    BOX_BOUND, box_to_unit, draw_in_box, flow_log_q, identity_flow, log_box_mass, tensor_from_json, tensor_to_json,
+    BOX_BOUND,
+    box_to_unit,
+    draw_in_box,
+    flow_log_q,
+    identity_flow,
+    log_box_mass,
+    tensor_from_json,
+    tensor_to_json,
     uniform_box,
 )
 
@@ -126,8 +139,9 @@ class GoFlowSampler:
         cfg = self.config
         self._flow = identity_flow(d, cfg.transforms, cfg.hidden_features, cfg.bins, cfg.base_scale, cfg.seed)
         self._entropy_cache: float | None = None
-        self._evidence = Evidence(d, self.config.memory, self.config.neighbours, self.config.signal_range,
-                                  self.config.boundary_memory)
+        self._evidence = Evidence(
+            d, self.config.memory, self.config.neighbours, self.config.signal_range, self.config.boundary_memory
+        )
         self._classifier = self._make_classifier(self.config)
         # the truncation to F-hat (constrained mode): (log flow mass in F-hat, log box share outside
         # it, log box share inside it for the floor), or None while the sampler is the flow alone
@@ -197,8 +211,14 @@ class GoFlowSampler:
             return
         gen = torch.Generator().manual_seed(int(self.config.seed) + GATE_SEED)
         y_flow, y_uniform = self._draw_box(GATE_DRAWS, gen), uniform_box(GATE_DRAWS, self.space.dim, gen)
-        self._gate = estimate_gate(y_flow, y_uniform, self._feasible_hat, lambda y: self._log_q(y) - self._log_z,
-                                   self.config.floor, self._log_box)
+        self._gate = estimate_gate(
+            y_flow,
+            y_uniform,
+            self._feasible_hat,
+            lambda y: self._log_q(y) - self._log_z,
+            self.config.floor,
+            self._log_box,
+        )
 
     def _log_p_box(self, y: torch.Tensor) -> torch.Tensor:
         """The sampler's log density in box coordinates, normalized over the box (float64): the
@@ -207,17 +227,26 @@ class GoFlowSampler:
         lq = (self._log_q(y) - self._log_z).double()
         if self._gate is None:
             return lq
-        return truncated_log_density(lq, self._feasible_hat(y), self._gate, self.config.delta, self.config.floor,
-                                     self._log_box)
+        return truncated_log_density(
+            lq, self._feasible_hat(y), self._gate, self.config.delta, self.config.floor, self._log_box
+        )
 
     def _sample_box(self, n: int, gen: torch.Generator) -> torch.Tensor:
         """n draws of the sampler in box coordinates: the flow truncated to the box, or the
         truncated sampler (`feasible_gate.sample_truncated`)."""
         if self._gate is None:
             return self._draw_box(n, gen)
-        return sample_truncated(n, gen, self._gate, self.config.delta, self.config.floor,
-                                lambda m: self._draw_box(m, gen), self._feasible_hat, self.space.dim,
-                                self.config.max_redraws)
+        return sample_truncated(
+            n,
+            gen,
+            self._gate,
+            self.config.delta,
+            self.config.floor,
+            lambda m: self._draw_box(m, gen),
+            self._feasible_hat,
+            self.space.dim,
+            self.config.max_redraws,
+        )
 
     # -- protocol --------------------------------------------------------------------------------
 
@@ -269,8 +298,10 @@ class GoFlowSampler:
             bad = ~np.isin(ret, (0.0, 1.0))
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
-                raise InputError(f"update: signal[{i}] = {float(ret[i])!r}; the constrained mode learns from 0/1 successes "
-                                 "(give sampler_signal='success')")
+                raise InputError(
+                    f"update: signal[{i}] = {float(ret[i])!r}; the constrained mode learns from 0/1 successes "
+                    "(give sampler_signal='success')"
+                )
         if self.config.mode == "paper":
             return self._paper_update(xi_arr, ret)
         return self._fit_update(xi_arr, ret)
@@ -299,14 +330,21 @@ class GoFlowSampler:
         self._evidence.add((xi_arr - self._low) / self._width, ret)
         gen = self._update_generator()
         if self._classifier is not None:
-            loss = self._classifier.fit_evidence(self._evidence, steps=cfg.classifier_steps, batch=cfg.fit_batch,
-                                                 gen=gen)
+            loss = self._classifier.fit_evidence(
+                self._evidence, steps=cfg.classifier_steps, batch=cfg.fit_batch, gen=gen
+            )
             info_classifier = {"classifier_loss": math.nan if loss is None else loss}
         else:
             info_classifier = {}
-        y, log_m, lq_prop, n = proposal(cfg.proposal_samples, self.space.dim, gen, self._evidence,
-                                        lambda m: self._draw_box(m, gen), lambda y: self._log_q(y) - self._log_z,
-                                        self._log_box)
+        y, log_m, lq_prop, n = proposal(
+            cfg.proposal_samples,
+            self.space.dim,
+            gen,
+            self._evidence,
+            lambda m: self._draw_box(m, gen),
+            lambda y: self._log_q(y) - self._log_z,
+            self._log_box,
+        )
         w, info, outside = target_weights(cfg, self.space.dim, y, log_m, self._evidence, self._feasible_hat)
         y_old, lq_old = y[n : 2 * n], lq_prop[n : 2 * n] + self._log_z  # the pre-update flow's own draws
         ceiling = info.get("log_ceiling", 0.0) + self._log_z  # in the flow's unnormalized log density
@@ -317,10 +355,23 @@ class GoFlowSampler:
         if cfg.mode == "constrained":
             info["feasible_level"] = self._level
         return update_diagnostics(
-            ret, self.entropy(), first=run["first"], last=run["last"], steps=cfg.steps, skipped=run["skipped"],
-            reverted=run["reverted"], has_signal=bool(np.ptp(self._evidence.signal) > 0), update_index=self.n_updates,
-            t0=t0, fit=run["last"].get("fit", math.nan), evidence_rows=len(self._evidence), kl=run["kl"], **info,
-            **info_classifier, **info_level)
+            ret,
+            self.entropy(),
+            first=run["first"],
+            last=run["last"],
+            steps=cfg.steps,
+            skipped=run["skipped"],
+            reverted=run["reverted"],
+            has_signal=bool(np.ptp(self._evidence.signal) > 0),
+            update_index=self.n_updates,
+            t0=t0,
+            fit=run["last"].get("fit", math.nan),
+            evidence_rows=len(self._evidence),
+            kl=run["kl"],
+            **info,
+            **info_classifier,
+            **info_level,
+        )
 
     def _paper_update(self, xi_arr: NDArray[np.float64], ret: NDArray[np.float64]) -> dict[str, Any]:
         """The GoFlow paper's update: K Adam steps on the loss of the module docstring."""
@@ -335,11 +386,20 @@ class GoFlowSampler:
         step_loss = paper_loss(cfg, self._flow, gen, self.space.dim, y_batch, weights, y_old, lq_old)
         run = self._descend(step_loss, y_old, lq_old)
         return update_diagnostics(
-            ret, self.entropy(), first=run["first"], last=run["last"], steps=cfg.steps, skipped=run["skipped"],
-            reverted=run["reverted"], has_signal=has_signal, update_index=self.n_updates, t0=t0,
+            ret,
+            self.entropy(),
+            first=run["first"],
+            last=run["last"],
+            steps=cfg.steps,
+            skipped=run["skipped"],
+            reverted=run["reverted"],
+            has_signal=has_signal,
+            update_index=self.n_updates,
+            t0=t0,
             reward_term=run["last"].get("reward_term", math.nan),
             entropy_objective=run["last"].get("entropy_objective", math.nan),
-            kl=run["kl"])  # KL(q_old || q_new) on the old flow's samples, after any revert
+            kl=run["kl"],
+        )  # KL(q_old || q_new) on the old flow's samples, after any revert
 
     # -- checkpoints -----------------------------------------------------------------------------
 
@@ -383,14 +443,16 @@ class GoFlowSampler:
             self._flow.load_state_dict(tensors)
         except RuntimeError as exc:
             raise ValueError(f"load_state_dict: flow tensors do not fit this architecture: {exc}") from exc
-        evidence = Evidence(self.space.dim, config.memory, config.neighbours, config.signal_range,
-                            config.boundary_memory)
+        evidence = Evidence(
+            self.space.dim, config.memory, config.neighbours, config.signal_range, config.boundary_memory
+        )
         evidence.load_state_dict(state.get("evidence", {}))
         classifier = self._make_classifier(config)
         if classifier is not None and "classifier" in state:
             classifier.load_state_dict(state["classifier"])
-        level = check_number(state.get("feasible_level", config.feasible_level), "state feasible_level", 0.0, 1.0,
-                             low_open=True)
+        level = check_number(
+            state.get("feasible_level", config.feasible_level), "state feasible_level", 0.0, 1.0, low_open=True
+        )
         self.config, self.n_updates, self._evidence, self._classifier = config, n_updates, evidence, classifier
         self._level = level
         self._entropy_cache = None

@@ -94,11 +94,21 @@ class GoFlowConfig:
     fit_batch: int = 512  # points resampled from the weighted proposal at each of the K steps
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "hidden_features", check_layer_sizes(self.hidden_features, "GoFlowConfig.hidden_features"))
+        object.__setattr__(
+            self, "hidden_features", check_layer_sizes(self.hidden_features, "GoFlowConfig.hidden_features")
+        )
         for name in ("alpha", "beta"):
             object.__setattr__(self, name, check_number(getattr(self, name), f"GoFlowConfig.{name}", 0.0))
-        for name in ("transforms", "bins", "steps", "entropy_samples", "kl_samples", "kl_pool", "report_samples",
-                     "max_redraws"):
+        for name in (
+            "transforms",
+            "bins",
+            "steps",
+            "entropy_samples",
+            "kl_samples",
+            "kl_pool",
+            "report_samples",
+            "max_redraws",
+        ):
             check_int(getattr(self, name), f"GoFlowConfig.{name}", 1)
         check_int(self.bins, "GoFlowConfig.bins", 2)
         for name in ("base_scale", "lr", "grad_clip"):
@@ -113,8 +123,9 @@ class GoFlowConfig:
         check_choice(self.feasible_model, FEASIBLE_MODELS, "GoFlowConfig.feasible_model")
         check_int(self.classifier_steps, "GoFlowConfig.classifier_steps", 1)
         if self.classifier_hidden is not None:
-            object.__setattr__(self, "classifier_hidden",
-                               check_layer_sizes(self.classifier_hidden, "GoFlowConfig.classifier_hidden"))
+            object.__setattr__(
+                self, "classifier_hidden", check_layer_sizes(self.classifier_hidden, "GoFlowConfig.classifier_hidden")
+            )
         if not isinstance(self.truncate, bool):
             raise InputError(f"GoFlowConfig.truncate = {self.truncate!r}; expected true or false")
         check_number(self.floor, "GoFlowConfig.floor", 0.0, 1.0, high_open=True)

@@ -33,9 +33,14 @@ _LOG_Q_FLOOR = -1e4  # clamp for log q in the entropy term: exp underflows to 0 
 Loss = Callable[[], tuple[torch.Tensor, dict[str, torch.Tensor]]]
 
 
-def target_weights(cfg: GoFlowConfig, dim: int, y: torch.Tensor, log_m: torch.Tensor, evidence: Evidence,
-                   contains: Callable[[torch.Tensor], torch.Tensor]
-                   ) -> tuple[torch.Tensor, dict[str, float], torch.Tensor]:
+def target_weights(
+    cfg: GoFlowConfig,
+    dim: int,
+    y: torch.Tensor,
+    log_m: torch.Tensor,
+    evidence: Evidence,
+    contains: Callable[[torch.Tensor], torch.Tensor],
+) -> tuple[torch.Tensor, dict[str, float], torch.Tensor]:
     """Self-normalized importance weights of proposal draws `y` (mixture log density `log_m`) for
     the mode's optimum given the evidence (entropy: p* ~ exp(r_hat / alpha), r_hat the k-NN signal
     estimate; constrained: 1 - delta uniform on F-hat = `contains`, delta on the rest); what they
@@ -47,8 +52,11 @@ def target_weights(cfg: GoFlowConfig, dim: int, y: torch.Tensor, log_m: torch.Te
     outside = y[:0]
     if cfg.mode == "entropy":
         r_hat = torch.as_tensor(evidence.estimate(box_to_unit(y)))
-        log_w = log_w + r_hat / cfg.alpha if cfg.alpha > 0 else torch.where(
-            r_hat >= r_hat.max(), log_w, torch.full_like(log_w, -math.inf))
+        log_w = (
+            log_w + r_hat / cfg.alpha
+            if cfg.alpha > 0
+            else torch.where(r_hat >= r_hat.max(), log_w, torch.full_like(log_w, -math.inf))
+        )
         w = torch.softmax(log_w, dim=0)
     else:
         inside = contains(y)
@@ -66,8 +74,17 @@ def target_weights(cfg: GoFlowConfig, dim: int, y: torch.Tensor, log_m: torch.Te
     return w.float(), info, outside
 
 
-def fit_loss(cfg: GoFlowConfig, flow: zuko.flows.Flow, gen: torch.Generator, y: torch.Tensor, w: torch.Tensor,
-             outside: torch.Tensor, ceiling: float, y_old: torch.Tensor, lq_old: torch.Tensor) -> Loss:
+def fit_loss(
+    cfg: GoFlowConfig,
+    flow: zuko.flows.Flow,
+    gen: torch.Generator,
+    y: torch.Tensor,
+    w: torch.Tensor,
+    outside: torch.Tensor,
+    ceiling: float,
+    y_old: torch.Tensor,
+    lq_old: torch.Tensor,
+) -> Loss:
     """Entropy and constrained modes: the step loss -mean log q on `fit_batch` draws of `y`
     resampled by `w`; plus `outside_weight` x the mean excess of log q over `ceiling` (the flow's
     unnormalized log density) on up to fit_batch / 2 of the `outside` draws; plus beta x KL_hat on
@@ -98,8 +115,16 @@ def fit_loss(cfg: GoFlowConfig, flow: zuko.flows.Flow, gen: torch.Generator, y: 
     return step_loss
 
 
-def paper_loss(cfg: GoFlowConfig, flow: zuko.flows.Flow, gen: torch.Generator, dim: int, y_batch: torch.Tensor,
-               weights: torch.Tensor, y_old: torch.Tensor, lq_old: torch.Tensor) -> Loss:
+def paper_loss(
+    cfg: GoFlowConfig,
+    flow: zuko.flows.Flow,
+    gen: torch.Generator,
+    dim: int,
+    y_batch: torch.Tensor,
+    weights: torch.Tensor,
+    y_old: torch.Tensor,
+    lq_old: torch.Tensor,
+) -> Loss:
     """The paper mode's step loss on the batch `y_batch` with standardized returns `weights`:
     -mean(log q(y_i) R_i) - alpha H_hat + beta KL_hat, H_hat from `entropy_samples` fresh uniform
     draws, KL_hat on `kl_samples` of the pre-update draws `y_old` (log densities `lq_old`)."""

@@ -18,9 +18,15 @@ from learning.samplers.spline_flow import BOX_BOUND, box_to_unit, uniform_box, u
 __all__ = ["kernel_width", "proposal", "success_centres"]
 
 
-def proposal(n: int, dim: int, gen: torch.Generator, evidence: Evidence, draw_flow: Callable[[int], torch.Tensor],
-             log_q: Callable[[torch.Tensor], torch.Tensor], log_box: float
-             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+def proposal(
+    n: int,
+    dim: int,
+    gen: torch.Generator,
+    evidence: Evidence,
+    draw_flow: Callable[[int], torch.Tensor],
+    log_q: Callable[[torch.Tensor], torch.Tensor],
+    log_box: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
     """Draws of the proposal in box coordinates with their log densities.
 
     `n` draws per component: uniform on the box, the flow (`draw_flow(n)`, its normalized log
@@ -44,7 +50,9 @@ def proposal(n: int, dim: int, gen: torch.Generator, evidence: Evidence, draw_fl
     terms = [torch.full((len(y),), math.log(n / n_total) - log_box), math.log(n / n_total) + lq]
     if len(centres):
         sq = torch.cdist(y.double(), centres.double()).pow(2)
-        log_k = torch.logsumexp(-0.5 * sq / h**2, dim=1) - math.log(len(centres)) - d * math.log(h * math.sqrt(2 * math.pi))
+        log_k = (
+            torch.logsumexp(-0.5 * sq / h**2, dim=1) - math.log(len(centres)) - d * math.log(h * math.sqrt(2 * math.pi))
+        )
         terms.append(math.log(n / n_total) + log_k.float())
     log_m = torch.logsumexp(torch.stack(terms), dim=0)
     return y, log_m, lq, n

@@ -35,16 +35,36 @@ def standardize_returns(returns: NDArray[np.float64]) -> tuple[NDArray[np.float6
     return centred / std, True
 
 
-def update_diagnostics(returns: NDArray[np.float64], entropy: float, *, first: dict[str, float] | None,
-                       last: dict[str, float], steps: int, skipped: int, reverted: bool, has_signal: bool,
-                       update_index: int, t0: float, **extra: Any) -> dict[str, Any]:
+def update_diagnostics(
+    returns: NDArray[np.float64],
+    entropy: float,
+    *,
+    first: dict[str, float] | None,
+    last: dict[str, float],
+    steps: int,
+    skipped: int,
+    reverted: bool,
+    has_signal: bool,
+    update_index: int,
+    t0: float,
+    **extra: Any,
+) -> dict[str, Any]:
     """What a sampler updated by gradient steps reports (GoFlow, LSDR): the protocol's diagnostics,
     the first and last step's loss, the step counts, whether it reverted, and `extra`."""
     diag = base_diagnostics(returns, entropy)
-    diag.update({"loss": last.get("loss", math.nan), "loss_first": math.nan if first is None else first["loss"],
-                 **extra, "steps": steps, "skipped_steps": skipped, "reverted": reverted,
-                 "returns_have_signal": has_signal, "update_index": update_index,
-                 "time_s": time.perf_counter() - t0})
+    diag.update(
+        {
+            "loss": last.get("loss", math.nan),
+            "loss_first": math.nan if first is None else first["loss"],
+            **extra,
+            "steps": steps,
+            "skipped_steps": skipped,
+            "reverted": reverted,
+            "returns_have_signal": has_signal,
+            "update_index": update_index,
+            "time_s": time.perf_counter() - t0,
+        }
+    )
     return diag
 
 

@@ -140,7 +140,9 @@ class LSDRSampler:
             var_param = self._width / 10.0  # seed appendix A.2: Sigma = diag((max - min) / 10)
         else:
             if len(self.config.init_variance) != d:
-                raise ValueError(f"LSDRConfig.init_variance has {len(self.config.init_variance)} entries, space has {d}")
+                raise ValueError(
+                    f"LSDRConfig.init_variance has {len(self.config.init_variance)} entries, space has {d}"
+                )
             var_param = np.asarray(self.config.init_variance, dtype=np.float64)
         std_unit = np.sqrt(var_param) / self._width
         self.mu = np.full(d, 0.5)  # unit-box centre
@@ -166,14 +168,20 @@ class LSDRSampler:
                 a, b = -self.mu / s, (1.0 - self.mu) / s
                 # log(Phi(b) - Phi(a)), stable in both tails
                 log_mass = np.where(
-                    a > 0, log_ndtr(-a) + np.log1p(-np.exp(log_ndtr(-b) - log_ndtr(-a))),
+                    a > 0,
+                    log_ndtr(-a) + np.log1p(-np.exp(log_ndtr(-b) - log_ndtr(-a))),
                     log_ndtr(b) + np.log1p(-np.exp(log_ndtr(a) - log_ndtr(b))),
                 )
                 value = float(np.sum(log_mass))
             else:
                 mass = stats.multivariate_normal.cdf(
-                    np.ones(self.space.dim), mean=self.mu, cov=self.chol @ self.chol.T,
-                    lower_limit=np.zeros(self.space.dim), abseps=1e-7, releps=1e-6, rng=self.config.seed,
+                    np.ones(self.space.dim),
+                    mean=self.mu,
+                    cov=self.chol @ self.chol.T,
+                    lower_limit=np.zeros(self.space.dim),
+                    abseps=1e-7,
+                    releps=1e-6,
+                    rng=self.config.seed,
                 )
                 value = math.log(mass) if mass > 0 else -math.inf
             self._cache["log_z"] = value
@@ -239,8 +247,9 @@ class LSDRSampler:
             d = self.space.dim
             if self._is_diagonal():
                 s = np.diag(self.chol)
-                h_unit = float(sum(stats.truncnorm(-m / si, (1 - m) / si, loc=m, scale=si).entropy()
-                                   for m, si in zip(self.mu, s)))
+                h_unit = float(
+                    sum(stats.truncnorm(-m / si, (1 - m) / si, loc=m, scale=si).entropy() for m, si in zip(self.mu, s))
+                )
             else:
                 sobol = stats.qmc.Sobol(d, scramble=True, rng=self.config.seed)
                 q = sobol.random_base2(max(int(math.ceil(math.log2(self.config.entropy_samples))), 1))
@@ -292,7 +301,11 @@ class LSDRSampler:
             with torch.no_grad():
                 mu.clamp_(0.0, 1.0)
                 log_diag.clamp_(lo, hi)
-            last = {"loss": float(loss.detach()), "weighted_loglik": float(loglik.detach()), "kl_uniform": float(kl.detach())}
+            last = {
+                "loss": float(loss.detach()),
+                "weighted_loglik": float(loglik.detach()),
+                "kl_uniform": float(kl.detach()),
+            }
             if first is None:
                 first = dict(last)
 
@@ -306,11 +319,22 @@ class LSDRSampler:
         with torch.no_grad():
             kl_now = float(kl_uniform_gaussian(torch.as_tensor(self.mu), torch.as_tensor(self.chol)))
         return update_diagnostics(
-            ret, self.entropy(), first=first, last=last, steps=cfg.steps, skipped=skipped, reverted=reverted,
-            has_signal=has_signal, update_index=self.n_updates, t0=t0,
-            weighted_loglik=last.get("weighted_loglik", math.nan), kl_uniform=kl_now,
-            truncation_mass=self.truncation_mass(), mean=self.mean().tolist(),
-            std=np.sqrt(np.diag(self.covariance())).tolist())
+            ret,
+            self.entropy(),
+            first=first,
+            last=last,
+            steps=cfg.steps,
+            skipped=skipped,
+            reverted=reverted,
+            has_signal=has_signal,
+            update_index=self.n_updates,
+            t0=t0,
+            weighted_loglik=last.get("weighted_loglik", math.nan),
+            kl_uniform=kl_now,
+            truncation_mass=self.truncation_mass(),
+            mean=self.mean().tolist(),
+            std=np.sqrt(np.diag(self.covariance())).tolist(),
+        )
 
     # -- checkpoints -----------------------------------------------------------------------------
 
@@ -339,8 +363,14 @@ class LSDRSampler:
             raise ValueError(f"load_state_dict: malformed LSDRSampler state_dict ({exc!r})") from exc
         if mu.shape != (d,) or chol.shape != (d, d):
             raise ValueError(f"load_state_dict: mu {mu.shape} / chol {chol.shape} do not fit a {d}-D space")
-        if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(chol))) or np.any(np.triu(chol, 1) != 0) or np.any(np.diag(chol) <= 0):
-            raise ValueError("load_state_dict: chol must be finite lower-triangular with a positive diagonal, mu finite")
+        if (
+            not (np.all(np.isfinite(mu)) and np.all(np.isfinite(chol)))
+            or np.any(np.triu(chol, 1) != 0)
+            or np.any(np.diag(chol) <= 0)
+        ):
+            raise ValueError(
+                "load_state_dict: chol must be finite lower-triangular with a positive diagonal, mu finite"
+            )
         self.mu, self.chol, self.config, self.n_updates = mu, chol, config, n_updates
         self._cache = {}
 

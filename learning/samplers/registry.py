@@ -73,12 +73,24 @@ for _spec in (
     SamplerSpec("fulldr", "assembly.samplers:FullDR", "assembly.samplers:FullDRConfig"),
     SamplerSpec("adr", "learning.samplers.adr:ADRSampler", "learning.samplers.adr:ADRConfig", threshold=True),
     SamplerSpec("lsdr", "learning.samplers.lsdr:LSDRSampler", "learning.samplers.lsdr:LSDRConfig", gradient=True),
-    SamplerSpec("doraemon", "learning.samplers.doraemon:DORAEMONSampler",
-                "learning.samplers.doraemon:DORAEMONConfig", threshold=True),
-    SamplerSpec("goflow", "learning.samplers.goflow:GoFlowSampler", "learning.samplers.goflow_config:GoFlowConfig",
-                gradient=True),
-    SamplerSpec("estimated", "learning.samplers.estimated:EstimatedSampler",
-                "learning.samplers.estimated:EstimatedSamplerConfig", training=False),
+    SamplerSpec(
+        "doraemon",
+        "learning.samplers.doraemon:DORAEMONSampler",
+        "learning.samplers.doraemon:DORAEMONConfig",
+        threshold=True,
+    ),
+    SamplerSpec(
+        "goflow",
+        "learning.samplers.goflow:GoFlowSampler",
+        "learning.samplers.goflow_config:GoFlowConfig",
+        gradient=True,
+    ),
+    SamplerSpec(
+        "estimated",
+        "learning.samplers.estimated:EstimatedSampler",
+        "learning.samplers.estimated:EstimatedSamplerConfig",
+        training=False,
+    ),
 ):
     register_sampler(_spec)
 
@@ -114,8 +126,9 @@ def sampler_config(name: str, config: Any = None) -> Any:
     return config_with_overrides(_load(spec.config_entry_point), config, owner=f"{name} sampler config")
 
 
-def make_sampler(name: str, space: Any, success_threshold: float | None = None,
-                 config: Mapping[str, Any] | Any = None) -> Any:
+def make_sampler(
+    name: str, space: Any, success_threshold: float | None = None, config: Mapping[str, Any] | Any = None
+) -> Any:
     """The sampler `name` over ParamSpace `space` with J_T `success_threshold` and `config` (its
     config dataclass, a mapping of its fields, or None for the defaults)."""
     return sampler_class(name)(space, success_threshold, sampler_config(name, config))

@@ -22,8 +22,20 @@ from zuko.distributions import DiagNormal
 from zuko.lazy import UnconditionalDistribution
 from zuko.transforms import MonotonicRQSTransform
 
-__all__ = ["BOX_BOUND", "box_to_unit", "build_spline_flow", "draw_in_box", "flow_log_q", "identity_flow",
-           "log_box_mass", "params_finite", "tensor_from_json", "tensor_to_json", "uniform_box", "unit_to_box"]
+__all__ = [
+    "BOX_BOUND",
+    "box_to_unit",
+    "build_spline_flow",
+    "draw_in_box",
+    "flow_log_q",
+    "identity_flow",
+    "log_box_mass",
+    "params_finite",
+    "tensor_from_json",
+    "tensor_to_json",
+    "uniform_box",
+    "unit_to_box",
+]
 
 BOX_BOUND = 5.0  # zuko's spline domain is [-5, 5] (the GoFlow authors' code maps the box onto it)
 _BOX_TOL = 1e-4  # float32 rounding slack (box coordinates) before a draw counts as outside
@@ -39,8 +51,15 @@ class _SplineTransform(MonotonicRQSTransform):
     8 bins costs 3.5x the plain exp / sum, and with it a d = 3 update takes a third longer.
     """
 
-    def __init__(self, widths: torch.Tensor, heights: torch.Tensor, derivatives: torch.Tensor,
-                 bound: float = 5.0, slope: float = 1e-3, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        widths: torch.Tensor,
+        heights: torch.Tensor,
+        derivatives: torch.Tensor,
+        bound: float = 5.0,
+        slope: float = 1e-3,
+        **kwargs: Any,
+    ) -> None:
         torch.distributions.Transform.__init__(self, **kwargs)
         log_slope = math.log(slope)
         widths = torch.exp(widths / (1 + abs(2 * widths / log_slope)))
@@ -55,21 +74,25 @@ class _SplineTransform(MonotonicRQSTransform):
 
 def build_spline_flow(features: int, transforms: int, hidden_features: tuple[int, ...], bins: int) -> zuko.flows.Flow:
     """zuko's NSF (same modules and state_dict keys as `zuko.flows.NSF`) on `_SplineTransform`."""
-    return zuko.flows.MAF(features=features, transforms=transforms, hidden_features=hidden_features,
-                          univariate=partial(_SplineTransform, slope=1e-3), shapes=[(bins,), (bins,), (bins - 1,)])
+    return zuko.flows.MAF(
+        features=features,
+        transforms=transforms,
+        hidden_features=hidden_features,
+        univariate=partial(_SplineTransform, slope=1e-3),
+        shapes=[(bins,), (bins,), (bins - 1,)],
+    )
 
 
-def identity_flow(features: int, transforms: int, hidden_features: tuple[int, ...], bins: int, base_scale: float,
-                  seed: int) -> zuko.flows.Flow:
+def identity_flow(
+    features: int, transforms: int, hidden_features: tuple[int, ...], bins: int, base_scale: float, seed: int
+) -> zuko.flows.Flow:
     """`build_spline_flow` with identity splines and a N(0, base_scale^2) base: its density is the
     base's; deterministic in `seed` (the global torch RNG is left as it was)."""
     d = features
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         flow = build_spline_flow(d, transforms, hidden_features, bins)
-    flow.base = UnconditionalDistribution(
-        DiagNormal, torch.zeros(d), torch.full((d,), float(base_scale)), buffer=True
-    )
+    flow.base = UnconditionalDistribution(DiagNormal, torch.zeros(d), torch.full((d,), float(base_scale)), buffer=True)
     with torch.no_grad():
         for t in flow.transform.transforms:
             hyper = getattr(t, "hyper", None)
@@ -105,8 +128,9 @@ def _base_in_box(n: int, d: int, base_scale: float, gen: torch.Generator) -> tor
     return z.clamp(-BOX_BOUND, BOX_BOUND).to(torch.float32)
 
 
-def draw_in_box(flow: zuko.flows.Flow, n: int, d: int, base_scale: float, max_redraws: int,
-                gen: torch.Generator) -> torch.Tensor:
+def draw_in_box(
+    flow: zuko.flows.Flow, n: int, d: int, base_scale: float, max_redraws: int, gen: torch.Generator
+) -> torch.Tensor:
     """n draws of the flow truncated to the box, in box coordinates (float32, shape (n, d)): base
     draws in the box mapped through the inverse transform, those that leave it (or are not finite)
     drawn again. RuntimeError after `max_redraws` rounds that leave draws missing."""

@@ -136,6 +136,7 @@ def test_bare_rollout_equals_env_step(env):
 def test_simulation_error_ends_episode_truncated(make, xi):
     if make == "anymal":  # the other quadruped: same failure path
         from assembly.envs.anymal import NOMINAL_BASE_MASS, AnymalEnv
+
         make, xi = AnymalEnv, [NOMINAL_BASE_MASS, 0.0, 0.0, 0.0, 0.0]
     env = make()
     env.reset(seed=0, options={"xi": xi})

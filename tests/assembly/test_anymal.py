@@ -47,8 +47,7 @@ def test_task_definition(env):
     assert env.max_episode_steps == 250
     # J_T: the paper's 1.5 over the seed's 249 rewarded steps of 0.02 s, rescaled to our 5 s.
     assert env.success_threshold == pytest.approx(SEED_J_T * 250 / 249)
-    assert env.space.names == ("base_mass", "LF_HAA_friction", "RF_HAA_friction", "LH_HAA_friction",
-                               "RH_HAA_friction")
+    assert env.space.names == ("base_mass", "LF_HAA_friction", "RF_HAA_friction", "LH_HAA_friction", "RH_HAA_friction")
     np.testing.assert_array_equal(env.space.low, [0.0] * 5)
     np.testing.assert_array_equal(env.space.high, [200.0, 0.1, 0.1, 0.1, 0.1])
     assert env.plant.num_actuated_dofs() == 12

@@ -14,9 +14,14 @@ from goflow_common.errors import InputError
 # Largest |difference| of observations over 1.5 episodes of random actions. One copy is the single
 # env exactly; with N copies SAP solves one problem whose convergence test is over all copies, so
 # each copy's step is solved to a slightly different point (measured: Cartpole 4e-5).
-TOLERANCE = {"goflow/Cartpole-v0": 1e-3, "goflow/Quadrotor-v0": 1e-3, "goflow/GearInsertion-v0": 1e-3,
-             # measured over seeds 11-13, with the kwargs below: Ant 9e-5, Anymal 1.4e-3 (joint rates)
-             "goflow/Ant-v0": 1e-3, "goflow/Anymal-v0": 1e-2}
+TOLERANCE = {
+    "goflow/Cartpole-v0": 1e-3,
+    "goflow/Quadrotor-v0": 1e-3,
+    "goflow/GearInsertion-v0": 1e-3,
+    # measured over seeds 11-13, with the kwargs below: Ant 9e-5, Anymal 1.4e-3 (joint rates)
+    "goflow/Ant-v0": 1e-3,
+    "goflow/Anymal-v0": 1e-2,
+}
 # Env kwargs of the comparison (both sides): shorter episodes where random torques make the walkers
 # chaotic over a whole one (Ant: 3e-8 at step 1, 2.6 by 2.75 s) or the test slow (Anymal), and
 # falls that end copies at different steps (Ant), so copies also restart alone.
@@ -27,8 +32,9 @@ IDS = sorted(VECTOR_ENVS)
 def _pair(env_id: str, n: int):
     kwargs = KWARGS.get(env_id, {})
     batched = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
-    sync = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(env_id, **kwargs) for _ in range(n)],
-                                          autoreset_mode=AutoresetMode.SAME_STEP)
+    sync = gymnasium.vector.SyncVectorEnv(
+        [lambda: gymnasium.make(env_id, **kwargs) for _ in range(n)], autoreset_mode=AutoresetMode.SAME_STEP
+    )
     return batched, sync
 
 
@@ -57,8 +63,9 @@ def _compare(env_id: str, n: int, tolerance: float) -> None:
             done = te1 | tr1
             for key in ("xi", "episode_return", "success", "critic_obs"):
                 np.testing.assert_array_equal(f1["_" + key], f2["_" + key])
-                np.testing.assert_allclose(np.asarray(f1[key][done], float), np.asarray(f2[key][done], float),
-                                           atol=tolerance * steps)
+                np.testing.assert_allclose(
+                    np.asarray(f1[key][done], float), np.asarray(f2[key][done], float), atol=tolerance * steps
+                )
             for i in np.flatnonzero(done):
                 np.testing.assert_allclose(i1["final_obs"][i], i2["final_obs"][i], atol=tolerance)
     assert ended >= 1
@@ -124,8 +131,9 @@ def test_gear_copies_in_contact_agree_with_single_envs_in_outcome():
     pushes from grasp errors within 3 mm, returns within 1.1 % of ~100, every success the same)."""
     env_id, n, kwargs = "goflow/GearInsertion-v0", 8, {"grasp_xy": 0.003, "grasp_yaw": 0.3}
     batched = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
-    sync = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(env_id, **kwargs) for _ in range(n)],
-                                          autoreset_mode=AutoresetMode.SAME_STEP)
+    sync = gymnasium.vector.SyncVectorEnv(
+        [lambda: gymnasium.make(env_id, **kwargs) for _ in range(n)], autoreset_mode=AutoresetMode.SAME_STEP
+    )
     batched.reset(seed=1)
     sync.reset(seed=1)
     rng = np.random.default_rng(0)

@@ -6,7 +6,11 @@ import pytest
 from pydrake.math import RigidTransform
 
 from assembly.cameras import (
-    default_scene_camera, extrinsic_error, extrinsic_error_on_table, look_at, with_extrinsic_error,
+    default_scene_camera,
+    extrinsic_error,
+    extrinsic_error_on_table,
+    look_at,
+    with_extrinsic_error,
 )
 
 

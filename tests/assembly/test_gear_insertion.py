@@ -62,8 +62,9 @@ def test_grasp_error_moves_gear_in_hand(fast):
     fast.reset(seed=0, options={"xi": [0.01, -0.02, 0.3]})
     off = fast._sim.gear_pose()
     # Same tool pose, gear displaced by 2.2 cm and turned by 0.3 rad about its axis.
-    np.testing.assert_allclose(np.linalg.norm(off.translation() - centred.translation()),
-                               np.hypot(0.01, 0.02), atol=1e-9)
+    np.testing.assert_allclose(
+        np.linalg.norm(off.translation() - centred.translation()), np.hypot(0.01, 0.02), atol=1e-9
+    )
     angle = (centred.rotation().inverse() @ off.rotation()).ToAngleAxis().angle()
     assert angle == pytest.approx(0.3, abs=1e-9)
 
@@ -83,6 +84,7 @@ def test_contact_decides(variant, fast, panda):
 
 def test_progress_is_credited_at_once(fast):
     """Lowering the gear earns its progress term in the same steps; hovering earns none of it."""
+
     def run(action, steps=10):
         fast.reset(seed=0, options={"xi": [0.02, 0.0, 0.0]})
         d0 = np.hypot(*fast.insertion_error())

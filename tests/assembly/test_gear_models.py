@@ -30,8 +30,7 @@ PLATE_TOP = gearset.PLATE_SIZE[2]
 TOL = 1e-6  # geometric tolerance [m] (OBJ files hold 0.1 um)
 
 
-def _add_models_offline(plant: MultibodyPlant, paths: list[pathlib.Path],
-                        monkeypatch: pytest.MonkeyPatch) -> list:
+def _add_models_offline(plant: MultibodyPlant, paths: list[pathlib.Path], monkeypatch: pytest.MonkeyPatch) -> list:
     """Parses `paths` with no way to reach the network: the remote `drake_models` package is
     removed from the parser's package map and Drake's network governor is set to "none".
 
@@ -46,8 +45,9 @@ def _add_models_offline(plant: MultibodyPlant, paths: list[pathlib.Path],
 
 
 def _contact_plant(builder: DiagramBuilder) -> MultibodyPlant:
-    config = MultibodyPlantConfig(time_step=0.002, contact_model="hydroelastic_with_fallback",
-                                  discrete_contact_approximation="lagged")
+    config = MultibodyPlantConfig(
+        time_step=0.002, contact_model="hydroelastic_with_fallback", discrete_contact_approximation="lagged"
+    )
     plant, _ = AddMultibodyPlant(config, builder)
     return plant
 
@@ -125,8 +125,10 @@ def _gear_obj(rows: np.ndarray, faces: np.ndarray, path: pathlib.Path, normals: 
 MESH_WRITERS = {
     "gear_obj": (_gear_visual, lambda rows, faces, path: _gear_obj(rows, faces, path, False)),
     "gear_obj_with_normals": (_gear_visual, lambda rows, faces, path: _gear_obj(rows, faces, path, True)),
-    "panda_smooth_obj": (_capsule_with_normals, lambda rows, faces, path: pm._smooth_obj_text(
-        rows[:, :3], rows[:, 3:], faces).encode()),
+    "panda_smooth_obj": (
+        _capsule_with_normals,
+        lambda rows, faces, path: pm._smooth_obj_text(rows[:, :3], rows[:, 3:], faces).encode(),
+    ),
 }
 
 
@@ -192,8 +194,14 @@ def test_committed_meshes_are_canonical():
         lines = path.read_text().splitlines()
         positions = [[float(t) for t in line.split()[1:]] for line in lines if line.startswith("v ")]
         normals = [[float(t) for t in line.split()[1:]] for line in lines if line.startswith("vn ")]
-        corners = np.array([[int(i or 0) for i in token.split("/")[::2]]
-                            for line in lines if line.startswith("f ") for token in line.split()[1:]])
+        corners = np.array(
+            [
+                [int(i or 0) for i in token.split("/")[::2]]
+                for line in lines
+                if line.startswith("f ")
+                for token in line.split()[1:]
+            ]
+        )
         per_vertex_normals = corners.shape[1] == 2 and np.array_equal(corners[:, 0], corners[:, 1])
         rows = np.hstack([positions, normals]) if per_vertex_normals else np.array(positions)
         faces = corners[:, 0].reshape(-1, 3) - 1
@@ -289,8 +297,7 @@ def test_shafts_are_compliant_convex_and_sized(monkeypatch):
     plant.Finalize()
     inspector = builder.GetSubsystemByName("scene_graph").model_inspector()
     frame_id = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(gm.PLATE_BODY_NAME).index())
-    by_name = {inspector.GetName(g).split("::")[-1]: g
-               for g in inspector.GetGeometries(frame_id, Role.kProximity)}
+    by_name = {inspector.GetName(g).split("::")[-1]: g for g in inspector.GetGeometries(frame_id, Role.kProximity)}
     for name in gearset.GEAR_NAMES:
         geometry = by_name[gm.shaft_collision_name(name)]
         shape = inspector.GetShape(geometry)
@@ -313,8 +320,9 @@ def test_shafts_are_compliant_convex_and_sized(monkeypatch):
 # ------------------------------------------------------------------------------ hydroelastic contact
 
 
-def _drop_medium_gear(monkeypatch, lateral_offset: float, drop_height: float,
-                      hold_lateral: bool, duration: float = 0.5) -> tuple[float, np.ndarray, float]:
+def _drop_medium_gear(
+    monkeypatch, lateral_offset: float, drop_height: float, hold_lateral: bool, duration: float = 0.5
+) -> tuple[float, np.ndarray, float]:
     """Simulates the medium gear released `drop_height` above its seated pose, shifted by
     `lateral_offset` along x, with the plate welded to the world. With `hold_lateral`, the gear can
     only move along z (as if guided by the gripper); otherwise it is free. Returns (wall-clock
@@ -328,8 +336,9 @@ def _drop_medium_gear(monkeypatch, lateral_offset: float, drop_height: float,
     start = seat + np.array([lateral_offset, 0.0, drop_height])
     joint = None
     if hold_lateral:
-        guide = plant.AddFrame(FixedOffsetFrame("guide", plant.world_frame(),
-                                                RigidTransform(start - [0, 0, drop_height])))
+        guide = plant.AddFrame(
+            FixedOffsetFrame("guide", plant.world_frame(), RigidTransform(start - [0, 0, drop_height]))
+        )
         joint = plant.AddJoint(PrismaticJoint("drop", guide, gear.body_frame(), [0.0, 0.0, 1.0]))
     plant.Finalize()
     diagram = builder.Build()
@@ -351,8 +360,10 @@ def _drop_medium_gear(monkeypatch, lateral_offset: float, drop_height: float,
 def test_aligned_gear_drops_onto_its_seat(monkeypatch, capsys):
     wall, error, tilt = _drop_medium_gear(monkeypatch, 0.0, 0.005, hold_lateral=False)
     with capsys.disabled():
-        print(f"\n[gear models] 0.5 s hydroelastic drop of the medium gear onto its shaft and the plate "
-              f"(dt 2 ms, lagged): {wall:.3f} s wall ({0.5 / wall:.2f}x real time)")
+        print(
+            f"\n[gear models] 0.5 s hydroelastic drop of the medium gear onto its shaft and the plate "
+            f"(dt 2 ms, lagged): {wall:.3f} s wall ({0.5 / wall:.2f}x real time)"
+        )
     assert abs(error[2]) < 1e-3, f"height error {error[2] * 1e3:.3f} mm"
     assert np.hypot(error[0], error[1]) < 0.6e-3  # within the bore clearance
     assert tilt < math.radians(2.0)

@@ -43,8 +43,9 @@ def test_rotation_error_is_axis_angle():
 
 def test_free_space_step_settles(station):
     X0 = station.controller.tool_pose(Q_HOME)
-    target = RigidTransform(X0.rotation() @ RollPitchYaw(0.0, 0.0, 0.2).ToRotationMatrix(),
-                            X0.translation() + [0.10, -0.10, -0.10])
+    target = RigidTransform(
+        X0.rotation() @ RollPitchYaw(0.0, 0.0, 0.2).ToRotationMatrix(), X0.translation() + [0.10, -0.10, -0.10]
+    )
     context = _simulate(station, target, 0.08, 3.0)
     X = station.tool_pose(context)
     assert np.linalg.norm(X.translation() - target.translation()) < 0.002
@@ -60,8 +61,7 @@ def _press(offset: float, gains: ImpedanceGains | None = None, hold: float = 5.0
     plan = start_keyframe_plan(X0, 0.0)
     above = down_pose(np.array([0.45, 0.0, FINGERTIP_BELOW_TCP + 0.03]), np.pi / 2)
     plan.append(2.0, above, 0.0, "above table")
-    plan.append(1.0, down_pose(np.array([0.45, 0.0, FINGERTIP_BELOW_TCP - offset]), np.pi / 2),
-                0.0, "press")
+    plan.append(1.0, down_pose(np.array([0.45, 0.0, FINGERTIP_BELOW_TCP - offset]), np.pi / 2), 0.0, "press")
     plan.append(hold, plan.keyframes[-1].X_WT, 0.0, "hold")
     diagram = drive_station(station, KeyframePlayer(plan))
     simulator = Simulator(diagram)
@@ -73,8 +73,7 @@ def _robot_table_force(station, context) -> np.ndarray:
     """Total contact force the table exerts on the robot, world frame."""
     plant, inspector = station.plant, station.scene_graph.model_inspector()
     table_body = plant.GetBodyByName("table")
-    results = station.diagram.GetOutputPort("contact_results").Eval(
-        station.diagram.GetMyContextFromRoot(context))
+    results = station.diagram.GetOutputPort("contact_results").Eval(station.diagram.GetMyContextFromRoot(context))
     total = np.zeros(3)
     for i in range(results.num_hydroelastic_contacts()):
         info = results.hydroelastic_contact_info(i)
@@ -95,16 +94,17 @@ def _robot_table_force(station, context) -> np.ndarray:
 def test_pressing_into_table_gives_stiffness_times_offset(offset, stiffness):
     # Fingers closed, hand pointing down; the fingertips touch the table when the tool frame is
     # FINGERTIP_BELOW_TCP above it. Command the tool `offset` below that.
-    gains = ImpedanceGains(stiffness=np.array([50, 50, 50, stiffness, stiffness, stiffness]),
-                           damping=np.array([5, 5, 5, 100, 100, 100]) * np.sqrt(stiffness / 300))
+    gains = ImpedanceGains(
+        stiffness=np.array([50, 50, 50, stiffness, stiffness, stiffness]),
+        damping=np.array([5, 5, 5, 100, 100, 100]) * np.sqrt(stiffness / 300),
+    )
     station, context = _press(offset, gains)
     force = _robot_table_force(station, context)
     expected = stiffness * offset
     assert force[2] == pytest.approx(expected, rel=0.15), (force, expected)
     # Steady: the table's push balances the controller's commanded force (friction may hold a
     # small lateral error from the approach, which is physical).
-    commanded = station.diagram.GetOutputPort("wrench").Eval(
-        station.diagram.GetMyContextFromRoot(context))[3:]
+    commanded = station.diagram.GetOutputPort("wrench").Eval(station.diagram.GetMyContextFromRoot(context))[3:]
     np.testing.assert_allclose(force, -commanded, atol=0.1 * expected)
     # The hand really is at the table, not somewhere else balancing the spring.
     assert abs(station.tool_pose(context).translation()[2] - FINGERTIP_BELOW_TCP) < 0.002

@@ -11,6 +11,7 @@ from assembly.gearset import GEAR_NAMES
 from assembly.gearset import SEATED_HEIGHT_TOL, SEATED_LATERAL_TOL
 from assembly.station import make_meshcat
 
+
 @pytest.fixture(scope="module")
 def demo_summary(tmp_path_factory):
     """`goflow demo --scripted --record HTML --json PATH` (in this process), into folders that
@@ -55,8 +56,7 @@ def test_grasp_error_beyond_capture_range_does_not_seat():
     # close along x, so the gear ends up 4 mm off-centre in the hand, beyond the chamfers'
     # capture range (0.5 mm clearance + 1 mm bore chamfer + 1 mm shaft chamfer). Nothing
     # corrects it, so the bore lands on the shaft top and the gear cannot go down.
-    summary = run_assembly(AssemblyConfig(order=("medium",), belief_offsets={"medium": (0.0, 0.004)}),
-                           progress=False)
+    summary = run_assembly(AssemblyConfig(order=("medium",), belief_offsets={"medium": (0.0, 0.004)}), progress=False)
     gear = summary["gears"]["medium"]
     assert "sim_error" not in summary
     assert not gear["inserted"]
@@ -67,8 +67,12 @@ def test_gripper_centres_error_along_closing_direction(tmp_path):
     # The same 4 mm error along the fingers' closing direction is removed by the grasp itself.
     # (Also records the run for Meshcat, as `goflow demo --record FILE.html` does.)
     record = tmp_path / "insert_small.html"
-    summary = run_assembly(AssemblyConfig(order=("small",), belief_offsets={"small": (0.004, 0.0)}),
-                           meshcat=make_meshcat(), record=record, progress=False)
+    summary = run_assembly(
+        AssemblyConfig(order=("small",), belief_offsets={"small": (0.004, 0.0)}),
+        meshcat=make_meshcat(),
+        record=record,
+        progress=False,
+    )
     assert summary["gears"]["small"]["inserted"], summary
     assert record.stat().st_size > 100_000 and "meshcat" in record.read_text()[:100_000].lower()
 

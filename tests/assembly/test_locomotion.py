@@ -11,8 +11,12 @@ from assembly.envs.mjcf import drake_coefficient, gymnasium_asset, read_mjcf
 from goflow_common.errors import InputError
 
 IDS = ["goflow/Hopper-v0", "goflow/Walker2d-v0", "goflow/HalfCheetah-v0", "goflow/Humanoid-v0"]
-DIMS = {"goflow/Hopper-v0": (6, 11, 3), "goflow/Walker2d-v0": (7, 17, 6),
-        "goflow/HalfCheetah-v0": (14, 17, 6), "goflow/Humanoid-v0": (30, 348, 17)}
+DIMS = {
+    "goflow/Hopper-v0": (6, 11, 3),
+    "goflow/Walker2d-v0": (7, 17, 6),
+    "goflow/HalfCheetah-v0": (14, 17, 6),
+    "goflow/Humanoid-v0": (30, 348, 17),
+}
 
 
 @pytest.fixture(scope="module", params=IDS)
@@ -148,14 +152,16 @@ def test_fidelity_against_mujoco_at_small_size(env_id):
     # Kinematics: at a random configuration every body sits where MuJoCo puts it (Drake's parser
     # alone composed a body's several joints wrongly).
     ref.reset(seed=2)
-    ref.data.qpos[len(ref.data.qpos) - len(ours.model.joints):] += np.random.default_rng(0).uniform(
-        -0.3, 0.3, len(ours.model.joints))
+    ref.data.qpos[len(ref.data.qpos) - len(ours.model.joints) :] += np.random.default_rng(0).uniform(
+        -0.3, 0.3, len(ours.model.joints)
+    )
     mujoco.mj_forward(m, ref.data)
     plant, ctx = ours.model.plant, ours._plant_context
     plant.SetPositionsAndVelocities(ctx, ours.model.from_mujoco(ref.data.qpos, ref.data.qvel))
     for i, body in enumerate(ours.model.bodies):
-        np.testing.assert_allclose(plant.EvalBodyPoseInWorld(ctx, body).translation(), ref.data.xpos[i + 1],
-                                   atol=1e-9, err_msg=body.name())
+        np.testing.assert_allclose(
+            plant.EvalBodyPoseInWorld(ctx, body).translation(), ref.data.xpos[i + 1], atol=1e-9, err_msg=body.name()
+        )
     if hasattr(ours, "com_quantities"):
         q = ours.com_quantities()
         np.testing.assert_allclose(q["cinert"], ref.data.cinert[1:], atol=1e-9)

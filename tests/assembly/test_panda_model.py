@@ -26,9 +26,14 @@ REPO_ROOT = pathlib.Path(pm.__file__).resolve().parents[1]
 
 # Independent copies of the published numbers (Franka FCI docs; Gaz et al., RA-L 2019).
 DH = [  # (a_{i-1}, d_i, alpha_{i-1})
-    (0.0, 0.333, 0.0), (0.0, 0.0, -math.pi / 2), (0.0, 0.316, math.pi / 2),
-    (0.0825, 0.0, math.pi / 2), (-0.0825, 0.384, -math.pi / 2), (0.0, 0.0, math.pi / 2),
-    (0.088, 0.0, math.pi / 2), (0.0, 0.107, 0.0),
+    (0.0, 0.333, 0.0),
+    (0.0, 0.0, -math.pi / 2),
+    (0.0, 0.316, math.pi / 2),
+    (0.0825, 0.0, math.pi / 2),
+    (-0.0825, 0.384, -math.pi / 2),
+    (0.0, 0.0, math.pi / 2),
+    (0.088, 0.0, math.pi / 2),
+    (0.0, 0.107, 0.0),
 ]
 LINK_MASSES = [0.629769, 4.970684, 0.646926, 3.228604, 3.587895, 1.225946, 1.666555, 0.735522]
 
@@ -39,12 +44,14 @@ def dh_flange_pose(q: np.ndarray) -> np.ndarray:
     for i, (a, d, alpha) in enumerate(DH):
         theta = q[i] if i < 7 else 0.0
         ca, sa, ct, st = math.cos(alpha), math.sin(alpha), math.cos(theta), math.sin(theta)
-        step = np.array([
-            [ct, -st, 0.0, a],
-            [st * ca, ct * ca, -sa, -sa * d],
-            [st * sa, ct * sa, ca, ca * d],
-            [0.0, 0.0, 0.0, 1.0],
-        ])
+        step = np.array(
+            [
+                [ct, -st, 0.0, a],
+                [st * ca, ct * ca, -sa, -sa * d],
+                [st * sa, ct * sa, ca, ca * d],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
         pose = pose @ step
     return pose
 
@@ -65,9 +72,11 @@ def station():
     arm = parser.AddModels(str(ARM_URDF))[0]
     hand = parser.AddModels(str(HAND_URDF))[0]
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", arm))
-    plant.WeldFrames(plant.GetFrameByName("panda_link8", arm),
-                     plant.GetFrameByName("panda_hand", hand),
-                     RigidTransform(RotationMatrix.MakeZRotation(pm.HAND_FLANGE_YAW)))
+    plant.WeldFrames(
+        plant.GetFrameByName("panda_link8", arm),
+        plant.GetFrameByName("panda_hand", hand),
+        RigidTransform(RotationMatrix.MakeZRotation(pm.HAND_FLANGE_YAW)),
+    )
     plant.Finalize()
     diagram = builder.Build()
     return diagram, plant, scene_graph, arm, hand
@@ -100,8 +109,7 @@ def test_arm_joints_and_limits(station) -> None:
     lower = np.array([j.position_lower_limits()[0] for j in revolute])
     upper = np.array([j.position_upper_limits()[0] for j in revolute])
     vel = np.array([j.velocity_upper_limits()[0] for j in revolute])
-    np.testing.assert_allclose(lower, [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175,
-                                       -2.8973])
+    np.testing.assert_allclose(lower, [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
     np.testing.assert_allclose(upper, [2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
     np.testing.assert_allclose(vel, [2.175] * 4 + [2.61] * 3)
     np.testing.assert_allclose(lower, pm.Q_MIN)
@@ -112,14 +120,12 @@ def test_arm_joints_and_limits(station) -> None:
 
 def test_actuators(station) -> None:
     _, plant, _, arm, hand = station
-    actuators = [plant.get_joint_actuator(JointActuatorIndex(i))
-                 for i in range(plant.num_actuators())]
+    actuators = [plant.get_joint_actuator(JointActuatorIndex(i)) for i in range(plant.num_actuators())]
     arm_acts = [a for a in actuators if a.model_instance() == arm]
     hand_acts = [a for a in actuators if a.model_instance() == hand]
     assert [a.joint().name() for a in arm_acts] == list(pm.ARM_JOINT_NAMES)
     np.testing.assert_allclose([a.effort_limit() for a in arm_acts], [87] * 4 + [12] * 3)
-    np.testing.assert_allclose([a.default_reflected_inertia() for a in arm_acts],
-                               pm.REFLECTED_INERTIA)
+    np.testing.assert_allclose([a.default_reflected_inertia() for a in arm_acts], pm.REFLECTED_INERTIA)
     assert [a.joint().name() for a in hand_acts] == list(pm.FINGER_JOINT_NAMES)
     assert all(a.effort_limit() == pm.FINGER_FORCE_MAX for a in hand_acts)
 
@@ -146,8 +152,7 @@ def test_tcp_frame(station) -> None:
     X_WT = plant.EvalBodyPoseInWorld(context, plant.GetBodyByName("panda_hand_tcp", hand))
     X_FT = X_WF.inverse() @ X_WT
     np.testing.assert_allclose(X_FT.translation(), [0.0, 0.0, 0.1034], atol=1e-9)
-    np.testing.assert_allclose(X_FT.rotation().matrix(),
-                               RotationMatrix.MakeZRotation(-math.pi / 4).matrix(), atol=1e-9)
+    np.testing.assert_allclose(X_FT.rotation().matrix(), RotationMatrix.MakeZRotation(-math.pi / 4).matrix(), atol=1e-9)
     # At the ready pose the TCP points straight down.
     np.testing.assert_allclose(X_WT.rotation().matrix()[:, 2], [0, 0, -1], atol=2e-3)
 
@@ -165,8 +170,7 @@ def test_masses_and_inertias(station) -> None:
 def _pad_geometry(plant, scene_graph, finger: str):
     inspector = scene_graph.model_inspector()
     body = plant.GetBodyByName(finger)
-    ids = [g for g in plant.GetCollisionGeometriesForBody(body)
-           if inspector.GetName(g).endswith("_pad")]
+    ids = [g for g in plant.GetCollisionGeometriesForBody(body) if inspector.GetName(g).endswith("_pad")]
     assert len(ids) == 1
     return ids[0]
 
@@ -186,8 +190,7 @@ def test_finger_pads(station, opening: float) -> None:
         gid = _pad_geometry(plant, scene_graph, finger)
         shape = inspector.GetShape(gid)
         assert isinstance(shape, Box)
-        assert (shape.width(), shape.depth(), shape.height()) == pytest.approx(
-            (0.018, 0.008, 0.020))
+        assert (shape.width(), shape.depth(), shape.height()) == pytest.approx((0.018, 0.008, 0.020))
         X_HP = X_WH.inverse() @ query.GetPoseInWorld(gid)
         np.testing.assert_allclose(X_HP.rotation().matrix(), np.eye(3), atol=1e-9)
         p = X_HP.translation()
@@ -207,9 +210,10 @@ def test_finger_pads(station, opening: float) -> None:
 def test_hydroelastic_roles(station) -> None:
     _, plant, scene_graph, arm, hand = station
     inspector = scene_graph.model_inspector()
-    for body_name, expected in (("panda_hand", {"panda_hand_palm": "rigid"}),
-                                ("panda_leftfinger", {"panda_leftfinger_body": "rigid",
-                                                      "panda_leftfinger_pad": "compliant"})):
+    for body_name, expected in (
+        ("panda_hand", {"panda_hand_palm": "rigid"}),
+        ("panda_leftfinger", {"panda_leftfinger_body": "rigid", "panda_leftfinger_pad": "compliant"}),
+    ):
         for gid in plant.GetCollisionGeometriesForBody(plant.GetBodyByName(body_name)):
             name = inspector.GetName(gid).split("::")[-1]
             props = inspector.GetProximityProperties(gid)
@@ -262,8 +266,14 @@ def test_regeneration_does_not_depend_on_numpy_simd_dispatch(tmp_path: pathlib.P
     if not dispatched:
         pytest.skip("numpy dispatches no SIMD kernels on this CPU: nothing to switch off")
     env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(dispatched)}
-    subprocess.run([sys.executable, "-m", "assembly.generate_models", "--out", str(tmp_path)],
-                   cwd=REPO_ROOT, env=env, check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [sys.executable, "-m", "assembly.generate_models", "--out", str(tmp_path)],
+        cwd=REPO_ROOT,
+        env=env,
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
     assert model_differences(tmp_path, MODELS_DIR) == []
 
 
@@ -275,11 +285,9 @@ def test_closed_pads_make_a_hydroelastic_contact(station) -> None:
     plant.SetPositions(plant_context, arm, pm.Q_HOME)
     plant.SetPositions(plant_context, hand, [-0.001, -0.001])
     query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
-    surfaces, point_pairs = query.ComputeContactSurfacesWithFallback(
-        HydroelasticContactRepresentation.kPolygon)
+    surfaces, point_pairs = query.ComputeContactSurfacesWithFallback(HydroelasticContactRepresentation.kPolygon)
     assert point_pairs == [] and len(surfaces) == 1
-    names = {query.inspector().GetName(g).split("::")[-1]
-             for g in (surfaces[0].id_M(), surfaces[0].id_N())}
+    names = {query.inspector().GetName(g).split("::")[-1] for g in (surfaces[0].id_M(), surfaces[0].id_N())}
     assert names == {"panda_leftfinger_pad", "panda_rightfinger_pad"}
     # The contact patch is the pads' shared face, 18 mm x 20 mm.
     assert surfaces[0].total_area() == pytest.approx(0.018 * 0.020, rel=0.05)
@@ -301,5 +309,4 @@ def test_arm_collision_shapes_follow_the_table(station) -> None:
                 continue
             a, b = np.asarray(part.a, float), np.asarray(part.b, float)
             np.testing.assert_allclose(X.translation(), (a + b) / 2, atol=1e-9)
-            np.testing.assert_allclose(X.rotation().matrix()[:, 2],
-                                       (b - a) / np.linalg.norm(b - a), atol=1e-9)
+            np.testing.assert_allclose(X.rotation().matrix()[:, 2], (b - a) / np.linalg.norm(b - a), atol=1e-9)

@@ -75,9 +75,7 @@ def test_contains():
     s = _space()
     assert s.contains(s.nominal()) is True
     assert s.contains(s.high) is True  # the box is closed
-    np.testing.assert_array_equal(
-        s.contains(np.array([s.nominal(), s.high + 1.0])), [True, False]
-    )
+    np.testing.assert_array_equal(s.contains(np.array([s.nominal(), s.high + 1.0])), [True, False])
 
 
 def test_validate_names_parameter_value_and_bounds():

@@ -8,7 +8,12 @@ import pytest
 from assembly.cameras import default_scene_camera
 from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS, gear_spec
 from assembly.world import (
-    PLACEMENT_X, PLACEMENT_Y, REACH_RADIUS, WorldConfig, random_gear_poses, validate_gear_pose,
+    PLACEMENT_X,
+    PLACEMENT_Y,
+    REACH_RADIUS,
+    WorldConfig,
+    random_gear_poses,
+    validate_gear_pose,
 )
 
 
@@ -39,9 +44,12 @@ def test_region_seen_by_scene_camera_and_reachable():
         for x in np.linspace(*PLACEMENT_X, 9):
             for y in np.linspace(*PLACEMENT_Y, 9):
                 assert REACH_RADIUS[0] <= np.hypot(x, y) <= REACH_RADIUS[1]
-                pts = np.concatenate([np.stack([x + r * np.cos(th), y + r * np.sin(th),
-                                                np.full_like(th, z)], 1)
-                                      for z in (0.0, GEAR_THICKNESS)])
+                pts = np.concatenate(
+                    [
+                        np.stack([x + r * np.cos(th), y + r * np.sin(th), np.full_like(th, z)], 1)
+                        for z in (0.0, GEAR_THICKNESS)
+                    ]
+                )
                 p = pts @ X_CW.rotation().matrix().T + X_CW.translation()
                 u = info.focal_x() * p[:, 0] / p[:, 2] + info.center_x()
                 v = info.focal_y() * p[:, 1] / p[:, 2] + info.center_y()

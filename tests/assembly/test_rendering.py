@@ -28,9 +28,9 @@ from assembly.station import StationConfig, build_station
 from assembly.world import gear_body
 
 GEARS = ("small", "medium", "large")
-TOP_Z = gearset.GEAR_THICKNESS           # the gears' top faces, in W [m]
+TOP_Z = gearset.GEAR_THICKNESS  # the gears' top faces, in W [m]
 FLAT_TOP = gearset.GEAR_BORE_RADIUS + gearset.GEAR_BORE_CHAMFER  # inner edge of the flat top annulus
-DEPTH_TOL = 0.002                        # [m]
+DEPTH_TOL = 0.002  # [m]
 
 
 class Rendered:
@@ -42,7 +42,8 @@ class Rendered:
         diagram = self.station.diagram
         self.context = diagram.CreateDefaultContext()
         diagram.GetInputPort("X_WT_desired").FixValue(
-            self.context, AbstractValue.Make(self.station.controller.tool_pose(Q_HOME)))
+            self.context, AbstractValue.Make(self.station.controller.tool_pose(Q_HOME))
+        )
         diagram.GetInputPort("gripper_width").FixValue(self.context, [0.08])
         self.images = {}
         for cam in ("scene", "wrist"):
@@ -70,9 +71,9 @@ class Pinhole:
 
     def __init__(self, X_WC: RigidTransform, info) -> None:
         self.X_WC, self.info = X_WC, info
-        self.K = np.array([[info.focal_x(), 0.0, info.center_x()],
-                           [0.0, info.focal_y(), info.center_y()],
-                           [0.0, 0.0, 1.0]])
+        self.K = np.array(
+            [[info.focal_x(), 0.0, info.center_x()], [0.0, info.focal_y(), info.center_y()], [0.0, 0.0, 1.0]]
+        )
 
     def pixel(self, p_W: np.ndarray) -> tuple[int, int] | None:
         """The (column u, row v) of the pixel that images world point p_W; None out of view."""
@@ -94,12 +95,12 @@ class Pinhole:
     def ray_on_plane(self, u: float, v: float, z: float) -> tuple[np.ndarray, float]:
         """Where the ray through pixel (u, v) meets the world plane at height z, and the depth of
         that point (its camera-frame z)."""
-        d_C = np.linalg.solve(self.K, [u, v, 1.0])   # camera-frame direction with unit z
+        d_C = np.linalg.solve(self.K, [u, v, 1.0])  # camera-frame direction with unit z
         d_W = self.X_WC.rotation() @ d_C
         o_W = self.X_WC.translation()
         s = (z - o_W[2]) / d_W[2]
         assert s > 0, f"pixel ({u}, {v}) looks away from the plane z = {z}"
-        return o_W + s * d_W, float(s)                # d_C has z = 1: the depth is s
+        return o_W + s * d_W, float(s)  # d_C has z = 1: the depth is s
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +111,7 @@ def rendered() -> Rendered:
 @pytest.fixture(scope="module")
 def scene_camera(rendered) -> Pinhole:
     cam = rendered.config.cameras.scene
-    return Pinhole(cam.X_PC, cam.info())   # the scene camera's parent is the world
+    return Pinhole(cam.X_PC, cam.info())  # the scene camera's parent is the world
 
 
 def _chromaticity(rgb) -> np.ndarray:
@@ -155,7 +156,7 @@ def test_gear_top_face_colour_and_label(rendered, scene_camera, gear):
     """The pixel imaging a point on the gear's top face shows the gear's colour and label."""
     spec = gearset.GEARS[gear]
     centre = _gear_xy(rendered, gear)
-    toward = scene_camera.X_WC.translation()[:2] - centre   # in the table plane, toward the camera
+    toward = scene_camera.X_WC.translation()[:2] - centre  # in the table plane, toward the camera
     r = 0.5 * (gearset.GEAR_BORE_RADIUS + spec.tip_radius)
     p_W = np.append(centre + r * toward / np.linalg.norm(toward), TOP_Z)
     u, v = scene_camera.project(p_W)
@@ -163,7 +164,8 @@ def test_gear_top_face_colour_and_label(rendered, scene_camera, gear):
 
     assert img["label"][v, u] == rendered.gear_label(gear), (
         f"{gear} gear: label {img['label'][v, u]} at pixel ({u}, {v}); expected "
-        f"{rendered.gear_label(gear)} (the gear body's render label)")
+        f"{rendered.gear_label(gear)} (the gear body's render label)"
+    )
 
     # Shading scales the colour (a lit top face renders at ~0.6-0.8 of the diffuse colour), so
     # compare chromaticities (r, g, b) / (r + g + b) and bound the brightness separately.
@@ -195,7 +197,8 @@ def test_gear_top_face_depth(rendered, scene_camera, gear):
         assert img["label"][v, u] == rendered.gear_label(gear)
         errors.append(float(img["depth"][v, u]) - expected)
     assert np.max(np.abs(errors)) < DEPTH_TOL, (
-        f"{gear} gear top-face depth errors [mm]: {np.round(1e3 * np.array(errors), 2)}")
+        f"{gear} gear top-face depth errors [mm]: {np.round(1e3 * np.array(errors), 2)}"
+    )
 
 
 def test_bare_table_depth(rendered, scene_camera):
@@ -204,15 +207,22 @@ def test_bare_table_depth(rendered, scene_camera):
     img = rendered.images["scene"]
     # Away from the gears (x = 0.40), the plate (around (0.55, 0)) and the robot (at the origin);
     # those in view are checked, and most must be.
-    candidates = ([0.60, -0.35, 0.0], [0.50, 0.20, 0.0], [0.30, -0.30, 0.0], [0.45, -0.42, 0.0],
-                  [0.65, 0.15, 0.0], [0.55, -0.25, 0.0])
+    candidates = (
+        [0.60, -0.35, 0.0],
+        [0.50, 0.20, 0.0],
+        [0.30, -0.30, 0.0],
+        [0.45, -0.42, 0.0],
+        [0.65, 0.15, 0.0],
+        [0.55, -0.25, 0.0],
+    )
     in_view = [(p, scene_camera.pixel(p)) for p in candidates if scene_camera.pixel(p) is not None]
     assert len(in_view) >= 4, f"only {len(in_view)} of the bare-table points are in view"
     for p_W, (u, v) in in_view:
         _, expected = scene_camera.ray_on_plane(u, v, 0.0)
         assert img["label"][v, u] == table_label, f"pixel ({u}, {v}) for {p_W} is not the table"
         assert abs(float(img["depth"][v, u]) - expected) < DEPTH_TOL, (
-            f"table at pixel ({u}, {v}): depth {img['depth'][v, u]:.4f} m, expected {expected:.4f} m")
+            f"table at pixel ({u}, {v}): depth {img['depth'][v, u]:.4f} m, expected {expected:.4f} m"
+        )
 
 
 def test_scene_camera_sees_plate_and_all_gears(rendered):
@@ -250,4 +260,5 @@ def test_wrist_camera_sees_table_below_hand(rendered):
     for v, u in zip(rows[pick], cols[pick]):
         _, expected = pinhole.ray_on_plane(u, v, 0.0)
         assert abs(float(depth[v, u]) - expected) < DEPTH_TOL, (
-            f"wrist table pixel ({u}, {v}): depth {depth[v, u]:.4f} m, expected {expected:.4f} m")
+            f"wrist table pixel ({u}, {v}): depth {depth[v, u]:.4f} m, expected {expected:.4f} m"
+        )

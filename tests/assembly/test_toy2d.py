@@ -159,7 +159,7 @@ def test_feasible_level_matches_rayleigh_radius():
     cfg = env.config
     pts = np.random.default_rng(0).uniform(-1, 1, size=(2000, 2))
     sigma = env.noise_scale(pts)
-    analytic = 1 - np.exp(-cfg.tolerance**2 / (2 * sigma**2))
+    analytic = 1 - np.exp(-(cfg.tolerance**2) / (2 * sigma**2))
     np.testing.assert_allclose(env.success_probability(pts), analytic)
     np.testing.assert_array_equal(env.feasible_set(pts), analytic >= cfg.feasible_level)
 

@@ -11,9 +11,15 @@ import numpy as np
 import pytest
 
 from assembly.params import Param, ParamSpace
-from assembly.transition import (TRANSITION_SIMS, BatchTransitionSim, ParallelTransitionSim,
-                                 TransitionSim, make_transition_sim, register_transition_sim,
-                                 xi_groups)
+from assembly.transition import (
+    TRANSITION_SIMS,
+    BatchTransitionSim,
+    ParallelTransitionSim,
+    TransitionSim,
+    make_transition_sim,
+    register_transition_sim,
+    xi_groups,
+)
 from goflow_common.errors import SimulationError, UnknownOptionError
 
 IDS = sorted(TRANSITION_SIMS)
@@ -90,7 +96,7 @@ def test_grouping_does_not_change_any_row(sims, env_id):
     batch = sim.step(states, actions, xi)
     assert np.all(np.isfinite(batch))
     for i in range(9):
-        alone = sim.step(states[i:i + 1], actions[i:i + 1], xi[i:i + 1])[0]
+        alone = sim.step(states[i : i + 1], actions[i : i + 1], xi[i : i + 1])[0]
         np.testing.assert_array_equal(batch[i], alone, err_msg=f"{env_id} row {i}")
 
 
@@ -179,8 +185,12 @@ def test_ant_step_matches_the_env_at_nominal_damping(sims):
     assert sim.observe(s0).shape == env.observation_space.shape
 
 
-LOCOMOTION = {"goflow/Hopper-v0": "HopperEnv", "goflow/Walker2d-v0": "Walker2dEnv",
-              "goflow/HalfCheetah-v0": "HalfCheetahEnv", "goflow/Humanoid-v0": "HumanoidEnv"}
+LOCOMOTION = {
+    "goflow/Hopper-v0": "HopperEnv",
+    "goflow/Walker2d-v0": "Walker2dEnv",
+    "goflow/HalfCheetah-v0": "HalfCheetahEnv",
+    "goflow/Humanoid-v0": "HumanoidEnv",
+}
 
 
 @pytest.mark.parametrize("env_id", sorted(LOCOMOTION))

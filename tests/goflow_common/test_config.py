@@ -30,7 +30,9 @@ def test_mapping_instance_and_overrides():
 
 
 def test_unknown_options_are_named():
-    with pytest.raises(UnknownOptionError, match=r"Outer: unknown option\(s\) \['nme'\]; known: \['inner', 'name', 'out'\]"):
+    with pytest.raises(
+        UnknownOptionError, match=r"Outer: unknown option\(s\) \['nme'\]; known: \['inner', 'name', 'out'\]"
+    ):
         config_with_overrides(Outer, {"nme": 1})
     with pytest.raises(ValueError, match=r"Outer.inner: unknown option\(s\) \['l'\]"):
         config_with_overrides(Outer, {"inner": {"l": 1}})

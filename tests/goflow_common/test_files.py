@@ -12,7 +12,13 @@ import torch
 
 from goflow_common.errors import FileFormatError, OutputPathError, RunFolderBusyError
 from goflow_common.files import (
-    check_output_dir, check_output_file, load_tensors, read_json, run_folder_lock, save_tensors, write_json,
+    check_output_dir,
+    check_output_file,
+    load_tensors,
+    read_json,
+    run_folder_lock,
+    save_tensors,
+    write_json,
 )
 
 
@@ -35,10 +41,13 @@ def test_a_crafted_file_is_refused_before_its_code_runs(tmp_path):
     assert not marker.exists()
 
 
-@pytest.mark.parametrize("content, match", [
-    (b"", "empty"),
-    (b"not a torch file at all", "not a readable"),
-])
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        (b"", "empty"),
+        (b"not a torch file at all", "not a readable"),
+    ],
+)
 def test_empty_and_foreign_files_get_one_line(tmp_path, content, match):
     path = tmp_path / "x.pt"
     path.write_bytes(content)

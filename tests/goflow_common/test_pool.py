@@ -32,7 +32,7 @@ def test_a_raising_call_is_named():
 def test_a_dead_worker_is_retried_then_reported():
     starts = []
     with ProcessPool(2) as pool:
-        (index, error), = pool.imap(os._exit, [(3,)], retries=1, errors="return", on_start=starts.append)
+        ((index, error),) = pool.imap(os._exit, [(3,)], retries=1, errors="return", on_start=starts.append)
         assert index == 0 and isinstance(error, WorkerError) and error.attempts == 2 and error.pid is not None
         assert "worker process" in str(error) and starts == [0, 0]
         assert pool.map(abs, [(-1,), (-2,)]) == [1, 2]  # the pool goes on with fresh workers

@@ -52,7 +52,9 @@ def test_defaults_and_densities():
     exp_h = sum(stats.beta(100, 100, loc=lo, scale=w).entropy() for lo, w in zip([0.0, -1.0], width))
     assert math.isclose(s.entropy(), exp_h, rel_tol=1e-10)
     xi = s.sample(50, np.random.default_rng(0))
-    exp_lp = stats.beta(100, 100, loc=0.0, scale=20.0).logpdf(xi[:, 0]) + stats.beta(100, 100, loc=-1.0, scale=2.0).logpdf(xi[:, 1])
+    exp_lp = stats.beta(100, 100, loc=0.0, scale=20.0).logpdf(xi[:, 0]) + stats.beta(
+        100, 100, loc=-1.0, scale=2.0
+    ).logpdf(xi[:, 1])
     np.testing.assert_allclose(s.log_prob(xi), exp_lp, rtol=1e-10)
     assert s.log_prob(np.array([[21.0, 0.0]]))[0] == -math.inf
     u = _with_params([1.0, 1.0], [1.0, 1.0])  # uniform: matches FullDR
@@ -92,7 +94,9 @@ def test_importance_sampled_success_rate_equals_plain_monte_carlo(proposal):
     assert abs(est - exact) < 4 * se_is and abs(mc - exact) < 4 * se_mc
     # The optimizer's internal estimate is the same number.
     u = np.clip(space.normalize(xi_q), 1e-12, 1 - 1e-12)
-    prob = _Problem(0.8, 110.0, q_a := np.ones(2), q_a.copy(), u, log_q + math.log(space.volume()), (r_q >= J_T).astype(float))
+    prob = _Problem(
+        0.8, 110.0, q_a := np.ones(2), q_a.copy(), u, log_q + math.log(space.volume()), (r_q >= J_T).astype(float)
+    )
     assert math.isclose(prob.values(prob.theta_of(target.a, target.b))[2], est, rel_tol=1e-9)
     # With the sampler's own samples and no proposal given, the estimate is the plain success fraction.
     own = target.sample(1000, rng)
@@ -181,7 +185,11 @@ def test_gradients_match_finite_differences():
     prob = _Problem(0.8, 110.0, s.a.copy(), s.b.copy(), u, log_q, (_returns_band(space, xi) >= J_T).astype(float))
     theta = prob.theta_of(np.array([2.0, 2.5]), np.array([3.0, 1.5]))
     h = 1e-6
-    for fun, grad in ((lambda t: prob.fun(t)[0], prob.fun(theta)[1]), (prob.kl_fun, prob.kl_jac(theta)[0]), (prob.j_fun, prob.j_jac(theta)[0])):
+    for fun, grad in (
+        (lambda t: prob.fun(t)[0], prob.fun(theta)[1]),
+        (prob.kl_fun, prob.kl_jac(theta)[0]),
+        (prob.j_fun, prob.j_jac(theta)[0]),
+    ):
         grad = np.array(grad, copy=True)
         assert grad.shape == (4,)
         num = np.array([(fun(theta + h * e) - fun(theta - h * e)) / (2 * h) for e in np.eye(4)])

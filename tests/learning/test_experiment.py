@@ -8,7 +8,14 @@ import pytest
 from goflow_common.errors import FileFormatError, RunFolderBusyError
 from goflow_common.files import run_folder_lock
 from learning.experiment import (
-    ExperimentConfig, SamplerFitConfig, TrainConfig, fit_sampler, format_summary, load_run, plot_curves, summarize,
+    ExperimentConfig,
+    SamplerFitConfig,
+    TrainConfig,
+    fit_sampler,
+    format_summary,
+    load_run,
+    plot_curves,
+    summarize,
     train,
 )
 from learning.ppo import PPOConfig
@@ -18,9 +25,17 @@ TINY = PPOConfig(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=2)
 
 
 def _config(method, out, rounds=2, **kwargs):
-    return TrainConfig(env="goflow/Toy2D-v0", method=method, seed=1, ppo=TINY, eval_episodes=16,
-                       iterations_per_round=1, total_steps=rounds * 4 * 16, out=out,
-                       sampler_kwargs=kwargs)
+    return TrainConfig(
+        env="goflow/Toy2D-v0",
+        method=method,
+        seed=1,
+        ppo=TINY,
+        eval_episodes=16,
+        iterations_per_round=1,
+        total_steps=rounds * 4 * 16,
+        out=out,
+        sampler_kwargs=kwargs,
+    )
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -48,6 +63,7 @@ def test_a_later_stage_switches_goflow_to_its_own_training_episodes(tmp_path, mo
     train(_config("goflow", tmp_path, rounds=1, **kwargs), progress=False)
     seen = []
     from learning.samplers.goflow import GoFlowSampler
+
     original = GoFlowSampler.update
 
     def spy(self, xi, returns):
@@ -85,6 +101,7 @@ def test_sampler_batch_is_checked_per_method():
 
 def test_fit_sampler_moves_only_the_sampler_and_resumes(tmp_path):
     import torch
+
     kwargs = {"steps": 5, "entropy_samples": 256, "kl_samples": 256}
     for name in ("full", "cut"):
         train(_config("goflow", tmp_path / name, rounds=1, **kwargs), progress=False)
@@ -123,7 +140,11 @@ def test_fit_sampler_bad_input(tmp_path):
 def test_experiment_sampler_signal_reaches_the_methods_that_can_use_it():
     runs = ExperimentConfig(methods=("goflow", "lsdr", "adr", "doraemon"), seeds=1, sampler_signal="success").runs()
     assert {r.method: r.sampler_signal for r in runs} == {
-        "goflow": "success", "lsdr": "success", "adr": "return", "doraemon": "return"}
+        "goflow": "success",
+        "lsdr": "success",
+        "adr": "return",
+        "doraemon": "return",
+    }
 
 
 def test_first_seed_adds_later_seeds_to_a_grid_in_their_own_folders():
@@ -154,8 +175,11 @@ def test_bad_input():
 
 
 def test_summary_format_and_plot(tmp_path):
-    logs = [{"method": m, "curve": [[10, s, -100 * s], [20, s + 0.1, 100 * s]], "seconds": 10.0,
-             "sampler_seconds": 0.2} for m in ("goflow", "fulldr") for s in (0.1, 0.3)]
+    logs = [
+        {"method": m, "curve": [[10, s, -100 * s], [20, s + 0.1, 100 * s]], "seconds": 10.0, "sampler_seconds": 0.2}
+        for m in ("goflow", "fulldr")
+        for s in (0.1, 0.3)
+    ]
     summary = summarize(logs, 20, "goflow/Toy2D-v0")
     assert set(summary) == {"env", "steps", "methods"}
     g = summary["methods"]["goflow"]
@@ -179,7 +203,9 @@ def test_a_checkpoint_of_another_layout_is_refused(tmp_path):
     train(_config("fulldr", tmp_path, rounds=1), progress=False)
     other = _config("fulldr", tmp_path, rounds=2)
     other.env_kwargs = {"layout": "line"}
-    with pytest.raises(ValueError, match=r"checkpoint of another run \(env_kwargs: checkpoint \{\} vs now \{'layout': 'line'\}"):
+    with pytest.raises(
+        ValueError, match=r"checkpoint of another run \(env_kwargs: checkpoint \{\} vs now \{'layout': 'line'\}"
+    ):
         train(other, progress=False)
 
 

@@ -116,8 +116,8 @@ def test_rows_on_the_class_boundary_are_kept_beyond_the_window():
         window.add(x, _disk(x))
         edge.add(x, _disk(x))
     assert 0 < edge.kept <= 400 and len(edge) == 2000 + edge.kept
-    assert np.array_equal(edge.xi[edge.kept:], window.xi)  # the same window
-    kept = edge.xi[:edge.kept]
+    assert np.array_equal(edge.xi[edge.kept :], window.xi)  # the same window
+    kept = edge.xi[: edge.kept]
     assert np.abs(np.linalg.norm(kept - 0.5, axis=1) - 0.05).max() < 0.06  # on the edge, not far from it
     assert edge.signal.sum() > window.signal.sum() + 10 and (1 - edge.signal).sum() > (1 - window.signal).sum()
     some = Evidence(2, 2000, 5, boundary=10)
@@ -130,7 +130,7 @@ def test_rows_on_the_class_boundary_are_kept_beyond_the_window():
     again.load_state_dict(state)
     assert again.kept == edge.kept and np.array_equal(again.xi, edge.xi)
     old = Evidence(2, 2000, 5, boundary=400)
-    old.load_state_dict({"xi": state["xi"][edge.kept:], "signal": state["signal"][edge.kept:]})
+    old.load_state_dict({"xi": state["xi"][edge.kept :], "signal": state["signal"][edge.kept :]})
     assert old.kept == 0 and np.array_equal(old.xi, window.xi)
     for bad in (-1, len(state["signal"]) + 1, 1.5):
         with pytest.raises(InputError, match="evidence state: kept"):

@@ -8,8 +8,14 @@ import pytest
 from assembly.params import Param, ParamSpace
 from assembly.samplers import FullDR
 from goflow_common.errors import InputError
-from learning.feasible_grid import (FeasibleGridConfig, FeasibleSet, FlowRefitConfig, constrained_copy, flow_report,
-                                   refit_flow)
+from learning.feasible_grid import (
+    FeasibleGridConfig,
+    FeasibleSet,
+    FlowRefitConfig,
+    constrained_copy,
+    flow_report,
+    refit_flow,
+)
 from learning.samplers.goflow import GoFlowSampler
 
 SPACE = ParamSpace((Param("x", -1.0, 1.0, "m"), Param("y", -1.0, 1.0, "m")))
@@ -20,8 +26,9 @@ def disk(xi, centre=(0.1, -0.05), radius=0.15):
 
 
 def measured(oracle=disk, fine_cells=40, coarse_cells=9, centre=(0.1, -0.05)):
-    plan = FeasibleGridConfig(fine_width=0.5, fine_cells=fine_cells, coarse_cells=coarse_cells,
-                              centre=centre).plan(SPACE, np.zeros(2))
+    plan = FeasibleGridConfig(fine_width=0.5, fine_cells=fine_cells, coarse_cells=coarse_cells, centre=centre).plan(
+        SPACE, np.zeros(2)
+    )
     returns = np.where(oracle(plan.points()), 1.0, 0.0)
     return plan, plan.feasible_set(returns, 0.5, "fast")
 
@@ -89,8 +96,15 @@ def test_bad_grid_and_refit_settings_name_the_value():
         FeasibleGridConfig(fine_width=-0.1).plan(SPACE, np.zeros(2))
     with pytest.raises(InputError, match="centre"):
         FeasibleGridConfig(centre=(0.0, np.nan)).plan(SPACE, np.zeros(2))
-    for bad in ({"delta": 0.0}, {"delta": 1.0}, {"rounds": -1}, {"episodes": 0}, {"classifier_steps": 0},
-                {"floor": 1.0}, {"floor": -0.1}):
+    for bad in (
+        {"delta": 0.0},
+        {"delta": 1.0},
+        {"rounds": -1},
+        {"episodes": 0},
+        {"classifier_steps": 0},
+        {"floor": 1.0},
+        {"floor": -0.1},
+    ):
         with pytest.raises(InputError, match=next(iter(bad))):
             FlowRefitConfig(**bad)
 
@@ -119,8 +133,13 @@ def test_the_refit_concentrates_on_and_covers_the_measured_set(tmp_path):
     x = np.random.default_rng(3).uniform(-1, 1, (100, 2))
     np.testing.assert_allclose(again.log_prob(x), new.log_prob(x))
     with pytest.raises(InputError, match="holds a refit"):
-        refit_flow(flow, fs, evaluate, FlowRefitConfig(rounds=4, steps=60, classifier_steps=100),
-                   checkpoint=tmp_path / "refit.pt")
+        refit_flow(
+            flow,
+            fs,
+            evaluate,
+            FlowRefitConfig(rounds=4, steps=60, classifier_steps=100),
+            checkpoint=tmp_path / "refit.pt",
+        )
 
 
 def test_the_refit_keeps_a_classifier_of_its_own_layers_only():
@@ -153,23 +172,56 @@ def test_frozen_refit_benchmark_runs_on_a_toy2d_run(tmp_path):
     from learning.ppo import PPOConfig
 
     run = tmp_path / "run"
-    train(TrainConfig(env="goflow/Toy2D-v0", method="goflow", seed=1, eval_episodes=16, iterations_per_round=1,
-                      total_steps=2 * 4 * 16, out=run, sampler_kwargs={"steps": 3, "report_samples": 256},
-                      ppo=PPOConfig(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=1)), progress=False)
+    train(
+        TrainConfig(
+            env="goflow/Toy2D-v0",
+            method="goflow",
+            seed=1,
+            eval_episodes=16,
+            iterations_per_round=1,
+            total_steps=2 * 4 * 16,
+            out=run,
+            sampler_kwargs={"steps": 3, "report_samples": 256},
+            ppo=PPOConfig(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=1),
+        ),
+        progress=False,
+    )
     script = Path(__file__).parents[2] / "benchmarks" / "frozen_refit.py"
     out = tmp_path / "refit.json"
-    proc = subprocess.run([sys.executable, str(script), "--runs", str(run), "--cells", "10", "--repeats", "2",
-                           "--rounds", "1", "--episodes", "16", "--steps", "5", "--classifier-steps", "5",
-                           "--json", str(out)],
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(script),
+            "--runs",
+            str(run),
+            "--cells",
+            "10",
+            "--repeats",
+            "2",
+            "--rounds",
+            "1",
+            "--episodes",
+            "16",
+            "--steps",
+            "5",
+            "--classifier-steps",
+            "5",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr
     row = json.loads(out.read_text())["rows"][0]
     assert [u["episodes"] for u in row["updates"]] == [100, 16]
     for key in ("policy_set", "env_set"):
         assert set(row[key]["after"]) >= {"share", "mass_on", "coverage10", "coverage1"}
     assert 0.05 < row["env_set"]["after"]["share"] < 0.15  # the circle layout's 9 %
-    bad = subprocess.run([sys.executable, str(script), "--runs", str(run), "--level", "1.5"],
-                         capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(
+        [sys.executable, str(script), "--runs", str(run), "--level", "1.5"], capture_output=True, text=True, timeout=120
+    )
     assert bad.returncode != 0 and "--level must lie in (0, 1], got 1.5" in bad.stderr
 
 
@@ -183,8 +235,20 @@ def test_skill_feasible_mc_benchmark_measures_a_shipped_flow_and_resumes(tmp_pat
     from pathlib import Path
 
     script = Path(__file__).parents[2] / "benchmarks" / "skill_feasible_mc.py"
-    args = [sys.executable, str(script), "--gear", "small", "--draws", "2", "--uniform", "3", "--part", "2",
-            "--out", str(tmp_path / "parts")]
+    args = [
+        sys.executable,
+        str(script),
+        "--gear",
+        "small",
+        "--draws",
+        "2",
+        "--uniform",
+        "3",
+        "--part",
+        "2",
+        "--out",
+        str(tmp_path / "parts"),
+    ]
     first = subprocess.run([*args, "--json", str(tmp_path / "row.json")], capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr
     row = json.loads((tmp_path / "row.json").read_text())

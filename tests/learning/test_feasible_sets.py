@@ -13,8 +13,16 @@ import pytest
 
 from assembly.samplers import FullDR
 from goflow_common.errors import InputError
-from learning.feasible_sets import (LAYOUTS, MC_SEED, coverage, kl_to_optimum, mass_on, optimum_log_prob,
-                                    optimum_mass, unit_space)
+from learning.feasible_sets import (
+    LAYOUTS,
+    MC_SEED,
+    coverage,
+    kl_to_optimum,
+    mass_on,
+    optimum_log_prob,
+    optimum_mass,
+    unit_space,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "benchmarks" / "sampler_quality.py"
@@ -110,8 +118,11 @@ def test_half_of_the_feasible_set_is_half_covered():
     # twice the uniform-on-F density where p1 < 0.5, zero elsewhere: covers the part of F below 0.5
     lower = LAYOUTS["halfplane"].sample_inside(20_000, np.random.default_rng(5))
     lower_share = float(np.mean(lower[:, 1] < 0.5))  # F's fraction below p1 = 0.5
-    log_prob = lambda x: np.where(layout.contains(x) & (x[:, 1] < 0.5),  # noqa: E731
-                                  -math.log(layout.share * lower_share), -math.inf)
+    log_prob = lambda x: np.where(
+        layout.contains(x) & (x[:, 1] < 0.5),  # noqa: E731
+        -math.log(layout.share * lower_share),
+        -math.inf,
+    )
     assert coverage(log_prob, lower, layout.share, 0.1) == pytest.approx(lower_share)
 
 
@@ -169,21 +180,24 @@ def _script(*args, cwd=ROOT):
     return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
-@pytest.mark.parametrize("args, named", [
-    (["--layouts", "moon"], "'moon'"),
-    (["--methods", "goflow-fancy"], "'goflow-fancy'"),
-    (["--protocols", "mine"], "'mine'"),
-    (["--rounds", "0"], "--rounds = 0"),
-    (["--rounds", "ten"], "'ten'"),
-    (["--seeds", "a,b"], "--seeds"),
-    (["--batch", "1"], "--batch = 1"),
-    (["--checkpoint-every", "-5"], "--checkpoint-every = -5"),
-    (["--methods", "adr", "--protocols", "uniform"], "ADR runs only under --protocols own"),
-    (["--methods", "goflow-constrained", "--sampler", "leak_targt=0.01"], "'leak_targt'"),
-    (["--methods", "goflow-constrained", "--sampler", "leak_target=-1"], "--sampler leak_target=-1"),
-    (["--methods", "goflow-constrained", "--sampler", "seed=3"], "--sampler seed="),
-    (["--methods", "goflow-constrained", "lsdr", "--sampler", "leak_target=0.01"], "['lsdr']"),
-])
+@pytest.mark.parametrize(
+    "args, named",
+    [
+        (["--layouts", "moon"], "'moon'"),
+        (["--methods", "goflow-fancy"], "'goflow-fancy'"),
+        (["--protocols", "mine"], "'mine'"),
+        (["--rounds", "0"], "--rounds = 0"),
+        (["--rounds", "ten"], "'ten'"),
+        (["--seeds", "a,b"], "--seeds"),
+        (["--batch", "1"], "--batch = 1"),
+        (["--checkpoint-every", "-5"], "--checkpoint-every = -5"),
+        (["--methods", "adr", "--protocols", "uniform"], "ADR runs only under --protocols own"),
+        (["--methods", "goflow-constrained", "--sampler", "leak_targt=0.01"], "'leak_targt'"),
+        (["--methods", "goflow-constrained", "--sampler", "leak_target=-1"], "--sampler leak_target=-1"),
+        (["--methods", "goflow-constrained", "--sampler", "seed=3"], "--sampler seed="),
+        (["--methods", "goflow-constrained", "lsdr", "--sampler", "leak_target=0.01"], "['lsdr']"),
+    ],
+)
 def test_benchmark_bad_input_is_one_line(args, named, tmp_path):
     proc = _script(*args, "--out", str(tmp_path / "out"))
     assert proc.returncode == 2, proc.stderr
@@ -193,8 +207,25 @@ def test_benchmark_bad_input_is_one_line(args, named, tmp_path):
 
 def test_benchmark_tiny_run_writes_json_and_resumes(tmp_path):
     out = tmp_path / "out"
-    args = ["--layouts", "small", "--methods", "uniform", "lsdr", "--protocols", "uniform", "--seeds", "1",
-            "--rounds", "2", "--batch", "32", "--draws", "256", "--out", str(out)]
+    args = [
+        "--layouts",
+        "small",
+        "--methods",
+        "uniform",
+        "lsdr",
+        "--protocols",
+        "uniform",
+        "--seeds",
+        "1",
+        "--rounds",
+        "2",
+        "--batch",
+        "32",
+        "--draws",
+        "256",
+        "--out",
+        str(out),
+    ]
     first = _script(*args)
     assert first.returncode == 0, first.stderr
     runs = sorted(p.relative_to(out).as_posix() for p in out.rglob("seed*.json"))
@@ -212,8 +243,9 @@ def test_benchmark_tiny_run_writes_json_and_resumes(tmp_path):
     assert third.returncode == 2 and "other settings" in third.stderr
 
 
-@pytest.mark.parametrize("method, protocol", [("lsdr", "own"), ("doraemon", "uniform"), ("adr", "own"),
-                                              ("goflow-constrained", "own")])
+@pytest.mark.parametrize(
+    "method, protocol", [("lsdr", "own"), ("doraemon", "uniform"), ("adr", "own"), ("goflow-constrained", "own")]
+)
 def test_benchmark_same_seed_same_row(method, protocol):
     bench = _benchmark()
     task = bench.Task("small", method, protocol, seed=3, rounds=2, batch=32, draws=256)
@@ -227,9 +259,11 @@ def test_benchmark_same_seed_same_row(method, protocol):
 
 
 @pytest.mark.parametrize("method, protocol", [("goflow-constrained", "own"), ("doraemon", "uniform")])
-def test_benchmark_run_interrupted_resumes_from_its_checkpoint_to_the_same_rows(method, protocol, tmp_path,
-                                                                                  monkeypatch):
+def test_benchmark_run_interrupted_resumes_from_its_checkpoint_to_the_same_rows(
+    method, protocol, tmp_path, monkeypatch
+):
     from learning.samplers.registry import make_sampler
+
     bench = _benchmark()
     # fewer gradient steps than the defaults for GoFlow: what is checked is the resume, not the fit
     fewer = (("classifier_steps", 10), ("steps", 10)) if bench.METHODS[method].sampler == "goflow" else ()
@@ -270,10 +304,24 @@ def test_benchmark_run_interrupted_resumes_from_its_checkpoint_to_the_same_rows(
 
 def test_benchmark_sampler_flag_reaches_the_goflow_config_and_the_stored_settings():
     from learning.samplers.registry import make_sampler
+
     bench = _benchmark()
-    args = bench.make_parser().parse_args(["--layouts", "small", "--methods", "goflow-constrained", "--protocols",
-                                           "uniform", "--seeds", "2,", "--sampler", "leak_target=0.008",
-                                           "--sampler", "hidden_features=[32, 32]"])
+    args = bench.make_parser().parse_args(
+        [
+            "--layouts",
+            "small",
+            "--methods",
+            "goflow-constrained",
+            "--protocols",
+            "uniform",
+            "--seeds",
+            "2,",
+            "--sampler",
+            "leak_target=0.008",
+            "--sampler",
+            "hidden_features=[32, 32]",
+        ]
+    )
     (task,) = bench.plan(args)
     assert task.overrides == (("hidden_features", (32, 32)), ("leak_target", 0.008))
     method = bench.METHODS[task.method]
@@ -282,8 +330,9 @@ def test_benchmark_sampler_flag_reaches_the_goflow_config_and_the_stored_setting
     assert sampler.config.leak_target == 0.008 and sampler.config.hidden_features == (32, 32)
     assert sampler.config.mode == "constrained" and sampler.config.seed == 2  # the method's own options stay
     # a run with other overrides has other settings: never reused as "already present"
-    plain = bench.Task(*[getattr(task, f) for f in ("layout", "method", "protocol", "seed", "rounds", "batch",
-                                                    "draws")])
+    plain = bench.Task(
+        *[getattr(task, f) for f in ("layout", "method", "protocol", "seed", "rounds", "batch", "draws")]
+    )
     assert task.settings()["config"]["leak_target"] == 0.008 and plain.settings()["config"]["leak_target"] == 0.004
     assert task.settings() != plain.settings()
 
@@ -317,16 +366,16 @@ def test_frontier_weights_read_a_stratified_sample_as_the_uniform_one():
     rng = np.random.default_rng(1)
     u, inside = rng.random((400_000, 2)), layout.sample_inside(20_000, rng)
     p_hat = layout.contains(u).astype(float) * 0.9 + 0.05 * (layout.margin(u) > -0.02)
-    plain = frontier.read_levels(p_hat, layout.contains(u), np.ones(len(inside)), [0.5, 0.9],
-                                 layout.share, 0.002)
+    plain = frontier.read_levels(p_hat, layout.contains(u), np.ones(len(inside)), [0.5, 0.9], layout.share, 0.002)
     # a quarter of the points in the left half of the box, weighted back to uniform
     more = rng.random((800_000, 2))
     left = more[:, 0] < 0.5
     strat = np.concatenate([more[left][:100_000], more[~left][:300_000]])
     weights = np.where(strat[:, 0] < 0.5, 0.5 / 0.25, 0.5 / 0.75)
     p_strat = layout.contains(strat).astype(float) * 0.9 + 0.05 * (layout.margin(strat) > -0.02)
-    weighted = frontier.read_levels(p_strat, layout.contains(strat), np.ones(len(inside)), [0.5, 0.9], layout.share,
-                                    0.002, weights)
+    weighted = frontier.read_levels(
+        p_strat, layout.contains(strat), np.ones(len(inside)), [0.5, 0.9], layout.share, 0.002, weights
+    )
     for a, b in zip(plain, weighted):
         assert a["share"] == pytest.approx(b["share"], rel=0.05) and a["mass"] == pytest.approx(b["mass"], abs=0.01)
 
@@ -334,6 +383,7 @@ def test_frontier_weights_read_a_stratified_sample_as_the_uniform_one():
 def test_frontier_grid_rows_carry_their_cells_labels():
     frontier = _benchmark(FRONTIER)
     from learning.skill_file import load_skill
+
     feasible = load_skill("insert", gear="small").feasible
     xi, success = frontier.grid_rows(feasible, 2, 0)
     n = len(feasible.points(np.random.default_rng([0, 0]))[0])
@@ -343,10 +393,15 @@ def test_frontier_grid_rows_carry_their_cells_labels():
     assert int(success.sum()) > 0
 
 
-@pytest.mark.parametrize("args, named", [(["--levels", "1.5"], "--levels entry = 1.5"),
-                                         (["--boundary-memory", "-1"], "--boundary-memory entry = -1"),
-                                         (["--skills", "tiny"], "--skills: 'tiny'"),
-                                         (["--skills", "small", "--per-cell", "0"], "--per-cell entry = 0")])
+@pytest.mark.parametrize(
+    "args, named",
+    [
+        (["--levels", "1.5"], "--levels entry = 1.5"),
+        (["--boundary-memory", "-1"], "--boundary-memory entry = -1"),
+        (["--skills", "tiny"], "--skills: 'tiny'"),
+        (["--skills", "small", "--per-cell", "0"], "--per-cell entry = 0"),
+    ],
+)
 def test_frontier_bad_input_is_one_line(args, named):
     proc = subprocess.run([sys.executable, str(FRONTIER), *args], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 2

@@ -25,8 +25,9 @@ def _interval(xi: np.ndarray) -> np.ndarray:
     return ((xi[:, 0] >= 0.2) & (xi[:, 0] <= 0.5)).astype(float)
 
 
-def _train(sampler: GoFlowSampler, oracle, rounds: int, batch: int, seed: int, protocol: str = "uniform",
-           after=None) -> None:
+def _train(
+    sampler: GoFlowSampler, oracle, rounds: int, batch: int, seed: int, protocol: str = "uniform", after=None
+) -> None:
     """`rounds` updates from batches of `protocol`; after(k) runs after round k (1-based) if given."""
     rng = np.random.default_rng(seed)
     for k in range(1, rounds + 1):
@@ -108,24 +109,39 @@ def test_constrained_mode_refuses_graded_signals():
     assert s.n_updates == 0
 
 
-@pytest.mark.parametrize("field, value, match", [
-    ("delta", 0.0, r"delta = 0\.0"), ("delta", 1.0, r"delta = 1\.0"), ("delta", math.nan, "delta"),
-    ("mode", "greedy", r"mode = 'greedy'; expected one of"), ("signal_range", (1.0, 0.0), "lo < hi"),
-    ("feasible_level", 0.0, "feasible_level"), ("memory", 0, "memory"), ("outside_weight", -1.0, "outside_weight"),
-    ("feasible_model", "svm", r"feasible_model = 'svm'; expected one of"), ("truncate", "yes", r"truncate = 'yes'"),
-    ("classifier_steps", 0, "classifier_steps"), ("leak_target", 0.0, r"leak_target = 0\.0"),
-    ("leak_target", 1.0, r"leak_target = 1\.0"), ("level_step", -0.1, r"level_step = -0\.1"),
-    ("floor", -0.1, r"floor = -0\.1"), ("floor", 1.0, r"floor = 1\.0"),
-    ("boundary_memory", -1, r"boundary_memory = -1"), ("boundary_memory", 2.5, r"boundary_memory = 2\.5"),
-])
+@pytest.mark.parametrize(
+    "field, value, match",
+    [
+        ("delta", 0.0, r"delta = 0\.0"),
+        ("delta", 1.0, r"delta = 1\.0"),
+        ("delta", math.nan, "delta"),
+        ("mode", "greedy", r"mode = 'greedy'; expected one of"),
+        ("signal_range", (1.0, 0.0), "lo < hi"),
+        ("feasible_level", 0.0, "feasible_level"),
+        ("memory", 0, "memory"),
+        ("outside_weight", -1.0, "outside_weight"),
+        ("feasible_model", "svm", r"feasible_model = 'svm'; expected one of"),
+        ("truncate", "yes", r"truncate = 'yes'"),
+        ("classifier_steps", 0, "classifier_steps"),
+        ("leak_target", 0.0, r"leak_target = 0\.0"),
+        ("leak_target", 1.0, r"leak_target = 1\.0"),
+        ("level_step", -0.1, r"level_step = -0\.1"),
+        ("floor", -0.1, r"floor = -0\.1"),
+        ("floor", 1.0, r"floor = 1\.0"),
+        ("boundary_memory", -1, r"boundary_memory = -1"),
+        ("boundary_memory", 2.5, r"boundary_memory = 2\.5"),
+    ],
+)
 def test_bad_settings_name_the_value(field, value, match):
     with pytest.raises(InputError, match=match):
         GoFlowConfig(**{field: value})
 
 
-@pytest.mark.parametrize("mode, memory", [("entropy", {}), ("constrained", {}),
-                                          ("constrained", {"memory": 96, "boundary_memory": 64})],
-                         ids=["entropy", "constrained", "constrained-boundary-rows"])
+@pytest.mark.parametrize(
+    "mode, memory",
+    [("entropy", {}), ("constrained", {}), ("constrained", {"memory": 96, "boundary_memory": 64})],
+    ids=["entropy", "constrained", "constrained-boundary-rows"],
+)
 def test_reloaded_sampler_samples_and_updates_the_same(mode, memory):
     small = dict(mode=mode, steps=10, proposal_samples=256, fit_batch=128, beta=0.0, **memory)
     a = GoFlowSampler(_unit_box(2), None, **small)
@@ -189,8 +205,9 @@ def test_the_truncated_sampler_is_a_normalized_density_with_delta_outside(floor)
     """With the truncation, log_prob integrates to 1 over the box, the draws follow it, and the
     mass off the feasible set is delta (0.05 here, so that it shows in 20000 draws); with a floor,
     the density in F-hat is at least floor x (1 - delta) x uniform on F-hat."""
-    s = GoFlowSampler(_unit_box(2), None, mode="constrained", delta=0.05, floor=floor, steps=40, proposal_samples=512,
-                      seed=0)
+    s = GoFlowSampler(
+        _unit_box(2), None, mode="constrained", delta=0.05, floor=floor, steps=40, proposal_samples=512, seed=0
+    )
     _train(s, _small_disk, rounds=12, batch=256, seed=0)
     u = np.random.default_rng(1).uniform(size=(400000, 2))
     density = np.exp(s.log_prob(u))
@@ -241,8 +258,10 @@ def test_the_level_follows_the_constraint_on_held_out_rows():
     assert copy().update(uniform, _small_disk(uniform))["heldout_own_share"] < 0.1
     b = copy()
     b.update(own, np.zeros(256))
-    assert GoFlowSampler.from_state_dict(json.loads(json.dumps(b.state_dict()))).state_dict()["feasible_level"] == \
-        fail["feasible_level"]
+    assert (
+        GoFlowSampler.from_state_dict(json.loads(json.dumps(b.state_dict()))).state_dict()["feasible_level"]
+        == fail["feasible_level"]
+    )
     fixed = GoFlowSampler(_unit_box(2), None, **{**small, "level_step": 0.0})
     _train(fixed, _small_disk, rounds=5, batch=256, seed=0, protocol="own")
     assert fixed.state_dict()["feasible_level"] == 0.5
@@ -259,6 +278,7 @@ def test_states_saved_before_the_level_followed_the_constraint_keep_a_fixed_leve
 def test_the_floor_samples_a_set_smaller_than_the_rejection_rounds_assume():
     """The floor's uniform draws in F-hat come by rejection from the box; with F-hat under 1 % of
     the box (around a 0.07 % disk) a draw of 4096 points completes, all but delta of it in F-hat."""
+
     def tiny(xi: np.ndarray) -> np.ndarray:
         return (np.linalg.norm(xi - 0.7, axis=1) <= 0.015).astype(float)
 
@@ -266,7 +286,8 @@ def test_the_floor_samples_a_set_smaller_than_the_rejection_rounds_assume():
     rng = np.random.default_rng(0)
     for _ in range(15):
         inside = 0.7 + 0.015 * np.sqrt(rng.uniform(size=(32, 1))) * np.stack(
-            [np.cos(a := rng.uniform(0, 2 * np.pi, 32)), np.sin(a)], axis=1)
+            [np.cos(a := rng.uniform(0, 2 * np.pi, 32)), np.sin(a)], axis=1
+        )
         xi = np.concatenate([rng.uniform(size=(224, 2)), inside])
         s.update(xi, tiny(xi))
     assert s._gate is not None and math.exp(s._gate[2]) < 0.003  # F-hat under a third of the rounds' sizing

@@ -21,7 +21,9 @@ from learning.samplers.goflow_config import GoFlowConfig
 from learning.samplers.gradient_update import standardize_returns
 from learning.samplers.spline_flow import build_spline_flow
 
-FAST = GoFlowConfig(entropy_samples=512, kl_samples=512, steps=60, mode="paper")  # the paper's update; modes: test_goflow_modes.py
+FAST = GoFlowConfig(
+    entropy_samples=512, kl_samples=512, steps=60, mode="paper"
+)  # the paper's update; modes: test_goflow_modes.py
 SIGMA = GoFlowConfig().base_scale
 
 
@@ -35,8 +37,13 @@ def _one_thread():
 
 
 def _space(d: int = 2) -> ParamSpace:
-    params = [Param("offset", -1.0, 1.0, "m"), Param("mass", 0.0, 20.0, "kg"), Param("friction", 0.0, 1.0, "1"),
-              Param("yaw", -0.4, 0.4, "rad"), Param("gain", 10.0, 300.0, "N/m")]
+    params = [
+        Param("offset", -1.0, 1.0, "m"),
+        Param("mass", 0.0, 20.0, "kg"),
+        Param("friction", 0.0, 1.0, "1"),
+        Param("yaw", -0.4, 0.4, "rad"),
+        Param("gain", 10.0, 300.0, "N/m"),
+    ]
     return ParamSpace(tuple(params[:d]))
 
 
@@ -60,7 +67,9 @@ def test_identity_start_in_every_dimension(d):
     lp = s.log_prob(xi)
     assert np.all(np.isfinite(lp))
     np.testing.assert_allclose(lp, _init_logpdf(space, xi), atol=2e-4)  # exactly the truncated base
-    expected_h = d * truncnorm(-5 / SIGMA, 5 / SIGMA, scale=SIGMA).entropy() + np.log((space.high - space.low) / 10).sum()
+    expected_h = (
+        d * truncnorm(-5 / SIGMA, 5 / SIGMA, scale=SIGMA).entropy() + np.log((space.high - space.low) / 10).sum()
+    )
     assert abs(s.entropy() - expected_h) < 0.05 * d
     diag = s.update(xi[:64], np.random.default_rng(0).random(64))  # one short update works in any dimension
     assert diag["skipped_steps"] == 0 and not diag["reverted"] and math.isfinite(diag["entropy"])
@@ -156,11 +165,17 @@ def disk_runs():
     runs = {}
     for alpha in (0.1, 1.0):
         s = GoFlowSampler(space, alpha=alpha, beta=1.0, config=FAST)
-        before = {"entropy": s.entropy(), "lp": s.log_prob(space.denormalize(DISK_CENTRE))[0],
-                  "mass": _disk_returns(space, s.sample(4000, np.random.default_rng(1))).mean()}
+        before = {
+            "entropy": s.entropy(),
+            "lp": s.log_prob(space.denormalize(DISK_CENTRE))[0],
+            "mass": _disk_returns(space, s.sample(4000, np.random.default_rng(1))).mean(),
+        }
         diags = [s.update(xi, r) for xi, r in batches]
-        after = {"entropy": s.entropy(), "lp": s.log_prob(space.denormalize(DISK_CENTRE))[0],
-                 "mass": _disk_returns(space, s.sample(4000, np.random.default_rng(1))).mean()}
+        after = {
+            "entropy": s.entropy(),
+            "lp": s.log_prob(space.denormalize(DISK_CENTRE))[0],
+            "mass": _disk_returns(space, s.sample(4000, np.random.default_rng(1))).mean(),
+        }
         runs[alpha] = (s, before, after, diags)
     return space, runs
 
@@ -205,8 +220,13 @@ def test_all_equal_and_extreme_returns_stay_finite(mode):
     s = GoFlowSampler(space, config=cfg)
     rng = np.random.default_rng(4)
     xi = rng.uniform(space.low, space.high, size=(64, 2))
-    for returns in (np.full(64, 5.0), np.where(np.arange(64) % 2, 1e6, -1e6), np.full(64, 1e300),
-                    np.r_[1e300, np.zeros(63)], np.array([-1e306] * 32 + [1e306] * 32)):
+    for returns in (
+        np.full(64, 5.0),
+        np.where(np.arange(64) % 2, 1e6, -1e6),
+        np.full(64, 1e300),
+        np.r_[1e300, np.zeros(63)],
+        np.array([-1e306] * 32 + [1e306] * 32),
+    ):
         diag = s.update(xi, returns)
         assert not diag["reverted"] and diag["skipped_steps"] == 0
         assert all(math.isfinite(diag[k]) for k in ("loss", "entropy", "kl", "mean_return"))
@@ -246,8 +266,9 @@ def test_bad_update_inputs_raise():
 @pytest.mark.parametrize("mode", ["paper", "entropy"])
 def test_non_finite_parameters_revert_to_the_previous_flow(monkeypatch, mode):
     space = _space(2)
-    s = GoFlowSampler(space, config=GoFlowConfig(entropy_samples=128, kl_samples=128, steps=3, mode=mode,
-                                                 proposal_samples=256))
+    s = GoFlowSampler(
+        space, config=GoFlowConfig(entropy_samples=128, kl_samples=128, steps=3, mode=mode, proposal_samples=256)
+    )
     xi = np.random.default_rng(5).uniform(space.low, space.high, size=(32, 2))
     before = s.log_prob(xi)
     original_step = torch.optim.Adam.step

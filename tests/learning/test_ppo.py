@@ -90,8 +90,10 @@ def toy2d_at_centres(n: int, vector=SyncVectorEnv):
     observation is precise (sigma = 1 cm): the policy must learn to report its observation."""
     proto = Toy2DEnv()
     centres = proto.centers
-    fns = [lambda c=centres[i % len(centres)]: gymnasium.make("goflow/Toy2D-v0", sampler=NoDR(proto.space, point=c))
-           for i in range(n)]
+    fns = [
+        lambda c=centres[i % len(centres)]: gymnasium.make("goflow/Toy2D-v0", sampler=NoDR(proto.space, point=c))
+        for i in range(n)
+    ]
     return vector(fns, autoreset_mode=AutoresetMode.SAME_STEP)
 
 
@@ -107,12 +109,20 @@ def raw(**kw) -> PPOConfig:
 # -- configuration --------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("kw, word", [
-    (dict(gamma=1.5), "gamma"), (dict(clip_coef=0.0), "clip_coef"), (dict(num_envs=0), "num_envs"),
-    (dict(learning_rate=float("nan")), "learning_rate"), (dict(num_minibatches=3), "divide"),
-    (dict(anneal_lr=True), "total_iterations"), (dict(hidden_sizes=()), "hidden_sizes"),
-    (dict(target_kl=-1.0), "target_kl"), (dict(num_envs=1, num_steps=4, num_minibatches=4), "too small"),
-])
+@pytest.mark.parametrize(
+    "kw, word",
+    [
+        (dict(gamma=1.5), "gamma"),
+        (dict(clip_coef=0.0), "clip_coef"),
+        (dict(num_envs=0), "num_envs"),
+        (dict(learning_rate=float("nan")), "learning_rate"),
+        (dict(num_minibatches=3), "divide"),
+        (dict(anneal_lr=True), "total_iterations"),
+        (dict(hidden_sizes=()), "hidden_sizes"),
+        (dict(target_kl=-1.0), "target_kl"),
+        (dict(num_envs=1, num_steps=4, num_minibatches=4), "too small"),
+    ],
+)
 def test_config_rejects_bad_values(kw, word):
     with pytest.raises(ValueError, match=word):
         PPOConfig(**kw)
@@ -174,8 +184,12 @@ def test_episodes_continue_across_rollouts_unless_reset_each_rollout():
     # with reset_each_rollout every rollout restarts at a seeded reset and no episode completes.
     def lengths(reset_each_rollout: bool) -> list[int]:
         envs = sync([lambda: CounterEnv(3) for _ in range(2)])
-        ppo = PPO(2, 3, envs.single_action_space, raw(num_envs=2, num_steps=2, num_minibatches=2,
-                                                      reset_each_rollout=reset_each_rollout))
+        ppo = PPO(
+            2,
+            3,
+            envs.single_action_space,
+            raw(num_envs=2, num_steps=2, num_minibatches=2, reset_each_rollout=reset_each_rollout),
+        )
         out = []
         for _ in range(3):
             out += ppo.train_iteration(envs)[0].episode_lengths.tolist()
@@ -206,8 +220,9 @@ def test_cartpole_time_limit_episodes_are_truncated_and_reported():
     from assembly.envs.cartpole import CARTPOLE_SPACE
 
     nominal = [1.0, 1.0, 0.0]  # pole 1 kg, cart 1 kg, no slider friction
-    envs = sync([lambda: gymnasium.make("goflow/Cartpole-v0", sampler=NoDR(CARTPOLE_SPACE, point=nominal))
-                 for _ in range(2)])
+    envs = sync(
+        [lambda: gymnasium.make("goflow/Cartpole-v0", sampler=NoDR(CARTPOLE_SPACE, point=nominal)) for _ in range(2)]
+    )
     ppo = PPO(5, 8, envs.single_action_space, PPOConfig(num_envs=2, num_steps=120, num_minibatches=4, seed=0))
     stats = ppo.collect(envs)
     assert stats.num_episodes == 2 and not stats.terminated.any()
@@ -247,8 +262,12 @@ def test_privileged_critic_learns_a_value_that_only_xi_predicts():
     # -> 1); the same PPO whose critic sees obs only explains nothing.
     def run(hide_xi: bool) -> tuple[float, PPO, SyncVectorEnv]:
         envs = sync([lambda: XiRewardEnv(hide_xi) for _ in range(8)])
-        ppo = PPO(2, 2 if hide_xi else 3, envs.single_action_space,
-                  PPOConfig(num_envs=8, num_steps=16, num_minibatches=4, learning_rate=3e-3, seed=0))
+        ppo = PPO(
+            2,
+            2 if hide_xi else 3,
+            envs.single_action_space,
+            PPOConfig(num_envs=8, num_steps=16, num_minibatches=4, learning_rate=3e-3, seed=0),
+        )
         ev = [ppo.train_iteration(envs)[1]["explained_variance"] for _ in range(15)]
         return float(np.mean(ev[-3:])), ppo, envs
 
@@ -272,8 +291,16 @@ def _params(ppo: PPO) -> list[torch.Tensor]:
 def test_resume_from_checkpoint_reproduces_the_uninterrupted_run(tmp_path):
     # Toy2D, FullDR (xi drawn by the envs' seeded RNGs), annealed learning rate, KL early stop: K = 4
     # iterations straight vs 2, checkpoint, a new process's worth of objects (new PPO, new envs), 2.
-    cfg = PPOConfig(num_envs=4, num_steps=16, num_minibatches=4, update_epochs=4, anneal_lr=True,
-                    total_iterations=4, target_kl=0.05, seed=11)
+    cfg = PPOConfig(
+        num_envs=4,
+        num_steps=16,
+        num_minibatches=4,
+        update_epochs=4,
+        anneal_lr=True,
+        total_iterations=4,
+        target_kl=0.05,
+        seed=11,
+    )
     envs = toy2d_fulldr(4)
     straight = PPO(2, 4, envs.single_action_space, cfg)
     logs_straight = [straight.train_iteration(envs) for _ in range(4)]
@@ -358,7 +385,9 @@ def test_mismatched_env_raises():
     with pytest.raises(ValueError, match=r"critic_obs'\] of shape \(2, 4\), expected \(2, 5\)"):
         PPO(2, 5, envs.single_action_space, cfg).collect(envs)
     with pytest.raises(ValueError, match="num_envs = 3"):
-        PPO(2, 4, envs.single_action_space, dataclasses.replace(cfg, num_envs=3, num_steps=4, num_minibatches=2)).collect(envs)
+        PPO(
+            2, 4, envs.single_action_space, dataclasses.replace(cfg, num_envs=3, num_steps=4, num_minibatches=2)
+        ).collect(envs)
     next_step = SyncVectorEnv([lambda: gymnasium.make("goflow/Toy2D-v0") for _ in range(2)])
     with pytest.raises(ValueError, match="SAME_STEP"):
         PPO(2, 4, next_step.single_action_space, cfg).collect(next_step)

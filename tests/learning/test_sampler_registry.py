@@ -15,9 +15,12 @@ from learning.samplers.registry import METHODS, SAMPLERS, make_sampler, sampler_
 SPACE = ParamSpace((Param("m", 0.5, 5.0, "kg"), Param("c", 0.0, 1.0, "N s/m")))
 J_T = 10.0
 #: Small settings per sampler so that the test is quick; every sampler also builds from None.
-FAST = {"goflow": {"steps": 2, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128, "report_samples": 256},
-        "lsdr": {"steps": 2}, "doraemon": {"maxiter": 5},
-        "estimated": {"distribution": TruncNormalProduct(np.array([0.3, 0.6]), np.array([0.1, 0.2])).to_dict()}}
+FAST = {
+    "goflow": {"steps": 2, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128, "report_samples": 256},
+    "lsdr": {"steps": 2},
+    "doraemon": {"maxiter": 5},
+    "estimated": {"distribution": TruncNormalProduct(np.array([0.3, 0.6]), np.array([0.1, 0.2])).to_dict()},
+}
 
 
 @pytest.fixture(params=list(SAMPLERS))

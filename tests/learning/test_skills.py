@@ -21,17 +21,23 @@ def tiny_skill(tmp_path_factory):
     rounds, a 2 x 2 x 1 + 2 x 2 x 1 grid and one refit update from the flow's draws), exported as a
     skill file by train_skill."""
     tmp = tmp_path_factory.mktemp("skill")
-    recipe = SkillRecipe(total_steps=20, eval_episodes=2, iterations_per_round=1,
-                         refine_steps=20, refine_iterations_per_round=1, refine_eval_episodes=2,
-                         fit_rounds=2, fit_episodes=4,
-                         grid=FeasibleGridConfig(fine_width=(0.01, 0.01, 0.786), fine_cells=(2, 2, 1),
-                                                 coarse_cells=(2, 2, 1)),
-                         refit=FlowRefitConfig(rounds=1, episodes=4, steps=5, classifier_steps=5),
-                         sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128,
-                                         "report_samples": 256},
-                         ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1))
-    out = train_skill("insert", "small", recipe, runs=tmp / "runs", out=tmp / "insert-small.pt", command="test",
-                      progress=False)
+    recipe = SkillRecipe(
+        total_steps=20,
+        eval_episodes=2,
+        iterations_per_round=1,
+        refine_steps=20,
+        refine_iterations_per_round=1,
+        refine_eval_episodes=2,
+        fit_rounds=2,
+        fit_episodes=4,
+        grid=FeasibleGridConfig(fine_width=(0.01, 0.01, 0.786), fine_cells=(2, 2, 1), coarse_cells=(2, 2, 1)),
+        refit=FlowRefitConfig(rounds=1, episodes=4, steps=5, classifier_steps=5),
+        sampler_kwargs={"steps": 3, "entropy_samples": 64, "kl_samples": 64, "kl_pool": 128, "report_samples": 256},
+        ppo=PPOConfig(num_envs=2, num_steps=10, num_minibatches=2, update_epochs=1),
+    )
+    out = train_skill(
+        "insert", "small", recipe, runs=tmp / "runs", out=tmp / "insert-small.pt", command="test", progress=False
+    )
     log = json.loads((tmp / "runs" / "insert-small" / "log.json").read_text())
     return log, out, tmp / "insert-small.pt"
 
@@ -68,8 +74,9 @@ def test_export_and_load_round_trip(tiny_skill):
     assert skill.value(obs, info["xi"]) == pytest.approx(float(exported.value(obs, info["xi"])))
     critic = exported.agent._norm_critic_obs(info["critic_obs"][None])
     with torch.no_grad():
-        assert skill.value(obs, info["xi"]) == pytest.approx(float(exported.agent.critic(torch.from_numpy(critic))[0]),
-                                                             rel=1e-5)
+        assert skill.value(obs, info["xi"]) == pytest.approx(
+            float(exported.agent.critic(torch.from_numpy(critic))[0]), rel=1e-5
+        )
     xi = skill.sampler.sample(16, np.random.default_rng(0))
     np.testing.assert_allclose(skill.density(xi), exported.density(xi), rtol=1e-6)
     assert np.all(skill.density(np.array([[0.2, 0.0, 0.0]])) == 0.0)  # outside the box
@@ -94,8 +101,14 @@ def test_evaluate_schema(tiny_skill):
     _, skill, _ = tiny_skill
     result = evaluate_skill(skill, variant="fast", xi="uniform", episodes=3, seed=1, num_envs=3)
     data = result.to_json()
-    for key, kind in (("gear", str), ("variant", str), ("xi", str), ("episodes", int), ("success_rate", float),
-                      ("mean_return", float)):
+    for key, kind in (
+        ("gear", str),
+        ("variant", str),
+        ("xi", str),
+        ("episodes", int),
+        ("success_rate", float),
+        ("mean_return", float),
+    ):
         assert isinstance(data[key], kind), key
     assert json.loads(json.dumps(data)) == data
     assert result.episodes == 3 and 0.0 <= result.success_rate <= 1.0
@@ -136,10 +149,27 @@ def test_bad_input(tiny_skill, tmp_path):
 
 def test_cli_evaluate_writes_the_issue_schema(tiny_skill, tmp_path):
     from goflow_cli import main
+
     _, _, path = tiny_skill
     out = tmp_path / "eval.json"
-    assert main(["evaluate", "--gear", "small", "--path", str(path), "--episodes", "2", "--xi-from", "flow",
-                 "--json", str(out)]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--gear",
+                "small",
+                "--path",
+                str(path),
+                "--episodes",
+                "2",
+                "--xi-from",
+                "flow",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     result = json.loads(out.read_text())
     assert {"gear", "variant", "xi", "episodes", "success_rate", "mean_return"} <= set(result)
     assert (result["gear"], result["variant"], result["xi"], result["episodes"]) == ("small", "fast", "flow", 2)
@@ -220,8 +250,9 @@ def test_a_confirming_variant_keeps_only_cells_that_succeed_in_both(tmp_path):
     path = skill_path("insert", "small")
     fast = measure_feasible_set(path, grid)
     assert fast.variant == "fast" and fast.fine_success.sum() >= 2  # 1 mm around the flow's median: inside F
-    both = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
-                                checkpoint=tmp_path / "feasible.pt")
+    both = measure_feasible_set(
+        path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}), checkpoint=tmp_path / "feasible.pt"
+    )
     assert both.variant == "fast+panda"
     assert np.all(both.fine_returns <= fast.fine_returns + 1e-9)
     ok = fast.fine_success
@@ -232,17 +263,23 @@ def test_a_confirming_variant_keeps_only_cells_that_succeed_in_both(tmp_path):
         def run(self, jobs, board):
             raise AssertionError("a resumed measurement ran episodes")
 
-    again = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
-                                 backend=NoEpisodes(), checkpoint=tmp_path / "feasible.pt")
+    again = measure_feasible_set(
+        path,
+        FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
+        backend=NoEpisodes(),
+        checkpoint=tmp_path / "feasible.pt",
+    )
     np.testing.assert_array_equal(again.fine_returns, both.fine_returns)
+
     # a measurement already made in the fast variant is kept: only the Panda episodes run
     class PandaOnly(InlineBackend):
         def run(self, jobs, board):
             assert all(job.args[1] == "panda" for job in jobs), "a known fast measurement was run again"
             return super().run(jobs, board)
 
-    confirmed = measure_feasible_set(path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}),
-                                     backend=PandaOnly(), known=fast)
+    confirmed = measure_feasible_set(
+        path, FeasibleGridConfig(**{**grid.__dict__, "confirm_variant": "panda"}), backend=PandaOnly(), known=fast
+    )
     assert confirmed.variant == "fast+panda"
     np.testing.assert_array_equal(confirmed.fine_returns, both.fine_returns)
     with pytest.raises(ValueError, match="a measurement in 'fast\\+panda' cannot start one in 'fast'"):

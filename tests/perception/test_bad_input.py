@@ -85,6 +85,7 @@ def test_bad_configs_are_named():
 
 def test_nan_intrinsics_and_zero_width_prior_are_named(obs):
     from perception.observation import Intrinsics
+
     k = obs.intrinsics
     with pytest.raises(ValueError, match="intrinsics fx = nan"):
         Intrinsics(k.width, k.height, float("nan"), k.fy, k.cx, k.cy)

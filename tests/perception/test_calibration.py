@@ -13,8 +13,18 @@ import pytest
 
 from goflow_common.errors import InputError
 from perception.calibration import (
-    HELD_OUT_SEED, CalibrationConfig, calibrated_pass_chance, confidently_wrong, coverage_se, group_rows,
-    markdown_table, pool_results, resampled_set_count, row_brightness, sets_text, summarize,
+    HELD_OUT_SEED,
+    CalibrationConfig,
+    calibrated_pass_chance,
+    confidently_wrong,
+    coverage_se,
+    group_rows,
+    markdown_table,
+    pool_results,
+    resampled_set_count,
+    row_brightness,
+    sets_text,
+    summarize,
 )
 from perception.likelihood import LikelihoodConfig
 from perception.search import SearchConfig
@@ -40,8 +50,7 @@ def test_truth_levels_look_uniform_and_nothing_is_confidently_wrong(rows):
 
 
 def test_close_view_is_sharper_on_average_and_within_a_millimetre(rows):
-    std = {v: np.median([np.hypot(*r["std"][:2]) for r in rows if r["view"] == v])
-           for v in ("scene", "inspect")}
+    std = {v: np.median([np.hypot(*r["std"][:2]) for r in rows if r["view"] == v]) for v in ("scene", "inspect")}
     assert std["inspect"] < std["scene"]
     assert all(r["xy_error_m"] < 0.001 for r in rows if r["view"] == "inspect")
 
@@ -83,8 +92,13 @@ def test_tuning_levels_predict_the_pipelines_own():
     exponent 1 the shaped levels are the tempered ones."""
     shipped = LikelihoodConfig(close_reshaping={})  # the reshaping shared by every gear and light
     f_close, g_close = shipped.posterior_factor[1], shipped.shape_exponent[1]
-    config = CalibrationConfig(scenes=1, seed=HELD_OUT_SEED + 778, tempering_factors=(f_close, 1.0),
-                               shape_exponents=(1.0, g_close), search=SearchConfig(likelihood=shipped))
+    config = CalibrationConfig(
+        scenes=1,
+        seed=HELD_OUT_SEED + 778,
+        tempering_factors=(f_close, 1.0),
+        shape_exponents=(1.0, g_close),
+        search=SearchConfig(likelihood=shipped),
+    )
     close = [r for r in group_rows("clean", config) if r["view"] == "inspect" and r["informative"]]
     assert close
     for r in close:
@@ -109,8 +123,10 @@ def test_a_rows_brightness_is_recorded_or_its_groups_headlight():
 def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_path):
     """Two sets judged together: every cell counts both sets' posteriors, the scene bootstrap sees
     2 x 4 scenes (a set's scene 0 is not the other's), and the command writes what it printed."""
-    first = {"config": {"scenes": 4, "seed": 1, "groups": ["clean"], "levels": [0.5, 0.68, 0.8, 0.9, 0.95]},
-             "rows": rows}
+    first = {
+        "config": {"scenes": 4, "seed": 1, "groups": ["clean"], "levels": [0.5, 0.68, 0.8, 0.9, 0.95]},
+        "rows": rows,
+    }
     second = {**first, "config": {**first["config"], "seed": 2}}
     pooled = pool_results([first, second])
     scene, inspect = pooled["summary"]
@@ -128,8 +144,12 @@ def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_
         paths[-1].write_text(json.dumps(result))
     goflow = str(Path(sys.executable).parent / "goflow")
     out = tmp_path / "pooled.json"
-    proc = subprocess.run([goflow, "bench", "calibration", "--pool", *map(str, paths), "--json", str(out)],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [goflow, "bench", "calibration", "--pool", *map(str, paths), "--json", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "| clean | scene | 24 |" in proc.stdout
     written = json.loads(out.read_text())
@@ -137,8 +157,12 @@ def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_
     assert written["summary"][0]["posteriors"] == 24
     assert [s["seed"] for s in written["sets"]["each"]] == [1, 2] and written["sets"]["scenes"] == 4
     assert "Each set alone" in proc.stdout and "resampled from the pooled scenes" in proc.stdout
-    proc = subprocess.run([goflow, "bench", "calibration", "--pool", str(paths[0]), "--seed", "3"],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [goflow, "bench", "calibration", "--pool", str(paths[0]), "--seed", "3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 2 and proc.stderr.strip().endswith("expected only --json and --plot")
     assert len(proc.stderr.strip().splitlines()) == 1
 
@@ -153,10 +177,22 @@ def _synthetic_rows(scenes: int, offsets: dict[str, float], seed: int = 0) -> li
             for view in ("scene", "inspect"):
                 for gear in ("small", "medium", "large"):
                     level = float(np.clip(rng.random() + offsets.get(f"{group}/{view}", 0.0), 0, 1))
-                    rows.append({"group": group, "view": view, "scene": scene, "gear": gear,
-                                 "seen": True, "informative": True, "level": level,
-                                 "xy_error_m": 1e-4, "yaw_error_rad": 1e-3, "map_error": [1e-4, 0.0, 1e-3],
-                                 "std": [1e-4, 1e-4, 1e-3], "seconds": 0.1})
+                    rows.append(
+                        {
+                            "group": group,
+                            "view": view,
+                            "scene": scene,
+                            "gear": gear,
+                            "seen": True,
+                            "informative": True,
+                            "level": level,
+                            "xy_error_m": 1e-4,
+                            "yaw_error_rad": 1e-3,
+                            "map_error": [1e-4, 0.0, 1e-3],
+                            "std": [1e-4, 1e-4, 1e-3],
+                            "seconds": 0.1,
+                        }
+                    )
     return rows
 
 
@@ -177,8 +213,10 @@ def test_resampled_sets_read_what_a_calibrated_pipeline_reads_and_less_with_an_o
 
 
 def test_pooled_sets_report_each_set_and_the_resampled_mean():
-    first = {"config": {"scenes": 50, "seed": 7, "groups": ["clean", "dim"], "levels": [0.5, 0.68, 0.8, 0.9, 0.95]},
-             "rows": _synthetic_rows(50, {}, seed=1)}
+    first = {
+        "config": {"scenes": 50, "seed": 7, "groups": ["clean", "dim"], "levels": [0.5, 0.68, 0.8, 0.9, 0.95]},
+        "rows": _synthetic_rows(50, {}, seed=1),
+    }
     second = {"config": {**first["config"], "seed": 8}, "rows": _synthetic_rows(50, {}, seed=2)}
     sets = pool_results([first, second])["sets"]
     assert [s["seed"] for s in sets["each"]] == [7, 8] and sets["scenes"] == 50

@@ -10,8 +10,7 @@ def test_bench_perception_writes_its_numbers(tmp_path, run_goflow):
     proc = run_goflow("bench", "perception", "--json", str(out), "--posteriors", "1")
     assert proc.returncode == 0, proc.stderr
     result = json.loads(out.read_text())
-    assert set(result) == {"seconds_per_posterior", "hypotheses_per_second", "renderer",
-                           "seconds_per_scene"}
+    assert set(result) == {"seconds_per_posterior", "hypotheses_per_second", "renderer", "seconds_per_scene"}
     assert result["seconds_per_scene"] > 0
     assert isinstance(result["seconds_per_posterior"], float) and result["seconds_per_posterior"] > 0
     assert result["hypotheses_per_second"] > 100
@@ -28,8 +27,22 @@ def test_bench_rejects_unknown_target_and_bad_counts(run_goflow):
 
 def test_bench_calibration_writes_summary_and_plot(tmp_path, run_goflow):
     out, plot, rows = tmp_path / "cal.json", tmp_path / "reliability.png", tmp_path / "rows.json.gz"
-    proc = run_goflow("bench", "calibration", "--scenes", "1", "--groups", "dim",
-                      "--seed", "7999", "--json", str(out), "--plot", str(plot), "--rows", str(rows))
+    proc = run_goflow(
+        "bench",
+        "calibration",
+        "--scenes",
+        "1",
+        "--groups",
+        "dim",
+        "--seed",
+        "7999",
+        "--json",
+        str(out),
+        "--plot",
+        str(plot),
+        "--rows",
+        str(rows),
+    )
     assert proc.returncode == 0, proc.stderr
     result = json.loads(out.read_text())
     assert [(s["group"], s["view"]) for s in result["summary"]] == [("dim", "scene"), ("dim", "inspect")]

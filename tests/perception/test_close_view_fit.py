@@ -11,8 +11,9 @@ from perception.likelihood import close_factor
 CLOSE_GSD = 4e-4  # the inspect camera's: teeth resolved (w = 1)
 
 
-def _rows(gear: str, fit: tuple[float, float, float], n: int, rng: np.random.Generator,
-          recorded: bool = True) -> list[dict]:
+def _rows(
+    gear: str, fit: tuple[float, float, float], n: int, rng: np.random.Generator, recorded: bool = True
+) -> list[dict]:
     """Close rows, a third under each light, whose posteriors are too wide by the inverse of the
     close factor `fit`: the truth's squared Mahalanobis distance is chi2_3 / factor."""
     lights = (("clean", 1.0), ("dim", 0.5), ("bright", 1.6))
@@ -20,9 +21,18 @@ def _rows(gear: str, fit: tuple[float, float, float], n: int, rng: np.random.Gen
     for i in range(n):
         group, g = lights[i % 3]
         d2 = rng.chisquare(3) / close_factor(CLOSE_GSD, g, *fit)
-        rows.append({"view": "inspect", "informative": True, "gear": gear, "group": group,
-                     "gsd": CLOSE_GSD, "shape": 1.0, "level": float(chi2.cdf(d2, 3)),
-                     **({"brightness": g} if recorded else {})})
+        rows.append(
+            {
+                "view": "inspect",
+                "informative": True,
+                "gear": gear,
+                "group": group,
+                "gsd": CLOSE_GSD,
+                "shape": 1.0,
+                "level": float(chi2.cdf(d2, 3)),
+                **({"brightness": g} if recorded else {}),
+            }
+        )
     return rows
 
 
@@ -31,8 +41,17 @@ def test_the_fit_finds_each_gears_amplitude_and_light_exponents(tmp_path, benchm
     rng = np.random.default_rng(5)
     # the medium gear's rows were made before the brightness was recorded: their groups give it
     rows = _rows("large", (1.1, 0.0, 0.5), 6000, rng) + _rows("medium", (1.0, 0.4, 0.0), 6000, rng, recorded=False)
-    rows.append({"view": "inspect", "informative": True, "gear": "large", "group": "oblique",
-                 "gsd": CLOSE_GSD, "shape": 1.0, "level": 0.999})  # no brightness: left out
+    rows.append(
+        {
+            "view": "inspect",
+            "informative": True,
+            "gear": "large",
+            "group": "oblique",
+            "gsd": CLOSE_GSD,
+            "shape": 1.0,
+            "level": 0.999,
+        }
+    )  # no brightness: left out
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps({"config": {}, "rows": rows}))
     loaded = mod.close_rows([path])

@@ -14,9 +14,19 @@ def _rows(mod, gear: str, a: float, b: float, n: int, rng: np.random.Generator) 
     pixels = rng.integers(300, 900, n)
     factor = mod.far_factors(gsd, pixels, a, b)
     d2 = rng.chisquare(3, n) / factor
-    return [{"view": "scene", "informative": True, "gear": gear, "group": ("clean", "dim")[i % 2],
-             "gsd": float(g), "pixels": int(p), "shape": 1.0, "level": float(chi2.cdf(d, 3))}
-            for i, (g, p, d) in enumerate(zip(gsd, pixels, d2))]
+    return [
+        {
+            "view": "scene",
+            "informative": True,
+            "gear": gear,
+            "group": ("clean", "dim")[i % 2],
+            "gsd": float(g),
+            "pixels": int(p),
+            "shape": 1.0,
+            "level": float(chi2.cdf(d, 3)),
+        }
+        for i, (g, p, d) in enumerate(zip(gsd, pixels, d2))
+    ]
 
 
 def test_the_fit_finds_each_gears_slope_and_amplitude(tmp_path, benchmark_script):

@@ -41,7 +41,15 @@ def test_close_view_is_what_the_committed_benchmark_measured():
 
 
 def test_close_view_noise_needs_a_clean_close_view():
-    rows = [{"view": "inspect", "gear": "small", "group": "dim", "seen": True, "informative": True,
-             "std": [2e-5, 2e-5, 2e-3]}]
+    rows = [
+        {
+            "view": "inspect",
+            "gear": "small",
+            "group": "dim",
+            "seen": True,
+            "informative": True,
+            "std": [2e-5, 2e-5, 2e-3],
+        }
+    ]
     with pytest.raises(ValueError, match="no informative clean close view of the small gear"):
         close_view_noise(rows)

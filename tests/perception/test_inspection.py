@@ -15,7 +15,7 @@ from perception.station_views import camera_pose, observe
 from perception.search import Prior, estimate_pose
 
 GEAR = "medium"
-BELIEF_OFFSET = np.array([0.008, -0.006])   # where inspect() thinks the gear is, off the truth
+BELIEF_OFFSET = np.array([0.008, -0.006])  # where inspect() thinks the gear is, off the truth
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def test_wrist_camera_is_close_above_the_believed_gear(inspected):
     p = X_WC.translation()
     assert p[2] == pytest.approx(GEAR_THICKNESS + InspectConfig().camera_height, abs=0.01)
     assert np.hypot(*(p[:2] - belief)) < 0.01
-    assert X_WC.rotation().matrix()[2, 2] < -0.99            # looking straight down
+    assert X_WC.rotation().matrix()[2, 2] < -0.99  # looking straight down
     tool = run.station.tool_pose(run.root_context).translation()
     assert np.linalg.norm(tool - run.plan.keyframes[-1].X_WT.translation()) < 0.002  # settled
 
@@ -62,10 +62,8 @@ def test_far_and_close_views_both_hold_the_truth(inspected):
     """Both views are informative and hold the truth in their 95 % regions. (Calibrated, the far
     view of a lone, fully visible gear is nearly as sharp as the close one: docs/perception.md.)"""
     run, truth, belief = inspected
-    close = estimate_pose(observe(run.station, run.root_context, "wrist"), GEAR,
-                          Prior(belief[0], belief[1], 0.03))
-    far = estimate_pose(observe(run.station, run.root_context, "scene"), GEAR,
-                        Prior(belief[0], belief[1], 0.03))
+    close = estimate_pose(observe(run.station, run.root_context, "wrist"), GEAR, Prior(belief[0], belief[1], 0.03))
+    far = estimate_pose(observe(run.station, run.root_context, "scene"), GEAR, Prior(belief[0], belief[1], 0.03))
     assert far.informative and close.informative, (far.reason, close.reason)
     assert far.contains(truth, 0.95) and close.contains(truth, 0.95)
     assert np.all(close.std()[:2] < 1.5 * far.std()[:2])

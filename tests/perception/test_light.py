@@ -34,8 +34,7 @@ def test_surface_normals_are_unit_and_the_top_face_points_up():
     origin = np.array([0.4, 0.0, 0.5])
     dirs = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, -0.5)])
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    hits = caster.render(origin, dirs, np.array([0, 0, 1.0]), np.array([[0.4, 0.0, 0.2]]),
-                         surface=True)
+    hits = caster.render(origin, dirs, np.array([0, 0, 1.0]), np.array([[0.4, 0.0, 0.2]]), surface=True)
     assert len(hits.pix) > 100
     np.testing.assert_allclose(np.linalg.norm(hits.normal, axis=1), 1.0, atol=1e-5)
     top = hits.depth < 0.4801  # the top face, 20 mm up, straight under the camera
@@ -49,8 +48,9 @@ def test_oblique_light_is_recovered_from_a_close_view(scene, renderer, gear):
     """Seen from above, a gear shows little wall: the large gear's walls are read on every pixel
     (the search's sparse pixels hold too few of them, and the light is then kept)."""
     truth = np.array(scene.poses[gear])
-    view = renderer.render_view(scene, "inspect", gear, "oblique", scene.rng("inspect", gear),
-                                believed_xy=tuple(truth[:2]))
+    view = renderer.render_view(
+        scene, "inspect", gear, "oblique", scene.rng("inspect", gear), believed_xy=tuple(truth[:2])
+    )
     scorer = ImageScorer(view.obs, gear_model(gear), truth[:2], 0.003)
     assert scorer.fit_light(truth, scorer.stride_for(600) if gear == "small" else 1)
     assert np.degrees(np.arccos(np.clip(scorer.light @ OBLIQUE, -1, 1))) < 3.0
@@ -75,8 +75,9 @@ def test_oblique_light_is_recovered_from_the_scene_view(scene, renderer, gear):
 @pytest.mark.parametrize("view_name", ["scene", "inspect"])
 def test_headlight_is_kept(scene, renderer, view_name):
     truth = np.array(scene.poses["medium"])
-    view = renderer.render_view(scene, view_name, "medium", "clean", scene.rng("h", view_name),
-                                believed_xy=tuple(truth[:2]))
+    view = renderer.render_view(
+        scene, view_name, "medium", "clean", scene.rng("h", view_name), believed_xy=tuple(truth[:2])
+    )
     scorer = ImageScorer(view.obs, gear_model("medium"), truth[:2], 0.003)
     headlight = scorer.light.copy()
     assert not scorer.fit_light(truth, scorer.stride_for(600))
@@ -95,8 +96,7 @@ def test_far_view_under_an_oblique_lamp_is_closer_to_the_truth(scene, renderer):
     for gear in ("small", "medium", "large"):
         truth = np.array(scene.poses[gear])
         fitted = estimate_pose(view.obs, gear_model(gear), found[gear].prior)
-        headlight = estimate_pose(view.obs, gear_model(gear), found[gear].prior,
-                                  SearchConfig(fit_light=False))
+        headlight = estimate_pose(view.obs, gear_model(gear), found[gear].prior, SearchConfig(fit_light=False))
         assert fitted.informative and "light" in fitted.info and "light" not in headlight.info
         levels[gear] = fitted.credible_level(truth)
         fitted_err.append(np.hypot(*(fitted.map_pose - truth)[:2]))
@@ -111,4 +111,4 @@ def test_light_fit_needs_walls(scene, renderer):
     truth = np.array(scene.poses["small"])
     view = renderer.render_view(scene, "scene", None, "oblique", scene.rng("scene", "oblique"))
     scorer = ImageScorer(view.obs, gear_model("small"), truth[:2], 0.003)
-    assert not scorer.fit_light(truth, 1, min_walls=10 ** 6)
+    assert not scorer.fit_light(truth, 1, min_walls=10**6)

@@ -11,7 +11,7 @@ def test_laplace_near_and_outlier_floor_far():
     rgb, d = np.array([[0.5, 0.4, 0.3]]), np.array([0.3])
     exact = cfg.pixel_loglik(rgb, d, rgb, d)[0]
     off = cfg.pixel_loglik(rgb, d, rgb, d + 0.005)[0]
-    assert exact - off == pytest.approx(1.0, abs=1e-3)          # one b_d away: exp(-1)
+    assert exact - off == pytest.approx(1.0, abs=1e-3)  # one b_d away: exp(-1)
     far = cfg.pixel_loglik(rgb, d, rgb + 0.5, d + 1.0)[0]
     assert far == pytest.approx(np.log(0.1 / cfg.depth_range), abs=1e-6)  # only the outlier term
     assert cfg.is_inlier(rgb, d, rgb, d)[0] and not cfg.is_inlier(rgb, d, rgb + 0.5, d)[0]
@@ -34,8 +34,9 @@ def test_gear_tempering_is_a_factor_on_the_shared_law():
     assert cfg.tempering_for("medium", g0) == pytest.approx(0.5 * base.tempering_for("medium", g0))
     assert cfg.tempering_for("medium", 3 * g0) == pytest.approx(1.5 * base.tempering_for("medium", 3 * g0))
     assert cfg.tempering_for("large", 3 * g0) == pytest.approx(base.tempering_for("large", 3 * g0))
-    assert LikelihoodConfig(tempering=0.01, gear_tempering={"large": (2.0, 0.0)}).tempering_for(
-        "large", g0) == 0.01  # a fixed exponent overrides the law
+    assert (
+        LikelihoodConfig(tempering=0.01, gear_tempering={"large": (2.0, 0.0)}).tempering_for("large", g0) == 0.01
+    )  # a fixed exponent overrides the law
     with pytest.raises(ValueError, match="unknown gear 'huge'"):
         LikelihoodConfig(gear_tempering={"huge": (1.0, 0.0)})
     with pytest.raises(ValueError, match=r"gear_tempering\['small'\]"):
@@ -55,9 +56,14 @@ def test_evidence_factor_follows_occlusion_where_teeth_are_resolved_and_depth_no
     noisy = cfg.evidence_factor(close, 1.0, cfg.b_d)
     assert noisy == pytest.approx(1 / np.sqrt(2))
     assert LikelihoodConfig(occlusion_exponent=0.0, noise_exponent=0.0).evidence_factor(
-        close, 0.3, 0.01) == pytest.approx(1.0)
-    for kwargs, name in (({"gsd": 0.0}, "gsd"), ({"visible": 0.0}, "visible"),
-                         ({"visible": 1.5}, "visible"), ({"depth_noise": float("nan")}, "depth_noise")):
+        close, 0.3, 0.01
+    ) == pytest.approx(1.0)
+    for kwargs, name in (
+        ({"gsd": 0.0}, "gsd"),
+        ({"visible": 0.0}, "visible"),
+        ({"visible": 1.5}, "visible"),
+        ({"depth_noise": float("nan")}, "depth_noise"),
+    ):
         args = {"gsd": close, "visible": 1.0, "depth_noise": 0.0, **kwargs}
         with pytest.raises(ValueError, match=name):
             cfg.evidence_factor(**args)
@@ -80,15 +86,16 @@ def test_a_fitted_lamp_discounts_the_evidence_where_the_teeth_are_not_resolved()
 def test_the_colour_scale_follows_the_light_by_view():
     """A dimmer light narrows b_rgb by brightness^brightness_exponent in every view; a brighter one
     widens it by brightness^e, e blended from (unresolved, resolved teeth) by the view."""
-    cfg = LikelihoodConfig(b_rgb=0.1, brightness_exponent=0.5, bright_exponent=(1.0, 0.5),
-                           colour_scale_factor=(1.0, 1.0))
+    cfg = LikelihoodConfig(
+        b_rgb=0.1, brightness_exponent=0.5, bright_exponent=(1.0, 0.5), colour_scale_factor=(1.0, 1.0)
+    )
     close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
     assert cfg.colour_scale_for(1.0, coarse) == pytest.approx(0.1)
     assert cfg.colour_scale_for(0.25, coarse) == pytest.approx(0.05)
     assert cfg.colour_scale_for(0.25, close) == pytest.approx(0.05)
     assert cfg.colour_scale_for(4.0, coarse) == pytest.approx(0.4)
     assert cfg.colour_scale_for(4.0, close) == pytest.approx(0.2)
-    assert cfg.colour_scale_for(4.0, half) == pytest.approx(0.1 * 4.0 ** 0.75)
+    assert cfg.colour_scale_for(4.0, half) == pytest.approx(0.1 * 4.0**0.75)
     assert cfg.colour_scale_for(9.0, coarse) == pytest.approx(0.4)  # the gain is clipped to [0.25, 4]
     with pytest.raises(ValueError, match="brightness"):
         cfg.colour_scale_for(float("nan"), close)
@@ -109,9 +116,13 @@ def test_the_colour_scale_follows_the_light_by_view():
 def test_the_far_reshaping_follows_the_sampled_pixels_of_the_gears_it_names_where_teeth_are_not_resolved():
     """reshaping_for(gsd, gear, pixels) multiplies the view's factor by (a (pixels / n_far)^b)^(1 - w)
     for a gear in far_reshaping; the close view (teeth resolved), other gears and gear None keep it."""
-    cfg = LikelihoodConfig(posterior_factor=(0.8, 1.0), shape_exponent=(1.1, 1.4),
-                           far_reshaping={"small": (0.9, 1.0)}, far_reference_pixels=600.0,
-                           close_reshaping={})
+    cfg = LikelihoodConfig(
+        posterior_factor=(0.8, 1.0),
+        shape_exponent=(1.1, 1.4),
+        far_reshaping={"small": (0.9, 1.0)},
+        far_reference_pixels=600.0,
+        close_reshaping={},
+    )
     close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
     assert cfg.reshaping_for(close, "small", 300) == pytest.approx((1.0, 1.4))
     assert cfg.reshaping_for(close) == pytest.approx((1.0, 1.4))
@@ -178,8 +189,10 @@ def test_a_hypothesis_scores_its_pixels_against_the_bare_table(plain_scene, clos
     ps = scorer.pixels(stride)
     hits = scorer.caster.render(ps.origin, ps.dirs, scorer.light, hyps)
     rgb_hat = np.minimum(hits.rgb * scorer.conditions.gain, 1.0)
-    terms = scorer.pixels_model.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat,
-                                             hits.depth) - ps.delta_bg[hits.pix]
+    terms = (
+        scorer.pixels_model.pixel_loglik(ps.rgb[hits.pix], ps.depth[hits.pix], rgb_hat, hits.depth)
+        - ps.delta_bg[hits.pix]
+    )
     expected = ps.weight * np.bincount(hits.hyp, weights=terms, minlength=3)
     np.testing.assert_allclose(scores.loglik, expected, rtol=1e-9)
     np.testing.assert_array_equal(scores.pixels, np.bincount(hits.hyp, minlength=3))
@@ -190,13 +203,19 @@ def test_the_close_reshaping_follows_the_light_for_the_gears_it_names_where_teet
     """reshaping_for(gsd, gear, pixels, brightness) multiplies the view's factor by (a g^c)^w for a
     gear in close_reshaping, c = c_dim below g = 1 and c_bright above; the far view (teeth not
     resolved), other gears and gear None keep it."""
-    cfg = LikelihoodConfig(posterior_factor=(0.8, 1.0), shape_exponent=(1.1, 1.4), far_reshaping={},
-                           close_reshaping={"large": (1.1, 0.5, -1.0)})
+    cfg = LikelihoodConfig(
+        posterior_factor=(0.8, 1.0),
+        shape_exponent=(1.1, 1.4),
+        far_reshaping={},
+        close_reshaping={"large": (1.1, 0.5, -1.0)},
+    )
     close, coarse, half = np.pi * 1e-3 / 8, np.pi * 1e-3 / 2, np.pi * 1e-3 / 4  # 8, 2, 4 pixels a tooth
     assert cfg.reshaping_for(close, "large") == pytest.approx((1.1, 1.4))
-    assert cfg.reshaping_for(close, "large", brightness=0.5) == pytest.approx((1.1 * 0.5 ** 0.5, 1.4))
+    assert cfg.reshaping_for(close, "large", brightness=0.5) == pytest.approx((1.1 * 0.5**0.5, 1.4))
     assert cfg.reshaping_for(close, "large", brightness=1.6) == pytest.approx((1.1 / 1.6, 1.4))
-    assert cfg.reshaping_for(close, "large", brightness=100.0)[0] == pytest.approx(1.1 / 4.0)  # clipped like the colour scale
+    assert cfg.reshaping_for(close, "large", brightness=100.0)[0] == pytest.approx(
+        1.1 / 4.0
+    )  # clipped like the colour scale
     assert cfg.reshaping_for(half, "large", brightness=1.6)[0] == pytest.approx(np.sqrt(0.8) * np.sqrt(1.1 / 1.6))
     assert cfg.reshaping_for(coarse, "large", brightness=1.6) == pytest.approx((0.8, 1.1))
     assert cfg.reshaping_for(close, "medium", brightness=1.6) == pytest.approx((1.0, 1.4))

@@ -54,7 +54,7 @@ def test_marginals_and_entropies():
         v, p = post.marginal(dim)
         assert p.sum() == pytest.approx(1.0)
         # differential entropy of a Gaussian: 0.5 log(2 pi e sigma^2)
-        assert post.marginal_entropy(dim) == pytest.approx(0.5 * np.log(2 * np.pi * np.e * sigma ** 2), abs=0.02)
+        assert post.marginal_entropy(dim) == pytest.approx(0.5 * np.log(2 * np.pi * np.e * sigma**2), abs=0.02)
     with pytest.raises(ValueError, match="unknown dimension"):
         post.marginal("z")
 
@@ -71,8 +71,8 @@ def test_modes_split_the_yaw_mass():
 def test_credible_region_contains():
     post = _gaussian()
     assert post.contains([0.4, -0.1, 3.1], 0.9)
-    assert not post.contains([0.4 + 0.005, -0.1, 3.1], 0.9)   # 5 sigma off in x
-    assert not post.contains([0.5, -0.1, 3.1], 0.9)           # off the grid
+    assert not post.contains([0.4 + 0.005, -0.1, 3.1], 0.9)  # 5 sigma off in x
+    assert not post.contains([0.5, -0.1, 3.1], 0.9)  # off the grid
     assert post.credible_mask(0.9).sum() < post.credible_mask(0.99).sum()
     with pytest.raises(ValueError, match="level"):
         post.credible_mask(1.5)
@@ -97,8 +97,7 @@ def test_support_is_hard_and_std_includes_the_cell_width():
     xs = np.linspace(0.39, 0.41, 5)
     offs = np.linspace(-0.01, 0.01, 5)
     ll = np.zeros((1, 5, 5, 5))
-    post = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, ll,
-                         support=(0.3925, 0.41, -0.01, 0.01))
+    post = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, ll, support=(0.3925, 0.41, -0.01, 0.01))
     assert post.probability(x=(0.0, 0.3925)) == pytest.approx(0.0, abs=1e-12)
     assert post.sample(2000, seed=0)[:, 0].min() >= 0.3925
     assert post.cell_of([0.39, 0.0, 0.0]) is None and post.credible_level([0.39, 0.0, 0.0]) == 1.0
@@ -112,18 +111,19 @@ def test_support_is_hard_and_std_includes_the_cell_width():
 def test_symmetry_class_and_credible_levels_of_own_samples_are_uniform():
     pitch = 2 * np.pi / 40
     post = _gaussian(sigma=(0.001, 0.002, 0.01), centre=(0.4, -0.1, 0.0))
-    post = PosePosterior("medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets * 0.5,
-                         post.log_mass, period=pitch)
+    post = PosePosterior(
+        "medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets * 0.5, post.log_mass, period=pitch
+    )
     truth = post.sample(1, seed=3)[0]
     assert post.credible_level(truth) == post.credible_level(truth + [0, 0, 7 * pitch])
-    assert post.probability(yaw=(truth[2] + 3 * pitch - pitch / 2, truth[2] + 3 * pitch + pitch / 2)) \
-        == pytest.approx(1.0)
+    assert post.probability(yaw=(truth[2] + 3 * pitch - pitch / 2, truth[2] + 3 * pitch + pitch / 2)) == pytest.approx(
+        1.0
+    )
     levels = np.array([post.credible_level(p) for p in post.sample(3000, seed=4)])
     for q in (0.5, 0.68, 0.9, 0.95):
         assert np.mean(levels < q) == pytest.approx(q, abs=0.03)
     with pytest.raises(ValueError, match="period"):
-        PosePosterior("medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets, post.log_mass,
-                      period=0.3)
+        PosePosterior("medium", post.xs, post.ys, post.mode_yaws, post.yaw_offsets, post.log_mass, period=0.3)
 
 
 def test_tempered_scales_the_evidence_and_keeps_the_support():
@@ -135,8 +135,7 @@ def test_tempered_scales_the_evidence_and_keeps_the_support():
     xs = np.linspace(0.39, 0.41, 5)
     offs = np.linspace(-0.01, 0.01, 5)
     ll = -np.arange(5.0)[None, :, None, None] * np.ones((1, 5, 5, 5))
-    cut = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, ll,
-                        support=(0.39, 0.41, -0.01, 0.01))
+    cut = PosePosterior("medium", xs, xs - 0.4, np.zeros(1), offs, ll, support=(0.39, 0.41, -0.01, 0.01))
     # the half cells at the support's edges keep half their (rescaled) mass, none lies outside
     hot = cut.tempered(2.0)
     assert hot.sample(2000, seed=0)[:, 0].min() >= 0.39 and hot.support == cut.support
@@ -158,7 +157,7 @@ def test_reshaped_keeps_the_cells_and_the_order_and_is_undone_by_its_inverse():
     # the densities' order is kept: the same cells rank the same
     order = np.argsort(-post.log_mass.ravel(), kind="stable")
     assert np.all(np.diff(out.log_mass.ravel()[order]) <= 1e-12)
-    np.testing.assert_allclose(out.reshaped(f ** -g, 1.0 / g).log_mass, post.log_mass, atol=1e-9)
+    np.testing.assert_allclose(out.reshaped(f**-g, 1.0 / g).log_mass, post.log_mass, atol=1e-9)
     # a Gaussian's deficit D = r^2 / 2 made (f D)^g: below 1 the core widens, above 1 the tails fall faster
     assert np.all(post.reshaped(0.5, 1.0).std() > post.std())
     truth = np.array([0.4 + 0.0025, -0.1, 3.1])  # 2.5 sigma out in x
@@ -182,13 +181,16 @@ def test_upsampled_keeps_the_scored_cells_and_resolves_a_coarse_posterior():
     fine = coarse.upsampled(3)
     assert coarse.upsampled(1) is coarse
     assert fine.log_mass.shape == (1, 19, 19, 19)
-    np.testing.assert_allclose(fine.log_mass[0, ::3, ::3, ::3] - fine.log_mass.max(),
-                               coarse.log_mass[0] - coarse.log_mass.max(), atol=1e-9)
+    np.testing.assert_allclose(
+        fine.log_mass[0, ::3, ::3, ::3] - fine.log_mass.max(), coarse.log_mass[0] - coarse.log_mass.max(), atol=1e-9
+    )
     rng = np.random.default_rng(0)
     truths = np.array([0.4 + 1.7e-5, -0.1, -7e-4]) + rng.standard_normal((3000, 3)) * sigma
     q = np.array([0.5, 0.68, 0.8, 0.9, 0.95])
-    coverage = {name: np.mean(np.array([p.credible_level(t) for t in truths])[:, None] < q, axis=0)
-                for name, p in (("coarse", coarse), ("fine", fine))}
+    coverage = {
+        name: np.mean(np.array([p.credible_level(t) for t in truths])[:, None] < q, axis=0)
+        for name, p in (("coarse", coarse), ("fine", fine))
+    }
     assert np.abs(coverage["fine"] - q).max() < 0.04, coverage
     assert np.abs(coverage["fine"] - q).max() < np.abs(coverage["coarse"] - q).max(), coverage
     for bad in (0, 1.5, True):

@@ -18,7 +18,8 @@ def _gaussian_score(peak: np.ndarray):
     def score(poses, stride):
         z = (np.atleast_2d(poses) - peak) / SIGMA
         n = len(z)
-        return Scores(-0.5 * (z ** 2).sum(axis=1), np.full(n, 600), np.full(n, 600))
+        return Scores(-0.5 * (z**2).sum(axis=1), np.full(n, 600), np.full(n, 600))
+
     return score
 
 
@@ -39,8 +40,7 @@ def test_grid_is_refitted_to_a_peak_off_the_map():
     assert np.all(probed.std() > 1.2 * SIGMA)
 
 
-@pytest.mark.parametrize("bad", [{"adapt": 0}, {"max_edge_mass": 0.0}, {"grid_step_std": -1.0},
-                                 {"max_cell_mass": 1.5}])
+@pytest.mark.parametrize("bad", [{"adapt": 0}, {"max_edge_mass": 0.0}, {"grid_step_std": -1.0}, {"max_cell_mass": 1.5}])
 def test_bad_grid_settings_are_refused(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         SearchConfig(**bad)

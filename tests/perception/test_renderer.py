@@ -18,13 +18,12 @@ def test_height_map_is_the_top_surface(gear):
     assert hm.top == pytest.approx(GEAR_THICKNESS, abs=1e-7)
     c = hm.size // 2
     r_px = int((GEAR_BORE_RADIUS - 1e-4) / hm.texel)
-    assert hm.height[c, c - r_px + 2] < 0                      # the bore is empty
+    assert hm.height[c, c - r_px + 2] < 0  # the bore is empty
     ring = int((GEAR_BORE_RADIUS + GEAR_BORE_CHAMFER + 1e-3) / hm.texel)
     assert hm.height[c, c + ring] == pytest.approx(GEAR_THICKNESS, abs=1e-6)
     tip = int((GEARS[gear].tip_radius + 1e-4) / hm.texel)
-    assert hm.height[c, c + tip] < 0                           # outside the tips
-    assert gear_model(gear, marked=True).height_map().top == pytest.approx(
-        GEAR_THICKNESS + MARKER_HEIGHT, abs=1e-7)
+    assert hm.height[c, c + tip] < 0  # outside the tips
+    assert gear_model(gear, marked=True).height_map().top == pytest.approx(GEAR_THICKNESS + MARKER_HEIGHT, abs=1e-7)
     assert gear_model(gear, marked=True).symmetry == 1
     assert gear_model(gear).symmetry == GEARS[gear].teeth
 
@@ -36,7 +35,7 @@ def test_depth_agrees_with_drake(gear, view):
     camera = close_camera(0.42, -0.05) if view == "close" else default_scene_camera()
     obs = scene.render(camera, camera.X_PC)
     k = obs.intrinsics
-    v, u = np.mgrid[0:k.height, 0:k.width]
+    v, u = np.mgrid[0 : k.height, 0 : k.width]
     origin, dirs = obs.rays_W(u.ravel(), v.ravel())
     caster = RayCaster(gear_model(gear, marked=gear == "small"))
     light = -camera.X_PC.rotation().matrix()[:, 2]

@@ -17,9 +17,23 @@ def _rows(factor: float, exponent: float, n: int, rng: np.random.Generator) -> l
     u = rng.gamma(1.5 / exponent, size=n)
     deficit = u ** (1 / exponent) / factor
     groups = ("clean", "dropout_3", "dim")
-    return [{"view": "inspect", "informative": True, "seen": True, "scene": i // 3, "gear": "small", "group": groups[i % 3],
-             "gsd": CLOSE_GSD, "pixels": 3000, "posterior_factor": 1.0, "shape": 1.0,
-             "brightness": 1.0, "level": float(gammainc(1.5, d))} for i, d in enumerate(deficit)]
+    return [
+        {
+            "view": "inspect",
+            "informative": True,
+            "seen": True,
+            "scene": i // 3,
+            "gear": "small",
+            "group": groups[i % 3],
+            "gsd": CLOSE_GSD,
+            "pixels": 3000,
+            "posterior_factor": 1.0,
+            "shape": 1.0,
+            "brightness": 1.0,
+            "level": float(gammainc(1.5, d)),
+        }
+        for i, d in enumerate(deficit)
+    ]
 
 
 def test_the_fit_finds_the_reshaping_that_calibrates_the_rows(tmp_path, benchmark_script):
@@ -30,11 +44,13 @@ def test_the_fit_finds_the_reshaping_that_calibrates_the_rows(tmp_path, benchmar
     data = mod.Reading(mod.shape_rows([path]), base)
     before = mod.coverage(data.at(1, 1.0, 1.0), np.array([0.5, 0.9]))
     assert before[0] > 0.55  # unreshaped, the rows' core is too wide
-    _, factor, exponent = mod.fit_pair(data, 1, factors=np.array([1.0, 1.1, 1.2]),
-                                       exponents=np.array([1.0, 1.2, 1.3, 1.4]))
+    _, factor, exponent = mod.fit_pair(
+        data, 1, factors=np.array([1.0, 1.1, 1.2]), exponents=np.array([1.0, 1.2, 1.3, 1.4])
+    )
     assert (factor, exponent) == (1.1, 1.3)
-    np.testing.assert_allclose(mod.coverage(data.at(1, factor, exponent), np.array([0.5, 0.8, 0.95])),
-                               [0.5, 0.8, 0.95], atol=0.02)
+    np.testing.assert_allclose(
+        mod.coverage(data.at(1, factor, exponent), np.array([0.5, 0.8, 0.95])), [0.5, 0.8, 0.95], atol=0.02
+    )
     # the unresolved pair does not reach a close view (w = 1)
     np.testing.assert_allclose(data.at(0, 0.5, 1.6), data.at(0, 2.0, 1.0))
 
@@ -58,8 +74,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, benchmark_script):
     good = tmp_path / "good.json"
     good.write_text(json.dumps({"rows": _rows(1.0, 1.25, 30, np.random.default_rng(0))}))
     plain = tmp_path / "plain.json"  # tuning rows without shaped levels
-    plain.write_text(json.dumps({"config": {"tempering_factors": [1.0], "groups": ["clean"], "seed": 1},
-                                 "rows": []}))
+    plain.write_text(json.dumps({"config": {"tempering_factors": [1.0], "groups": ["clean"], "seed": 1}, "rows": []}))
     assert mod.main(["--results", str(good), "--tuning-rows", str(plain)]) == 2
     assert "no shaped levels" in capsys.readouterr().err
     assert mod.main(["--results", str(good), "--json", str(good / "fit.json")]) == 2  # a file in the way

@@ -10,7 +10,11 @@ import pytest
 from assembly.gearset import GEAR_THICKNESS
 from assembly.world import PLACEMENT_X, PLACEMENT_Y, WorldConfig
 from perception.scenes import (
-    DEPTH_NOISE_REFERENCE, INSPECT_OFFSET, PERTURBATIONS, RandomScene, SceneRenderer,
+    DEPTH_NOISE_REFERENCE,
+    INSPECT_OFFSET,
+    PERTURBATIONS,
+    RandomScene,
+    SceneRenderer,
     random_scenes,
 )
 
@@ -30,8 +34,17 @@ def _render(renderer, scene, perturbation, view="scene", gear=None, tag="t"):
 
 
 def test_catalogue():
-    for name in ("clean", "depth_noise", "dropout_3", "dropout_10", "dim", "bright", "oblique",
-                 "occluded_hand", "occluded_gear"):
+    for name in (
+        "clean",
+        "depth_noise",
+        "dropout_3",
+        "dropout_10",
+        "dim",
+        "bright",
+        "oblique",
+        "occluded_hand",
+        "occluded_gear",
+    ):
         assert PERTURBATIONS[name].name == name
     with pytest.raises(dataclasses.FrozenInstanceError):
         PERTURBATIONS["clean"].dropout = 0.5

@@ -25,8 +25,13 @@ def X_WS(gear):
 
 @pytest.fixture(scope="module")
 def scene():
-    return DrakeScene(SceneConfig(gears={g: (0.3, 0.0, 0.0) for g in GEAR_NAMES},
-                                  plate_pose=WorldConfig().plate_pose, occluders={"hand": "hand"}))
+    return DrakeScene(
+        SceneConfig(
+            gears={g: (0.3, 0.0, 0.0) for g in GEAR_NAMES},
+            plate_pose=WorldConfig().plate_pose,
+            occluders={"hand": "hand"},
+        )
+    )
 
 
 def look(scene, gear, X_SG, heading=np.pi / 2, X_WT=None):

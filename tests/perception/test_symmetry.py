@@ -18,8 +18,9 @@ GEAR = "medium"
 def repeat_masses(post: PosePosterior, truth_yaw: float, teeth: int) -> np.ndarray:
     """Mass within half a tooth pitch of each repeat truth_yaw + k * pitch."""
     pitch = 2 * np.pi / teeth
-    return np.array([post.probability(yaw=(truth_yaw + (k - 0.5) * pitch, truth_yaw + (k + 0.5) * pitch))
-                     for k in range(teeth)])
+    return np.array(
+        [post.probability(yaw=(truth_yaw + (k - 0.5) * pitch, truth_yaw + (k + 0.5) * pitch)) for k in range(teeth)]
+    )
 
 
 def effective_repeats(m: np.ndarray) -> float:
@@ -71,7 +72,7 @@ def test_marked_gear_close_view_concentrates_on_the_true_repeat(marked_scene, po
     x, y, yaw = poses[GEAR]
     teeth = gear_spec(GEAR).teeth
     m = repeat_masses(close, yaw, teeth)
-    assert m[0] > 0.9, m                                  # repeat 0 is the truth
+    assert m[0] > 0.9, m  # repeat 0 is the truth
     assert effective_repeats(m) < 1.5
     assert abs(wrap(close.map_pose[2] - yaw)) < np.radians(3.0)
     # the close view settles which repeat it is: its yaw spread over the turn is far smaller (the

@@ -17,13 +17,16 @@ def views():
     renderer = SceneRenderer()
     scene = next(iter(random_scenes(101, 1)))  # a tuning seed (the benchmark's start at 7000)
     truth = np.array(scene.poses["large"])
-    return truth, {v: renderer.render_view(scene, v, "large", "clean", scene.rng("t", v),
-                                            believed_xy=tuple(truth[:2])) for v in ("scene", "inspect")}
+    return truth, {
+        v: renderer.render_view(scene, v, "large", "clean", scene.rng("t", v), believed_xy=tuple(truth[:2]))
+        for v in ("scene", "inspect")
+    }
 
 
 def _scorer(obs: Observation, truth: np.ndarray, depth: np.ndarray | None = None, X_WC=None) -> ImageScorer:
-    obs = Observation(obs.rgb, obs.depth if depth is None else depth, obs.intrinsics,
-                      obs.X_WC if X_WC is None else X_WC)
+    obs = Observation(
+        obs.rgb, obs.depth if depth is None else depth, obs.intrinsics, obs.X_WC if X_WC is None else X_WC
+    )
     return ImageScorer(obs, gear_model("large"), truth[:2], 0.02)
 
 
@@ -46,6 +49,7 @@ def test_pixel_noise_is_read_and_a_bias_is_not_noise(views, view):
 
 def test_a_camera_off_its_pose_is_not_noise(views):
     from pydrake.math import RigidTransform
+
     truth, rendered = views
     obs = rendered["scene"].obs
     moved = obs.X_WC @ RigidTransform([0.015, 0.0, -0.01])  # the pipeline believes the wrong pose

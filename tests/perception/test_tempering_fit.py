@@ -1,6 +1,5 @@
 """The tempering fit (benchmarks/perception_tempering.py) on rows whose miscalibration is known."""
 
-
 from dataclasses import replace
 
 import numpy as np
@@ -23,17 +22,26 @@ def test_fit_recovers_each_gears_factor(benchmark_script):
         for view, gsd in (("scene", 1.2e-3), ("inspect", 4.1e-4)):
             m2 = k * rng.chisquare(3, 1000)
             for i, d2 in enumerate(m2):
-                rows.append({"gear": gear, "view": view, "group": "clean", "gsd": gsd, "pixels": 600,
-                             "tempering": bare.tempering_for(gear, gsd), "inlier_fraction": 1.0,
-                             "depth_noise": 0.0, "level": float(chi2.cdf(d2, 3)),
-                             "scaled_levels": chi2.cdf(d2 * factors, 3).tolist()})
+                rows.append(
+                    {
+                        "gear": gear,
+                        "view": view,
+                        "group": "clean",
+                        "gsd": gsd,
+                        "pixels": 600,
+                        "tempering": bare.tempering_for(gear, gsd),
+                        "inlier_fraction": 1.0,
+                        "depth_noise": 0.0,
+                        "level": float(chi2.cdf(d2, 3)),
+                        "scaled_levels": chi2.cdf(d2 * factors, 3).tolist(),
+                    }
+                )
     data = mod.Rows(rows, factors)
-    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]),
-                     lamp=np.array([1.0]))
+    fitted = mod.fit(data, LikelihoodConfig(), occlusion=np.array([0.5]), noise=np.array([0.5]), lamp=np.array([1.0]))
     for gear, k in truth.items():
         a, b = fitted.gear_tempering[gear]
-        assert abs(np.log(a * k)) < 0.12, (gear, a, 1 / k)   # A ~ 1 / k, within 12 %
-        assert abs(b) <= 0.15, (gear, b)                       # the same at both pixel sizes
+        assert abs(np.log(a * k)) < 0.12, (gear, a, 1 / k)  # A ~ 1 / k, within 12 %
+        assert abs(b) <= 0.15, (gear, b)  # the same at both pixel sizes
     levels = data.levels(data.scale(fitted))
     cover = mod.coverage(levels, np.array([0.5, 0.9]))
     np.testing.assert_allclose(cover, [0.5, 0.9], atol=0.04)
@@ -48,7 +56,7 @@ def _radial_levels(r_truth: np.ndarray, deficit, factors, shapes) -> np.ndarray:
     out = np.empty((len(r_truth), len(shapes), len(factors)))
     for i, g in enumerate(shapes):
         for j, f in enumerate(factors):
-            dens = np.exp(-(f * deficit(r)) ** g) * r ** 2
+            dens = np.exp(-((f * deficit(r)) ** g)) * r**2
             cdf = np.cumsum(dens) / dens.sum()
             out[:, i, j] = np.interp(r_truth, r, cdf)
     return out
@@ -68,25 +76,41 @@ def test_fit_recovers_the_reshaping(benchmark_script):
     rows = []
     for view, gsd, f, g in (("scene", 2e-3, 1.0, 1.0), ("inspect", 4.1e-4, f_true, 1.25)):
         r_truth = np.sqrt(rng.chisquare(3, 2000))
-        table = _radial_levels(r_truth, lambda r, f=f, g=g: (r ** 2 / 2) ** (1 / g) / f, factors, shapes)
+        table = _radial_levels(r_truth, lambda r, f=f, g=g: (r**2 / 2) ** (1 / g) / f, factors, shapes)
         for i in range(len(r_truth)):
-            rows.append({"gear": "medium", "view": view, "group": "clean", "gsd": gsd, "pixels": 600,
-                         "tempering": bare.tempering_for("medium", gsd), "inlier_fraction": 1.0,
-                         "depth_noise": 0.0, "level": float(table[i, 1, 16]),
-                         "scaled_levels": table[i, 1].tolist(), "shaped_levels": table[i].tolist()})
+            rows.append(
+                {
+                    "gear": "medium",
+                    "view": view,
+                    "group": "clean",
+                    "gsd": gsd,
+                    "pixels": 600,
+                    "tempering": bare.tempering_for("medium", gsd),
+                    "inlier_fraction": 1.0,
+                    "depth_noise": 0.0,
+                    "level": float(table[i, 1, 16]),
+                    "scaled_levels": table[i, 1].tolist(),
+                    "shaped_levels": table[i].tolist(),
+                }
+            )
     data = mod.Rows(rows, factors, shapes)
-    base = LikelihoodConfig(gear_tempering={}, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0),
-                            far_reshaping={}, close_reshaping={})
+    base = LikelihoodConfig(
+        gear_tempering={}, posterior_factor=(1.0, 1.0), shape_exponent=(1.0, 1.0), far_reshaping={}, close_reshaping={}
+    )
     fitted = mod.fit_reshaping(data, base, factors=factors[[12, 14, 16]], shapes=np.array([1.0, 1.25]))
     assert fitted.shape_exponent == (1.0, 1.25)
     np.testing.assert_allclose(fitted.posterior_factor, (1.0, f_true), atol=1e-4)
     levels = data.at(fitted)
     for view in ("scene", "inspect"):
         m = np.array([r["view"] == view for r in rows])
-        np.testing.assert_allclose(mod.coverage(levels[m], np.array([0.5, 0.8, 0.95])),
-                                   [0.5, 0.8, 0.95], atol=0.05)
-    held = mod.fit_reshaping(data, replace(base, posterior_factor=(0.9, 1.0), shape_exponent=(1.1, 1.0)),
-                             factors=factors[[12, 14, 16]], shapes=np.array([1.0, 1.25]), sides=(1,))
+        np.testing.assert_allclose(mod.coverage(levels[m], np.array([0.5, 0.8, 0.95])), [0.5, 0.8, 0.95], atol=0.05)
+    held = mod.fit_reshaping(
+        data,
+        replace(base, posterior_factor=(0.9, 1.0), shape_exponent=(1.1, 1.0)),
+        factors=factors[[12, 14, 16]],
+        shapes=np.array([1.0, 1.25]),
+        sides=(1,),
+    )
     assert (held.posterior_factor[0], held.shape_exponent[0]) == (0.9, 1.1)  # the far side held
     assert held.shape_exponent[1] == 1.25
     close = np.array([r["view"] == "inspect" for r in rows])

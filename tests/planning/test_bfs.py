@@ -23,8 +23,7 @@ def domain(**kw):
 
 
 def start(stds):
-    return BeliefState.of({g: GearBelief("table", (0.4, 0.1 * i, 0.0), s)
-                           for i, (g, s) in enumerate(stds.items())})
+    return BeliefState.of({g: GearBelief("table", (0.4, 0.1 * i, 0.0), s) for i, (g, s) in enumerate(stds.items())})
 
 
 def test_the_two_wide_beliefs_are_inspected_and_the_sharp_one_is_not():
@@ -42,14 +41,14 @@ def test_the_two_wide_beliefs_are_inspected_and_the_sharp_one_is_not():
 
 
 def test_order_is_respected():
-    plan = plan_bfs(start({"small": SHARP, "medium": SHARP, "large": SHARP}),
-                    domain(order=("large", "medium", "small")))
+    plan = plan_bfs(
+        start({"small": SHARP, "medium": SHARP, "large": SHARP}), domain(order=("large", "medium", "small"))
+    )
     assert [g for s, g in plan.pairs() if s == "insert"] == ["large", "medium", "small"]
 
 
 def test_no_plan_names_the_gear_and_why():
-    never = domain(preconditions={"small": capture(2e-3), "medium": capture(0.0),
-                                  "large": capture(2e-3)})
+    never = domain(preconditions={"small": capture(2e-3), "medium": capture(0.0), "large": capture(2e-3)})
     plan = plan_bfs(start({"small": SHARP, "medium": SHARP, "large": WIDE}), never)
     assert not plan.found and plan.steps == []
     assert "medium" in plan.reason and "large" not in plan.reason
@@ -86,6 +85,7 @@ def test_bad_goal_and_missing_skill_are_named():
 @pytest.fixture(scope="module")
 def shipped():
     from planning.domain import gearbox_domain
+
     return gearbox_domain()
 
 
@@ -96,8 +96,11 @@ def test_shipped_skills_insert_perceived_gears_and_inspect_a_wide_one(shipped):
     from planning.domain import table_belief
 
     sharp = (6e-5, 6e-5, 0.003)
-    beliefs = {"small": table_belief((0.4, 0.1, 0.2), sharp), "medium": table_belief((0.45, 0.0, 1.0), (2e-3, 2e-3, 0.02)),
-               "large": table_belief((0.5, -0.1, -0.5), sharp)}
+    beliefs = {
+        "small": table_belief((0.4, 0.1, 0.2), sharp),
+        "medium": table_belief((0.45, 0.0, 1.0), (2e-3, 2e-3, 0.02)),
+        "large": table_belief((0.5, -0.1, -0.5), sharp),
+    }
     plan = plan_bfs(BeliefState.of(beliefs), shipped)
     assert plan.found, plan.reason
     assert [g for s, g in plan.pairs() if s == "inspect"] == ["medium"]

@@ -14,8 +14,9 @@ def _X_WG(pose):
 
 
 def _X_WT(tool, height):
-    return RigidTransform(RotationMatrix.MakeZRotation(tool[2]) @ RotationMatrix.MakeXRotation(np.pi),
-                          [tool[0], tool[1], height])
+    return RigidTransform(
+        RotationMatrix.MakeZRotation(tool[2]) @ RotationMatrix.MakeXRotation(np.pi), [tool[0], tool[1], height]
+    )
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -29,8 +30,9 @@ def test_grasp_error_is_the_gear_pose_in_the_tool_frame(seed):
     X_WG = _X_WT(tool, 0.0) @ X_TG
     expected = _X_WG(pose)
     np.testing.assert_allclose(X_WG.translation()[:2], expected.translation()[:2], atol=1e-12)
-    np.testing.assert_allclose(RollPitchYaw(X_WG.rotation()).vector(),
-                               RollPitchYaw(expected.rotation()).vector(), atol=1e-9)
+    np.testing.assert_allclose(
+        RollPitchYaw(X_WG.rotation()).vector(), RollPitchYaw(expected.rotation()).vector(), atol=1e-9
+    )
 
 
 def test_aim_tool_inverts_grasp_error_and_yaw_wraps_to_the_period():

@@ -47,14 +47,18 @@ def test_sharp_belief_at_the_flow_passes_wide_or_shifted_fails(pre, centre):
 
 def test_monotone_in_eps_and_eta(skill, pre, centre):
     xi = belief(centre, 1.5e-3)
-    probs = [InsertPrecondition(skill, pre.value_threshold, PreconditionConfig(eps=e), pre.s0).probability(xi)
-             for e in (0.0, 1.0, 10.0, 100.0, 1000.0)]
+    probs = [
+        InsertPrecondition(skill, pre.value_threshold, PreconditionConfig(eps=e), pre.s0).probability(xi)
+        for e in (0.0, 1.0, 10.0, 100.0, 1000.0)
+    ]
     assert all(a >= b for a, b in zip(probs, probs[1:])), probs
     value_only = InsertPrecondition(skill, pre.value_threshold, PreconditionConfig(eps=None), pre.s0)
     assert value_only.probability(xi) >= probs[1]  # Eq. 7 only adds a factor to Eq. 6
     p = pre.probability(xi)
-    holds = [InsertPrecondition(skill, pre.value_threshold, PreconditionConfig(eta=eta), pre.s0).holds(xi)
-             for eta in (0.0, p - 0.05, p + 0.05, 0.99)]
+    holds = [
+        InsertPrecondition(skill, pre.value_threshold, PreconditionConfig(eta=eta), pre.s0).holds(xi)
+        for eta in (0.0, p - 0.05, p + 0.05, 0.99)
+    ]
     assert holds == sorted(holds, reverse=True) and holds[0] and not holds[-1]
 
 

@@ -29,13 +29,17 @@ def test_ports_are_sensors_in_and_commands_out():
     params = set(inspect.signature(BeliefSpacePlanner.__init__).parameters)
     assert not any("pose" in p for p in params)  # nothing about where the gears are
     domain = AssemblyDomain({g: (lambda xi: 1.0) for g in GEARS}, 0.9, lambda g, s: s)
-    planner = BeliefSpacePlanner({g: None for g in GEARS}, domain, {g: RigidTransform() for g in GEARS},
-                                 CamerasConfig(), RigidTransform(RotationMatrix.MakeXRotation(np.pi),
-                                                                 [0.3, 0.0, 0.4]), 0.08)
+    planner = BeliefSpacePlanner(
+        {g: None for g in GEARS},
+        domain,
+        {g: RigidTransform() for g in GEARS},
+        CamerasConfig(),
+        RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.3, 0.0, 0.4]),
+        0.08,
+    )
     inputs = [planner.get_input_port(i).get_name() for i in range(planner.num_input_ports())]
     outputs = [planner.get_output_port(i).get_name() for i in range(planner.num_output_ports())]
-    assert sorted(inputs) == sorted(["scene_rgb", "scene_depth", "wrist_rgb", "wrist_depth", "X_WT",
-                                     "hand_state"])
+    assert sorted(inputs) == sorted(["scene_rgb", "scene_depth", "wrist_rgb", "wrist_depth", "X_WT", "hand_state"])
     assert set(COMMAND_PORTS) <= set(outputs)
 
 
@@ -79,14 +83,22 @@ def test_beliefs_are_drawn_in_meshcat():
 
     meshcat = make_meshcat()
     domain = AssemblyDomain({g: (lambda xi: 1.0) for g in GEARS}, 0.9, lambda g, s: s)
-    planner = BeliefSpacePlanner({g: None for g in GEARS}, domain, {g: RigidTransform() for g in GEARS},
-                                 CamerasConfig(), RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.3, 0.0, 0.4]),
-                                 0.08, meshcat=meshcat)
+    planner = BeliefSpacePlanner(
+        {g: None for g in GEARS},
+        domain,
+        {g: RigidTransform() for g in GEARS},
+        CamerasConfig(),
+        RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.3, 0.0, 0.4]),
+        0.08,
+        meshcat=meshcat,
+    )
     assert any(isinstance(s, BeliefDrawer) for s in planner.GetSystems())
     drawer = BeliefDrawer(meshcat, 0.04)
     simulator = Simulator(drawer)
-    beliefs = {"small": GearBelief("table", (0.4, 0.1, 0.2), (1e-3, 1e-3, 0.01)),
-               "large": GearBelief("inserted", (0.5, 0.0, 0.0), (1e-4, 1e-4, 0.01))}
+    beliefs = {
+        "small": GearBelief("table", (0.4, 0.1, 0.2), (1e-3, 1e-3, 0.01)),
+        "large": GearBelief("inserted", (0.5, 0.0, 0.0), (1e-4, 1e-4, 0.01)),
+    }
     drawer.GetInputPort("beliefs").FixValue(simulator.get_mutable_context(), beliefs)
     simulator.AdvanceTo(0.05)
     assert meshcat.HasPath("beliefs/small/mean") and meshcat.HasPath("beliefs/small/region")
@@ -118,7 +130,7 @@ def test_an_unseated_insert_puts_the_gear_back_and_completes(skills):
     outcomes = [(e["skill"], e["gear"], e["outcome"]) for e in summary["executed"]]
     assert any(s == "insert" and g == gear and o.startswith("unseated") for s, g, o in outcomes), outcomes
     failed = next(i for i, (s, g, o) in enumerate(outcomes) if s == "insert" and o.startswith("unseated"))
-    after = [s for s, g, _ in outcomes[failed + 1:] if g == gear]
+    after = [s for s, g, _ in outcomes[failed + 1 :] if g == gear]
     assert after[:2] == ["inspect", "pick"], outcomes
     assert summary["replans"] >= 1
     assert summary["status"] == "done", (summary["reason"], outcomes)

@@ -57,6 +57,7 @@ def test_the_floor_adds_the_differentiated_velocity_noise():
     into the band (the Panda's velocity estimate): fitted with its shape, bounded by what the
     velocity holds above the band, it is predicted in the band; read flat it would be overestimated."""
     from scipy.signal import savgol_filter
+
     dt, n = 1e-3, 100000
     rng = np.random.default_rng(4)
     band = choose_band(_velocity(n, dt), dt)
@@ -67,7 +68,7 @@ def test_the_floor_adds_the_differentiated_velocity_noise():
     valid = np.ones(n, dtype=bool)
     floor, _ = band_floor(residual, valid, band, derivative=1, window=41, measured=dq_noise, mass=mass)
     flat, _ = band_floor(residual, valid, band)
-    observed = np.std(band.filter(residual)[band.settle:-band.settle], axis=0)
+    observed = np.std(band.filter(residual)[band.settle : -band.settle], axis=0)
     assert abs(np.mean(floor / observed) - 1.0) < 0.1
     np.testing.assert_allclose(floor / observed, 1.0, atol=0.2)
     assert np.all(flat > 1.3 * observed)

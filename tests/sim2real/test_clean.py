@@ -68,16 +68,22 @@ def test_gaps_are_interpolated_but_not_fresh():
 
 def test_a_log_of_repeats_only_is_refused():
     log = _log(100)
-    frozen = dataclasses.replace(log, q=np.repeat(log.q[:1], 100, 0), dq=np.repeat(log.dq[:1], 100, 0),
-                                 tau=np.repeat(log.tau[:1], 100, 0))
+    frozen = dataclasses.replace(
+        log, q=np.repeat(log.q[:1], 100, 0), dq=np.repeat(log.dq[:1], 100, 0), tau=np.repeat(log.tau[:1], 100, 0)
+    )
     with pytest.raises(InputError, match="every sample of the log repeats"):
         clean(frozen)
 
 
 def test_every_sample_logged_twice_is_cleaned_back():
     log = _log(1000)
-    doubled = RobotLog(time=np.arange(2000) * 0.5e-3, q=np.repeat(log.q, 2, 0), dq=np.repeat(log.dq, 2, 0),
-                       tau=np.repeat(log.tau, 2, 0), meta={})
+    doubled = RobotLog(
+        time=np.arange(2000) * 0.5e-3,
+        q=np.repeat(log.q, 2, 0),
+        dq=np.repeat(log.dq, 2, 0),
+        tau=np.repeat(log.tau, 2, 0),
+        meta={},
+    )
     out = clean(doubled)
     assert out.report["stale_dropped"] == 1000
     assert any("warning" in n for n in out.notes)

@@ -35,14 +35,45 @@ def test_cli_station_log_then_diagnose(tmp_path, capsys):
     import json
 
     log = tmp_path / "insertion.npz"
-    assert main(["sim2real", "make-log", "--model", "station", "--effect", "shaft_friction=1.0",
-                 "--out", str(log)]) == 0
+    assert (
+        main(["sim2real", "make-log", "--model", "station", "--effect", "shaft_friction=1.0", "--out", str(log)]) == 0
+    )
     out = tmp_path / "report"
-    assert main(["diagnose", "--model", "station", "--log", str(log), "--out-dir", str(out), "--episodes", "0",
-                 "--effects", "shaft_friction", "grasp_slip"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--model",
+                "station",
+                "--log",
+                str(log),
+                "--out-dir",
+                str(out),
+                "--episodes",
+                "0",
+                "--effects",
+                "shaft_friction",
+                "grasp_slip",
+            ]
+        )
+        == 0
+    )
     report = json.loads((out / "report.json").read_text())
     assert report["selected"][0]["effect"] == "shaft_friction"
     assert report["where"]["dominant_phase"] in ("contact", "insertion")
-    assert main(["sim2real", "make-log", "--model", "station", "--effect", "shaft_friction=1.0",
-                 "--out", str(tmp_path / "x.csv")]) == 2
+    assert (
+        main(
+            [
+                "sim2real",
+                "make-log",
+                "--model",
+                "station",
+                "--effect",
+                "shaft_friction=1.0",
+                "--out",
+                str(tmp_path / "x.csv"),
+            ]
+        )
+        == 2
+    )
     assert ".npz" in capsys.readouterr().err

@@ -83,8 +83,9 @@ def test_noise_floor_reads_filtered_noise_whatever_its_spectrum():
 def test_noise_floor_recovers_white_noise_under_a_slow_signal():
     rng = np.random.default_rng(0)
     t = np.linspace(0, 10, 10_000)
-    r = np.stack([np.sin(2 * np.pi * 0.3 * t) + 0.05 * rng.standard_normal(len(t)),
-                  0.2 * rng.standard_normal(len(t))], axis=1)
+    r = np.stack(
+        [np.sin(2 * np.pi * 0.3 * t) + 0.05 * rng.standard_normal(len(t)), 0.2 * rng.standard_normal(len(t))], axis=1
+    )
     floor = noise_floor(r, np.ones(len(t), dtype=bool))
     assert floor == pytest.approx([0.05, 0.2], rel=0.1)
 
@@ -160,6 +161,7 @@ def test_a_setting_between_grid_values_is_refined(effect, key, truth):
 def test_the_mesh_search_holds_its_memory_budget(monkeypatch):
     """The compliant-mesh backlash search in chunks (a long log) finds what it finds in one pass."""
     from sim2real import effects
+
     log = make_arm_log({"backlash": {"b": 0.004}}, RealityConfig(duration=2.0, seed=2))
     rep = replay(log, ReplayConfig(torque_filter="matched"))
     whole = effects.candidates(rep, ["backlash"])["backlash"][0]
@@ -193,15 +195,18 @@ def test_an_effect_active_in_a_few_blocks_is_significant():
 def test_an_effect_that_never_acts_is_scored_as_no_gap():
     """A saturation at 60 % of the torque limit that seed 0's trajectory never reaches leaves
     the nominal log: the validation scores "no gap" as right there, not as a miss."""
-    result = run_case(Case("torque_saturation-faint", ("torque_saturation",), "faint", seed=0), duration=DURATION,
-                      config=EASY)
+    result = run_case(
+        Case("torque_saturation-faint", ("torque_saturation",), "faint", seed=0), duration=DURATION, config=EASY
+    )
     assert result["verdict"] == "no gap" and not result["active"], result
     assert result["top1"] and result["closed"] is None
 
 
 def test_fitted_values_match_the_truth():
-    log = make_arm_log({"coulomb": {"fc": [0.8] * 7}, "torque_offset": {"offset": [0.0, 0.5, 0, 0, 0, 0, -0.3]}},
-                       RealityConfig(duration=DURATION, seed=2))
+    log = make_arm_log(
+        {"coulomb": {"fc": [0.8] * 7}, "torque_offset": {"offset": [0.0, 0.5, 0, 0, 0, 0, -0.3]}},
+        RealityConfig(duration=DURATION, seed=2),
+    )
     d = diagnose(log, EASY)
     fitted = {s["effect"]: s["params"] for s in d.selected}
     assert set(fitted) >= {"coulomb", "torque_offset"}
@@ -230,8 +235,9 @@ def test_cli_diagnose_writes_the_report(tmp_path, nominal_log, capsys):
     path = save_log(log, tmp_path / "log.npz")
     out = tmp_path / "report"
     assert main(["diagnose", "--log", str(path), "--out-dir", str(out), "--band", "none"]) == 0
-    assert {"report.md", "report.json", "where.png", "ranking.png", "before_after.png",
-            "residual_vs_velocity.png"} <= {p.name for p in out.iterdir()}
+    assert {"report.md", "report.json", "where.png", "ranking.png", "before_after.png", "residual_vs_velocity.png"} <= {
+        p.name for p in out.iterdir()
+    }
     report = json.loads((out / "report.json").read_text())
     assert report["selected"][0]["effect"] == "viscous"
     assert "viscous" in (out / "report.md").read_text()
@@ -239,8 +245,12 @@ def test_cli_diagnose_writes_the_report(tmp_path, nominal_log, capsys):
 
 def test_cli_make_log_then_diagnose_csv(tmp_path, capsys):
     csv = tmp_path / "log.csv"
-    assert main(["sim2real", "make-log", "--effect", "torque_offset=0.6", "--model-kwarg", "duration=5",
-                 "--out", str(csv)]) == 0
+    assert (
+        main(
+            ["sim2real", "make-log", "--effect", "torque_offset=0.6", "--model-kwarg", "duration=5", "--out", str(csv)]
+        )
+        == 0
+    )
     assert main(["diagnose", "--log", str(csv), "--out-dir", str(tmp_path / "r"), "--band", "none"]) == 0
     report = json.loads((tmp_path / "r" / "report.json").read_text())
     assert report["selected"][0]["effect"] == "torque_offset"
@@ -256,7 +266,9 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "x.npz").exists()
     assert main(["sim2real", "make-log", "--effect", "friction=1", "--out", str(tmp_path / "x.npz")]) == 2
     assert "friction" in capsys.readouterr().err
-    assert main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out-dir", str(tmp_path / "r"), "--band", "x"]) == 2
+    assert (
+        main(["diagnose", "--log", str(tmp_path / "missing.npz"), "--out-dir", str(tmp_path / "r"), "--band", "x"]) == 2
+    )
     assert "--band = 'x'" in capsys.readouterr().err
 
 

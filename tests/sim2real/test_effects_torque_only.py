@@ -27,7 +27,7 @@ def _fit(rep: Replay, cand: Candidate) -> tuple[np.ndarray, float]:
     m = rep.valid
     y = rep.residual["tau"][m] - (cand.offset["tau"][m] if "tau" in cand.offset else 0.0)
     if not cand.n_coef:
-        return np.zeros(0), float(np.sum(y ** 2))
+        return np.zeros(0), float(np.sum(y**2))
     X = cand.features["tau"][m].reshape(-1, cand.n_coef)
     coef, *_ = np.linalg.lstsq(X, y.ravel(), rcond=None)
     return coef, float(np.sum((y.ravel() - X @ coef) ** 2))
@@ -75,19 +75,23 @@ def test_link_inertia_is_recovered_through_the_base_parameters():
     """Link 4 30 % heavier, link 5's centre of mass 2 cm along z, link 6's inertia 40 % larger: the
     fitted base corrections predict the true ones' torque within 5 %, and the base parameters
     that move most are found within 10 % of their largest change."""
-    setting = {"mass_scale": [1, 1, 1, 1.3, 1, 1, 1], "com_shift": [0, 0, 0, 0, 0.02, 0, 0],
-               "inertia_scale": [1, 1, 1, 1, 1, 1.4, 1]}
+    setting = {
+        "mass_scale": [1, 1, 1, 1.3, 1, 1, 1],
+        "com_shift": [0, 0, 0, 0, 0.02, 0, 0],
+        "inertia_scale": [1, 1, 1, 1, 1, 1.4, 1],
+    }
     rep = _torque_only({"link_inertia": setting})
     (cand,) = candidates(rep, ["link_inertia"])["link_inertia"]
     coef, sse = _fit(rep, cand)
     bp = base_parameters("none")
     nominal = link_regressor("none").nominal
-    truth = bp.nominal(_link_parameters(setting["mass_scale"], setting["com_shift"], setting["inertia_scale"])
-                       - nominal)
+    truth = bp.nominal(
+        _link_parameters(setting["mass_scale"], setting["com_shift"], setting["inertia_scale"]) - nominal
+    )
     assert (np.abs(truth) <= cand.bounds[:, 1]).all()  # the truth is within the fit's bounds
     X = cand.features["tau"][rep.valid]
     true_torque, fit_torque = X @ truth, X @ coef
-    assert np.sqrt(np.mean((fit_torque - true_torque) ** 2)) < 0.05 * np.sqrt(np.mean(true_torque ** 2))
+    assert np.sqrt(np.mean((fit_torque - true_torque) ** 2)) < 0.05 * np.sqrt(np.mean(true_torque**2))
     big = np.abs(truth) > 0.2 * np.abs(truth).max()
     np.testing.assert_allclose(coef[big], truth[big], atol=0.1 * np.abs(truth).max())
     assert cand.to_params(coef)["base"] == pytest.approx(list(coef))
@@ -157,8 +161,9 @@ def test_backlash_motor_is_recovered(noise):
     assert sse < 0.5 * np.sum(rep.residual["tau"][rep.valid] ** 2)
 
     nominal = make_arm_log({}, CONFIG)
-    nominal = dataclasses.replace(nominal, tau_cmd=None, q_cmd=None, dq_cmd=None,
-                                  meta={**nominal.meta, "position_side": "motor"})
+    nominal = dataclasses.replace(
+        nominal, tau_cmd=None, q_cmd=None, dq_cmd=None, meta={**nominal.meta, "position_side": "motor"}
+    )
     rep = replay(nominal)
     sse0 = np.sum(rep.residual["tau"][rep.valid] ** 2)
     for cand in candidates(rep, ["backlash_motor"])["backlash_motor"]:
@@ -168,8 +173,15 @@ def test_backlash_motor_is_recovered(noise):
 def test_untestable_lists_the_command_effects_of_a_torque_only_log():
     rep = _torque_only({})
     out = untestable(rep)
-    for name in ("actuation_delay", "torque_saturation", "backlash", "torque_gain", "rotor_inertia",
-                 "controller_gain", "backlash_motor"):
+    for name in (
+        "actuation_delay",
+        "torque_saturation",
+        "backlash",
+        "torque_gain",
+        "rotor_inertia",
+        "controller_gain",
+        "backlash_motor",
+    ):
         assert name in out, out
     assert "tau_cmd" in out["torque_gain"]
     pool = candidates(rep)

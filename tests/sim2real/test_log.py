@@ -13,7 +13,15 @@ import pytest
 from goflow_common.errors import FileFormatError, InputError
 from sim2real.importers import GAZ_FILES, load_log, read_franka_csv, read_gaz_layout, write_franka_csv
 from sim2real.log import (
-    FIELDS, LOG_FORMAT, PHASES, UNITS, RobotLog, save_log, slice_log, validate_log, with_meta,
+    FIELDS,
+    LOG_FORMAT,
+    PHASES,
+    UNITS,
+    RobotLog,
+    save_log,
+    slice_log,
+    validate_log,
+    with_meta,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -44,10 +52,19 @@ def full_log(**changes) -> RobotLog:
     q = 0.5 * np.sin(time[:, None] * np.arange(1, 8)) + rng.normal(0, 0.01, (T, 7))
     angle = np.linspace(0, 1.0, T)
     fields = dict(
-        time=time, q=q, dq=rng.normal(0, 0.5, (T, 7)), tau=rng.normal(0, 10, (T, 7)),
-        tau_cmd=rng.normal(0, 10, (T, 7)), q_cmd=q + 0.001, dq_cmd=rng.normal(0, 0.5, (T, 7)),
-        tau_ext=rng.normal(0, 1, (T, 7)), tool_pose=_poses(angle, 0.0), tool_target=_poses(angle, 0.01),
-        wrench=rng.normal(0, 2, (T, 6)), gripper_width=np.full(T, 0.04), phase=np.arange(T) * len(PHASES) // T,
+        time=time,
+        q=q,
+        dq=rng.normal(0, 0.5, (T, 7)),
+        tau=rng.normal(0, 10, (T, 7)),
+        tau_cmd=rng.normal(0, 10, (T, 7)),
+        q_cmd=q + 0.001,
+        dq_cmd=rng.normal(0, 0.5, (T, 7)),
+        tau_ext=rng.normal(0, 1, (T, 7)),
+        tool_pose=_poses(angle, 0.0),
+        tool_target=_poses(angle, 0.01),
+        wrench=rng.normal(0, 2, (T, 6)),
+        gripper_width=np.full(T, 0.04),
+        phase=np.arange(T) * len(PHASES) // T,
         meta={"robot": "franka_panda", "end_effector": "hand", "torque_side": "link", "controller": {"kp": [1.5] * 7}},
     )
     fields.update(changes)
@@ -63,6 +80,7 @@ def assert_same_arrays(a: RobotLog, b: RobotLog) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- round trips
+
 
 def test_npz_round_trip_keeps_every_array_and_the_meta(tmp_path):
     log = validate_log(full_log())
@@ -102,15 +120,31 @@ def test_csv_as_libfranka_users_write_it(tmp_path):
     """Column-major O_T_EE (translation in entries 12..14), phase names and numbers, a meta comment,
     extra columns noted, tau_d alone as the torque channel."""
     n = 12
-    cols = (["time"] + [f"q{i}" for i in range(7)] + [f"dq{i}" for i in range(7)] + [f"tau_d{i}" for i in range(7)]
-            + [f"O_T_EE{i}" for i in range(16)] + ["gripper_width", "phase", "success_rate"])
+    cols = (
+        ["time"]
+        + [f"q{i}" for i in range(7)]
+        + [f"dq{i}" for i in range(7)]
+        + [f"tau_d{i}" for i in range(7)]
+        + [f"O_T_EE{i}" for i in range(16)]
+        + ["gripper_width", "phase", "success_rate"]
+    )
     pose = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.5, -0.2, 0.3, 1]  # column-major: x, y, z at 12, 13, 14
-    rows = [[f"{0.001 * k:.3f}"] + ["0.1"] * 7 + ["0"] * 7 + ["1.5"] * 7 + [str(v) for v in pose]
-            + ["0.04", PHASES[k % 4] if k % 2 else str(k % 4), "n/a"] for k in range(n)]
+    rows = [
+        [f"{0.001 * k:.3f}"]
+        + ["0.1"] * 7
+        + ["0"] * 7
+        + ["1.5"] * 7
+        + [str(v) for v in pose]
+        + ["0.04", PHASES[k % 4] if k % 2 else str(k % 4), "n/a"]
+        for k in range(n)
+    ]
     path = tmp_path / "franka.csv"
-    path.write_text('# exported by our logger\n'
-                    '# meta: {"end_effector": "hand+gear_small", "controller": "joint impedance"}\n'
-                    + "\n".join(",".join(r) for r in [cols] + rows) + "\n")
+    path.write_text(
+        "# exported by our logger\n"
+        '# meta: {"end_effector": "hand+gear_small", "controller": "joint impedance"}\n'
+        + "\n".join(",".join(r) for r in [cols] + rows)
+        + "\n"
+    )
     log = load_log(path)
     assert log.tau is None and np.all(log.tau_cmd == 1.5)
     assert np.array_equal(log.tool_pose[0, :3, 3], [0.5, -0.2, 0.3])
@@ -121,6 +155,7 @@ def test_csv_as_libfranka_users_write_it(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- the real log
+
 
 def test_the_converted_real_log_loads():
     log = load_log(CONVERTED)
@@ -141,8 +176,13 @@ def test_the_original_folder_gives_the_same_arrays():
 
 @pytest.mark.skipif(not ORIGINAL.is_dir(), reason="the original Gaz et al. folder is not on this machine")
 def test_the_conversion_script_reproduces_the_committed_folder(tmp_path):
-    run = subprocess.run([sys.executable, str(ROOT / "tools" / "convert_gaz2019.py"), "--out", str(tmp_path)],
-                         capture_output=True, text=True, cwd=ROOT, timeout=120)
+    run = subprocess.run(
+        [sys.executable, str(ROOT / "tools" / "convert_gaz2019.py"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     for name in ("log.npz", "LICENSE", "README.md"):
         assert (tmp_path / name).read_bytes() == (CONVERTED.parent / name).read_bytes(), name
@@ -152,8 +192,12 @@ def _gaz_folder(folder: Path, n: int = 15, cut: dict | None = None, meta: dict |
     """A small log in the Gaz et al. layout, files directly in `folder`; `cut` drops lines per field."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(1)
-    values = {"time": 0.001 * np.arange(n), "q": rng.normal(0, 0.5, 7 * n), "dq": rng.normal(0, 0.5, 7 * n),
-              "tau": rng.normal(0, 5, 7 * n)}
+    values = {
+        "time": 0.001 * np.arange(n),
+        "q": rng.normal(0, 0.5, 7 * n),
+        "dq": rng.normal(0, 0.5, 7 * n),
+        "tau": rng.normal(0, 5, 7 * n),
+    }
     for name, file in GAZ_FILES.items():
         v = values[name][: len(values[name]) - (cut or {}).get(name, 0)]
         (folder / file).write_text("\n".join(f"{x:.6g}" for x in v) + "\n")
@@ -171,14 +215,18 @@ def test_the_gaz_layout_without_rbt_log_and_with_a_meta_file(tmp_path):
 def test_the_gaz_layout_accepts_one_missing_sample_at_the_end(tmp_path):
     log = load_log(_gaz_folder(tmp_path / "cut", cut={"tau": 7, "time": 1}))
     assert log.n_samples == 14
-    assert log.meta["notes"] == [f"truncated to the common length of 14 samples: {GAZ_FILES['q']}, "
-                                 f"{GAZ_FILES['dq']} had one sample more"]
+    assert log.meta["notes"] == [
+        f"truncated to the common length of 14 samples: {GAZ_FILES['q']}, {GAZ_FILES['dq']} had one sample more"
+    ]
 
 
-@pytest.mark.parametrize("cut, match", [
-    ({"dq": 3}, r"exciting_traj_velocity\.txt: 102 lines, not a whole number of 7-line samples"),
-    ({"q": 14}, r"exciting_traj_time\.txt: 15 samples, but exciting_traj_positions\.txt has 13"),
-])
+@pytest.mark.parametrize(
+    "cut, match",
+    [
+        ({"dq": 3}, r"exciting_traj_velocity\.txt: 102 lines, not a whole number of 7-line samples"),
+        ({"q": 14}, r"exciting_traj_time\.txt: 15 samples, but exciting_traj_positions\.txt has 13"),
+    ],
+)
 def test_the_gaz_layout_refuses_inconsistent_counts(tmp_path, cut, match):
     with pytest.raises(FileFormatError, match=match):
         load_log(_gaz_folder(tmp_path / "bad", cut=cut))
@@ -194,6 +242,7 @@ def test_a_folder_that_is_not_a_log(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- validation
+
 
 def _deg(log):
     return {"q": np.rad2deg(log.q)}
@@ -249,8 +298,11 @@ def _phase7(log):
 
 MALFORMED = [
     ("missing q", lambda log: {"q": None}, r"^q is missing"),
-    ("no torque channel", lambda log: {"tau": None, "tau_cmd": None, "q_cmd": None},
-     r"tau, tau_cmd and q_cmd are all missing"),
+    (
+        "no torque channel",
+        lambda log: {"tau": None, "tau_cmd": None, "q_cmd": None},
+        r"tau, tau_cmd and q_cmd are all missing",
+    ),
     ("units in meta", lambda log: {"meta": {"units": {"q": "deg"}}}, r"meta units for q = 'deg'; expected 'rad'"),
     ("unknown unit key", lambda log: {"meta": {"units": {"force": "N"}}}, r"meta units names 'force'"),
     ("degrees", _deg, r"^q out of range: q\[\d+, \d+\] = .* looks like degrees"),
@@ -267,8 +319,11 @@ MALFORMED = [
     ("dq samples", lambda log: {"dq": log.dq[:-1]}, r"^dq has 59 samples; expected 60 \(as time\)"),
     ("q flat", lambda log: {"q": log.q.ravel()}, r"^q has shape \(420,\); expected \(T, 7\)"),
     ("wrench shape", lambda log: {"wrench": log.wrench[:, :3]}, r"^wrench has shape \(60, 3\); expected \(60, 6\)"),
-    ("too short", lambda log: {name: getattr(log, name)[:5] for name in FIELDS},
-     r"^time has 5 samples; expected at least 10"),
+    (
+        "too short",
+        lambda log: {name: getattr(log, name)[:5] for name in FIELDS},
+        r"^time has 5 samples; expected at least 10",
+    ),
     ("phase label", _phase7, r"^phase label out of range: phase\[12\] = 7 \(sample 12"),
     ("phase fraction", lambda log: {"phase": log.phase + 0.5}, r"^phase label phase\[0\] = 0\.5 .* not an integer"),
     ("phase names", lambda log: {"phase": np.array(["free"] * T)}, r"^phase holds <U4 values"),
@@ -277,8 +332,11 @@ MALFORMED = [
     ("reflection", _mirror, r"^tool_pose is not a rigid transform at sample 0 .* reflection"),
     ("mm pose", _mm_pose, r"^tool_pose translation out of range: .* millimetres"),
     ("gripper mm", lambda log: {"gripper_width": log.gripper_width * 1000}, r"^gripper_width out of range"),
-    ("end effector", lambda log: {"meta": {"end_effector": "gripper"}},
-     r"^meta end_effector = 'gripper'; expected one of"),
+    (
+        "end effector",
+        lambda log: {"meta": {"end_effector": "gripper"}},
+        r"^meta end_effector = 'gripper'; expected one of",
+    ),
     ("torque side", lambda log: {"meta": {"torque_side": "joint"}}, r"^meta torque_side = 'joint'; expected one of"),
     ("joint names", lambda log: {"meta": {"joint_names": ["a"]}}, r"^meta joint_names = \['a'\]; expected a list of 7"),
     ("meta NaN", lambda log: {"meta": {"k": float("nan")}}, r"^meta is not strict JSON: meta\.k = nan"),
@@ -311,6 +369,7 @@ def test_the_joint_count_is_free_when_asked(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- bad files
 
+
 def _csv_with(tmp_path, edit) -> Path:
     path = write_franka_csv(full_log(), tmp_path / "log.csv")
     lines = path.read_text().splitlines()
@@ -327,22 +386,25 @@ def _set_cell(lines, row, name, value):
     i = lines[1].split(",").index(name)
     cells = lines[2 + row].split(",")
     cells[i] = value
-    return lines[:2 + row] + [",".join(cells)] + lines[3 + row:]
+    return lines[: 2 + row] + [",".join(cells)] + lines[3 + row :]
 
 
-@pytest.mark.parametrize("edit, match", [
-    (lambda lines: _drop_column(lines, "q3"), r"missing column\(s\) q3; expected at least time, q0\.\.q6"),
-    (lambda lines: _drop_column(_drop_column(lines, "tau_J0"), "tau_d2"), r"missing column\(s\) tau_J0, tau_d2"),
-    (lambda lines: _drop_column(lines, "O_T_EE7"), r"missing column\(s\) O_T_EE7"),
-    (lambda lines: _set_cell(lines, 2, "dq2", "abc"), r"line 5 \(data row 3\), column dq2: 'abc' is not a number"),
-    (lambda lines: _set_cell(lines, 0, "phase", "landing"), r"line 3 \(data row 1\), column phase: 'landing'"),
-    (lambda lines: _set_cell(lines, 0, "phase", "9"), r"phase label out of range: phase\[0\] = 9"),
-    (lambda lines: _set_cell(lines, 1, "q0", "nan"), r"q is not finite: q\[1, 0\] = nan"),
-    (lambda lines: lines[:4] + [lines[4] + ",1"] + lines[5:], r"line 5: 91 cells; expected 90 as the header"),
-    (lambda lines: ['# meta: {"units": {"dq": "deg/s"}}'] + lines[1:], r"meta units for dq = 'deg/s'"),
-    (lambda lines: ["# meta: {bad"] + lines[1:], r"line 1: the meta comment is not strict JSON"),
-    (lambda lines: lines[:1], r"no header row"),
-])
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda lines: _drop_column(lines, "q3"), r"missing column\(s\) q3; expected at least time, q0\.\.q6"),
+        (lambda lines: _drop_column(_drop_column(lines, "tau_J0"), "tau_d2"), r"missing column\(s\) tau_J0, tau_d2"),
+        (lambda lines: _drop_column(lines, "O_T_EE7"), r"missing column\(s\) O_T_EE7"),
+        (lambda lines: _set_cell(lines, 2, "dq2", "abc"), r"line 5 \(data row 3\), column dq2: 'abc' is not a number"),
+        (lambda lines: _set_cell(lines, 0, "phase", "landing"), r"line 3 \(data row 1\), column phase: 'landing'"),
+        (lambda lines: _set_cell(lines, 0, "phase", "9"), r"phase label out of range: phase\[0\] = 9"),
+        (lambda lines: _set_cell(lines, 1, "q0", "nan"), r"q is not finite: q\[1, 0\] = nan"),
+        (lambda lines: lines[:4] + [lines[4] + ",1"] + lines[5:], r"line 5: 91 cells; expected 90 as the header"),
+        (lambda lines: ['# meta: {"units": {"dq": "deg/s"}}'] + lines[1:], r"meta units for dq = 'deg/s'"),
+        (lambda lines: ["# meta: {bad"] + lines[1:], r"line 1: the meta comment is not strict JSON"),
+        (lambda lines: lines[:1], r"no header row"),
+    ],
+)
 def test_a_malformed_csv_is_named(tmp_path, edit, match):
     path = _csv_with(tmp_path, edit)
     with pytest.raises(FileFormatError, match=match) as info:
@@ -362,17 +424,27 @@ def test_foreign_truncated_and_unsafe_npz_files_are_refused(tmp_path):
     cases = {
         "foreign.npz": (_npz(tmp_path / "foreign.npz", x=np.ones(3), y=np.ones(2)), r"unknown arrays \['x', 'y'\]"),
         "no_meta.npz": (_npz(tmp_path / "no_meta.npz", **arrays), r"no 'meta' array"),
-        "bad_json.npz": (_npz(tmp_path / "bad_json.npz", meta=np.array("{'a': 1}"), **arrays),
-                         "meta is not strict JSON"),
-        "nan_json.npz": (_npz(tmp_path / "nan_json.npz", meta=np.array('{"a": NaN}'), **arrays),
-                         "NaN is not valid JSON"),
+        "bad_json.npz": (
+            _npz(tmp_path / "bad_json.npz", meta=np.array("{'a': 1}"), **arrays),
+            "meta is not strict JSON",
+        ),
+        "nan_json.npz": (
+            _npz(tmp_path / "nan_json.npz", meta=np.array('{"a": NaN}'), **arrays),
+            "NaN is not valid JSON",
+        ),
         "list_json.npz": (_npz(tmp_path / "list_json.npz", meta=np.array("[1]"), **arrays), "meta is a JSON list"),
-        "format.npz": (_npz(tmp_path / "format.npz", format=np.array("other-2"), meta=np.array("{}"), **arrays),
-                       "format = 'other-2'"),
-        "pickled.npz": (_npz(tmp_path / "pickled.npz", meta=np.array([{"a": 1}], dtype=object), **arrays),
-                        "refused: it holds pickled objects"),
-        "invalid.npz": (_npz(tmp_path / "invalid.npz", meta=np.array("{}"), **{**arrays, "q": np.zeros((20, 6))}),
-                        "q has 6 joints; expected 7"),
+        "format.npz": (
+            _npz(tmp_path / "format.npz", format=np.array("other-2"), meta=np.array("{}"), **arrays),
+            "format = 'other-2'",
+        ),
+        "pickled.npz": (
+            _npz(tmp_path / "pickled.npz", meta=np.array([{"a": 1}], dtype=object), **arrays),
+            "refused: it holds pickled objects",
+        ),
+        "invalid.npz": (
+            _npz(tmp_path / "invalid.npz", meta=np.array("{}"), **{**arrays, "q": np.zeros((20, 6))}),
+            "q has 6 joints; expected 7",
+        ),
     }
     (tmp_path / "cut.npz").write_bytes(good.read_bytes()[: good.stat().st_size // 2])
     cases["cut.npz"] = (tmp_path / "cut.npz", "truncated or foreign file")
@@ -397,6 +469,7 @@ def test_output_names_are_checked(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- helpers
+
 
 def test_slice_and_meta_helpers():
     log = validate_log(full_log())

@@ -21,8 +21,17 @@ def _truth(duration: float = 4.0, moving: bool = True) -> RobotLog:
     q = 0.3 + amp * np.sin(phase)
     dq = amp * 2 * np.pi * 0.3 * (1 + np.arange(7) / 7) * np.cos(phase)
     tau = 5.0 + 2.0 * amp * np.sin(phase)
-    return RobotLog(time=t, q=q, dq=dq, tau=tau, tau_cmd=tau.copy(), q_cmd=q.copy(), dq_cmd=dq.copy(),
-                    phase=np.zeros(t.shape[0], dtype=np.int64), meta={"truth": {"x": 1}})
+    return RobotLog(
+        time=t,
+        q=q,
+        dq=dq,
+        tau=tau,
+        tau_cmd=tau.copy(),
+        q_cmd=q.copy(),
+        dq_cmd=dq.copy(),
+        phase=np.zeros(t.shape[0], dtype=np.int64),
+        meta={"truth": {"x": 1}},
+    )
 
 
 def test_valid_and_deterministic() -> None:
@@ -54,8 +63,9 @@ def test_timing_and_repeats_near_configured() -> None:
 
 def test_inband_torque_noise_matches_config() -> None:
     level = (2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5)
-    cfg = dataclasses.replace(PANDA_LOGGER, tau_psd=level, vibration_psd=(0.0,) * 7, floor_psd=(0.0,) * 7,
-                              speed_gain=(0.0,) * 7)
+    cfg = dataclasses.replace(
+        PANDA_LOGGER, tau_psd=level, vibration_psd=(0.0,) * 7, floor_psd=(0.0,) * 7, speed_gain=(0.0,) * 7
+    )
     s = log_statistics(apply_logger(_truth(40.0, moving=False), cfg, seed=2))
     measured = np.array(s["tau_inband_std"])
     want = np.sqrt(10.0 * np.array(level))
@@ -83,11 +93,21 @@ def test_ideal_sensors_unchanged() -> None:
         RealityConfig(sensors="real")
 
 
-@pytest.mark.parametrize("field, value", [
-    ("tau_psd", (-1e-3,) * 7), ("dq_psd", -1.0), ("stale_probability", 1.0), ("stale_probability", -0.1),
-    ("step_correlation", 1.0), ("stale_run_lengths", (0.5, 0.4)), ("vibration_high", 5.0), ("digits", -1),
-    ("speed_gain", (1.0, 2.0)), ("gap_max", 1e-3),
-])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("tau_psd", (-1e-3,) * 7),
+        ("dq_psd", -1.0),
+        ("stale_probability", 1.0),
+        ("stale_probability", -0.1),
+        ("step_correlation", 1.0),
+        ("stale_run_lengths", (0.5, 0.4)),
+        ("vibration_high", 5.0),
+        ("digits", -1),
+        ("speed_gain", (1.0, 2.0)),
+        ("gap_max", 1e-3),
+    ],
+)
 def test_bad_config(field: str, value: object) -> None:
     with pytest.raises(InputError, match=f"LoggerConfig.{field}"):
         LoggerConfig(**{field: value})

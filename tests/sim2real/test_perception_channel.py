@@ -10,8 +10,14 @@ import numpy as np
 import pytest
 
 from goflow_common.errors import InputError
-from sim2real.perception_channel import (POSE_COLUMNS, diagnose_perception, make_perception_log,
-                                         offset_jacobians, perception_config, perception_evidence)
+from sim2real.perception_channel import (
+    POSE_COLUMNS,
+    diagnose_perception,
+    make_perception_log,
+    offset_jacobians,
+    perception_config,
+    perception_evidence,
+)
 
 SCENES = 6
 OFFSET = {"dx": 0.015, "dy": 0.0, "dz": -0.01}
@@ -54,7 +60,7 @@ def test_the_offset_is_in_the_rendering_not_in_the_results(offset_log):
     assert np.all(np.linalg.norm(err, axis=1) > 0.008)
     assert np.ptp(err[:, 0]) > 0.002  # varies with the gear's place in the image
     d = np.array([OFFSET[k] for k in ("dx", "dy", "dz")])
-    for (t, i) in zip(*np.nonzero(use)):
+    for t, i in zip(*np.nonzero(use)):
         P = np.array([*offset_log["truth"][t, i, :2], offset_log["top"][i]])
         _, J_ray = offset_jacobians(offset_log["X_WC"], P)
         assert np.linalg.norm(J_ray @ d - (offset_log["mean"] - offset_log["truth"])[t, i, :2]) < 0.002
@@ -78,12 +84,15 @@ def test_the_evidence_has_the_shape_analyse_needs(nominal_log):
     assert c.blocks == c.folds == SCENES
 
 
-@pytest.mark.parametrize("effects, match", [
-    ({"camera_tilt": {"dx": 0.01}}, "camera_tilt"),
-    ({"coulomb": {"fc": 1.0}}, "coulomb"),
-    ({"camera_offset": {"dx": 0.05}}, "dx"),
-    ({"camera_offset": {"dw": 0.01}}, "dw"),
-])
+@pytest.mark.parametrize(
+    "effects, match",
+    [
+        ({"camera_tilt": {"dx": 0.01}}, "camera_tilt"),
+        ({"coulomb": {"fc": 1.0}}, "coulomb"),
+        ({"camera_offset": {"dx": 0.05}}, "dx"),
+        ({"camera_offset": {"dw": 0.01}}, "dw"),
+    ],
+)
 def test_bad_effects_are_refused_by_name(effects, match):
     with pytest.raises(InputError, match=match):
         make_perception_log(effects, scenes=1)
@@ -117,8 +126,23 @@ def test_cli_perception_log_then_diagnose(tmp_path, capsys):
     from goflow_cli import main
 
     log = tmp_path / "perception.npz"
-    assert main(["sim2real", "make-log", "--model", "perception", "--effect", "camera_offset.dx=0.015",
-                 "--model-kwarg", "scenes=5", "--out", str(log)]) == 0
+    assert (
+        main(
+            [
+                "sim2real",
+                "make-log",
+                "--model",
+                "perception",
+                "--effect",
+                "camera_offset.dx=0.015",
+                "--model-kwarg",
+                "scenes=5",
+                "--out",
+                str(log),
+            ]
+        )
+        == 0
+    )
     out = tmp_path / "report"
     assert main(["diagnose", "--model", "perception", "--log", str(log), "--out-dir", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())

@@ -14,8 +14,15 @@ def _log(wrench=None, z=None, phase=None, T=3000, dt=0.002):
     if z is not None:
         pose = np.tile(np.eye(4), (T, 1, 1))
         pose[:, 2, 3] = z
-    return RobotLog(time=t, q=np.zeros((T, 7)), dq=np.zeros((T, 7)), tau=np.zeros((T, 7)), wrench=wrench,
-                    tool_pose=pose, phase=phase)
+    return RobotLog(
+        time=t,
+        q=np.zeros((T, 7)),
+        dq=np.zeros((T, 7)),
+        tau=np.zeros((T, 7)),
+        wrench=wrench,
+        tool_pose=pose,
+        phase=phase,
+    )
 
 
 def test_contact_and_insertion_from_force_and_descent():

@@ -28,8 +28,16 @@ def test_a_noise_only_log_reads_no_gap_and_its_floor_predicts_the_residual():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect, layout", [("coulomb", "gaz"), ("link_inertia", "csv"), ("torque_scale", "gaz"),
-                                            ("torque_delay", "csv"), ("joint_inertia", "gaz")])
+@pytest.mark.parametrize(
+    "effect, layout",
+    [
+        ("coulomb", "gaz"),
+        ("link_inertia", "csv"),
+        ("torque_scale", "gaz"),
+        ("torque_delay", "csv"),
+        ("joint_inertia", "gaz"),
+    ],
+)
 def test_leave_one_effect_out_on_realistic_logs(effect, layout):
     """Each effect at in-band SNR 8, in the real log's folder layout or Franka's CSV, is named first
     and the joint with the largest effect torque leads the where-table."""
@@ -88,7 +96,12 @@ def test_a_stalled_clock_is_named():
 def test_a_log_that_does_not_move_is_named():
     log = load_log(REAL_LOG)
     n = 4000
-    still = dataclasses.replace(log, time=log.time[:n], q=np.repeat(log.q[:1], n, 0),
-                                dq=1e-5 * np.random.default_rng(0).standard_normal((n, 7)), tau=log.tau[:n])
+    still = dataclasses.replace(
+        log,
+        time=log.time[:n],
+        q=np.repeat(log.q[:1], n, 0),
+        dq=1e-5 * np.random.default_rng(0).standard_normal((n, 7)),
+        tau=log.tau[:n],
+    )
     with pytest.raises(InputError, match="do not move"):
         diagnose(still)

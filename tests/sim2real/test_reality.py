@@ -59,6 +59,7 @@ def slope(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- trajectory
 
+
 @pytest.mark.parametrize("duration", [20.0, 4.0])
 def test_trajectory_starts_and_ends_at_rest_inside_the_limits(duration: float) -> None:
     traj = exciting_trajectory(duration, seed=3)
@@ -88,6 +89,7 @@ def test_trajectory_rejects_a_frequency_that_does_not_fit() -> None:
 
 
 # ---------------------------------------------------------------------------------------------- nominal log
+
 
 def test_nominal_log_matches_the_nominal_model(nominal, model: ArmModel) -> None:
     log = validate_log(nominal)
@@ -120,6 +122,7 @@ def test_noise_levels_and_seeds() -> None:
 
 # ---------------------------------------------------------------------------------------------- dynamics effects
 
+
 def test_coulomb_friction_is_in_the_torque_residual(model: ArmModel) -> None:
     fc = [0.8, 1.0, 0.5, 0.9, 0.3, 0.4, 0.2]
     log = make_arm_log({"coulomb": {"fc": fc, "v_smooth": 0.02}}, QUIET)
@@ -132,7 +135,7 @@ def test_stiff_coulomb_and_stribeck_friction_stay_right(model: ArmModel) -> None
     # fc / v_smooth = 1000 N m s/rad against joint inertias ~0.2 kg m^2: the implicit step holds
     log = make_arm_log({"coulomb": {"fc": 2.0, "v_smooth": 0.002}, "stribeck": {"fs": 1.0, "vs": 0.05}}, QUIET)
     r, _ = residual(log, model)
-    shape = np.stack([np.tanh(log.dq / 0.002), np.exp(-(log.dq / 0.05) ** 2) * np.tanh(log.dq / 0.002)], axis=-1)
+    shape = np.stack([np.tanh(log.dq / 0.002), np.exp(-((log.dq / 0.05) ** 2)) * np.tanh(log.dq / 0.002)], axis=-1)
     for j in range(7):
         coef, *_ = np.linalg.lstsq(shape[INNER, j], r[INNER, j], rcond=None)
         np.testing.assert_allclose(coef, [2.0, 1.0], atol=0.1)
@@ -168,6 +171,7 @@ def test_payload_adds_a_point_mass_at_the_flange(model: ArmModel) -> None:
 
 # ---------------------------------------------------------------------------------- sensing, actuation, controller
 
+
 def test_torque_offset_shifts_the_residual(model: ArmModel) -> None:
     offset = [0.5, -1.0, 0.0, 0.0, 0.2, 0.0, -0.3]
     log = make_arm_log({"torque_offset": {"offset": offset}}, QUIET)
@@ -197,7 +201,7 @@ def test_actuation_delay_lags_the_delivered_torque() -> None:
     delivered = log.tau + REFLECTED_INERTIA * _ddq(log)  # the link-side sensor plus the rotor's share
     a, b = np.diff(log.tau_cmd[:-1], axis=0), np.diff(delivered[:-1], axis=0)
     for j in range(7):
-        xc = [a[:len(a) - lag, j] @ b[lag:, j] for lag in range(40)]
+        xc = [a[: len(a) - lag, j] @ b[lag:, j] for lag in range(40)]
         assert abs(int(np.argmax(xc)) - 10) <= 1  # samples of 1 ms
 
 
@@ -245,16 +249,20 @@ def test_an_extra_torque_acts_on_the_joints(model: ArmModel) -> None:
 
 # ---------------------------------------------------------------------------------------------- errors
 
-@pytest.mark.parametrize("effects, words", [
-    ({"gear_wobble": {}}, "gear_wobble"),
-    ({"shaft_friction": {"mu": 0.3}}, "shaft_friction"),
-    ({"coulomb": {"fc": 7.0}}, "coulomb.fc"),
-    ({"coulomb": {"fc": [0.1, 0.2]}}, "coulomb.fc"),
-    ({"coulomb": {"mu": 0.1}}, "'mu'"),
-    ({"actuation_delay": {"delay": [0.01] * 7}}, "actuation_delay.delay"),
-    ({"payload": {"dm": -1.5}}, "payload dm = -1.5"),
-    ({"payload": {"dm": -1.4, "com_z": 0.25}}, "payload dm = -1.4"),
-])
+
+@pytest.mark.parametrize(
+    "effects, words",
+    [
+        ({"gear_wobble": {}}, "gear_wobble"),
+        ({"shaft_friction": {"mu": 0.3}}, "shaft_friction"),
+        ({"coulomb": {"fc": 7.0}}, "coulomb.fc"),
+        ({"coulomb": {"fc": [0.1, 0.2]}}, "coulomb.fc"),
+        ({"coulomb": {"mu": 0.1}}, "'mu'"),
+        ({"actuation_delay": {"delay": [0.01] * 7}}, "actuation_delay.delay"),
+        ({"payload": {"dm": -1.5}}, "payload dm = -1.5"),
+        ({"payload": {"dm": -1.4, "com_z": 0.25}}, "payload dm = -1.4"),
+    ],
+)
 def test_bad_effects_raise_input_errors_naming_them(effects, words: str) -> None:
     with pytest.raises(InputError, match=words):
         make_arm_log(effects, RealityConfig(duration=0.2, noise=False))
@@ -262,14 +270,21 @@ def test_bad_effects_raise_input_errors_naming_them(effects, words: str) -> None
 
 def test_resolve_effects_fills_the_catalogue_defaults() -> None:
     assert resolve_effects({"coulomb": {"fc": 0.5}}) == {"coulomb": {"fc": [0.5] * 7, "v_smooth": 0.02}}
-    assert resolve_effects({"payload": {"dm": 1.0}}) == {"payload": {"dm": 1.0, "com_x": 0.0, "com_y": 0.0,
-                                                                     "com_z": 0.0}}
+    assert resolve_effects({"payload": {"dm": 1.0}}) == {
+        "payload": {"dm": 1.0, "com_x": 0.0, "com_y": 0.0, "com_z": 0.0}
+    }
 
 
-@pytest.mark.parametrize("fields, words", [
-    ({"time_step": 3e-4}, "time_step"), ({"kp": (1.0, 2.0)}, "kp"), ({"end_effector": "gripper"}, "end_effector"),
-    ({"duration": -1.0}, "duration"), ({"tau_noise": -0.1}, "tau_noise"),
-])
+@pytest.mark.parametrize(
+    "fields, words",
+    [
+        ({"time_step": 3e-4}, "time_step"),
+        ({"kp": (1.0, 2.0)}, "kp"),
+        ({"end_effector": "gripper"}, "end_effector"),
+        ({"duration": -1.0}, "duration"),
+        ({"tau_noise": -0.1}, "tau_noise"),
+    ],
+)
 def test_bad_config_raises(fields: dict, words: str) -> None:
     with pytest.raises(InputError, match=words):
         RealityConfig(**fields)

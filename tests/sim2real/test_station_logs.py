@@ -10,8 +10,13 @@ from goflow_common.errors import InputError
 from sim2real.importers import load_log
 from sim2real.log import PHASES, save_log, validate_log
 from sim2real.station_logs import (
-    check_station_effects, make_insertion_log, phase_residuals, replay_insertion, segment_phases,
-    skill_success, station_physics,
+    check_station_effects,
+    make_insertion_log,
+    phase_residuals,
+    replay_insertion,
+    segment_phases,
+    skill_success,
+    station_physics,
 )
 
 FRICTION = {"shaft_friction": {"mu": 1.0}}
@@ -22,6 +27,7 @@ CONTACT, INSERTION = PHASES.index("contact"), PHASES.index("insertion")
 @pytest.fixture(scope="module")
 def skill():
     from learning.skill_file import load_skill
+
     return load_skill("insert", "medium")
 
 
@@ -49,9 +55,17 @@ def test_log_contract_and_phases(nominal, tmp_path):
     assert success and log.meta["success"]
     T = log.n_samples
     assert T == 501 and np.allclose(np.diff(log.time), 0.008)  # every physics step, 4 s
-    for name, shape in (("q", (T, 7)), ("dq", (T, 7)), ("tau", (T, 7)), ("tau_cmd", (T, 7)),
-                        ("tool_pose", (T, 4, 4)), ("tool_target", (T, 4, 4)), ("wrench", (T, 6)),
-                        ("gripper_width", (T,)), ("phase", (T,))):
+    for name, shape in (
+        ("q", (T, 7)),
+        ("dq", (T, 7)),
+        ("tau", (T, 7)),
+        ("tau_cmd", (T, 7)),
+        ("tool_pose", (T, 4, 4)),
+        ("tool_target", (T, 4, 4)),
+        ("wrench", (T, 6)),
+        ("gripper_width", (T,)),
+        ("phase", (T,)),
+    ):
         assert getattr(log, name).shape == shape, name
         assert np.all(np.isfinite(getattr(log, name))), name
     np.testing.assert_array_equal(log.tau, log.tau_cmd)
@@ -118,22 +132,31 @@ def test_phase_rule():
 def test_effects_map_to_physics():
     assert station_physics({}) == {"contact": None, "grasp_hold": None}
     assert station_physics({"shaft_friction": 0.0, "grasp_slip": 1.0}) == {"contact": None, "grasp_hold": None}
-    p = station_physics({"shaft_friction": 1.2, "hydroelastic_modulus": {"scale": 3.0},
-                         "hydroelastic_dissipation": {"d": 5.0}, "grasp_slip": {"mu_scale": 0.5}})
+    p = station_physics(
+        {
+            "shaft_friction": 1.2,
+            "hydroelastic_modulus": {"scale": 3.0},
+            "hydroelastic_dissipation": {"d": 5.0},
+            "grasp_slip": {"mu_scale": 0.5},
+        }
+    )
     assert (p["contact"].mu, p["contact"].modulus_scale, p["contact"].dissipation) == (1.2, 3.0, 5.0)
     assert p["grasp_hold"].force_limit == pytest.approx(20.0)
     assert check_station_effects({"shaft_friction": {}}) == {"shaft_friction": {"mu": 0.0}}
 
 
-@pytest.mark.parametrize("effects, words", [
-    ({"shaft_fricton": {"mu": 1.0}}, ["shaft_fricton", "shaft_friction"]),
-    ({"coulomb": {"fc": 1.0}}, ["coulomb", "station effect"]),
-    ({"shaft_friction": {"k": 1.0}}, ["'k'", "mu"]),
-    ({"shaft_friction": {"mu": 3.0}}, ["shaft_friction", "mu", "3.0", "[0.05, 1.5]"]),
-    ({"grasp_slip": {"mu_scale": float("nan")}}, ["grasp_slip", "mu_scale", "nan"]),
-    ({"hydroelastic_modulus": {"scale": True}}, ["hydroelastic_modulus", "scale", "True"]),
-    ([("shaft_friction", 1.0)], ["effects", "mapping"]),
-])
+@pytest.mark.parametrize(
+    "effects, words",
+    [
+        ({"shaft_fricton": {"mu": 1.0}}, ["shaft_fricton", "shaft_friction"]),
+        ({"coulomb": {"fc": 1.0}}, ["coulomb", "station effect"]),
+        ({"shaft_friction": {"k": 1.0}}, ["'k'", "mu"]),
+        ({"shaft_friction": {"mu": 3.0}}, ["shaft_friction", "mu", "3.0", "[0.05, 1.5]"]),
+        ({"grasp_slip": {"mu_scale": float("nan")}}, ["grasp_slip", "mu_scale", "nan"]),
+        ({"hydroelastic_modulus": {"scale": True}}, ["hydroelastic_modulus", "scale", "True"]),
+        ([("shaft_friction", 1.0)], ["effects", "mapping"]),
+    ],
+)
 def test_bad_effects_raise_input_error(effects, words):
     with pytest.raises(InputError) as info:
         make_insertion_log(effects)

@@ -18,8 +18,12 @@ T, J = 4000, 3
 def _gains(residual, valid, bases):
     starts = block_starts(valid, 20)
     folds = [np.arange(k * 4, (k + 1) * 4) for k in range(5)]
-    return {g["basis"]: g for g in structure_gains(residual[:, None, :], np.ones((1, J)), valid, starts, folds,
-                                                      bases, 200, np.random.default_rng(0))}
+    return {
+        g["basis"]: g
+        for g in structure_gains(
+            residual[:, None, :], np.ones((1, J)), valid, starts, folds, bases, 200, np.random.default_rng(0)
+        )
+    }
 
 
 @pytest.fixture(scope="module")
@@ -80,8 +84,9 @@ def test_a_strong_drag_that_several_effects_mimic_reads_unexplained():
     # at 3x the drag, viscous friction, a saturation and Coulomb friction together close over 90 %
     # of the excess; what they leave is under 5 % of the excess but most of what is left, and a
     # function of the joint velocity
-    log = make_arm_log({}, RealityConfig(duration=6.0, seed=0),
-                       extra_torque=functools.partial(drag_torque, coefficient=3.0))
+    log = make_arm_log(
+        {}, RealityConfig(duration=6.0, seed=0), extra_torque=functools.partial(drag_torque, coefficient=3.0)
+    )
     v = diagnose(log).summary()["verdict"]
     assert v["label"] == "unexplained"
     velocity = {s["basis"]: s for s in v["structure"]}["joint velocity"]

@@ -8,17 +8,45 @@ import pytest
 
 def test_collect_then_estimate_gives_a_sampler_file(tmp_path, run_goflow):
     data = tmp_path / "pm.npz"
-    proc = run_goflow("collect", "--env", "goflow/PointMass-v0", "--true-xi", "mixture", "--episodes", "6",
-                "--steps", "8", "--seed", "1", "--out", str(data))
+    proc = run_goflow(
+        "collect",
+        "--env",
+        "goflow/PointMass-v0",
+        "--true-xi",
+        "mixture",
+        "--episodes",
+        "6",
+        "--steps",
+        "8",
+        "--seed",
+        "1",
+        "--out",
+        str(data),
+    )
     assert proc.returncode == 0, proc.stderr
     from learning.estimation.dataset import load_dataset
+
     ds = load_dataset(data)
     assert ds.num_episodes == 6 and ds.collection["command"].startswith("goflow collect")
     out = tmp_path / "est.json"
-    proc = run_goflow("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "3000",
-                "--method-kwarg", "samples=10", "--method-kwarg", "transitions=8", "--out", str(out))
+    proc = run_goflow(
+        "estimate",
+        "--data",
+        str(data),
+        "--method",
+        "dropo",
+        "--sim-budget",
+        "3000",
+        "--method-kwarg",
+        "samples=10",
+        "--method-kwarg",
+        "transitions=8",
+        "--out",
+        str(out),
+    )
     assert proc.returncode == 0, proc.stderr
     from learning.estimation.estimate_file import load_estimate
+
     sampler, doc = load_estimate(out)
     assert doc["method"] == "dropo" and doc["info"]["sim_calls"] <= 3000
     assert np.all(ds.space.contains(sampler.sample(10, np.random.default_rng(0))))
@@ -26,14 +54,39 @@ def test_collect_then_estimate_gives_a_sampler_file(tmp_path, run_goflow):
 
 
 def test_bad_flags_are_explained(tmp_path, run_goflow):
-    proc = run_goflow("collect", "--env", "goflow/Nope-v0", "--true-xi", "gaussian", "--episodes", "2",
-                "--out", str(tmp_path / "x.npz"))
+    proc = run_goflow(
+        "collect",
+        "--env",
+        "goflow/Nope-v0",
+        "--true-xi",
+        "gaussian",
+        "--episodes",
+        "2",
+        "--out",
+        str(tmp_path / "x.npz"),
+    )
     assert proc.returncode != 0 and "no step-from-state simulator for env 'goflow/Nope-v0'" in proc.stderr
-    proc = run_goflow("collect", "--env", "goflow/PointMass-v0", "--true-xi", "uniform", "--episodes", "2",
-                "--out", str(tmp_path / "x.npz"))
+    proc = run_goflow(
+        "collect",
+        "--env",
+        "goflow/PointMass-v0",
+        "--true-xi",
+        "uniform",
+        "--episodes",
+        "2",
+        "--out",
+        str(tmp_path / "x.npz"),
+    )
     assert proc.returncode == 2 and "invalid choice: 'uniform'" in proc.stderr
-    proc = run_goflow("estimate", "--data", str(tmp_path / "missing.npz"), "--method", "nfpde-softmax",
-                "--out", str(tmp_path / "e.json"))
+    proc = run_goflow(
+        "estimate",
+        "--data",
+        str(tmp_path / "missing.npz"),
+        "--method",
+        "nfpde-softmax",
+        "--out",
+        str(tmp_path / "e.json"),
+    )
     assert proc.returncode != 0 and "no such file" in proc.stderr
     proc = run_goflow("estimate", "--data", str(tmp_path / "m.npz"), "--method", "mle", "--out", "e.json")
     assert proc.returncode == 2 and "invalid choice: 'mle'" in proc.stderr
@@ -43,6 +96,7 @@ def test_bad_flags_are_explained(tmp_path, run_goflow):
 # write the untouched prior with exit code 0 (DROPO's with `Infinity` in it).
 
 METHOD_OPTION = "--method-kwarg"  # `goflow estimate`'s KEY=VALUE flag for the method's config
+
 
 @pytest.fixture(scope="module")
 def small_data(tmp_path_factory):
@@ -61,8 +115,10 @@ def test_budget_below_one_iteration_is_refused_by_the_cli(tmp_path, small_data, 
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
-    assert ("sim_budget = 3000; dropo needs at least 4096 simulator calls for one iteration on this dataset "
-            "(one CMA-ES generation: 8 candidates x 32 samples x 16 transitions") in lines[0]
+    assert (
+        "sim_budget = 3000; dropo needs at least 4096 simulator calls for one iteration on this dataset "
+        "(one CMA-ES generation: 8 candidates x 32 samples x 16 transitions"
+    ) in lines[0]
     assert not out.exists()
 
 
@@ -73,8 +129,10 @@ def test_every_method_refuses_a_budget_below_its_minimum_before_simulating(small
 
     _, ds = small_data
     need, _ = min_sim_calls(EstimateConfig(method=method), ds)
-    assert need == {"nfpde-softmax": 64 * 16 * 2, "nfpde-cai": 64 * 16 * 2, "dropo": 8 * 32 * 16,
-                    "bayessim": 2 * 16}[method]
+    assert (
+        need
+        == {"nfpde-softmax": 64 * 16 * 2, "nfpde-cai": 64 * 16 * 2, "dropo": 8 * 32 * 16, "bayessim": 2 * 16}[method]
+    )
     with pytest.raises(InputError, match=f"sim_budget = {need - 1}; {method} needs at least {need} simulator calls"):
         estimate(ds, EstimateConfig(method=method, sim_budget=need - 1), sim=object())  # the sim is never touched
 
@@ -83,8 +141,21 @@ def test_one_iteration_budget_gives_strict_json_and_a_progress_bar(tmp_path, sma
     data, _ = small_data
     out = tmp_path / "est.json"
     # 8 candidates x 10 draws x 8 transitions = 640 calls: exactly one CMA-ES generation
-    proc = run_goflow("estimate", "--data", str(data), "--method", "dropo", "--sim-budget", "640",
-                METHOD_OPTION, "samples=10", METHOD_OPTION, "transitions=8", "--out", str(out))
+    proc = run_goflow(
+        "estimate",
+        "--data",
+        str(data),
+        "--method",
+        "dropo",
+        "--sim-budget",
+        "640",
+        METHOD_OPTION,
+        "samples=10",
+        METHOD_OPTION,
+        "transitions=8",
+        "--out",
+        str(out),
+    )
     assert proc.returncode == 0, proc.stderr
     assert "estimate dropo" in proc.stderr and "640/640" in proc.stderr  # tqdm bar over simulator calls
     doc = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"{c} in the estimate file"))
@@ -105,14 +176,17 @@ def test_non_finite_method_option_is_one_line(tmp_path, small_data, run_goflow):
         assert not out.exists()
 
 
-@pytest.mark.parametrize("method, option, value, message", [
-    ("nfpde-softmax", "beta", float("nan"), r"NFPDEConfig\.beta = nan; expected a finite number in \(0, "),
-    ("nfpde-cai", "tau", "0.1", r"NFPDEConfig\.tau = '0.1'; expected a number"),
-    ("nfpde-softmax", "clip", 1.5, r"NFPDEConfig\.clip = 1.5; expected a number in \(0, 1\)"),
-    ("dropo", "epsilon", float("nan"), r"DROPOConfig\.epsilon = nan; expected a finite number"),
-    ("dropo", "sigma0", float("inf"), r"DROPOConfig\.sigma0 = inf; expected a finite number"),
-    ("dropo", "popsize", 1, r"DROPOConfig\.popsize = 1; expected an integer >= 2"),
-])
+@pytest.mark.parametrize(
+    "method, option, value, message",
+    [
+        ("nfpde-softmax", "beta", float("nan"), r"NFPDEConfig\.beta = nan; expected a finite number in \(0, "),
+        ("nfpde-cai", "tau", "0.1", r"NFPDEConfig\.tau = '0.1'; expected a number"),
+        ("nfpde-softmax", "clip", 1.5, r"NFPDEConfig\.clip = 1.5; expected a number in \(0, 1\)"),
+        ("dropo", "epsilon", float("nan"), r"DROPOConfig\.epsilon = nan; expected a finite number"),
+        ("dropo", "sigma0", float("inf"), r"DROPOConfig\.sigma0 = inf; expected a finite number"),
+        ("dropo", "popsize", 1, r"DROPOConfig\.popsize = 1; expected an integer >= 2"),
+    ],
+)
 def test_method_configs_check_their_options(method, option, value, message):
     from goflow_common.errors import InputError
     from learning.estimation.estimate import EstimateConfig

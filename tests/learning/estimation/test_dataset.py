@@ -50,16 +50,22 @@ def test_logged_transitions_replay_exactly(small):
     np.testing.assert_allclose(pred, ds.next_states, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda a: a.pop("actions"), "missing array(s) ['actions']"),
-    (lambda a: a.__setitem__("next_states", a["next_states"][:-1]), "'next_states' has shape"),
-    (lambda a: a["states"].__setitem__((3, 1), np.nan), "'states' has 1 non-finite value(s) (first: row 3, column 1"),
-    (lambda a: a.__setitem__("episode", a["episode"][::-1].copy()), "non-decreasing"),
-    (lambda a: a.__setitem__("true_xi", a["true_xi"][:2]), "'true_xi' has shape (2, 2), expected (4, 2)"),
-    (lambda a: a.__setitem__("meta", np.array("{not json")), "'meta' is not valid JSON"),
-    (lambda a: a.__setitem__("meta", np.array(json.dumps({"format": "other"}))), "format/version is 'other'"),
-    (lambda a: a["true_xi"].__setitem__((0, 0), 99.0), "parameter 'mass' = 99 kg is outside its bounds"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda a: a.pop("actions"), "missing array(s) ['actions']"),
+        (lambda a: a.__setitem__("next_states", a["next_states"][:-1]), "'next_states' has shape"),
+        (
+            lambda a: a["states"].__setitem__((3, 1), np.nan),
+            "'states' has 1 non-finite value(s) (first: row 3, column 1",
+        ),
+        (lambda a: a.__setitem__("episode", a["episode"][::-1].copy()), "non-decreasing"),
+        (lambda a: a.__setitem__("true_xi", a["true_xi"][:2]), "'true_xi' has shape (2, 2), expected (4, 2)"),
+        (lambda a: a.__setitem__("meta", np.array("{not json")), "'meta' is not valid JSON"),
+        (lambda a: a.__setitem__("meta", np.array(json.dumps({"format": "other"}))), "format/version is 'other'"),
+        (lambda a: a["true_xi"].__setitem__((0, 0), 99.0), "parameter 'mass' = 99 kg is outside its bounds"),
+    ],
+)
 def test_reader_rejects_malformed(tmp_path, small, mutate, message):
     ds, truth = small
     good = save_dataset(tmp_path / "good.npz", ds, truth)
@@ -81,6 +87,7 @@ def test_reader_rejects_missing_garbage_and_wrong_params(tmp_path, small):
     good = save_dataset(tmp_path / "good.npz", ds, truth)
     from assembly.transition.cartpole import CartpoleTransitionSim  # noqa: F401 (import only)
     from assembly.envs.cartpole import CARTPOLE_SPACE
+
     with pytest.raises(DatasetError, match="parameters differ from the simulator's.*parameter names differ"):
         load_dataset(good, expected_space=CARTPOLE_SPACE)
     meta = json.loads(str(_arrays(good)["meta"]))
@@ -111,6 +118,8 @@ def test_actions_outside_the_unit_box_are_refused_on_save_and_load(tmp_path, sma
         with pytest.raises(DatasetError, match=message):
             read(bad)
     wild = dataclasses.replace(ds, actions=np.where(np.arange(ds.num_transitions)[:, None] == 3, 2.0, ds.actions))
-    with pytest.raises(DatasetError, match=r"'actions' has \d+ value\(s\) outside \[-1, 1\] \(first: row 3, column 0 = 2\)"):
+    with pytest.raises(
+        DatasetError, match=r"'actions' has \d+ value\(s\) outside \[-1, 1\] \(first: row 3, column 0 = 2\)"
+    ):
         save_dataset(tmp_path / "wild.npz", wild, truth)
     assert not (tmp_path / "wild.npz").exists()

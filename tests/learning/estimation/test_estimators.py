@@ -127,6 +127,7 @@ def test_target_and_config_errors():
     with pytest.raises(ValueError, match="target kind 'uniform' is unknown"):
         TargetConfig(kind="uniform")
     from assembly.transition.point_mass import POINT_MASS_SPACE
+
     xi = sample_target(TargetConfig(kind="mixture"), POINT_MASS_SPACE, 300, np.random.default_rng(0))
     assert np.all(POINT_MASS_SPACE.contains(xi))
 

@@ -38,8 +38,13 @@ def samplers():
 
 def test_ppo_trains_on_the_estimate_and_scores_on_the_truth(samplers):
     train, truth = samplers
-    cfg = TransferConfig(env=ENV, iterations=3, eval_every=2, eval_episodes=4,
-                         ppo=PPOConfig(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1))
+    cfg = TransferConfig(
+        env=ENV,
+        iterations=3,
+        eval_every=2,
+        eval_episodes=4,
+        ppo=PPOConfig(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1),
+    )
     res = train_and_evaluate(train, truth, cfg)
     assert [pt[0] for pt in res["curve"]] == [2 * 64, 3 * 64]  # at eval_every and at the end
     assert res["final_mean_return"] == res["curve"][-1][1] and np.isfinite(res["final_mean_return"])
@@ -50,8 +55,9 @@ def test_ppo_trains_on_the_estimate_and_scores_on_the_truth(samplers):
 def test_sac_trains_on_the_estimate_and_scores_on_the_truth(samplers):
     pytest.importorskip("stable_baselines3", reason="the optional extra sb3 is not installed")
     train, truth = samplers
-    cfg = TransferConfig(env=ENV, algo="sac", eval_episodes=3,
-                         sac=SACConfig(steps=250, eval_every=100, learning_starts=50))
+    cfg = TransferConfig(
+        env=ENV, algo="sac", eval_episodes=3, sac=SACConfig(steps=250, eval_every=100, learning_starts=50)
+    )
     res = train_and_evaluate(train, truth, cfg)
     assert [pt[0] for pt in res["curve"]] == [100, 200, 250]
     assert len(truth.draws) == 3 * 3  # one draw per evaluation episode, nothing else
