@@ -29,7 +29,7 @@ from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from goflow_common.errors import SimulationError
 
-__all__ = ["ParamEnv", "SimulationError", "clipped_float32", "quaternion_rotation"]
+__all__ = ["ParamEnv", "SimulationError", "check_sampler", "clipped_float32", "quaternion_rotation"]
 
 
 def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[np.float32]:
@@ -51,6 +51,19 @@ def quaternion_rotation(q: ArrayLike) -> NDArray[np.float64]:
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+def check_sampler(sampler: Any, space: ParamSpace, owner: str) -> Sampler:
+    """`sampler` if it implements the Sampler protocol over exactly `space`; TypeError (not a
+    Sampler) or ValueError (another ParamSpace, with the differences) naming `owner` otherwise."""
+    if not isinstance(sampler, Sampler):
+        raise TypeError(f"{owner}: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}")
+    if sampler.space != space:
+        raise ValueError(
+            f"{owner}: the sampler's ParamSpace differs from the environment's (env vs sampler): "
+            + "; ".join(space.diff(sampler.space))
+        )
+    return sampler
 
 
 class ParamEnv(gymnasium.Env):
@@ -92,16 +105,7 @@ class ParamEnv(gymnasium.Env):
 
     @sampler.setter
     def sampler(self, sampler: Sampler) -> None:
-        if not isinstance(sampler, Sampler):
-            raise TypeError(
-                f"{type(self).__name__}: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}"
-            )
-        if sampler.space != self.space:
-            raise ValueError(
-                f"{type(self).__name__}: the sampler's ParamSpace differs from the "
-                "environment's (env vs sampler): " + "; ".join(self.space.diff(sampler.space))
-            )
-        self._sampler = sampler
+        self._sampler = check_sampler(sampler, self.space, type(self).__name__)
 
     @property
     def xi(self) -> NDArray[np.float64] | None:

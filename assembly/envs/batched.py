@@ -35,6 +35,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import ArrayLike, NDArray
 
+from assembly.envs.base import check_sampler
 from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from goflow_common.errors import InputError, SimulationError
@@ -172,16 +173,7 @@ class BatchedEnv(VectorEnv):
 
     @sampler.setter
     def sampler(self, sampler: Sampler) -> None:
-        if not isinstance(sampler, Sampler):
-            raise TypeError(
-                f"{self._owner}: sampler must implement assembly.samplers.Sampler, got {type(sampler).__name__}"
-            )
-        if sampler.space != self.space:
-            raise ValueError(
-                f"{self._owner}: the sampler's ParamSpace differs from the environment's "
-                "(env vs sampler): " + "; ".join(self.space.diff(sampler.space))
-            )
-        self._sampler = sampler
+        self._sampler = check_sampler(sampler, self.space, self._owner)
 
     def set_attr(self, name: str, values: Any) -> None:
         """SyncVectorEnv's `set_attr` for the one shared attribute, "sampler" (one value, or one per
