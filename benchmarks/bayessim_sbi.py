@@ -168,7 +168,7 @@ def simulate(ds: Any, budget_calls: int, config: BayesSimConfig, seed: int) -> t
     """BayesSim's simulation step on the dataset's own simulator (in-process, as `goflow estimate`
     with one worker), with its wall and CPU time."""
     from assembly.transition import ParallelTransitionSim
-    from learning.estimation.common import Budget
+    from learning.estimation.budget import Budget
 
     sim = ParallelTransitionSim(ds.env_id, workers=1)
     budget = Budget(ds, sim, budget_calls)
@@ -196,7 +196,7 @@ def recorded_ots(path: str | None) -> dict:
     return {(r["env"], r["target"], r["method"], r["seed"]): r["ot"] for r in read_json(path, "runs file")["runs"]}
 
 
-def summarize(runs: list[dict], oracle: dict) -> list[dict]:
+def ot_rows(runs: list[dict], oracle: dict) -> list[dict]:
     """One row per (env, target, method): OT mean, standard error and per seed; mean times."""
     rows = []
     for env in dict.fromkeys(r["env"] for r in runs):
@@ -313,7 +313,7 @@ def main() -> int:
                     if rec is not None:
                         run["recorded_ot"] = rec
                     doc["runs"].append(run)
-                    write_json(args.json, {**doc, "rows": summarize(doc["runs"], doc["oracle"])})
+                    write_json(args.json, {**doc, "rows": ot_rows(doc["runs"], doc["oracle"])})
                     print(
                         f"{env} {target} seed {seed} {label}: OT {ot:.4f}"
                         + (f" (recorded {rec:.4f}, diff {ot - rec:+.4f})" if rec is not None else "")
@@ -322,7 +322,7 @@ def main() -> int:
                         flush=True,
                     )
     doc["wall_seconds"] = time.perf_counter() - t_start
-    doc["rows"] = summarize(doc["runs"], doc["oracle"])
+    doc["rows"] = ot_rows(doc["runs"], doc["oracle"])
     write_json(args.json, doc)
     print_rows(doc["rows"])
     print(f"\n{args.json} ({doc['wall_seconds']:.0f} s)")

@@ -7,7 +7,7 @@ same for the skills' measured feasible sets, fitted from their grids as the skil
     .venv/bin/python -m benchmarks.classifier_frontier --skills small medium large --per-cell 1 10 --seeds 0
 
 Each (layout, seed, memory, boundary memory) feeds uniform batches of `--batch` points with their
-0/1 success to an `Evidence` of a window of `memory` rows and up to `boundary memory` older rows on
+0/1 success to an `SignalMemory` of a window of `memory` rows and up to `boundary memory` older rows on
 the class boundary (GoFlowConfig.boundary_memory), and fits GoFlow's success classifier to it
 after every batch, exactly as the constrained mode's update does (`SuccessClassifier.fit_evidence`,
 GoFlowConfig's steps, minibatch and layers); no flow is trained. At each round of `--rounds` the
@@ -47,7 +47,7 @@ from goflow_common.errors import GoflowError, InputError
 from goflow_common.files import check_output_file, write_json
 from learning.feasible_grid import FeasibleSet, FlowRefitConfig
 from learning.feasible_sets import LAYOUTS, Layout
-from learning.samplers.evidence import Evidence
+from learning.samplers.signal_memory import SignalMemory
 from learning.samplers.feasibility import SuccessClassifier
 from learning.samplers.goflow_config import GoFlowConfig
 from learning.skill_file import load_skill
@@ -100,7 +100,7 @@ def run(
     """The frontier of one (layout, seed, memory, boundary_memory) at each round of `rounds` (ascending)."""
     cfg = GoFlowConfig(mode="constrained")
     d = layout.dim
-    evidence = Evidence(d, memory, cfg.neighbours, (0.0, 1.0), boundary_memory)
+    evidence = SignalMemory(d, memory, cfg.neighbours, (0.0, 1.0), boundary_memory)
     classifier = SuccessClassifier(d, cfg.classifier_layers(d), seed)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng([seed, 1])
@@ -159,7 +159,7 @@ def run_skill(
     cfg, refit = GoFlowConfig(mode="constrained"), FlowRefitConfig()
     space, d = feasible.space, feasible.space.dim
     xi, success = grid_rows(feasible, per_cell, seed)
-    evidence = Evidence(d, len(xi), cfg.neighbours, (0.0, 1.0))
+    evidence = SignalMemory(d, len(xi), cfg.neighbours, (0.0, 1.0))
     evidence.add(xi, success)
     classifier = SuccessClassifier(d, cfg.classifier_layers(d), seed)
     classifier.fit_evidence(
@@ -263,7 +263,7 @@ def make_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--rounds", nargs="+", type=int, default=[100, 200, 300], help="rounds at which F-hat is read")
-    p.add_argument("--memory", nargs="+", type=int, default=[GoFlowConfig.memory], help="Evidence rows kept")
+    p.add_argument("--memory", nargs="+", type=int, default=[GoFlowConfig.memory], help="SignalMemory rows kept")
     p.add_argument(
         "--boundary-memory",
         nargs="+",

@@ -83,7 +83,7 @@ def evaluate(
     return rows
 
 
-def summarize(rows: list[dict], perturbations: tuple[str, ...], visible: float = 0.5) -> list[dict]:
+def detection_summary(rows: list[dict], perturbations: tuple[str, ...], visible: float = 0.5) -> list[dict]:
     """Per perturbation: gears found (of all, and of those at least `visible` visible), scenes
     with every gear found, occluded targets found, gears seen although less than `visible`
     visible, centre error median / 95th percentile / max, truth outside the box, median
@@ -169,7 +169,7 @@ def main() -> None:
             parser.error(str(exc))
     perturbations = tuple(args.perturbations)
     rows = evaluate(args.scenes, args.seed, perturbations)
-    summary = summarize(rows, perturbations)
+    summary = detection_summary(rows, perturbations)
     print(table(summary))
     # Failures: a gear at least half visible not seen, or the truth outside a proposed box.
     failed = [r for r in rows if (not r["seen"] and r["visible_truth"] >= 0.5) or (r["seen"] and not r["inside"])]

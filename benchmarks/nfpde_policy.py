@@ -163,7 +163,7 @@ def main() -> int:
 
     doc.pop("command", None)
     merge_with_file(res_path, doc)
-    doc["summary"] = summarize(doc["runs"])
+    doc["summary"] = return_summary(doc["runs"])
     write_json(res_path, doc)
     plot(doc["runs"], out / f"nfpde-policy-{stem}{args.target}.png", f"{args.env}, {args.target} target")
     for key, s in doc["summary"].items():
@@ -197,7 +197,7 @@ def _groups(runs: list[dict]) -> dict[tuple[str, str], list[dict]]:
     return groups
 
 
-def summarize(runs: list[dict]) -> dict[str, dict]:
+def return_summary(runs: list[dict]) -> dict[str, dict]:
     """Per "<algo>/<train_on>", mean and standard error over seeds of the final return on the truth
     and of the mean return over the curve's evaluations (how soon a policy is good)."""
 

@@ -171,7 +171,7 @@ def _labels(runs: list[dict]) -> list[str]:
     return [m for m in ESTIMATORS if m in seen] + [m for m in seen if m not in ESTIMATORS]
 
 
-def summarize(runs: list[dict], oracle: dict) -> dict:
+def table_rows(runs: list[dict], oracle: dict) -> dict:
     """The rows of docs/results/nfpde.json."""
     rows = []
     for env in dict.fromkeys(r["env"] for r in runs):
@@ -343,7 +343,7 @@ def main() -> int:
             )
         except GridError as exc:  # the other runs are saved; the summary below covers them
             failed = exc
-    summary = summarize(doc["runs"], doc["oracle"])
+    summary = table_rows(doc["runs"], doc["oracle"])
     summary["command"] = doc["command"]
     summary["commands"] = doc.get("commands", [doc["command"]])
     write_json(out / f"{args.name}.json", summary)

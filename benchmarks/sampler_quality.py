@@ -510,7 +510,7 @@ def _mean_se(values: list[float | None], infinite: float | None = None) -> tuple
     return mean, se
 
 
-def summarize(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def quality_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per (layout, method, protocol): the measured rounds and, per metric, the mean and
     standard error over seeds at each round; the median update seconds and wall time per run."""
     groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
@@ -759,7 +759,7 @@ def main(argv: list[str] | None = None) -> int:
 
         order = {(t.layout, t.method, t.protocol, t.seed): i for i, t in enumerate(tasks)}
         done.sort(key=lambda r: order[(r["layout"], r["method"], r["protocol"], r["seed"])])
-        rows = summarize(done)
+        rows = quality_rows(done)
         print(table(rows))
         layouts = list(dict.fromkeys(t.layout for t in tasks))
         write_json(

@@ -17,7 +17,7 @@ station contact case:
 Each case writes <out>/<case>.json atomically and is skipped when present with the same --duration
 and --torque-filter, by a diagnosis with the same structure thresholds (rerun to resume; a case made
 with other settings is made again). The
-summary (rates per magnitude group and per effect, sim2real.validation.summarize) and every case's
+summary (rates per magnitude group and per effect, sim2real.validation.rates_by_magnitude) and every case's
 row go to --json, and a table is printed.
 """
 
@@ -30,7 +30,7 @@ from pathlib import Path
 from goflow_common.files import check_output_dir, check_output_file, read_json, write_json
 from learning.execution import Job, make_backend, run_grid
 from sim2real.realistic import UNIT_SETTINGS, realistic_cases, run_realistic, summarize_realistic
-from sim2real.validation import MAGNITUDES, cases, run_case, summarize
+from sim2real.validation import MAGNITUDES, cases, run_case, rates_by_magnitude
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -205,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         "torque_filter": args.torque_filter,
         "duration": args.duration,
         "seeds": args.seeds,
-        "summary": summarize(arm),
+        "summary": rates_by_magnitude(arm),
         "cases": arm,
     }
     if not args.no_contact:

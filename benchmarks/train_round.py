@@ -22,15 +22,15 @@ from learning.experiment import TrainConfig, train
 from learning.ppo import PPO
 
 ENVS = ("goflow/Cartpole-v0", "goflow/Quadrotor-v0", "goflow/GearInsertion-v0")
-PHASES = {"collect": (PPO, "collect"), "update": (PPO, "update"), "evaluate": (PPO, "evaluate")}
+TIMED_CALLS = {"collect": (PPO, "collect"), "update": (PPO, "update"), "evaluate": (PPO, "evaluate")}
 
 
 def timed_round(env: str, vectorization: str, rounds: int, method: str) -> dict[str, float]:
     """Seconds per phase (and "total", "sampler" = the rest: sampler update and bookkeeping) of
     `rounds` training rounds."""
-    spent = {name: 0.0 for name in PHASES}
+    spent = {name: 0.0 for name in TIMED_CALLS}
     originals = {}
-    for name, (owner, attr) in PHASES.items():
+    for name, (owner, attr) in TIMED_CALLS.items():
         inner = getattr(owner, attr)
         originals[name] = inner
 
@@ -50,10 +50,10 @@ def timed_round(env: str, vectorization: str, rounds: int, method: str) -> dict[
         train(config, progress=False)
         total = time.perf_counter() - t0
     finally:
-        for name, (owner, attr) in PHASES.items():
+        for name, (owner, attr) in TIMED_CALLS.items():
             setattr(owner, attr, originals[name])
     spent["total"] = total
-    spent["other"] = total - sum(spent[name] for name in PHASES)
+    spent["other"] = total - sum(spent[name] for name in TIMED_CALLS)
     return spent
 
 

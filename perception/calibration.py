@@ -249,7 +249,7 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
     return rows
 
 
-def summarize(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> list[dict]:
+def coverage_summary(rows: list[dict], levels: tuple[float, ...] = LEVELS) -> list[dict]:
     """Per group and view: observed coverage at each nominal level (informative posteriors), MAP
     error and std percentiles, confidently wrong answers, seconds, and what was not seen."""
     out = []
@@ -401,7 +401,7 @@ def run_calibration(config: CalibrationConfig | None = None, progress: bool = Fa
             "groups": list(config.groups),
             "levels": list(config.levels),
         },
-        "summary": summarize(rows, config.levels),
+        "summary": coverage_summary(rows, config.levels),
         "rows": rows,
     }
 
@@ -481,7 +481,7 @@ def pool_results(results: list[dict]) -> dict:
     groups = list(dict.fromkeys(g for r in results for g in r["config"].get("groups", [])))
     sets = []
     for k, result in enumerate(results):
-        summary = result.get("summary") or summarize(result["rows"], levels)
+        summary = result.get("summary") or coverage_summary(result["rows"], levels)
         sets.append(
             {
                 "seed": seeds[k],
@@ -500,7 +500,7 @@ def pool_results(results: list[dict]) -> dict:
             "groups": groups,
             "levels": list(levels),
         },
-        "summary": summarize(rows, levels),
+        "summary": coverage_summary(rows, levels),
         "rows": rows,
         "sets": {"each": sets, "scenes": per_set, "resampled_within_band": resampled_set_count(rows, per_set, levels)},
     }
@@ -603,5 +603,5 @@ __all__ = [
     "run_calibration",
     "save_result",
     "sets_text",
-    "summarize",
+    "coverage_summary",
 ]

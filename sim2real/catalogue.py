@@ -24,13 +24,13 @@ from typing import Literal
 
 from goflow_common.errors import InputError
 
-__all__ = ["Param", "Effect", "CATALOGUE", "ARM_EFFECTS", "effect", "parse_effect_values"]
+__all__ = ["EffectParam", "Effect", "CATALOGUE", "ARM_EFFECTS", "effect", "parse_effect_values"]
 
 Place = Literal["dynamics", "actuation", "sensing", "controller", "contact", "grasp", "perception"]
 
 
 @dataclasses.dataclass(frozen=True)
-class Param:
+class EffectParam:
     """One parameter: `per_joint` parameters hold one value per joint, others one value.
 
     low/high bound the fit and the values `make-log` accepts; `none` is the value meaning no
@@ -50,9 +50,9 @@ class Effect:
     name: str
     place: Place
     meaning: str
-    params: tuple[Param, ...]
+    params: tuple[EffectParam, ...]
 
-    def param(self, name: str) -> Param:
+    def param(self, name: str) -> EffectParam:
         for p in self.params:
             if p.name == name:
                 return p
@@ -72,8 +72,10 @@ CATALOGUE: dict[str, Effect] = {
             "Coulomb friction in the joint: a torque of constant size opposing the joint velocity, "
             "tau = -fc tanh(dq / v_smooth)",
             (
-                Param("fc", "N m", 0.0, 5.0, 0.0, _J, "Coulomb friction torque"),
-                Param("v_smooth", "rad/s", 0.002, 0.5, 0.02, False, "velocity over which the friction changes sign"),
+                EffectParam("fc", "N m", 0.0, 5.0, 0.0, _J, "Coulomb friction torque"),
+                EffectParam(
+                    "v_smooth", "rad/s", 0.002, 0.5, 0.02, False, "velocity over which the friction changes sign"
+                ),
             ),
         ),
         Effect(
@@ -82,22 +84,22 @@ CATALOGUE: dict[str, Effect] = {
             "Stribeck (breakaway) friction: extra friction near rest that decays with speed, "
             "tau = -fs exp(-(dq / vs)^2) tanh(dq / 0.002 rad/s)",
             (
-                Param("fs", "N m", 0.0, 5.0, 0.0, _J, "breakaway friction above the Coulomb level"),
-                Param("vs", "rad/s", 0.005, 0.5, 0.05, False, "Stribeck velocity"),
+                EffectParam("fs", "N m", 0.0, 5.0, 0.0, _J, "breakaway friction above the Coulomb level"),
+                EffectParam("vs", "rad/s", 0.005, 0.5, 0.05, False, "Stribeck velocity"),
             ),
         ),
         Effect(
             "viscous",
             "dynamics",
             "viscous friction beyond the model's joint damping, tau = -fv dq",
-            (Param("fv", "N m s/rad", -0.6, 3.0, 0.0, _J, "extra viscous coefficient"),),
+            (EffectParam("fv", "N m s/rad", -0.6, 3.0, 0.0, _J, "extra viscous coefficient"),),
         ),
         Effect(
             "rotor_inertia",
             "dynamics",
             "reflected rotor inertia other than the model's, tau = dI ddq (negative: the model "
             "has more than the joint)",
-            (Param("dI", "kg m^2", -0.7, 0.7, 0.0, _J, "reflected inertia error"),),
+            (EffectParam("dI", "kg m^2", -0.7, 0.7, 0.0, _J, "reflected inertia error"),),
         ),
         Effect(
             "payload",
@@ -105,42 +107,42 @@ CATALOGUE: dict[str, Effect] = {
             "a mass at the flange other than the model's (the hand, a held gear or a tool): a "
             "point mass dm at offset com in the flange frame (panda_link8); dm < 0 removes mass",
             (
-                Param("dm", "kg", -1.5, 3.0, 0.0, False, "mass error"),
-                Param("com_x", "m", -0.15, 0.15, 0.0, False, "its centre of mass, flange x"),
-                Param("com_y", "m", -0.15, 0.15, 0.0, False, "flange y"),
-                Param("com_z", "m", -0.15, 0.25, 0.0, False, "flange z"),
+                EffectParam("dm", "kg", -1.5, 3.0, 0.0, False, "mass error"),
+                EffectParam("com_x", "m", -0.15, 0.15, 0.0, False, "its centre of mass, flange x"),
+                EffectParam("com_y", "m", -0.15, 0.15, 0.0, False, "flange y"),
+                EffectParam("com_z", "m", -0.15, 0.25, 0.0, False, "flange z"),
             ),
         ),
         Effect(
             "torque_offset",
             "sensing",
             "a constant offset of the joint torque sensor, tau_measured = tau + offset",
-            (Param("offset", "N m", -3.0, 3.0, 0.0, _J, "sensor offset"),),
+            (EffectParam("offset", "N m", -3.0, 3.0, 0.0, _J, "sensor offset"),),
         ),
         Effect(
             "actuation_delay",
             "actuation",
             "the joint receives the commanded torque late, tau(t) = tau_cmd(t - delay)",
-            (Param("delay", "s", 0.0, 0.03, 0.0, False, "transport delay"),),
+            (EffectParam("delay", "s", 0.0, 0.03, 0.0, False, "transport delay"),),
         ),
         Effect(
             "torque_gain",
             "actuation",
             "the joint receives a scaled commanded torque (motor constant error), tau = k tau_cmd",
-            (Param("k", "1", 0.6, 1.4, 1.0, _J, "torque gain"),),
+            (EffectParam("k", "1", 0.6, 1.4, 1.0, _J, "torque gain"),),
         ),
         Effect(
             "torque_saturation",
             "actuation",
             "the actuators saturate below their rated torque, tau = clip(tau_cmd, +-s TAU_MAX)",
-            (Param("s", "1", 0.05, 1.0, 1.0, False, "saturation level as a fraction of TAU_MAX"),),
+            (EffectParam("s", "1", 0.05, 1.0, 1.0, False, "saturation level as a fraction of TAU_MAX"),),
         ),
         Effect(
             "backlash",
             "actuation",
             "gear backlash: the motor turns through a dead band of width b before it drives the "
             "link again after a torque reversal (a two-mass transmission with a dead zone)",
-            (Param("b", "rad", 0.0, 0.02, 0.0, False, "dead band width (motor side, reflected)"),),
+            (EffectParam("b", "rad", 0.0, 0.02, 0.0, False, "dead band width (motor side, reflected)"),),
         ),
         Effect(
             "controller_gain",
@@ -148,8 +150,8 @@ CATALOGUE: dict[str, Effect] = {
             "the controller runs stiffness and damping gains other than the configured ones, "
             "tau_cmd = ... + kp_scale Kp (q_cmd - q) + kd_scale Kd (dq_cmd - dq)",
             (
-                Param("kp_scale", "1", 0.3, 3.0, 1.0, _J, "stiffness gain ratio"),
-                Param("kd_scale", "1", 0.3, 3.0, 1.0, _J, "damping gain ratio"),
+                EffectParam("kp_scale", "1", 0.3, 3.0, 1.0, _J, "stiffness gain ratio"),
+                EffectParam("kd_scale", "1", 0.3, 3.0, 1.0, _J, "damping gain ratio"),
             ),
         ),
         Effect(
@@ -159,7 +161,7 @@ CATALOGUE: dict[str, Effect] = {
             "inertia of links 1..7); made as per-link changes, fitted as the identifiable base-parameter "
             "corrections (sim2real/inertia.py)",
             (
-                Param(
+                EffectParam(
                     "mass_scale",
                     "1",
                     0.5,
@@ -168,8 +170,10 @@ CATALOGUE: dict[str, Effect] = {
                     _J,
                     "link mass ratio (the rotational inertia about the centre of mass scales with it)",
                 ),
-                Param("com_shift", "m", -0.05, 0.05, 0.0, _J, "centre-of-mass shift along the link frame's z axis"),
-                Param(
+                EffectParam(
+                    "com_shift", "m", -0.05, 0.05, 0.0, _J, "centre-of-mass shift along the link frame's z axis"
+                ),
+                EffectParam(
                     "inertia_scale",
                     "1",
                     0.5,
@@ -178,7 +182,7 @@ CATALOGUE: dict[str, Effect] = {
                     _J,
                     "ratio of the rotational inertia about the centre of mass (on top of mass_scale)",
                 ),
-                Param(
+                EffectParam(
                     "base",
                     "kg, kg m, kg m^2",
                     -20.0,
@@ -193,21 +197,21 @@ CATALOGUE: dict[str, Effect] = {
             "torque_scale",
             "sensing",
             "a scale error of the joint torque sensor, tau_measured = k tau",
-            (Param("k", "1", 0.8, 1.2, 1.0, _J, "sensor scale"),),
+            (EffectParam("k", "1", 0.8, 1.2, 1.0, _J, "sensor scale"),),
         ),
         Effect(
             "torque_delay",
             "sensing",
             "the logged torque lags the logged state, tau_measured(t) = tau(t - d) (one delay for all joints, "
             "as a logger produces)",
-            (Param("d", "s", 0.0, 0.02, 0.0, False, "torque delay"),),
+            (EffectParam("d", "s", 0.0, 0.02, 0.0, False, "torque delay"),),
         ),
         Effect(
             "joint_inertia",
             "dynamics",
             "an acceleration-proportional link-side torque the model lacks, tau = dJ ddq (behind the "
             "link-side sensor, unlike rotor_inertia)",
-            (Param("dJ", "kg m^2", -0.5, 0.5, 0.0, _J, "link-side joint inertia error"),),
+            (EffectParam("dJ", "kg m^2", -0.5, 0.5, 0.0, _J, "link-side joint inertia error"),),
         ),
         Effect(
             "backlash_motor",
@@ -215,40 +219,40 @@ CATALOGUE: dict[str, Effect] = {
             'gear backlash seen through a motor-side position encoder (meta position_side "motor"): the '
             "logged position is the motor's, which moves across the dead band b against the link's at "
             "torque reversals (the backlash effect's two-mass transmission)",
-            (Param("b", "rad", 0.0, 0.02, 0.0, False, "dead band width (motor side, reflected)"),),
+            (EffectParam("b", "rad", 0.0, 0.02, 0.0, False, "dead band width (motor side, reflected)"),),
         ),
         Effect(
             "shaft_friction",
             "contact",
             "friction between a gear's bore and its shaft other than the model's",
-            (Param("mu", "1", 0.05, 1.5, 0.0, False, "Coulomb friction coefficient (0: nominal)"),),
+            (EffectParam("mu", "1", 0.05, 1.5, 0.0, False, "Coulomb friction coefficient (0: nominal)"),),
         ),
         Effect(
             "hydroelastic_modulus",
             "contact",
             "the hydroelastic modulus of the gear/shaft contact scaled",
-            (Param("scale", "1", 0.1, 10.0, 1.0, False, "modulus ratio"),),
+            (EffectParam("scale", "1", 0.1, 10.0, 1.0, False, "modulus ratio"),),
         ),
         Effect(
             "hydroelastic_dissipation",
             "contact",
             "the Hunt-Crossley dissipation of the gear/shaft contact other than the model's",
-            (Param("d", "s/m", 0.0, 50.0, 0.0, False, "dissipation (0: nominal)"),),
+            (EffectParam("d", "s/m", 0.0, 50.0, 0.0, False, "dissipation (0: nominal)"),),
         ),
         Effect(
             "grasp_slip",
             "grasp",
             "the fingers hold the gear with less friction, so it slips and tilts under load",
-            (Param("mu_scale", "1", 0.05, 1.0, 1.0, False, "finger friction ratio"),),
+            (EffectParam("mu_scale", "1", 0.05, 1.0, 1.0, False, "finger friction ratio"),),
         ),
         Effect(
             "camera_offset",
             "perception",
             "the camera sits off its calibrated pose: a translation in the camera frame",
             (
-                Param("dx", "m", -0.03, 0.03, 0.0, False, ""),
-                Param("dy", "m", -0.03, 0.03, 0.0, False, ""),
-                Param("dz", "m", -0.03, 0.03, 0.0, False, ""),
+                EffectParam("dx", "m", -0.03, 0.03, 0.0, False, ""),
+                EffectParam("dy", "m", -0.03, 0.03, 0.0, False, ""),
+                EffectParam("dz", "m", -0.03, 0.03, 0.0, False, ""),
             ),
         ),
     )

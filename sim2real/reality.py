@@ -191,7 +191,7 @@ class RealityConfig:
 
 
 def _param_value(name: str, param: Any, value: Any) -> float | list[float]:
-    """`value` of `param` (a catalogue Param) checked: one number, or 7 for a per-joint one."""
+    """`value` of `param` (a catalogue EffectParam) checked: one number, or 7 for a per-joint one."""
     label = f"effect {name}.{param.name}"
     if param.per_joint:
         values = list(value) if isinstance(value, (list, tuple, np.ndarray)) else [value] * N_ARM

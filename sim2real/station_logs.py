@@ -58,7 +58,7 @@ __all__ = [
     "make_insertion_log",
     "replay_insertion",
     "skill_success",
-    "segment_phases",
+    "geometry_phases",
     "phase_residuals",
     "with_sensor_noise",
 ]
@@ -284,7 +284,7 @@ class _Recorder:
 
     def log(self, meta: dict[str, Any]) -> RobotLog:
         a = {k: np.asarray(v, dtype=np.float64) for k, v in self.rows.items()}
-        phase = segment_phases(a["lateral"], a["height"], np.linalg.norm(a["wrench"][:, :3], axis=1))
+        phase = geometry_phases(a["lateral"], a["height"], np.linalg.norm(a["wrench"][:, :3], axis=1))
         return RobotLog(
             time=a["time"],
             q=a["q"],
@@ -300,7 +300,7 @@ class _Recorder:
         )
 
 
-def segment_phases(
+def geometry_phases(
     lateral: NDArray[np.float64], height: NDArray[np.float64], force: NDArray[np.float64]
 ) -> NDArray[np.int64]:
     """Phase labels (indices into PHASES) from the gear's geometry, sample by sample:
@@ -391,7 +391,7 @@ def make_insertion_log(
     Returns:
         The RobotLog (time, q, dq, tau = tau_cmd = the impedance controller's torque as applied,
         tool_pose, tool_target = the impedance target the action made, wrench = contact wrench on
-        the gear, gripper_width, phase from segment_phases; meta "task" {gear, xi, seed, skill,
+        the gear, gripper_width, phase from geometry_phases; meta "task" {gear, xi, seed, skill,
         ...}, "truth" = the effects, "success", "episode_return") and whether the episode met the
         env's success criterion (return >= J_T). A failed physics step ends the log early
         (meta "sim_error"; success False).

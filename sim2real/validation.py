@@ -38,7 +38,7 @@ __all__ = [
     "OUTSIDE_EFFECTS",
     "cases",
     "run_case",
-    "summarize",
+    "rates_by_magnitude",
     "ripple_torque",
     "drag_torque",
     "drifting_sensor",
@@ -226,7 +226,7 @@ def run_case(case: Case, duration: float = 10.0, config: DiagnosisConfig | None 
     }
 
 
-def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
+def rates_by_magnitude(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Rates per magnitude group: top1, located, closed >= 0.8 (catalogue cases), flagged (ripple);
     `inactive` counts cases whose effect never acted (their log is the nominal one; scored right
     when the verdict is "no gap")."""

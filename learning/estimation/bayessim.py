@@ -32,8 +32,8 @@ import torch
 from torch import nn
 
 from goflow_common.checks import check_int
-from learning.estimation.common import Budget, check_sim_budget, segment_rows
-from learning.estimation.dataset import TransitionDataset
+from learning.estimation.budget import Budget, check_sim_budget
+from learning.estimation.dataset import TransitionDataset, segment_rows
 from learning.estimation.distributions import EPS, GaussianMixtureAggregate, logit
 
 __all__ = [

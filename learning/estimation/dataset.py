@@ -33,9 +33,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.params import ParamSpace
-from goflow_common.errors import FileFormatError
+from goflow_common.checks import check_int
+from goflow_common.errors import FileFormatError, InputError
 
-__all__ = ["DatasetError", "TransitionDataset", "save_dataset", "load_dataset", "load_truth", "FORMAT", "VERSION"]
+__all__ = [
+    "DatasetError",
+    "TransitionDataset",
+    "save_dataset",
+    "load_dataset",
+    "load_truth",
+    "FORMAT",
+    "VERSION",
+    "segment_rows",
+]
 
 FORMAT = "goflow-transitions"
 VERSION = 1
@@ -256,3 +266,19 @@ def load_truth(path: str | Path) -> tuple[ParamSpace, NDArray[np.float64]]:
     p, meta, arrays = _read(path)
     ds = _dataset(p, meta, arrays)
     return ds.space, arrays["true_xi"].astype(np.float64)
+
+
+def segment_rows(data: TransitionDataset, length: int) -> NDArray[np.int64]:
+    """Non-overlapping windows of `length` consecutive transitions of one trajectory, (S, length)."""
+    check_int(length, "segment_length", 1)
+    out = []
+    for e in range(data.num_episodes):
+        rows = data.episode_rows(e)
+        for k in range(len(rows) // length):
+            out.append(rows[k * length : (k + 1) * length])
+    if not out:
+        raise InputError(
+            f"segment_length = {length}; no trajectory has {length} transitions (the longest has "
+            f"{max(len(data.episode_rows(e)) for e in range(data.num_episodes))})"
+        )
+    return np.array(out, dtype=np.int64)

@@ -21,7 +21,7 @@ import numpy as np
 
 from goflow_common.checks import check_int, check_number
 from goflow_common.errors import InputError
-from learning.estimation.common import Budget, BudgetExhausted, check_sim_budget
+from learning.estimation.budget import Budget, BudgetExhausted, check_sim_budget
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import TruncNormalProduct
 

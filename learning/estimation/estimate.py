@@ -14,7 +14,7 @@ import torch
 from assembly.transition import ParallelTransitionSim
 from goflow_common.config import config_with_overrides
 from learning.estimation import ESTIMATORS
-from learning.estimation.common import Budget
+from learning.estimation.budget import Budget
 from learning.estimation.dataset import TransitionDataset, load_dataset
 from learning.estimation.estimate_file import save_estimate
 from learning.samplers.estimated import EstimatedSampler
@@ -84,7 +84,7 @@ def estimate(
 
     Raises InputError before any simulation when `config.sim_budget` is below one iteration of the
     method (`min_sim_calls`). `progress` shows a bar of the simulator calls used against the budget."""
-    from learning.estimation.common import check_sim_budget
+    from learning.estimation.budget import check_sim_budget
 
     _, _, fit = _implementation(config.method)
     method_config = config.method_config()

@@ -31,15 +31,18 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 from scipy.special import expit, log_softmax
 
 from goflow_common.checks import check_int, check_number
 from goflow_common.errors import InputError
-from learning.estimation.common import Budget, BudgetExhausted, check_sim_budget, prediction_loss, segment_rows
-from learning.estimation.dataset import TransitionDataset
+from learning.estimation.budget import Budget, BudgetExhausted, check_sim_budget
+from learning.estimation.dataset import TransitionDataset, segment_rows
 from learning.estimation.distributions import FlowDistribution
 
-__all__ = ["NFPDEConfig", "fit_nfpde", "min_sim_calls"]
+__all__ = ["NFPDEConfig", "fit_nfpde", "min_sim_calls", "prediction_loss"]
+
+FAILED_LOSS = 1e6  # loss of a row whose simulation failed (NaN prediction)
 
 
 @dataclass
@@ -150,3 +153,13 @@ def fit_nfpde(budget: Budget, config: NFPDEConfig, seed: int) -> tuple[FlowDistr
         it += 1
         budget.snapshot(dist, iteration=it, mean_loss=float(seg_loss.mean()))
     return dist, {"iterations": it, "skipped_updates": skipped, "calls_per_iteration": per_iter}
+
+
+def prediction_loss(
+    pred: NDArray[np.float64], target: NDArray[np.float64], scale: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """l_pred per (sample, row): mean over state dims of ((s'_sim - s'_log) / scale)^2, (M, R);
+    failed simulations (NaN) get FAILED_LOSS."""
+    err = ((pred - target[None]) / scale) ** 2
+    loss = err.mean(axis=-1)
+    return np.where(np.isfinite(loss), loss, FAILED_LOSS)

@@ -1,12 +1,12 @@
 """The feasible set a constrained sampler has learned: P(success | xi) from the evidence rows.
 
-`SuccessClassifier` is a small MLP (logistic output) fitted to the 0/1 rows of an `Evidence`, in
-the unit box, each row's loss weighted (GoFlow passes `Evidence.design_weights`, which make the
+`SuccessClassifier` is a small MLP (logistic output) fitted to the 0/1 rows of an `SignalMemory`, in
+the unit box, each row's loss weighted (GoFlow passes `SignalMemory.design_weights`, which make the
 rows count as a uniform design would, whichever protocol drew them). Each `fit` continues from
 the previous parameters (fresh Adam, a fixed number of steps), so the estimate sharpens as rows
 accumulate. Minibatches hold half successes and half failures, and each half's loss is scaled by
 its class's total weight: the steps estimate the weighted loss, and a set of 0.3 % of the box is
-seen in every step. Against the k-nearest-neighbour vote of `Evidence` it draws a smooth boundary
+seen in every step. Against the k-nearest-neighbour vote of `SignalMemory` it draws a smooth boundary
 that does not erode with the level and does not fray in 3-D and 6-D (measured in
 docs/learning.md#sampler-quality-on-known-feasible-sets-issue-21).
 
@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from goflow_common.errors import InputError
-from learning.samplers.evidence import Evidence
+from learning.samplers.signal_memory import SignalMemory
 
 __all__ = ["SuccessClassifier"]
 
@@ -119,9 +119,9 @@ class SuccessClassifier:
                     avg.lerp_(p, 1.0 - AVERAGE_DECAY)
         return float(loss.detach())
 
-    def fit_evidence(self, evidence: Evidence, *, steps: int, batch: int, gen: torch.Generator) -> float | None:
+    def fit_evidence(self, evidence: SignalMemory, *, steps: int, batch: int, gen: torch.Generator) -> float | None:
         """One sampler update's fit to every row of `evidence` (0/1 scaled signals), each weighted
-        as a uniform design would count it (`Evidence.design_weights`): `steps` Adam steps at
+        as a uniform design would count it (`SignalMemory.design_weights`): `steps` Adam steps at
         `FIT_LR`, `FIRST_FIT_FACTOR` times as many while nothing is fitted yet. Returns `fit`'s loss."""
         steps = steps * (1 if self.fitted else FIRST_FIT_FACTOR)
         return self.fit(

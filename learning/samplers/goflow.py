@@ -15,7 +15,7 @@ the objective that `config.mode` names:
   failures' density down without bound, and forgets earlier batches: it does not reach the optimum
   of its own objective (docs/learning.md#goflow-modes).
 
-The entropy and constrained modes keep the newest `memory` evaluated rows (`Evidence`) and estimate
+The entropy and constrained modes keep the newest `memory` evaluated rows (`SignalMemory`) and estimate
 the signal anywhere as a k-nearest-neighbour mean, which does not depend on which protocol drew the
 rows. The constrained mode estimates its feasible set F-hat = {P(success) >= level} with a success
 classifier fitted to the rows, each weighted as a uniform design would count it
@@ -76,7 +76,7 @@ from assembly.samplers import check_sample_args, check_sampler_args, check_state
 from goflow_common.checks import check_number
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
-from learning.samplers.evidence import Evidence
+from learning.samplers.signal_memory import SignalMemory
 from learning.samplers.feasibility import SuccessClassifier
 from learning.samplers.feasible_gate import (
     GATE_DRAWS,
@@ -139,7 +139,7 @@ class GoFlowSampler:
         cfg = self.config
         self._flow = identity_flow(d, cfg.transforms, cfg.hidden_features, cfg.bins, cfg.base_scale, cfg.seed)
         self._entropy_cache: float | None = None
-        self._evidence = Evidence(
+        self._evidence = SignalMemory(
             d, self.config.memory, self.config.neighbours, self.config.signal_range, self.config.boundary_memory
         )
         self._classifier = self._make_classifier(self.config)
@@ -443,7 +443,7 @@ class GoFlowSampler:
             self._flow.load_state_dict(tensors)
         except RuntimeError as exc:
             raise ValueError(f"load_state_dict: flow tensors do not fit this architecture: {exc}") from exc
-        evidence = Evidence(
+        evidence = SignalMemory(
             self.space.dim, config.memory, config.neighbours, config.signal_range, config.boundary_memory
         )
         evidence.load_state_dict(state.get("evidence", {}))

@@ -64,7 +64,7 @@ class GoFlowConfig:
     memory: int = 16384  # evaluated rows kept as evidence (entropy and constrained modes)
     # rows kept beyond `memory` because they lay on the edge between the classes (scaled signal >= 0.5
     # or not) when they left the window: a row of the other class among their `neighbours` nearest
-    # (Evidence; docs/learning.md, "Boundary rows"); 0: none
+    # (SignalMemory; docs/learning.md, "Boundary rows"); 0: none
     boundary_memory: int = 0
     neighbours: int = 5  # k of the nearest-neighbour signal estimate
     outside_weight: float = 1.0  # constrained mode: weight of the flow's excess density outside the feasible set

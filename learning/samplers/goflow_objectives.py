@@ -21,7 +21,7 @@ from typing import Any
 import torch
 import zuko
 
-from learning.samplers.evidence import Evidence
+from learning.samplers.signal_memory import SignalMemory
 from learning.samplers.goflow_config import GoFlowConfig
 from learning.samplers.spline_flow import BOX_BOUND, box_to_unit, params_finite, uniform_box
 
@@ -38,7 +38,7 @@ def target_weights(
     dim: int,
     y: torch.Tensor,
     log_m: torch.Tensor,
-    evidence: Evidence,
+    evidence: SignalMemory,
     contains: Callable[[torch.Tensor], torch.Tensor],
 ) -> tuple[torch.Tensor, dict[str, float], torch.Tensor]:
     """Self-normalized importance weights of proposal draws `y` (mixture log density `log_m`) for

@@ -12,7 +12,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from learning.samplers.evidence import Evidence
+from learning.samplers.signal_memory import SignalMemory
 from learning.samplers.spline_flow import BOX_BOUND, box_to_unit, uniform_box, unit_to_box
 
 __all__ = ["kernel_width", "proposal", "success_centres"]
@@ -22,7 +22,7 @@ def proposal(
     n: int,
     dim: int,
     gen: torch.Generator,
-    evidence: Evidence,
+    evidence: SignalMemory,
     draw_flow: Callable[[int], torch.Tensor],
     log_q: Callable[[torch.Tensor], torch.Tensor],
     log_box: float,
@@ -58,7 +58,7 @@ def proposal(
     return y, log_m, lq, n
 
 
-def success_centres(evidence: Evidence, gen: torch.Generator, limit: int = 256) -> torch.Tensor:
+def success_centres(evidence: SignalMemory, gen: torch.Generator, limit: int = 256) -> torch.Tensor:
     """Up to `limit` rows of the evidence with scaled signal >= 1/2 (a random subset of them, in
     their order, when there are more), in box coordinates."""
     good = np.flatnonzero(evidence.scaled_signal() >= 0.5)
@@ -67,7 +67,7 @@ def success_centres(evidence: Evidence, gen: torch.Generator, limit: int = 256) 
     return torch.as_tensor(unit_to_box(evidence.xi[good]), dtype=torch.float32)
 
 
-def kernel_width(evidence: Evidence, centres: torch.Tensor) -> float:
+def kernel_width(evidence: SignalMemory, centres: torch.Tensor) -> float:
     """Gaussian width (box coordinates) around the success rows `centres`: twice their median
     distance to the nearest other row of the evidence, at least 1 % of the box."""
     gap = evidence.nearest_distance(box_to_unit(centres))

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from goflow_common.errors import InputError
-from learning.samplers.evidence import Evidence
+from learning.samplers.signal_memory import SignalMemory
 from learning.samplers.feasibility import SuccessClassifier
 
 
@@ -63,12 +63,12 @@ def test_design_weights_give_crowded_rows_less_weight_than_sparse_ones():
     rng = np.random.default_rng(2)
     crowd = 0.5 + 0.05 * rng.uniform(-1, 1, size=(4000, 2))
     sparse = rng.uniform(size=(400, 2))
-    ev = Evidence(2, 10000, 5)
+    ev = SignalMemory(2, 10000, 5)
     ev.add(np.concatenate([crowd, sparse]), np.zeros(4400))
     w = ev.design_weights()
     assert np.median(w[4000:]) > 20 * np.median(w[:4000])
     assert w.min() >= 1 / 30 and w.max() <= 30
-    uniform = Evidence(2, 10000, 5)
+    uniform = SignalMemory(2, 10000, 5)
     uniform.add(rng.uniform(size=(4000, 2)), np.zeros(4000))
     assert 0.5 <= np.median(uniform.design_weights()) <= 2.0
 
@@ -97,7 +97,7 @@ def _disk(x: np.ndarray, radius: float = 0.05) -> np.ndarray:
 def test_the_window_alone_keeps_the_newest_rows():
     rng = np.random.default_rng(4)
     batches = [rng.uniform(size=(300, 2)) for _ in range(5)]
-    ev = Evidence(2, 1000, 5)
+    ev = SignalMemory(2, 1000, 5)
     for x in batches:
         ev.add(x, _disk(x))
     newest = np.concatenate(batches)[-1000:]
@@ -110,7 +110,7 @@ def test_rows_on_the_class_boundary_are_kept_beyond_the_window():
     edge, up to `boundary` of them), so the evidence holds more of the disk's points than the
     window alone; a state round trip keeps the split, and an old state (window only) loads."""
     rng = np.random.default_rng(5)
-    window, edge = Evidence(2, 2000, 5), Evidence(2, 2000, 5, boundary=400)
+    window, edge = SignalMemory(2, 2000, 5), SignalMemory(2, 2000, 5, boundary=400)
     batches = [rng.uniform(size=(500, 2)) for _ in range(40)]
     for x in batches:
         window.add(x, _disk(x))
@@ -120,18 +120,18 @@ def test_rows_on_the_class_boundary_are_kept_beyond_the_window():
     kept = edge.xi[: edge.kept]
     assert np.abs(np.linalg.norm(kept - 0.5, axis=1) - 0.05).max() < 0.06  # on the edge, not far from it
     assert edge.signal.sum() > window.signal.sum() + 10 and (1 - edge.signal).sum() > (1 - window.signal).sum()
-    some = Evidence(2, 2000, 5, boundary=10)
+    some = SignalMemory(2, 2000, 5, boundary=10)
     for x in batches:
         some.add(x, _disk(x))
     assert some.kept == 10 and len(some) == 2010 and np.array_equal(some.xi[10:], window.xi)  # capped
 
     state = json.loads(json.dumps(edge.state_dict()))
-    again = Evidence(2, 2000, 5, boundary=400)
+    again = SignalMemory(2, 2000, 5, boundary=400)
     again.load_state_dict(state)
     assert again.kept == edge.kept and np.array_equal(again.xi, edge.xi)
-    old = Evidence(2, 2000, 5, boundary=400)
+    old = SignalMemory(2, 2000, 5, boundary=400)
     old.load_state_dict({"xi": state["xi"][edge.kept :], "signal": state["signal"][edge.kept :]})
     assert old.kept == 0 and np.array_equal(old.xi, window.xi)
     for bad in (-1, len(state["signal"]) + 1, 1.5):
         with pytest.raises(InputError, match="evidence state: kept"):
-            Evidence(2, 2000, 5, boundary=400).load_state_dict({**state, "kept": bad})
+            SignalMemory(2, 2000, 5, boundary=400).load_state_dict({**state, "kept": bad})

@@ -24,7 +24,7 @@ from perception.calibration import (
     resampled_set_count,
     row_brightness,
     sets_text,
-    summarize,
+    coverage_summary,
 )
 from perception.likelihood import LikelihoodConfig
 from perception.search import SearchConfig
@@ -56,7 +56,7 @@ def test_close_view_is_sharper_on_average_and_within_a_millimetre(rows):
 
 
 def test_summary_reports_each_level(rows):
-    (scene, inspect) = summarize(rows)
+    (scene, inspect) = coverage_summary(rows)
     assert scene["view"] == "scene" and inspect["view"] == "inspect"
     assert set(scene["coverage"]) == {"0.5", "0.68", "0.8", "0.9", "0.95"}
     assert scene["posteriors"] == 12 and scene["not_seen"] == 0
@@ -133,7 +133,7 @@ def test_pooled_sets_keep_their_scenes_apart_and_sum_their_posteriors(rows, tmp_
     assert scene["posteriors"] == 24 and inspect["posteriors"] == 24
     assert pooled["config"]["seeds"] == [1, 2] and pooled["config"]["scenes"] == 8
     assert len({r["scene"] for r in pooled["rows"]}) == 8
-    assert scene["coverage"] == summarize(rows)[0]["coverage"]  # the same rows twice: the same coverage
+    assert scene["coverage"] == coverage_summary(rows)[0]["coverage"]  # the same rows twice: the same coverage
     with pytest.raises(InputError, match="result 1: levels"):
         pool_results([first, {**second, "config": {**second["config"], "levels": [0.5]}}])
     with pytest.raises(InputError, match="result 0: not a calibration result"):

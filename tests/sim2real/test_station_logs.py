@@ -14,7 +14,7 @@ from sim2real.station_logs import (
     make_insertion_log,
     phase_residuals,
     replay_insertion,
-    segment_phases,
+    geometry_phases,
     skill_success,
     station_physics,
 )
@@ -126,7 +126,7 @@ def test_phase_rule():
     lateral = np.array([0.01, 0.003, 0.003, 0.003, 0.0005, 0.0005, 0.0005])
     height = np.array([0.05, 0.03, 0.0205, 0.0195, 0.015, 0.021, 0.0])  # a bounce back up stays insertion
     force = np.array([0.0, 0.0, 0.0, 2.0, 2.0, 0.0, 5.0])
-    np.testing.assert_array_equal(segment_phases(lateral, height, force), [0, 1, 1, 2, 3, 3, 3])
+    np.testing.assert_array_equal(geometry_phases(lateral, height, force), [0, 1, 1, 2, 3, 3, 3])
 
 
 def test_effects_map_to_physics():

@@ -96,7 +96,7 @@ def test_bayessim_steps_compose_to_the_estimator(mixture_data):
     benchmarks/bayessim_sbi.py calls them, give `estimate`'s BayesSim estimate bit for bit."""
     from assembly.transition import ParallelTransitionSim
     from learning.estimation.bayessim import BayesSimConfig, fit_mdn, simulate_bayessim
-    from learning.estimation.common import Budget
+    from learning.estimation.budget import Budget
     from learning.samplers.estimated import EstimatedSampler
 
     ds, _ = mixture_data

@@ -1,6 +1,5 @@
-"""What every estimator shares: the simulator budget and its bookkeeping (calls, wall time, a trace
-of snapshots for OT-vs-time plots, a progress bar), the check that a budget buys one iteration,
-trajectory segments, and the one-step prediction loss."""
+"""The simulator budget every estimator spends: its bookkeeping (calls, wall time, a trace of
+snapshots for OT-vs-time plots, a progress bar) and the check that a budget buys one iteration."""
 
 from __future__ import annotations
 
@@ -17,9 +16,7 @@ from goflow_common.errors import InputError
 from learning.estimation.dataset import TransitionDataset
 from learning.estimation.distributions import UnitBoxDistribution
 
-__all__ = ["Budget", "BudgetExhausted", "check_sim_budget", "segment_rows", "prediction_loss", "FAILED_LOSS"]
-
-FAILED_LOSS = 1e6  # loss of a row whose simulation failed (NaN prediction)
+__all__ = ["Budget", "BudgetExhausted", "check_sim_budget"]
 
 
 class BudgetExhausted(RuntimeError):
@@ -116,29 +113,3 @@ def check_sim_budget(sim_budget: int, method: str, need: tuple[int, str]) -> Non
             f"sim_budget = {sim_budget}; {method} needs at least {calls} simulator calls for one "
             f"iteration on this dataset ({why})"
         )
-
-
-def segment_rows(data: TransitionDataset, length: int) -> NDArray[np.int64]:
-    """Non-overlapping windows of `length` consecutive transitions of one trajectory, (S, length)."""
-    check_int(length, "segment_length", 1)
-    out = []
-    for e in range(data.num_episodes):
-        rows = data.episode_rows(e)
-        for k in range(len(rows) // length):
-            out.append(rows[k * length : (k + 1) * length])
-    if not out:
-        raise InputError(
-            f"segment_length = {length}; no trajectory has {length} transitions (the longest has "
-            f"{max(len(data.episode_rows(e)) for e in range(data.num_episodes))})"
-        )
-    return np.array(out, dtype=np.int64)
-
-
-def prediction_loss(
-    pred: NDArray[np.float64], target: NDArray[np.float64], scale: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """l_pred per (sample, row): mean over state dims of ((s'_sim - s'_log) / scale)^2, (M, R);
-    failed simulations (NaN) get FAILED_LOSS."""
-    err = ((pred - target[None]) / scale) ** 2
-    loss = err.mean(axis=-1)
-    return np.where(np.isfinite(loss), loss, FAILED_LOSS)

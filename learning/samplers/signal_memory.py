@@ -2,7 +2,7 @@
 signal estimated anywhere in the box from them.
 
 A sampler update receives one batch (xi, signal) at a time, drawn by whoever evaluated it (the
-uniform validation box, the sampler itself, a mixture). `Evidence` keeps the newest `capacity`
+uniform validation box, the sampler itself, a mixture). `SignalMemory` keeps the newest `capacity`
 rows of every batch and estimates the signal at any point as the mean over its k nearest rows
 (Euclidean distance in the unit box). Optionally it also keeps up to `boundary` older rows that
 lay on the edge between the two classes when they left the window (a row of the other class among
@@ -28,10 +28,10 @@ from scipy.spatial import cKDTree
 from goflow_common.checks import check_int
 from goflow_common.errors import InputError
 
-__all__ = ["Evidence"]
+__all__ = ["SignalMemory"]
 
 
-class Evidence:
+class SignalMemory:
     """The newest `capacity` rows (unit-box xi, signal) and a k-nearest-neighbour signal estimate.
 
     Arguments:
