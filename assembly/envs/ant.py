@@ -37,7 +37,7 @@ from assembly.envs.batched import rowwise_dot
 from goflow_common.checks import check_choice, check_number
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
-from assembly.envs.drake_sim import PlantAccess, advance, point_contact_properties, quiet_drake
+from assembly.envs.drake_sim import PlantAccess, SceneRendering, advance, point_contact_properties, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 
@@ -444,14 +444,22 @@ def step_reward(
     return reward, terminated, info
 
 
-class AntEnv(PlantAccess, ParamEnv):
+class AntEnv(SceneRendering, PlantAccess, ParamEnv):
     """Run forward for 2 s with a quadruped whose torso mass xi is drawn per episode."""
 
-    def __init__(self, config: AntConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        config: AntConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
         self.config = cfg = config_with_overrides(AntConfig, config, overrides, "AntEnv")
         self.space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))
         super().__init__(self.space, sampler)
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.j_t())
+        self._init_render(render_mode)
 
         from pydrake.systems.analysis import Simulator
 
@@ -523,6 +531,20 @@ class AntEnv(PlantAccess, ParamEnv):
 
     def _observe(self, x: NDArray[np.float64]) -> NDArray[np.float32]:
         return observe(self._layout, x[None])[0]
+
+    # -- rendering ------------------------------------------------------------------------------
+
+    def _make_renderer(self):
+        """A camera behind and to the right of the torso, following it over a checkered floor."""
+        from assembly.envs.rendering import CameraView, SceneRenderer, scene_graph_of
+
+        view = CameraView(target=(0.0, 0.0, 0.3), eye_offset=(-1.2, -3.0, 1.5))
+        r = SceneRenderer(scene_graph_of(self._diagram), self._context, self._plant.get_source_id(), view)
+        r.add_checker_floor(0.5)
+        return r
+
+    def _render_track(self) -> NDArray[np.float64]:
+        return self._plant.EvalBodyPoseInWorld(self._plant_context, self._torso).translation()
 
     # -- ParamEnv -------------------------------------------------------------------------------
 

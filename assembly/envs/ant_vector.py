@@ -20,7 +20,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs import ant
-from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, instance_state_columns
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, instance_state_columns, refuse_render
 from assembly.envs.drake_sim import HeldInput, filter_between_copies, quiet_drake
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -43,8 +43,10 @@ class AntVectorEnv(BatchedEnv):
         *,
         sampler: Sampler | None = None,
         max_episode_steps: int | None = None,
+        render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
+        refuse_render(render_mode, self._owner)
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(ant.AntConfig, config, overrides, self._owner)
         space = ParamSpace((Param("torso_mass", 0.01, 20.0, "kg"),))

@@ -46,7 +46,14 @@ from numpy.typing import NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
 from assembly.envs.batched import rowwise_dot
-from assembly.envs.drake_sim import HeldInput, PlantAccess, advance, point_contact_properties, quiet_drake
+from assembly.envs.drake_sim import (
+    HeldInput,
+    PlantAccess,
+    SceneRendering,
+    advance,
+    point_contact_properties,
+    quiet_drake,
+)
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
 from goflow_common.checks import check_choice, check_number
@@ -612,15 +619,23 @@ def anymal_space() -> ParamSpace:
     )
 
 
-class AnymalEnv(PlantAccess, ParamEnv):
+class AnymalEnv(SceneRendering, PlantAccess, ParamEnv):
     """Track 1 m/s forward for 5 s with an ANYmal-C-sized quadruped whose base mass and hip joint
     frictions xi are drawn per episode."""
 
-    def __init__(self, config: AnymalConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        config: AnymalConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
         self.config = cfg = config_with_overrides(AnymalConfig, config, overrides, "AnymalEnv")
         self.space = anymal_space()
         super().__init__(self.space, sampler)
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.j_t())
+        self._init_render(render_mode)
 
         from pydrake.systems.analysis import Simulator
 
@@ -721,6 +736,20 @@ class AnymalEnv(PlantAccess, ParamEnv):
 
     def _xi_text(self) -> str:
         return "unset" if self._xi is None else str(np.round(self._xi, 4).tolist())
+
+    # -- rendering ------------------------------------------------------------------------------
+
+    def _make_renderer(self):
+        """A camera behind and to the right of the base, following it over a checkered floor."""
+        from assembly.envs.rendering import CameraView, SceneRenderer, scene_graph_of
+
+        view = CameraView(target=(0.0, 0.0, 0.45), eye_offset=(-1.5, -3.5, 1.6))
+        r = SceneRenderer(scene_graph_of(self._diagram), self._context, self._plant.get_source_id(), view)
+        r.add_checker_floor(1.0, cells=16)
+        return r
+
+    def _render_track(self) -> NDArray[np.float64]:
+        return self._plant.EvalBodyPoseInWorld(self._plant_context, self._base).translation()
 
     # -- ParamEnv -------------------------------------------------------------------------------
 

@@ -21,7 +21,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from assembly.envs import anymal
-from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, instance_state_columns
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, instance_state_columns, refuse_render
 from assembly.envs.drake_sim import HeldInput, filter_between_copies, quiet_drake
 from assembly.samplers import Sampler
 from goflow_common.config import config_with_overrides
@@ -44,8 +44,10 @@ class AnymalVectorEnv(BatchedEnv):
         *,
         sampler: Sampler | None = None,
         max_episode_steps: int | None = None,
+        render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
+        refuse_render(render_mode, self._owner)
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(anymal.AnymalConfig, config, overrides, self._owner)
         steps = episode_steps(cfg.t_max, cfg.control_dt, max_episode_steps)

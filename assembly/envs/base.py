@@ -13,6 +13,10 @@ The contract every goflow env keeps (subclasses implement only `_reset_model` an
   never crashes a run.
 - When an episode ends, info["episode_return"] is its undiscounted return and info["success"] is
   return >= success_threshold (J_T).
+- render_mode (a constructor keyword) is None or one of metadata["render_modes"] (ValueError
+  naming the bad value otherwise); render() returns the current frame, (H, W, 3) uint8, for
+  "rgb_array", and None (with gymnasium's warning) when render_mode is None. metadata["render_fps"]
+  is 1 / control_dt.
 """
 
 from __future__ import annotations
@@ -29,7 +33,14 @@ from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from goflow_common.errors import SimulationError
 
-__all__ = ["ParamEnv", "SimulationError", "check_sampler", "clipped_float32", "quaternion_rotation"]
+__all__ = [
+    "ParamEnv",
+    "SimulationError",
+    "check_render_mode",
+    "check_sampler",
+    "clipped_float32",
+    "quaternion_rotation",
+]
 
 
 def clipped_float32(values: Sequence[float], high: Sequence[float]) -> NDArray[np.float32]:
@@ -64,6 +75,15 @@ def check_sampler(sampler: Any, space: ParamSpace, owner: str) -> Sampler:
             + "; ".join(space.diff(sampler.space))
         )
     return sampler
+
+
+def check_render_mode(render_mode: Any, owner: str, modes: Sequence[str]) -> str | None:
+    """`render_mode` if it is None or one of `modes`; ValueError naming `owner`, the bad value and
+    the accepted ones otherwise."""
+    if render_mode is None or (isinstance(render_mode, str) and render_mode in modes):
+        return render_mode
+    accepted = f"None or one of {list(modes)}" if modes else f"None ({owner} does not render)"
+    raise ValueError(f"{owner}: render_mode={render_mode!r} is not supported; expected {accepted}")
 
 
 class ParamEnv(gymnasium.Env):
@@ -114,6 +134,27 @@ class ParamEnv(gymnasium.Env):
 
     def _info(self) -> dict[str, Any]:
         return {"xi": self._xi.copy(), "critic_obs": np.concatenate((self._obs, self._xi_normalized))}
+
+    def _init_render(self, render_mode: str | None) -> None:
+        """Check and keep `render_mode` (see the module docstring); metadata["render_fps"] from
+        control_dt, so call it after `_set_timing`."""
+        self.render_mode = check_render_mode(render_mode, type(self).__name__, type(self).metadata["render_modes"])
+        self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.control_dt}
+
+    def render(self) -> NDArray[np.uint8] | None:
+        """The current frame, (H, W, 3) uint8, when made with render_mode="rgb_array"; None, with
+        gymnasium's warning, when render_mode is None."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                f"{type(self).__name__}.render() called with render_mode None: "
+                f"make the env with render_mode='rgb_array' to get frames"
+            )
+            return None
+        return self._render_frame()
+
+    def _render_frame(self) -> NDArray[np.uint8]:
+        """The current frame (render_mode "rgb_array"); envs that render implement it."""
+        raise NotImplementedError
 
     def _set_timing(self, control_dt: float, t_max: float, success_threshold: float) -> None:
         """control_dt [s], the time limit t_max [s] as max_episode_steps, and J_T."""

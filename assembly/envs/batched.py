@@ -40,7 +40,7 @@ from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from goflow_common.errors import InputError, SimulationError
 
-__all__ = ["BatchedEnv", "check_num_envs", "instance_state_columns", "rowwise_dot"]
+__all__ = ["BatchedEnv", "check_num_envs", "episode_steps", "instance_state_columns", "refuse_render", "rowwise_dot"]
 
 
 def check_num_envs(num_envs: Any, owner: str) -> int:
@@ -68,9 +68,32 @@ def instance_state_columns(plant, instance) -> NDArray[np.int64]:
 
 
 def episode_steps(t_max: float, control_dt: float, max_episode_steps: int | None) -> int:
-    """The time limit in steps: `max_episode_steps` when given (gymnasium.make_vec passes the
-    spec's), else t_max / control_dt, as the single env's."""
-    return int(round(t_max / control_dt)) if max_episode_steps is None else int(max_episode_steps)
+    """The time limit in steps: the single env's own, t_max / control_dt, or `max_episode_steps` when
+    that is smaller. gymnasium.make_vec passes the spec's max_episode_steps (or its caller's), and
+    a single env made by gymnasium.make ends at the earlier of its own limit and its TimeLimit
+    wrapper's, so the copies end where it would; None or -1 (gymnasium's "no TimeLimit"): t_max
+    alone. InputError for any other value below 1."""
+    own = int(round(t_max / control_dt))
+    if max_episode_steps is None or max_episode_steps == -1:
+        return own
+    if (
+        isinstance(max_episode_steps, bool)
+        or not isinstance(max_episode_steps, (int, np.integer))
+        or max_episode_steps < 1
+    ):
+        raise InputError(
+            f"max_episode_steps = {max_episode_steps!r}; expected a whole number >= 1 of steps, -1 or None (no limit)"
+        )
+    return min(own, int(max_episode_steps))
+
+
+def refuse_render(render_mode: Any, owner: str) -> None:
+    """The batched envs do not render: InputError naming `owner` unless render_mode is None."""
+    if render_mode is not None:
+        raise InputError(
+            f"{owner}: render_mode={render_mode!r} is not supported; expected None (the batched vector envs do not "
+            "render: make a single env with gymnasium.make(id, render_mode='rgb_array') to record episodes)"
+        )
 
 
 class BatchedEnv(VectorEnv):

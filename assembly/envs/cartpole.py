@@ -12,6 +12,7 @@ Context. Task, reward and box are the GoFlow seed's (its Isaac Lab cartpole bala
 - Action (1,): normalized slider force in [-1, 1] (clipped), times max_force = 100 N.
 - Reward per step: 1 - theta^2 - 0.01 |cart velocity| - 0.005 |pole angular velocity|; 120 steps
   of 1/60 s, no early termination; success: return >= J_T = 54.
+- render_mode "rgb_array": a fixed side view of the rail (480 x 480, 60 fps).
 
 Derivation (the seed's task as read from the authors' code, our model of friction and masses,
 J_T = 54 from the seed's 50): docs/envs.md#cartpole.
@@ -193,12 +194,18 @@ class CartpoleEnv(PlantEnv):
     _owner = "Cartpole"
 
     def __init__(
-        self, config: CartpoleConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+        self,
+        config: CartpoleConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
     ) -> None:
         self.config = config_with_overrides(CartpoleConfig, config, overrides, "CartpoleEnv")
         super().__init__(CARTPOLE_SPACE, sampler)
         cfg = self.config
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.success_threshold)
+        self._init_render(render_mode)
         # Finite bounds (observations are clipped to them): the slider limits (+1 m of slack), cos/sin,
         # and speeds far above what the 100 N force against the 10 N s/m damper reaches.
         self._obs_high = (cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0)
@@ -287,6 +294,49 @@ class CartpoleEnv(PlantEnv):
         force = self.config.max_force * min(1.0, max(-1.0, float(action[0])))
         state = self._advance(force)
         return self._observe(state), self._reward(state), False, {}
+
+    # -- rendering -----------------------------------------------------------------------------
+
+    def _make_renderer(self):
+        """A fixed camera on the rail from -y; the cart, pole and rail with its end stops are
+        image-only shapes (the model's only geometry is the wheel and the ground)."""
+        from pydrake.geometry import Box
+        from pydrake.math import RigidTransform
+
+        from assembly.envs.rendering import CameraView, SceneRenderer
+
+        cfg, plant = self.config, self._plant
+        view = CameraView(target=(0.0, 0.0, 0.5), eye_offset=(0.0, -5.5, 0.6))
+        r = SceneRenderer(self._scene_graph, self._context, plant.get_source_id(), view)
+        cart = plant.GetBodyFrameIdOrThrow(self._cart.index())
+        pole = plant.GetBodyFrameIdOrThrow(self._pole.index())
+        world = self._scene_graph.world_frame_id()
+        h, rail_y = self._cart_height, 0.5 * cfg.cart_size[1] + 0.05
+        r.add_visual(cart, Box(*cfg.cart_size), RigidTransform(), (0.2, 0.4, 0.8, 1.0), "cart")
+        r.add_visual(
+            pole,
+            Box(0.04, 0.06, cfg.pole_length),
+            RigidTransform([0.0, 0.0, 0.5 * cfg.pole_length]),
+            (0.9, 0.5, 0.1, 1.0),
+            "pole",
+        )
+        r.add_visual(
+            world,
+            Box(2.0 * cfg.slider_limit, 0.02, 0.02),
+            RigidTransform([0.0, rail_y, h]),
+            (0.4, 0.4, 0.4, 1.0),
+            "rail",
+        )
+        for side in (-1.0, 1.0):
+            r.add_visual(
+                world,
+                Box(0.05, 0.05, 0.3),
+                RigidTransform([side * cfg.slider_limit, rail_y, h]),
+                (0.6, 0.1, 0.1, 1.0),
+                f"stop_{side:+.0f}",
+            )
+        r.show_collision_geometry((0.75, 0.75, 0.75, 1.0), {"wheel": (0.1, 0.1, 0.1, 1.0)})  # ground, wheel
+        return r
 
     # -- tools ---------------------------------------------------------------------------------
 

@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, refuse_render
 from assembly.envs.cartpole import CARTPOLE_SPACE, CartpoleConfig, wheel_contact, add_cartpole, cart_height
 from assembly.envs.drake_sim import HeldInput, filter_between_copies
 from assembly.samplers import Sampler
@@ -38,8 +38,10 @@ class CartpoleVectorEnv(BatchedEnv):
         *,
         sampler: Sampler | None = None,
         max_episode_steps: int | None = None,
+        render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
+        refuse_render(render_mode, self._owner)
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(CartpoleConfig, config, overrides, self._owner)
         self._obs_high = np.array((cfg.slider_limit + 1.0, 100.0, 1.0, 1.0, 200.0))

@@ -1,6 +1,7 @@
 """Stepping a Drake Simulator the way every goflow env does: failures become SimulationError, and
-inputs are held in place rather than re-fixed every step; `PlantEnv`, the base of the envs that
-drive one MultibodyPlant through one held input (Cartpole, Quadrotor)."""
+inputs are held in place rather than re-fixed every step; `SceneRendering`, the render() of the
+Drake envs; `PlantEnv`, the base of the envs that drive one MultibodyPlant through one held input
+(Cartpole, Quadrotor)."""
 
 from __future__ import annotations
 
@@ -118,7 +119,33 @@ class PlantAccess:
         return np.array(self._plant.GetPositionsAndVelocities(self._plant_context))
 
 
-class PlantEnv(ParamEnv):
+class SceneRendering:
+    """render_mode "rgb_array" for a Drake ParamEnv: a SceneRenderer (assembly.envs.rendering)
+    built on the first render() by the env's `_make_renderer()`, its view's target following
+    `_render_track()` (a world point, or None for a fixed view). Nothing is built, and nothing in
+    the Context changes, until an env made with a render mode renders."""
+
+    metadata = {"render_modes": ["rgb_array"]}
+    _renderer = None
+
+    def _make_renderer(self):
+        """The env's SceneRenderer (its camera, and the shapes drawn only in the image)."""
+        raise NotImplementedError
+
+    def _render_track(self) -> NDArray[np.float64] | None:
+        """The world point the camera follows (x, y), or None for a fixed view."""
+        return None
+
+    def _scene_renderer(self):
+        if self._renderer is None:
+            self._renderer = self._make_renderer()
+        return self._renderer
+
+    def _render_frame(self) -> NDArray[np.uint8]:
+        return self._scene_renderer().render(self._render_track())
+
+
+class PlantEnv(SceneRendering, ParamEnv):
     """A ParamEnv over one MultibodyPlant, simulated by one Simulator and Context reused for every
     episode and driven through one HeldInput.
 

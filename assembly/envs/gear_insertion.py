@@ -25,6 +25,9 @@ Variants:
   sim2real, it can hold the gear by friction-limited springs instead of welding it (`grasp_hold`,
   assembly.world.GraspHold) and change the gear/plate contact (`contact`, ContactOverrides).
 
+render_mode "rgb_array": a fixed close view of the shaft from the front right (480 x 480, 25 fps);
+variant "fast" draws the plate and shafts from their collision shapes (they have no visuals).
+
 Why the reward has these terms and what J_T = 50 means: docs/envs.md#reward-design; how far the
 two variants' outcomes differ for the same xi and actions: docs/envs.md#how-far-the-variants-differ.
 
@@ -50,7 +53,7 @@ from assembly.envs.base import ParamEnv, SimulationError
 from goflow_common.checks import check_choice, check_finite_array, check_int, check_number
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
-from assembly.envs.drake_sim import advance
+from assembly.envs.drake_sim import SceneRendering, advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
 from assembly.insertion_law import InsertionLaw, PoseHistory
 from assembly.params import Param, ParamSpace
@@ -186,15 +189,21 @@ def insertion_reward(c: GearInsertionConfig, seated: bool, d: float, d_before: f
     )
 
 
-class GearInsertionEnv(ParamEnv):
+class GearInsertionEnv(SceneRendering, ParamEnv):
     """Insert a gear held with grasp error xi = (x, y, yaw) onto its shaft."""
 
     def __init__(
-        self, config: GearInsertionConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+        self,
+        config: GearInsertionConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
     ) -> None:
         self.config = c = config_with_overrides(GearInsertionConfig, config, overrides, "GearInsertionEnv")
         super().__init__(grasp_error_space(c), sampler)
         self._set_timing(c.control_dt, c.t_max, c.success_threshold)
+        self._init_render(render_mode)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.observation_space = observation_space(c)
         self._sim = _FastSim(c) if c.variant == "fast" else _PandaSim(c)
@@ -241,6 +250,27 @@ class GearInsertionEnv(ParamEnv):
     def _target(self, action: np.ndarray) -> np.ndarray:
         """Impedance target: the measured tool pose plus the scaled action, kept in the workspace."""
         return self.law.target(action, self._sim.tool_pose())
+
+    # -- rendering -------------------------------------------------------------------------
+
+    def _make_renderer(self):
+        """A camera 0.4 m from the shaft, from the front right and above (the side the station's
+        scene camera sees the plate from)."""
+        from assembly.envs.rendering import CameraView, SceneRenderer
+
+        model = self._sim.model if isinstance(self._sim, _FastSim) else self._sim.station
+        target = self._sim.X_WS.translation() + [0.0, 0.0, 0.03]
+        view = CameraView(tuple(target), (0.25, -0.3, 0.15), near=0.01, far=5.0)
+        r = SceneRenderer(model.scene_graph, self._sim.context, model.plant.get_source_id(), view)
+        if isinstance(self._sim, _FastSim):  # plate and shafts from their collision shapes; a table under them
+            from pydrake.geometry import Box
+
+            r.show_collision_geometry((0.75, 0.75, 0.78, 1.0), {"plate": (0.35, 0.4, 0.5, 1.0)})
+            table = RigidTransform([target[0], target[1], -0.01])
+            r.add_visual(
+                model.scene_graph.world_frame_id(), Box(1.0, 1.0, 0.02), table, (0.55, 0.4, 0.25, 1.0), "table"
+            )
+        return r
 
     # -- ParamEnv hooks --------------------------------------------------------------------
 

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, refuse_render
 from assembly.envs.drake_sim import HeldInput, advance, filter_between_copies
 from assembly.envs.gear_insertion import (
     GearInsertionConfig,
@@ -56,8 +56,10 @@ class GearInsertionVectorEnv(BatchedEnv):
         *,
         sampler: Sampler | None = None,
         max_episode_steps: int | None = None,
+        render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
+        refuse_render(render_mode, self._owner)
         n = check_num_envs(num_envs, self._owner)
         self.config = c = config_with_overrides(GearInsertionConfig, config, overrides, self._owner)
         if c.variant != "fast":

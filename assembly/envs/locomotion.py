@@ -18,6 +18,9 @@ xi (docs/envs.md#locomotion gives the boxes' reasons):
 A mass changes the body's rotational inertia in proportion (a denser link); MuJoCo's usual
 `body_mass` edit leaves the inertia alone.
 
+render_mode "rgb_array": a side camera following the torso over a checkered floor (480 x 480, at
+1 / control_dt fps), framed like gymnasium's default MuJoCo cameras.
+
 References: Farama Gymnasium 1.x, gymnasium/envs/mujoco/{hopper,walker2d,half_cheetah,humanoid}_v5.py;
 the NFPDE paper's Table I (parameter counts).
 """
@@ -34,7 +37,7 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from assembly.envs.base import ParamEnv, SimulationError
-from assembly.envs.drake_sim import HeldInput, advance
+from assembly.envs.drake_sim import HeldInput, SceneRendering, advance
 from assembly.envs.mjcf import ContactSettings, MjcfPlant, build_plant, gymnasium_asset, pair_friction, read_mjcf
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
@@ -104,13 +107,20 @@ class _Task:
     params: tuple[tuple[str, str, tuple[str, ...], str], ...]
 
 
-class LocomotionEnv(ParamEnv):
+class LocomotionEnv(SceneRendering, ParamEnv):
     """A gymnasium v5 MuJoCo locomotion task on a Drake plant, xi drawn per episode."""
 
     task: ClassVar[_Task]
+    # The render camera: target (world [m]; x, y follow the torso) and the eye's offset from it.
+    view: ClassVar[tuple[tuple[float, float, float], tuple[float, float, float]]] = ((0.0, 0.0, 1.0), (0.0, -3.5, 1.0))
 
     def __init__(
-        self, config: LocomotionConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+        self,
+        config: LocomotionConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
     ) -> None:
         self.config = cfg = config_with_overrides(LocomotionConfig, config, overrides, type(self).__name__)
         task = self.task
@@ -137,6 +147,7 @@ class LocomotionEnv(ParamEnv):
             time_step * self.frame_skip * cfg.horizon,
             math.inf if threshold is None else threshold,
         )
+        self._init_render(render_mode)
         self.reset_noise_scale = task.reset_noise_scale if cfg.reset_noise_scale is None else cfg.reset_noise_scale
 
         from pydrake.systems.analysis import Simulator
@@ -286,6 +297,21 @@ class LocomotionEnv(ParamEnv):
         """A task's cost beyond control; called after `_observe` of the same step."""
         return 0.0
 
+    # -- rendering ------------------------------------------------------------------------------
+
+    def _make_renderer(self):
+        """The class's `view`, following the torso over a checkered floor of 1 m squares."""
+        from assembly.envs.rendering import CameraView, SceneRenderer
+
+        m = self.model
+        renderer = SceneRenderer(m.scene_graph, self._context, m.plant.get_source_id(), CameraView(*self.view))
+        renderer.add_checker_floor(1.0, rgba=(0.45, 0.5, 0.45, 1.0))
+        self._torso = m.plant.GetBodyByName("torso")
+        return renderer
+
+    def _render_track(self) -> NDArray[np.float64]:
+        return self.model.plant.EvalBodyPoseInWorld(self._plant_context, self._torso).translation()
+
 
 def _model_file(name: str) -> Path:
     """An MJCF path, or the name of one of gymnasium's MuJoCo assets; InputError if neither."""
@@ -363,6 +389,8 @@ class Walker2dEnv(LocomotionEnv):
 class HalfCheetahEnv(LocomotionEnv):
     """HalfCheetah-v5 on Drake; xi: 7 body masses, 6 joint dampings, floor friction."""
 
+    view = ((0.0, 0.0, 0.5), (0.0, -4.0, 1.0))
+
     _links = ("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot")
     task = _Task(
         "half_cheetah.xml",
@@ -390,6 +418,8 @@ class HalfCheetahEnv(LocomotionEnv):
 class HumanoidEnv(LocomotionEnv):
     """Humanoid-v5 on Drake (348-dim observation with MuJoCo's com-based quantities); xi: 13
     body masses, 17 joint dampings."""
+
+    view = ((0.0, 0.0, 1.0), (0.0, -4.5, 1.4))
 
     _bodies = (
         "torso",

@@ -14,6 +14,7 @@ quadcopter env); the airframe is Drake's quadrotor example's.
   in the body frame.
 - Reward per step: dt (-0.05 |v_b|^2 - 0.01 |w_b|^2 + 15 (1 - tanh(d / 0.8))), d the distance to
   the goal; 100 steps of 0.02 s; success: return >= J_T = 15.
+- render_mode "rgb_array": a fixed view of the goal box, the goal a green ball (480 x 480, 50 fps).
 
 Derivation (the seed's task as read from the authors' code, our airframe and thrust model, the
 rotational damping, why J_T stays 15): docs/envs.md#quadrotor.
@@ -200,12 +201,18 @@ class QuadrotorEnv(PlantEnv):
     _owner = "Quadrotor"
 
     def __init__(
-        self, config: QuadrotorConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any
+        self,
+        config: QuadrotorConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
     ) -> None:
         self.config = config_with_overrides(QuadrotorConfig, config, overrides, "QuadrotorEnv")
         super().__init__(QUADROTOR_SPACE, sampler)
         cfg = self.config
         self._set_timing(cfg.control_dt, cfg.t_max, cfg.success_threshold)
+        self._init_render(render_mode)
         # Finite bounds (observations are clipped to them): speeds far beyond what 2 s of flight reach
         # at the lowest mass, the unit gravity direction, and the farthest goal after such a flight.
         self._obs_high = (200.0,) * 3 + (500.0,) * 3 + (1.0,) * 3 + (500.0,) * 3
@@ -306,6 +313,51 @@ class QuadrotorEnv(PlantEnv):
             )
         obs, reward = self._observe_and_reward(state)
         return obs, reward, False, {}
+
+    # -- rendering -----------------------------------------------------------------------------
+
+    _GOAL_RADIUS = 0.06  # [m] the goal marker's radius (image only)
+
+    def _make_renderer(self):
+        """A fixed camera on the goal box from -y, above a checkered floor; the airframe (arms, hub,
+        rotors: the front one, +x, red) and the goal are image-only shapes (the model's only
+        geometry is a collision sphere and the ground)."""
+        from pydrake.geometry import Box, Cylinder, Sphere
+        from pydrake.math import RigidTransform, RotationMatrix
+
+        from assembly.envs.rendering import CameraView, SceneRenderer, scene_graph_of
+
+        cfg, plant = self.config, self._plant
+        scene_graph = scene_graph_of(self._diagram)
+        view = CameraView(target=(0.0, 0.0, 0.8), eye_offset=(0.0, -4.5, 1.8))
+        r = SceneRenderer(scene_graph, self._context, plant.get_source_id(), view)
+        r.show_collision_geometry((0.8, 0.8, 0.8, 1.0))  # the ground
+        r.add_checker_floor(0.5, cells=16, rgba=(0.6, 0.6, 0.6, 1.0))
+        body = plant.GetBodyFrameIdOrThrow(self._body.index())
+        span, dark = 2.0 * cfg.arm_length + 0.02, (0.15, 0.15, 0.15, 1.0)
+        r.add_visual(body, Box(span, 0.02, 0.015), RigidTransform(), dark, "arm_x")
+        r.add_visual(body, Box(0.02, span, 0.015), RigidTransform(), dark, "arm_y")
+        r.add_visual(body, Box(0.07, 0.07, 0.04), RigidTransform(), (0.2, 0.4, 0.8, 1.0), "hub")
+        for i, p in enumerate(self._rotor_positions):
+            color = (0.85, 0.1, 0.1, 1.0) if i == 0 else (0.3, 0.3, 0.3, 1.0)
+            X = RigidTransform(RotationMatrix(), p + [0.0, 0.0, 0.015])
+            r.add_visual(body, Cylinder(0.06, 0.006), X, color, f"rotor_{i}")
+        world = scene_graph.world_frame_id()
+        self._goal_marker = r.add_visual(
+            world, Sphere(self._GOAL_RADIUS), RigidTransform(), (0.1, 0.8, 0.2, 1.0), "goal"
+        )
+        self._goal_drawn: tuple[float, float, float] | None = None
+        return r
+
+    def _render_frame(self) -> NDArray[np.uint8]:
+        from pydrake.geometry import Sphere
+        from pydrake.math import RigidTransform
+
+        r = self._scene_renderer()
+        if self._goal_drawn != self._goal_xyz:
+            r.move_visual(self._goal_marker, Sphere(self._GOAL_RADIUS), RigidTransform(self._goal_xyz))
+            self._goal_drawn = self._goal_xyz
+        return r.render()
 
     # -- tools ---------------------------------------------------------------------------------
 

@@ -16,7 +16,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps
+from assembly.envs.batched import BatchedEnv, check_num_envs, episode_steps, refuse_render
 from assembly.envs.drake_sim import HeldInput, filter_between_copies
 from assembly.envs.quadrotor import QUADROTOR_SPACE, QuadrotorConfig, add_ground, add_propellers, add_quadrotor
 from assembly.samplers import Sampler
@@ -37,8 +37,10 @@ class QuadrotorVectorEnv(BatchedEnv):
         *,
         sampler: Sampler | None = None,
         max_episode_steps: int | None = None,
+        render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
+        refuse_render(render_mode, self._owner)
         n = check_num_envs(num_envs, self._owner)
         self.config = cfg = config_with_overrides(QuadrotorConfig, config, overrides, self._owner)
         self._obs_high = np.array((200.0,) * 3 + (500.0,) * 3 + (1.0,) * 3 + (500.0,) * 3)

@@ -18,6 +18,9 @@ duration of that one decision; no dynamics are simulated. The feasible set is
 {xi : P(success | xi) >= feasible_level} with P(success | xi) = 1 - exp(-tolerance^2 / (2 sigma(xi)^2));
 with the defaults, 8 disks on a circle (9.2 % of the box) or 4 on a line (4.5 %).
 
+It does not render (a single decision with nothing moving): render_mode must be None, and any other
+value is refused with a ValueError.
+
 Derivation of the feasible set: docs/envs.md#feasible-set.
 
 References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
@@ -104,7 +107,14 @@ class Toy2DEnv(ParamEnv):
 
     success_threshold: float = 1.0  # J_T: undiscounted return >= J_T counts as success (reward is 0 or 1)
 
-    def __init__(self, config: Toy2DConfig | None = None, *, sampler: Sampler | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        config: Toy2DConfig | None = None,
+        *,
+        sampler: Sampler | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
         self.config = config_with_overrides(Toy2DConfig, config, overrides, "Toy2DEnv")
         h = self.config.half_extent
         self.space = ParamSpace((Param("x", -h, h, "m"), Param("y", -h, h, "m")))
@@ -117,6 +127,7 @@ class Toy2DEnv(ParamEnv):
         self._inv_two_w2 = 1.0 / (2.0 * self.config.widths() ** 2)
         super().__init__(self.space, sampler)
         self.control_dt = float(self.config.control_dt)
+        self._init_render(render_mode)  # metadata["render_modes"] is []: only None passes
         # Observations are clipped to the box grown by 10 sigma_max: a finite space for the checker and
         # for normalizers, reached with probability < 1e-22 per episode; clipping toward a box that
         # contains xi never increases the guess error, so the analytic feasible set stays exact.
