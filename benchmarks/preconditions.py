@@ -1,7 +1,7 @@
 """The insert skills' preconditions measured: V_T (the paper's J_T on our critic's discounted
 scale) from rollouts, and how well each form of precondition tells a success from a failure.
 
-    .venv/bin/python benchmarks/preconditions.py --episodes 200 --json docs/results/preconditions.json \
+    .venv/bin/python -m benchmarks.preconditions --episodes 200 --json docs/results/preconditions.json \
         [--thresholds planning/data/insert_thresholds.json]
 
 Per gear: `episodes` rollouts of the shipped skill (fast variant, deterministic policy) at grasp
@@ -19,15 +19,13 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from assembly.gearset import GEAR_NAMES  # noqa: E402
+from benchmarks.provenance import command  # noqa: E402
 from goflow_common.files import check_output_file, write_json  # noqa: E402
 from goflow_common.pool import map_calls  # noqa: E402
 
@@ -109,11 +107,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = map_calls(measure, [(gear, args.episodes, args.spread, args.seed) for gear in args.gears], args.workers)
     print(table(rows))
     if args.json:
-        write_json(args.json, {"command": " ".join(sys.argv), "rows": rows})
+        write_json(args.json, {"command": command("preconditions", argv), "rows": rows})
     if args.thresholds:
         write_json(
             args.thresholds,
-            {"command": " ".join(sys.argv), "thresholds": {r["gear"]: r["value_threshold"] for r in rows}},
+            {"command": command("preconditions", argv), "thresholds": {r["gear"]: r["value_threshold"] for r in rows}},
         )
     return 0
 

@@ -23,8 +23,7 @@ import zuko
 
 import learning.samplers.spline_flow as goflow_module
 from assembly.params import Param, ParamSpace
-from learning.experiment import protocol_sampler_kwargs
-from learning.samplers.registry import METHODS, make_sampler
+from learning.samplers.registry import METHODS, make_sampler, protocol_sampler_kwargs
 from goflow_common.files import write_json
 
 

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from goflow_common.errors import InputError
 
-__all__ = ["check_int", "check_number", "check_choice", "check_finite_array", "InputErrorParser"]
+__all__ = ["check_int", "check_number", "check_choice", "check_layer_sizes", "check_finite_array", "InputErrorParser"]
 
 
 def check_int(value: Any, name: str, minimum: int | None = None) -> int:
@@ -63,6 +63,15 @@ def check_choice(value: Any, choices: Iterable[Any], name: str) -> Any:
     if value not in options:
         raise InputError(f"{name} = {value!r}; expected one of {options}")
     return value
+
+
+def check_layer_sizes(value: Any, name: str) -> tuple[int, ...]:
+    """`value` (a list or tuple) as a tuple of ints, the layer sizes of an MLP; InputError naming
+    `name` unless it holds at least one entry and every entry is an integer >= 1."""
+    sizes = tuple(value) if isinstance(value, (list, tuple)) else ()
+    if not sizes:
+        raise InputError(f"{name} = {value!r}; expected a non-empty list of layer sizes")
+    return tuple(check_int(h, f"{name} entry", 1) for h in sizes)
 
 
 def check_finite_array(

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
@@ -49,8 +49,12 @@ from learning.samplers.registry import (
     SAMPLER_SIGNALS,
     THRESHOLD_METHODS,
     make_sampler,
+    protocol_sampler_kwargs,
     sampler_config,
 )
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = [
     "TrainConfig",
@@ -64,7 +68,6 @@ __all__ = [
     "summarize",
     "format_summary",
     "plot_curves",
-    "protocol_sampler_kwargs",
     "probe_env",
     "load_checkpoint",
     "experiment_jobs",
@@ -74,15 +77,6 @@ __all__ = [
 
 #: What a checkpoint file is called in messages.
 _CHECKPOINT = "goflow training checkpoint (checkpoint.pt of a `goflow train` run folder)"
-
-
-def protocol_sampler_kwargs(method: str, sampler_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """The sampler options the protocol runs `method` with: the user's, plus DORAEMON's
-    `proposal="uniform"` (the protocol updates it with the uniform validation batch, so its
-    importance weights are p'/U) unless the user set it."""
-    if method == "doraemon":
-        return {"proposal": "uniform", **sampler_kwargs}
-    return dict(sampler_kwargs)
 
 
 def probe_env(env_id: str, env_kwargs: dict[str, Any]) -> gymnasium.Env:
@@ -222,12 +216,15 @@ def make_vector_env(config: TrainConfig, n: int) -> gymnasium.vector.VectorEnv:
     """n environments of `config.env` in this process, in the SAME_STEP autoreset layout PPO needs
     (runs parallelize across processes, one per run): the env id's batched vector env (n copies in
     one Drake plant, assembly/envs/batched.py) when `config.vectorization` is "batched" and the id
-    has one, else n single envs in a SyncVectorEnv."""
+    has one, else n single envs in a SyncVectorEnv. The envs end their own episodes (t_max or
+    horizon in env_kwargs): max_episode_steps=-1 keeps gymnasium's TimeLimit at the spec's default
+    length from cutting a longer one (docs/envs.md, "Rendering and episode length")."""
     spec = gymnasium.spec(config.env)
+    kwargs = {"max_episode_steps": -1, **config.env_kwargs}
     if config.vectorization == "batched" and spec.vector_entry_point is not None:
-        return gymnasium.make_vec(config.env, num_envs=n, vectorization_mode="vector_entry_point", **config.env_kwargs)
+        return gymnasium.make_vec(config.env, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
     return gymnasium.vector.SyncVectorEnv(
-        [lambda: gymnasium.make(config.env, **config.env_kwargs) for _ in range(n)],
+        [lambda: gymnasium.make(config.env, **kwargs) for _ in range(n)],
         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP,
     )
 
@@ -613,15 +610,14 @@ def summarize(logs: list[dict], steps: int, env: str) -> dict:
     return out
 
 
-def plot_curves(summary: dict, path: Path) -> None:
+def plot_curves(summary: dict, path: Path) -> Figure:
     """Success (left) and mean return (right) on the uniform box vs training steps, mean and
-    standard-error band per method."""
-    import matplotlib
+    standard-error band per method; saved to `path` (a PNG). Returns the matplotlib Figure (made
+    without pyplot: no backend is chosen or switched)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax, ax_ret) = plt.subplots(1, 2, figsize=(11, 4))
+    fig = Figure(figsize=(11, 4))
+    ax, ax_ret = fig.subplots(1, 2)
     for method, res in summary["methods"].items():
         for axis, key in ((ax, "curve"), (ax_ret, "return_curve")):
             c = np.array(res[key])
@@ -636,7 +632,7 @@ def plot_curves(summary: dict, path: Path) -> None:
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return fig
 
 
 def _run_resources(config: TrainConfig) -> dict[str, float]:

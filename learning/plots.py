@@ -8,24 +8,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
 
 import assembly  # noqa: F401  (registers the environment ids)
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 
 def plot_toy2d_densities(
     env_id: str, env_kwargs: Mapping[str, Any], samplers: Mapping[str, Any], path: Path, grid: int = 120
-) -> None:
+) -> Figure:
     """One panel per method of `samplers` (method -> a sampler with `log_prob`, e.g. a run's final
     one): its density over the 2-D box of env `env_id` (made with `env_kwargs`), the feasible set's
-    outline on top; a first panel shows the feasible set itself. Written to `path` (a PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    outline on top; a first panel shows the feasible set itself. Written to `path` (a PNG).
+    Returns the matplotlib Figure (made without pyplot: no backend is chosen or switched)."""
+    from matplotlib.figure import Figure
 
     env = gymnasium.make(env_id, **env_kwargs).unwrapped
     lo, hi = env.space.low, env.space.high
@@ -34,7 +35,8 @@ def plot_toy2d_densities(
     points = np.stack([X.ravel(), Y.ravel()], axis=1)
     feasible = env.feasible_set(points).reshape(grid, grid)
     methods = list(samplers)
-    fig, axes = plt.subplots(1, len(methods) + 1, figsize=(3 * (len(methods) + 1), 3.2))
+    fig = Figure(figsize=(3 * (len(methods) + 1), 3.2))
+    axes = fig.subplots(1, len(methods) + 1)
     extent = (lo[0], hi[0], lo[1], hi[1])
     axes[0].imshow(feasible, origin="lower", extent=extent, cmap="Greens")
     axes[0].set_title("feasible set")
@@ -59,19 +61,18 @@ def plot_toy2d_densities(
         ax.set_yticks([])
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def plot_sweep(sweep: dict, path: Path) -> None:
-    """Final uniform-box success (mean +- s.e. over seeds) against each swept value of one option."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def plot_sweep(sweep: dict, path: Path) -> Figure:
+    """Final uniform-box success (mean +- s.e. over seeds) against each swept value of one option;
+    written to `path` (a PNG). Returns the matplotlib Figure (made without pyplot)."""
+    from matplotlib.figure import Figure
 
     rows = sweep["rows"]
     labels = [str(r["value"]) for r in rows]
-    fig, ax = plt.subplots(figsize=(5.0, 3.4))
+    fig = Figure(figsize=(5.0, 3.4))
+    ax = fig.subplots()
     ax.errorbar(
         range(len(rows)),
         [r["final_success_mean"] for r in rows],
@@ -86,7 +87,7 @@ def plot_sweep(sweep: dict, path: Path) -> None:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 __all__ = ["plot_sweep", "plot_toy2d_densities"]

@@ -41,7 +41,7 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 from torch import nn
 
-from goflow_common.checks import check_int, check_number
+from goflow_common.checks import check_int, check_layer_sizes, check_number
 from goflow_common.errors import InputError
 from learning.networks import Actor, Critic, RunningMeanStd
 from learning.ppo_checkpoint import (
@@ -53,7 +53,6 @@ from learning.ppo_checkpoint import (
     saved_config,
     write_checkpoint,
 )
-from learning.samplers.goflow_config import check_layer_sizes
 from learning.vector_env_contract import NonFiniteError, check_finite, check_vec_env, read_final_info, read_obs
 
 __all__ = ["PPOConfig", "PPO", "RolloutStats", "compute_gae"]

@@ -26,10 +26,9 @@ from assembly.params import ParamSpace
 from assembly.samplers import FullDR, Sampler
 from goflow_common.errors import FileFormatError
 from goflow_common.files import check_output_file, load_tensors, save_tensors
-from learning.experiment import protocol_sampler_kwargs
 from learning.feasible_grid import FeasibleSet
 from learning.ppo import PPO
-from learning.samplers.registry import make_sampler
+from learning.samplers.registry import make_sampler, protocol_sampler_kwargs
 
 __all__ = ["SKILLS", "SKILL_DIR", "SKILL_ENVS", "SKILL_FORMAT", "Skill", "check_skill_name", "load_skill", "skill_path"]
 

@@ -523,15 +523,14 @@ def sets_text(sets: dict) -> str:
 def reliability_plot(result: dict, path: str | Path):
     """Observed against nominal coverage, one line per perturbation group (error bars: one scene
     bootstrap standard error, where the summary has it), a panel per view, with the +-5 point
-    band; saved to `path`. Returns the matplotlib Figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    band; saved to `path`. Returns the matplotlib Figure (made without pyplot: no backend is
+    chosen or switched; a notebook shows it as a cell's value, or with IPython's display)."""
+    from matplotlib.figure import Figure
 
     levels = np.array(result["config"]["levels"])
     lowest = min((c for s in result["summary"] for c in s["coverage"].values() if np.isfinite(c)), default=0.4)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), sharey=True)
+    fig = Figure(figsize=(10, 4.4))
+    axes = fig.subplots(1, 2, sharey=True)
     for ax, view in zip(axes, VIEWS):
         ax.fill_between([0.4, 1.0], [0.35, 0.95], [0.45, 1.05], color="0.9", label="+-5 points")
         ax.set_title(f"{view} view")

@@ -367,13 +367,12 @@ class PosePosterior:
 
     def plot(self, path: str | Path | None = None, truth: np.ndarray | None = None):
         """The x-y map (summed over yaw) and the yaw marginal (the seed paper's Fig. 12); saved to
-        `path` if given. Returns the matplotlib Figure."""
-        import matplotlib
+        `path` if given. Returns the matplotlib Figure (made without pyplot: no backend is chosen
+        or switched; a notebook shows it as a cell's value, or with IPython's display)."""
+        from matplotlib.figure import Figure
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9, 3.6))
+        fig = Figure(figsize=(9, 3.6))
+        ax0, ax1 = fig.subplots(1, 2)
         xy = self.mass.sum(axis=(0, 3))
         extent = [
             1e3 * (self.xs[0] - self.dx / 2),

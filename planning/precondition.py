@@ -27,7 +27,7 @@ from goflow_common.files import read_json
 from learning.skill_evaluation import rollout_return
 from learning.skill_file import load_skill, Skill
 
-#: V_T per gear, measured by `benchmarks/preconditions.py --thresholds` (docs/planning.md).
+#: V_T per gear, measured by `benchmarks.preconditions --thresholds` (docs/planning.md).
 THRESHOLDS = Path(__file__).parent / "data" / "insert_thresholds.json"
 
 
@@ -96,7 +96,7 @@ class InsertPrecondition:
 
 def load_value_thresholds(path: str | os.PathLike[str] = THRESHOLDS) -> dict[str, float]:
     """{gear: V_T} from a thresholds file (strict JSON: {"thresholds": {gear: number}, ...})."""
-    data = read_json(path, "value-threshold file (benchmarks/preconditions.py --thresholds)")
+    data = read_json(path, "value-threshold file (benchmarks.preconditions --thresholds)")
     table = data.get("thresholds") if isinstance(data, dict) else None
     if not isinstance(table, dict) or not all(isinstance(v, (int, float)) and np.isfinite(v) for v in table.values()):
         raise FileFormatError(f'{path}: expected {{"thresholds": {{gear: finite number}}}}')

@@ -230,23 +230,24 @@ def render_markdown(d: Diagnosis, title: str = "Sim-to-real gap diagnosis") -> s
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
     return buf.getvalue()
 
 
-def _figures(d: Diagnosis) -> dict[str, bytes]:
-    import matplotlib
+def _subplots(figsize: tuple[float, float], *grid: int, **kwargs: Any):
+    """A Figure made without pyplot (no backend chosen or switched) and its axes."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **kwargs)
+
+
+def _figures(d: Diagnosis) -> dict[str, bytes]:
 
     a = d.arrays
     s = d.summary()
     valid = a["valid"]
     out = {}
-    fig, axes = plt.subplots(len(d.channels), 7, figsize=(21, 3 * len(d.channels)), squeeze=False)
+    fig, axes = _subplots((21, 3 * len(d.channels)), len(d.channels), 7, squeeze=False)
     step = max(1, int(valid.sum() // 3000))
     for ci, c in enumerate(d.channels):
         for j in range(7):
@@ -278,7 +279,7 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     mats += [np.asarray(w["regions"][r]["ratio"]) for r in w["regions"]]
     grid = np.concatenate(mats, axis=0)
     ylabels = [f"{lab}: {c}" for lab in labels for c in d.channels]
-    fig, ax = plt.subplots(figsize=(7, 0.3 * len(ylabels) + 1.5))
+    fig, ax = _subplots((7, 0.3 * len(ylabels) + 1.5))
     im = ax.imshow(np.log10(np.maximum(grid, 1e-3)), aspect="auto", cmap="magma")
     ax.set_yticks(range(len(ylabels)), ylabels, fontsize=7)
     ax.set_xticks(range(7), [str(j + 1) for j in range(7)])
@@ -287,7 +288,7 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     ax.set_title("where: residual over the noise floor")
     out["where.png"] = _png(fig)
 
-    fig, ax = plt.subplots(figsize=(7, 0.4 * max(len(s["ranking"]), 1) + 1.5))
+    fig, ax = _subplots((7, 0.4 * max(len(s["ranking"]), 1) + 1.5))
     names = [r["effect"] for r in s["ranking"]][::-1]
     gains = np.array([r["gain"] for r in s["ranking"]][::-1])
     lo = np.array([r["gain_low"] for r in s["ranking"]][::-1])
@@ -303,7 +304,7 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     out["ranking.png"] = _png(fig)
 
     o = s["how_far"]["overall"]
-    fig, ax = plt.subplots(figsize=(10, 3.5))
+    fig, ax = _subplots((10, 3.5))
     labels = [f"{c}{j + 1}" for c in d.channels for j in range(7)]
     x = np.arange(len(labels))
     before = np.array(o["before"]).ravel()

@@ -13,8 +13,6 @@ from planning.grasp import PICK_MODEL, PICK_MODEL_FILE, load_pick_model
 
 ROOT = Path(__file__).parents[1]
 SCRIPTS = sorted(p for p in (ROOT / "benchmarks").glob("*.py") if p.stem not in {"__init__", "provenance"})
-# scripts whose owners still patch sys.path (issue 64): empty this as they drop it
-STILL_PATCHED = {"assembly_grid", "env_speed", "preconditions"}
 
 
 def test_no_benchmark_script_hides_a_package():
@@ -26,7 +24,7 @@ def test_no_benchmark_script_hides_a_package():
 
 def test_no_script_patches_sys_path():
     patched = {p.stem for p in SCRIPTS if re.search(r"sys\.path\.(insert|append)", p.read_text())}
-    assert patched <= STILL_PATCHED, f"benchmarks/ scripts patching sys.path: {sorted(patched - STILL_PATCHED)}"
+    assert not patched, f"benchmarks/ scripts patching sys.path: {sorted(patched)}"
 
 
 def test_every_script_is_listed_in_the_readme():

@@ -65,9 +65,12 @@ def execute(nb, probe: str | None = None) -> str | None:
     return "".join(out.get("text", "") for out in cell.outputs if out.get("name") == "stdout")
 
 
-def _check_scripted_assembly(summary: dict) -> None:
+def _check_scripted_assembly(out: dict) -> None:
     """01_station's `summary` (assembly.demo's, as `goflow demo --scripted --json` writes it):
-    every gear of the gearbox seated within the seated tolerances."""
+    every gear of the gearbox seated within the seated tolerances; its printed table (what
+    `goflow demo --scripted` prints) names every gear."""
+    summary = out["summary"]
+    assert all(name in out["table"] for name in GEAR_NAMES), out["table"]
     assert set(summary) == {"gears", "sim_time_s", "wall_time_s"}, summary
     assert set(summary["gears"]) == set(GEAR_NAMES)
     for name, gear in summary["gears"].items():
@@ -95,7 +98,10 @@ def _check_planned_assembly(out: dict) -> None:
 
 #: notebook -> (probe printing its results as JSON, the check of them)
 RESULTS: dict[str, tuple[str, Callable[[dict], None]]] = {
-    "01_station.ipynb": ("import json; print(json.dumps(summary))", _check_scripted_assembly),
+    "01_station.ipynb": (
+        'import json; print(json.dumps({"summary": summary, "table": format_summary(summary)}))',
+        _check_scripted_assembly,
+    ),
     "04_assembly.ipynb": (
         'import json; print(json.dumps({"summary": summary, "log": built.run().log}))',
         _check_planned_assembly,

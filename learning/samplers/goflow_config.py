@@ -11,12 +11,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from goflow_common.checks import check_choice, check_int, check_number
+from goflow_common.checks import check_choice, check_int, check_layer_sizes, check_number
 from goflow_common.config import config_to_dict, config_with_overrides
 from goflow_common.errors import InputError
 from learning.samplers.gradient_update import config_from_state
 
-__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "check_layer_sizes", "classifier_width", "goflow_config_of"]
+__all__ = ["FEASIBLE_MODELS", "MODES", "GoFlowConfig", "classifier_width", "goflow_config_of"]
 
 
 #: What an update optimizes (GoFlowConfig.mode).
@@ -158,15 +158,6 @@ class GoFlowConfig:
 
     # fields that define the flow's parameter shapes and density (must match to load a state)
     ARCHITECTURE = ("transforms", "hidden_features", "bins", "base_scale")
-
-
-def check_layer_sizes(value: Any, name: str) -> tuple[int, ...]:
-    """`value` (a list or tuple) as a tuple of ints, the layer sizes of an MLP; InputError naming
-    `name` unless it holds at least one entry and every entry is an integer >= 1."""
-    sizes = tuple(value) if isinstance(value, (list, tuple)) else ()
-    if not sizes:
-        raise InputError(f"{name} = {value!r}; expected a non-empty list of layer sizes")
-    return tuple(check_int(h, f"{name} entry", 1) for h in sizes)
 
 
 def classifier_width(dim: int) -> tuple[int, int]:

@@ -31,6 +31,7 @@ __all__ = [
     "sampler_class",
     "sampler_config",
     "make_sampler",
+    "protocol_sampler_kwargs",
 ]
 
 #: What a sampler may learn from: the episodes' returns, or their 0/1 successes (return >= J_T).
@@ -132,3 +133,12 @@ def make_sampler(
     """The sampler `name` over ParamSpace `space` with J_T `success_threshold` and `config` (its
     config dataclass, a mapping of its fields, or None for the defaults)."""
     return sampler_class(name)(space, success_threshold, sampler_config(name, config))
+
+
+def protocol_sampler_kwargs(method: str, sampler_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The sampler options the protocol runs `method` with: the user's, plus DORAEMON's
+    `proposal="uniform"` (the protocol updates it with the uniform validation batch, so its
+    importance weights are p'/U) unless the user set it."""
+    if method == "doraemon":
+        return {"proposal": "uniform", **sampler_kwargs}
+    return dict(sampler_kwargs)
