@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
+from assembly.samplers import Sampler
 from goflow_common.checks import check_int
 from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.feasible_grid import flow_report
@@ -25,6 +26,7 @@ from learning.skill_file import Skill
 
 __all__ = [
     "SkillEvaluation",
+    "XI_SOURCES",
     "describe",
     "evaluate_skill",
     "evaluate_skill_jobs",
@@ -34,14 +36,20 @@ __all__ = [
 ]
 
 
+#: Where an evaluation's xi are drawn from: the skill's flow, uniform over the box, or a given
+#: sampler (an estimate, `goflow evaluate --sampler-file`).
+XI_SOURCES = ("flow", "uniform", "estimate")
+
+
 @dataclass(frozen=True)
 class SkillEvaluation:
     """What `evaluate_skill` measured: the success rate (with its binomial standard error) and mean
-    return of the deterministic policy, and where xi came from (the flow or the uniform box)."""
+    return of the deterministic policy, and where xi came from (the flow, the uniform box or a
+    given sampler, whose state_dict is `xi_sampler`)."""
 
     gear: str
     variant: str  # the env variant ("fast" or "panda")
-    xi: str  # "flow" or "uniform"
+    xi: str  # one of XI_SOURCES
     episodes: int
     success_rate: float
     success_se: float
@@ -51,10 +59,54 @@ class SkillEvaluation:
     xi_mean: list[float]  # mean and std of the episodes' xi (parameter units)
     xi_std: list[float]
     jobs: int = 1  # the episodes were split into this many jobs (evaluate_skill_jobs), seeded per job
+    xi_sampler: dict[str, Any] | None = None  # xi "estimate": the sampler's state_dict (type, space, dist)
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON data (the `goflow evaluate --json` file)."""
         return dataclasses.asdict(self)
+
+
+def _check_xi_source(xi: str, sampler: Sampler | None, skill: Skill) -> None:
+    """`xi` is one of XI_SOURCES, and `sampler` is given (over the skill's ParamSpace) exactly
+    when it is "estimate"; ValueError otherwise."""
+    if xi not in XI_SOURCES:
+        raise ValueError(f"xi source {xi!r}; expected one of {list(XI_SOURCES)}")
+    if (xi == "estimate") != (sampler is not None):
+        raise ValueError(f"xi source {xi!r} with sampler {sampler!r}: a sampler goes with xi 'estimate' only")
+    if sampler is not None and sampler.space != skill.space:
+        raise ValueError(
+            f"the sampler's ParamSpace differs from skill {skill.name}-{skill.gear}'s (skill vs sampler): "
+            + "; ".join(skill.space.diff(sampler.space))
+        )
+
+
+def _episodes(
+    skill: Skill,
+    variant: str,
+    xi: str,
+    sampler: Sampler | None,
+    episodes: int,
+    seed: int,
+    num_envs: int,
+    progress: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """`episodes` episodes of the skill's deterministic policy in `num_envs` envs, xi from `xi`
+    (`sampler` for "estimate"): (xi, returns, successes)."""
+
+    def make() -> gymnasium.Env:
+        env = skill.make_env(variant, "uniform" if sampler is not None else xi)
+        if sampler is not None:
+            env.unwrapped.sampler = sampler
+        return env
+
+    n = max(1, min(int(num_envs), int(episodes)))
+    vec = gymnasium.vector.SyncVectorEnv(
+        [make for _ in range(n)], autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP
+    )
+    try:
+        return skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed, progress=progress)
+    finally:
+        vec.close()
 
 
 def evaluate_skill(
@@ -65,22 +117,20 @@ def evaluate_skill(
     seed: int = 0,
     num_envs: int = 4,
     progress: bool = False,
+    sampler: Sampler | None = None,
 ) -> SkillEvaluation:
-    """Run `episodes` episodes of the skill's deterministic policy with xi from its flow or uniform
-    over the box, in `num_envs` environments; `progress` shows a bar of the episodes finished."""
+    """Run `episodes` episodes of the skill's deterministic policy in `num_envs` environments,
+    with xi from its flow (`xi="flow"`), uniform over the box ("uniform"), or from `sampler`
+    ("estimate": e.g. the EstimatedSampler of a `goflow estimate` file; required then, and over the
+    skill's ParamSpace); `progress` shows a bar of the episodes finished. ValueError on a bad
+    source, before any episode."""
     episodes = check_int(episodes, "episodes", 1)
+    _check_xi_source(xi, sampler, skill)
     t0 = time.perf_counter()
-    n = max(1, min(int(num_envs), int(episodes)))
-    vec = gymnasium.vector.SyncVectorEnv(
-        [lambda: skill.make_env(variant, xi) for _ in range(n)], autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP
+    xis, returns, successes = _episodes(skill, variant, xi, sampler, episodes, seed, num_envs, progress)
+    return _evaluation(
+        skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, sampler=sampler
     )
-    try:
-        xis, returns, successes = skill.agent.evaluate(
-            vec, int(episodes), deterministic=True, seed=seed, progress=progress
-        )
-    finally:
-        vec.close()
-    return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes)
 
 
 def _evaluation(
@@ -93,6 +143,7 @@ def _evaluation(
     returns: NDArray[np.float64],
     successes: NDArray[np.bool_],
     jobs: int = 1,
+    sampler: Sampler | None = None,
 ) -> SkillEvaluation:
     rate = float(np.mean(successes))
     return SkillEvaluation(
@@ -108,23 +159,16 @@ def _evaluation(
         xi_mean=xis.mean(axis=0).tolist(),
         xi_std=xis.std(axis=0).tolist(),
         jobs=jobs,
+        xi_sampler=None if sampler is None else sampler.state_dict(),
     )
 
 
 def _evaluate_part(
-    path: str, variant: str, xi: str, episodes: int, seed: int, num_envs: int
+    path: str, variant: str, xi: str, sampler: Sampler | None, episodes: int, seed: int, num_envs: int
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """One job of `evaluate_skill_jobs`, in a worker: the skill file's episodes (xi, returns, successes)."""
     torch.set_num_threads(1)
-    skill = Skill.load(path)
-    n = max(1, min(int(num_envs), int(episodes)))
-    vec = gymnasium.vector.SyncVectorEnv(
-        [lambda: skill.make_env(variant, xi) for _ in range(n)], autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP
-    )
-    try:
-        return skill.agent.evaluate(vec, int(episodes), deterministic=True, seed=seed)
-    finally:
-        vec.close()
+    return _episodes(Skill.load(path), variant, xi, sampler, episodes, seed, num_envs, False)
 
 
 def evaluate_skill_jobs(
@@ -137,21 +181,22 @@ def evaluate_skill_jobs(
     num_envs: int = 4,
     backend: Backend | None = None,
     progress: bool = False,
+    sampler: Sampler | None = None,
 ) -> SkillEvaluation:
     """`evaluate_skill` of the skill file at `path` with its episodes split into `jobs` parts run on
     `backend` (learning.execution; default: this process), each loading the file (a path every
-    worker reaches). Part j runs `episodes // jobs` episodes (one more for the first
-    `episodes % jobs`) seeded with `seed` itself when `jobs` is 1 (the same episodes as
-    `evaluate_skill`), else with a seed drawn from (seed, j): the result depends on `jobs`, never
-    on the backend or the number of workers."""
+    worker reaches; `sampler`, for xi "estimate", travels with each job). Part j runs
+    `episodes // jobs` episodes (one more for the first `episodes % jobs`) seeded with `seed` itself
+    when `jobs` is 1 (the same episodes as `evaluate_skill`), else with a seed drawn from (seed, j):
+    the result depends on `jobs`, never on the backend or the number of workers. ValueError on a
+    bad xi source (see `evaluate_skill`), before any job."""
     episodes = check_int(episodes, "episodes", 1)
     jobs = check_int(jobs, "jobs", 1)
     if jobs > episodes:
         raise ValueError(f"jobs = {jobs}; expected at most episodes = {episodes}")
-    if xi not in ("flow", "uniform"):
-        raise ValueError(f"xi source {xi!r}; expected 'flow' or 'uniform'")
     path = Path(path).resolve()
     skill = Skill.load(path)  # a bad file fails here, before any job
+    _check_xi_source(xi, sampler, skill)
     t0 = time.perf_counter()
     sizes = [episodes // jobs + (1 if j < episodes % jobs else 0) for j in range(jobs)]
     seeds = (
@@ -164,7 +209,7 @@ def evaluate_skill_jobs(
             Job(
                 f"episodes {sum(sizes[:j])}-{sum(sizes[: j + 1]) - 1}",
                 _evaluate_part,
-                (str(path), variant, xi, sizes[j], seeds[j], num_envs),
+                (str(path), variant, xi, sampler, sizes[j], seeds[j], num_envs),
             )
             for j in range(jobs)
         ],
@@ -173,7 +218,9 @@ def evaluate_skill_jobs(
         f"evaluate {skill.name}-{skill.gear}",
     )
     xis, returns, successes = (np.concatenate([part[k] for part in parts]) for k in range(3))
-    return _evaluation(skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, jobs)
+    return _evaluation(
+        skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, jobs, sampler=sampler
+    )
 
 
 def flow_width(skill: Skill, eps: float, samples: int = 200_000, seed: int = 0) -> dict[str, float]:

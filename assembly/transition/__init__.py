@@ -3,8 +3,8 @@ logged action under parameters xi, return the next state.
 
 Every simulator keeps one contract (`base.TransitionSim`); `base.BatchTransitionSim` owns the batch
 loop and each model implements its hooks (one module per model: `point_mass`, `cartpole`, `ant`,
-`panda_arm`, `locomotion`); `parallel.ParallelTransitionSim` splits batches over processes;
-`registry` holds the ids.
+`panda_arm`, `locomotion`, `quadrotor`, `anymal`, `gear_insertion`); `parallel.ParallelTransitionSim`
+splits batches over processes; `registry` holds the ids.
 
 Simulators are registered by name, lazily like gymnasium's `register`: an entry point is a
 "module:Class" string imported on first use, so listing the ids imports no Drake.

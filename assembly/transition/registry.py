@@ -43,6 +43,9 @@ for _env_id, _entry_point in (
     ("goflow/Walker2d-v0", "assembly.transition.locomotion:Walker2dTransitionSim"),
     ("goflow/HalfCheetah-v0", "assembly.transition.locomotion:HalfCheetahTransitionSim"),
     ("goflow/Humanoid-v0", "assembly.transition.locomotion:HumanoidTransitionSim"),
+    ("goflow/Quadrotor-v0", "assembly.transition.quadrotor:QuadrotorTransitionSim"),
+    ("goflow/Anymal-v0", "assembly.transition.anymal:AnymalTransitionSim"),
+    ("goflow/GearInsertion-v0", "assembly.transition.gear_insertion:GearInsertionTransitionSim"),
 ):
     register_transition_sim(_env_id, _entry_point)
 

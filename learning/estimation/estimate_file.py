@@ -1,20 +1,28 @@
-"""The estimate file that `goflow estimate` writes and training reads: strict JSON
-{"format": "goflow-estimate", "version": 1, "method", "env_id", "sampler": EstimatedSampler
-state_dict, "info": {...}}.
+"""The estimate file that `goflow estimate` writes and `goflow train`, `evaluate` and `collect`
+read (`--sampler-file`): strict JSON {"format": "goflow-estimate", "version": 1, "method",
+"env_id", "sampler": EstimatedSampler state_dict, "info": {...}}.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from assembly.params import ParamSpace
-from goflow_common.errors import FileFormatError
+from goflow_common.errors import FileFormatError, InputError
 from goflow_common.files import read_json, write_json
 from learning.samplers.estimated import EstimatedSampler
 
-__all__ = ["ESTIMATE_FORMAT", "save_estimate", "load_estimate"]
+__all__ = [
+    "ESTIMATE_FORMAT",
+    "save_estimate",
+    "load_estimate",
+    "check_estimate_space",
+    "load_estimate_for",
+    "estimate_source",
+]
 
 ESTIMATE_FORMAT = "goflow-estimate"
 
@@ -52,3 +60,35 @@ def load_estimate(path: str | Path) -> tuple[EstimatedSampler, dict[str, Any]]:
     except (KeyError, TypeError, ValueError) as exc:
         raise FileFormatError(f"estimate {path}: malformed sampler ({exc})") from None
     return sampler, doc
+
+
+def check_estimate_space(sampler: EstimatedSampler, path: str | Path, space: ParamSpace, env: str) -> None:
+    """An estimate drives an env (or simulator) of the same ParamSpace only: InputError naming the
+    file, `env` and every difference (env vs file) otherwise."""
+    if sampler.space != space:
+        raise InputError(
+            f"--sampler-file {path}: estimated over another ParamSpace than {env}'s (env vs file): "
+            + "; ".join(space.diff(sampler.space))
+        )
+
+
+def load_estimate_for(path: str | Path, space: ParamSpace, env: str) -> tuple[EstimatedSampler, dict[str, Any]]:
+    """`load_estimate`, then `check_estimate_space` against `space` (the ParamSpace of `env`):
+    (the sampler, the whole file as a dict). The errors of both."""
+    sampler, doc = load_estimate(path)
+    check_estimate_space(sampler, path, space, env)
+    return sampler, doc
+
+
+def estimate_source(path: str | Path, sampler: EstimatedSampler, doc: Mapping[str, Any]) -> dict[str, Any]:
+    """What a result drawn from an estimate file records of it (plain JSON): the path, the SHA-256
+    of its bytes, its method and env id, and the distribution itself (its `to_dict()`), so that the
+    source can be rebuilt without the file."""
+    return {
+        "kind": "estimate",
+        "file": str(path),
+        "sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest(),
+        "method": doc.get("method"),
+        "env_id": doc.get("env_id"),
+        "distribution": sampler.dist.to_dict(),
+    }

@@ -251,3 +251,82 @@ def test_bad_batches_are_refused_and_parallel_matches_serial(sims):
         np.testing.assert_array_equal(par.step(s, a, xi), sim.step(s, a, xi))
     finally:
         par.close()
+
+
+def test_quadrotor_step_matches_the_env_and_the_mass_acts(sims):
+    from assembly.envs.quadrotor import QuadrotorEnv
+
+    sim, env, rng = sims("goflow/Quadrotor-v0"), QuadrotorEnv(), np.random.default_rng(6)
+    xi = np.array([0.6])
+    env.reset(seed=1, options={"xi": xi})
+    for _ in range(20):  # off the ground, turning
+        env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+    s0, a = np.concatenate([env.plant_state, env.goal]), rng.uniform(-1, 1, 4).astype(np.float32)
+    obs = env.step(a)[0]
+    nxt = sim.step(s0[None], a[None].astype(np.float64), xi[None])[0]
+    np.testing.assert_allclose(nxt[:13], env.plant_state, atol=1e-9)
+    np.testing.assert_array_equal(nxt[13:], env.goal)  # the goal rides along
+    np.testing.assert_allclose(sim.observe(nxt), obs, atol=1e-6)
+    assert np.abs(sim.step(s0[None], a[None], [[5.0]])[0] - nxt).max() > 1e-4
+    spinning = s0.copy()
+    spinning[7:10] = 1e4  # beyond max_angular_rate: the env's episode would end there
+    assert np.all(np.isnan(sim.step(spinning[None], a[None], xi[None])[0]))
+
+
+def test_anymal_step_matches_the_env_and_every_parameter_acts(sims):
+    from assembly.envs.anymal import AnymalEnv
+
+    sim, env, rng = sims("goflow/Anymal-v0"), AnymalEnv(), np.random.default_rng(7)
+    xi = np.array([30.0, 0.05, 0.02, 0.03, 0.08])
+    env.reset(seed=1, options={"xi": xi})
+    for _ in range(20):  # feet loaded, hips moving: the friction of a step depends on the last loads
+        env.step(rng.uniform(-1, 1, 12).astype(np.float32))
+    s0 = np.concatenate([env.state(), env._haa_load, env._action])
+    a = rng.uniform(-1, 1, 12).astype(np.float32).astype(np.float64)
+    obs = env.step(a.astype(np.float32))[0]
+    nxt = sim.step(s0[None], a[None], xi[None])[0]
+    np.testing.assert_allclose(nxt[:37], env.state(), atol=1e-9)
+    np.testing.assert_allclose(nxt[37:41], env._haa_load, atol=1e-9)
+    np.testing.assert_array_equal(nxt[41:], a)
+    np.testing.assert_allclose(sim.observe(nxt), obs, atol=1e-6)
+    for k, name in enumerate(sim.space.names):
+        moved = xi.copy()
+        moved[k] = sim.space.high[k]
+        assert np.abs(sim.step(s0[None], a[None], moved[None])[0][:37] - nxt[:37]).max() > 1e-8, f"{name} has no effect"
+
+
+def test_gear_insertion_step_matches_the_env_and_every_parameter_acts(sims):
+    from assembly.envs.gear_insertion import GearInsertionEnv
+    from assembly.transition.gear_insertion import GearInsertionTransitionSim
+    from goflow_common.errors import InputError
+
+    sim, env, rng = sims("goflow/GearInsertion-v0"), GearInsertionEnv(), np.random.default_rng(8)
+    xi = np.array([0.001, -0.002, 0.1])
+    env.reset(seed=1, options={"xi": xi})
+    plant = env.sim.model.plant
+    plant_context = plant.GetMyContextFromRoot(env.sim.context)
+
+    def push():  # down onto the shaft, wandering sideways: the gear in contact, its history full
+        return np.r_[rng.uniform(-1, 1, 2), -1.0, rng.uniform(-1, 1)].astype(np.float32)
+
+    for _ in range(30):
+        env.step(push())
+    assert env.insertion_error()[0] < 0.005  # on the shaft, where the grasp error acts through contact
+    s0, a = np.concatenate([plant.GetPositionsAndVelocities(plant_context), env._history.poses[1:].ravel()]), push()
+    obs = env.step(a)[0]
+    nxt = sim.step(s0[None], a[None].astype(np.float64), xi[None])[0]
+    assert nxt.shape == (44,) and sim.state_dim == 44
+    np.testing.assert_allclose(nxt[:8], plant.GetPositionsAndVelocities(plant_context), atol=1e-12)
+    np.testing.assert_array_equal(nxt[8:], env._history.poses[1:].ravel())  # the history rides along
+    np.testing.assert_array_equal(sim.observe(nxt), obs)
+    first = sim.initial_state(xi, np.random.default_rng(0))
+    np.testing.assert_array_equal(sim.observe(first), env.reset(options={"xi": xi})[0])
+    for k, name in enumerate(sim.space.names):
+        moved = xi.copy()
+        moved[k] = sim.space.high[k]
+        assert np.abs(sim.step(s0[None], a[None], moved[None])[0][:8] - nxt[:8]).max() > 1e-8, f"{name} has no effect"
+    jump = s0.copy()
+    jump[8:12] += 0.5  # the last pose 0.5 m away: a velocity beyond the observation's bounds ends the env's episode
+    assert np.all(np.isnan(sim.step(jump[None], a[None], xi[None])[0]))
+    with pytest.raises(InputError, match="variant 'panda'; expected 'fast'"):
+        GearInsertionTransitionSim(variant="panda")

@@ -193,3 +193,108 @@ def test_method_configs_check_their_options(method, option, value, message):
 
     with pytest.raises(InputError, match=message):
         EstimateConfig(method=method, options={option: value}).method_config()
+
+
+# Every registered env id: collect takes it or says why not (issue 64); an estimate file as the truth.
+
+
+def test_every_registered_env_is_collected_or_refused_with_a_reason(tmp_path, run_goflow):
+    from assembly.envs import _ENVS
+    from assembly.transition import TRANSITION_SIMS
+    from learning.estimation.collect import DEFAULT_STEPS, NO_TRANSITIONS
+
+    for env_id in _ENVS:
+        assert (env_id in TRANSITION_SIMS) != (env_id in NO_TRANSITIONS), env_id
+        assert env_id in NO_TRANSITIONS or env_id in DEFAULT_STEPS, env_id
+    assert list(NO_TRANSITIONS) == ["goflow/Toy2D-v0"]
+    help_text = " ".join(run_goflow("collect", "--help").stdout.split())
+    for env_id in ("goflow/Quadrotor-v0", "goflow/Anymal-v0", "goflow/GearInsertion-v0", "not goflow/Toy2D-v0"):
+        assert env_id in help_text, env_id
+    out = tmp_path / "no" / "d.npz"
+    proc = run_goflow("collect", "--env", "goflow/Toy2D-v0", "--episodes", "2", "--out", out)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "no state dynamics depend on xi" in lines[0], proc.stderr
+    assert "goflow/GearInsertion-v0" in lines[0]  # the ids it takes
+    assert not (tmp_path / "no").exists()
+
+
+@pytest.mark.parametrize("env_id, state_dim, dim", [("goflow/Anymal-v0", 53, 5), ("goflow/GearInsertion-v0", 44, 3)])
+def test_anymal_and_gear_insertion_trajectories_are_collected(env_id, state_dim, dim):
+    from learning.estimation.collect import CollectConfig, collect
+
+    ds, truth = collect(CollectConfig(env=env_id, episodes=2, steps=3, seed=0))
+    assert ds.num_transitions == 6 and ds.states.shape[1] == state_dim and truth.shape == (2, dim)
+
+
+def test_quadrotor_collect_estimate_and_recollect_from_the_estimate(tmp_path, run_goflow):
+    from learning.estimation.dataset import load_dataset, load_truth
+    from learning.estimation.estimate_file import load_estimate
+    from learning.estimation.metrics import ot_cost
+
+    data = tmp_path / "q.npz"
+    proc = run_goflow(
+        "collect", "--env", "goflow/Quadrotor-v0", "--episodes", "4", "--steps", "20", "--seed", "2", "--out", data
+    )
+    assert proc.returncode == 0, proc.stderr
+    estimates = {}
+    for method, budget, options in (
+        ("nfpde-softmax", 2048, []),
+        ("dropo", 640, ["--method-kwarg", "samples=10", "--method-kwarg", "transitions=8"]),
+    ):
+        out = tmp_path / f"{method}.json"
+        proc = run_goflow(
+            "estimate", "--data", data, "--method", method, "--sim-budget", budget, *options, "--out", out
+        )
+        assert proc.returncode == 0, proc.stderr
+        estimates[method] = out
+    # the DROPO estimate as the truth of a new dataset: its draws are the truth, its source recorded
+    again = tmp_path / "again.npz"
+    proc = run_goflow(
+        "collect", "--env", "goflow/Quadrotor-v0", "--sampler-file", estimates["dropo"], "--episodes", "3",
+        "--steps", "5", "--out", again,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    ds = load_dataset(again)
+    sampler, doc = load_estimate(estimates["dropo"])
+    target = ds.collection["target"]
+    assert ds.collection["xi"] == "estimate" and target["file"] == str(estimates["dropo"])
+    assert target["method"] == "dropo" and target["distribution"] == sampler.dist.to_dict()
+    assert len(target["sha256"]) == 64
+    space, truth = load_truth(again)
+    assert truth.shape == (3, 1) and np.all(space.contains(truth))
+    u_est = space.normalize(sampler.sample(64, np.random.default_rng(0)))
+    assert np.isfinite(ot_cost(u_est, space.normalize(truth)))
+
+
+def test_collect_refuses_a_bad_estimate_file_or_two_sources(tmp_path, run_goflow):
+    from assembly.params import Param, ParamSpace
+    from learning.estimation.distributions import TruncNormalProduct
+    from learning.estimation.estimate_file import save_estimate
+    from learning.samplers.estimated import EstimatedSampler
+
+    space = ParamSpace((Param("mass", 0.01, 20.0, "kg"),))  # goflow/Quadrotor-v0's
+    good = save_estimate(
+        tmp_path / "good.json",
+        EstimatedSampler.of(space, TruncNormalProduct(np.array([0.5]), np.array([0.1]))),
+        "dropo",
+        "goflow/Quadrotor-v0",
+        {},
+    )
+    garbage = tmp_path / "garbage.json"
+    garbage.write_bytes(b"PK\x03\x04\x00garbage\xff")
+    foreign = tmp_path / "foreign.json"
+    foreign.write_text('{"format": "goflow-transitions"}')
+    base = ("collect", "--env", "goflow/PointMass-v0", "--episodes", "2", "--steps", "2")
+    out = tmp_path / "no" / "d.npz"
+    for extra, words in (
+        (("--sampler-file", garbage), "invalid JSON"),
+        (("--sampler-file", foreign), "not a 'goflow-estimate' file"),
+        (("--sampler-file", tmp_path / "missing.json"), "no goflow estimate file"),
+        (("--sampler-file", good), "another ParamSpace than goflow/PointMass-v0's"),
+        (("--sampler-file", good, "--true-xi", "mixture"), "--true-xi mixture and --sampler-file"),
+    ):
+        proc = run_goflow(*base, *extra, "--out", out)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and words in lines[0], proc.stderr
+        assert "pickle" not in lines[0] and "unsafe" not in lines[0]
+        assert not (tmp_path / "no").exists()
