@@ -308,6 +308,13 @@ def _demo_flags(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the gears' random placement of the planned assembly (default: 0); the scripted run has none",
     )
+    p.add_argument(
+        "--decision",
+        choices=["threshold", "cost"],
+        default=None,
+        help="how the planner decides: threshold (insert when Eq. 7 clears eta, the default) or cost "
+        "(the plan of least expected time plus failure cost); the scripted run has no planner",
+    )
     p.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
     p.add_argument("--record", metavar="FILE.html", type=Path, help="save a Meshcat recording")
     p.add_argument("--json", metavar="PATH", type=Path, help="write the summary as JSON")
@@ -321,6 +328,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         raise InputError(
             f"--seed {args.seed} with --scripted: the scripted run starts from the gears' nominal "
             "poses and draws nothing; drop --seed, or --scripted for the planned assembly"
+        )
+    if args.scripted and args.decision is not None:
+        raise InputError(
+            f"--decision {args.decision} with --scripted: the scripted run has no planner; drop one of them"
         )
     seed = 0 if args.seed is None else args.seed
     if seed < 0:
@@ -348,10 +359,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             print(format_summary(summary))
         else:
             from planning.assembly import PlannedAssemblyConfig, format_planned, run_planned_assembly
+            from planning.domain import PlannerConfig
 
-            summary = run_planned_assembly(
-                PlannedAssemblyConfig(seed=seed), meshcat=meshcat, record=scratch, progress=not args.quiet
-            )
+            config = PlannedAssemblyConfig(seed=seed, planner=PlannerConfig(decision=args.decision or "threshold"))
+            summary = run_planned_assembly(config, meshcat=meshcat, record=scratch, progress=not args.quiet)
             print(format_planned(summary))
         if json_path:
             write_json(json_path, summary)
@@ -475,15 +486,6 @@ def _train_sampler(args: argparse.Namespace) -> tuple[str, dict[str, Any], Any]:
     return "estimated", {"distribution": sampler.dist.to_dict()}, sampler
 
 
-def _check_sampler_space(sampler: Any, path: Path, probe: Any, env: str) -> None:
-    """An estimate is used on an env of the same ParamSpace only."""
-    if sampler is not None and sampler.space != probe.space:
-        raise InputError(
-            f"--sampler-file {path}: estimated over another ParamSpace than {env}'s: "
-            + "; ".join(probe.space.diff(sampler.space))
-        )
-
-
 def _cmd_train(args: argparse.Namespace) -> int:
     from learning.experiment import ExperimentConfig, TrainConfig, train
 
@@ -505,7 +507,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
         sampler_signal=args.sampler_signal,
         vectorization=args.vectorization,
     )
-    _check_sampler_space(estimate, args.sampler_file, _round_note(config, "goflow train"), args.env)
+    probe = _round_note(config, "goflow train")
+    if estimate is not None:
+        from learning.estimation.estimate_file import check_estimate_space
+
+        check_estimate_space(estimate, args.sampler_file, probe.space, args.env)
     with _nothing_left_on_failure([out]), _resumable(lambda: _checkpoint_kept(out)):
         log = train(config)
     step, success, ret = log["curve"][-1]
@@ -855,11 +861,13 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--variant", default=default("variant"), choices=["fast", "panda"], help="the env's variant")
     p.add_argument(
         "--xi-from",
-        default=default("xi"),
+        default=None,
         choices=["uniform", "flow"],
-        help="where the episodes' grasp errors are drawn from: the skill's flow or uniform over the box",
+        help=f"where the episodes' grasp errors are drawn from: the skill's flow or uniform over the box "
+        f"(default: {default('xi')}; or --sampler-file)",
     )
     _renamed(p, "--xi", "--xi-from", "xi_from", choices=["uniform", "flow"])
+    _sampler_file_flag(p, "the grasp errors are drawn from it (instead of --xi-from)")
     p.add_argument("--episodes", type=int, default=default("episodes"), help="episodes to run")
     p.add_argument("--seed", type=int, default=default("seed"), help="seed of the episodes")
     p.add_argument("--path", type=Path, metavar="FILE", help="a skill file other than the shipped one")
@@ -876,9 +884,28 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     _ray_flag(p)
 
 
+def _sampler_file_or(flag: str, value: Any, path: Path | None) -> None:
+    """`flag` (the other source of xi) and --sampler-file are exclusive: InputError when both are given."""
+    if value is not None and path is not None:
+        raise InputError(
+            f"{flag} {value} and --sampler-file {path}: expected one source of xi, not both "
+            f"({flag} or an estimate of `goflow estimate`)"
+        )
+
+
+def _estimate_for(path: Path, space: Any, env: str) -> tuple[Any, dict[str, Any]]:
+    """--sampler-file's estimate, its ParamSpace checked against `env`'s `space`: (the sampler,
+    what a result records of it: `estimate_source`)."""
+    from learning.estimation.estimate_file import estimate_source, load_estimate_for
+
+    sampler, doc = load_estimate_for(path, space, env)
+    return sampler, estimate_source(path, sampler, doc)
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from learning.execution import InlineBackend
 
+    _sampler_file_or("--xi-from", args.xi_from, args.sampler_file)
     backend = _backend(args, args.workers, inline=True)
     with backend:  # a Ray cluster that cannot be reached fails here, before --json's folder is made
         json_path = check_output_file(args.json, "--json") if args.json else None
@@ -886,28 +913,40 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         from learning.skill_file import load_skill, skill_path
 
         skill = load_skill(args.skill, args.gear, path=args.path)
+        sampler, source = None, None
+        xi = args.xi_from or _signature_default(evaluate_skill, "xi")
+        if args.sampler_file is not None:
+            sampler, source = _estimate_for(args.sampler_file, skill.space, skill.env_id)
+            xi = "estimate"
         if args.jobs == 1 and isinstance(backend, InlineBackend):
             result = evaluate_skill(
-                skill, variant=args.variant, xi=args.xi_from, episodes=args.episodes, seed=args.seed, progress=True
+                skill,
+                variant=args.variant,
+                xi=xi,
+                episodes=args.episodes,
+                seed=args.seed,
+                progress=True,
+                sampler=sampler,
             )
         else:
             result = evaluate_skill_jobs(
                 args.path or skill_path(args.skill, args.gear),
                 variant=args.variant,
-                xi=args.xi_from,
+                xi=xi,
                 episodes=args.episodes,
                 seed=args.seed,
                 jobs=args.jobs,
                 backend=backend,
                 progress=True,
+                sampler=sampler,
             )
     print(
-        f"{args.skill} {args.gear} ({args.variant}, xi from {args.xi_from}): success {result.success_rate:.3f} "
-        f"+- {result.success_se:.3f} over {result.episodes} episodes, mean return {result.mean_return:.2f} "
-        f"({result.seconds:.0f} s)"
+        f"{args.skill} {args.gear} ({args.variant}, xi from {args.sampler_file or xi}): success "
+        f"{result.success_rate:.3f} +- {result.success_se:.3f} over {result.episodes} episodes, mean return "
+        f"{result.mean_return:.2f} ({result.seconds:.0f} s)"
     )
     if json_path:
-        write_json(json_path, result.to_json())
+        write_json(json_path, {**result.to_json(), **({"sampler_file": source} if source else {})})
     return 0
 
 
@@ -1048,7 +1087,7 @@ def _pool_calibration(args: argparse.Namespace, overrides: dict[str, Any]) -> in
 
 def _collect_flags(p: argparse.ArgumentParser) -> None:
     from assembly.transition import TRANSITION_SIMS
-    from learning.estimation.collect import CollectConfig
+    from learning.estimation.collect import NO_TRANSITIONS, CollectConfig
     from learning.estimation.targets import TARGETS
 
     _add_field(
@@ -1056,7 +1095,8 @@ def _collect_flags(p: argparse.ArgumentParser) -> None:
         CollectConfig,
         "env",
         required=True,
-        doc=f"an env id with a step-from-state simulator: {', '.join(TRANSITION_SIMS)}",
+        doc=f"an env id with a step-from-state simulator: {', '.join(TRANSITION_SIMS)} "
+        f"(not {', '.join(NO_TRANSITIONS)}: see docs/nfpde.md)",
     )
     _add_field(
         p,
@@ -1064,10 +1104,12 @@ def _collect_flags(p: argparse.ArgumentParser) -> None:
         "xi",
         "--true-xi",
         choices=list(TARGETS),
+        default=None,
         doc="the distribution of the true parameters, one draw per trajectory (mixture, mixture5: 3 or 5 "
-        "Gaussians with means in an L shape)",
+        "Gaussians with means in an L shape; default: gaussian, or --sampler-file)",
     )
     _renamed(p, "--xi", "--true-xi", "xi", choices=list(TARGETS))
+    _sampler_file_flag(p, "the true parameters are drawn from it (instead of --true-xi), e.g. to check an estimate")
     _add_field(p, CollectConfig, "episodes", doc="trajectories")
     _add_field(
         p,
@@ -1084,14 +1126,21 @@ def _collect_flags(p: argparse.ArgumentParser) -> None:
 def _cmd_collect(args: argparse.Namespace) -> int:
     from learning.estimation.collect import CollectConfig, collect_to_file
 
+    _sampler_file_or("--true-xi", args.xi, args.sampler_file)
     config = CollectConfig(
-        env=args.env, xi=args.xi, episodes=args.episodes, steps=args.steps, policy=args.policy, seed=args.seed
+        env=args.env,
+        xi=args.xi,
+        sampler_file=args.sampler_file,
+        episodes=args.episodes,
+        steps=args.steps,
+        policy=args.policy,
+        seed=args.seed,
     )
     check_output_file(args.out, "--out")
     ds = collect_to_file(config, args.out, progress=True, command=args.provenance)
     print(
         f"{ds.num_episodes} trajectories, {ds.num_transitions} transitions of {ds.env_id} "
-        f"(true xi {config.xi}, policy {config.policy}) -> {args.out}"
+        f"(true xi {args.sampler_file or config.xi}, policy {config.policy}) -> {args.out}"
     )
     return 0
 
@@ -1106,7 +1155,11 @@ def _estimate_flags(p: argparse.ArgumentParser) -> None:
         "--method-kwarg", action="append", metavar="KEY=VALUE", help="a field of the method's config, e.g. beta=1000"
     )
     p.add_argument(
-        "--out", required=True, type=Path, metavar="FILE", help="estimate file (.json): the --sampler-file of train"
+        "--out",
+        required=True,
+        type=Path,
+        metavar="FILE",
+        help="estimate file (.json): the --sampler-file of train, evaluate and collect",
     )
     _add_field(p, EstimateConfig, "seed", doc="seed of the estimation")
     _add_field(p, EstimateConfig, "sim_budget")

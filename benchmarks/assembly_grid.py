@@ -4,9 +4,11 @@
     map        the planner, inserting at the scene view's belief with no precondition, no inspection
     inspect    the planner, inspecting every gear before picking it (Eq. 7 still checked)
     eq6        the planner with Eq. 6 (value only)
-    eq7        the planner with Eq. 7 (value and flow; the default)
+    eq7        the planner with Eq. 7 (value and flow; the default), inserting when P > eta
+    eq7cost    Eq. 7 as a cost: the plan of least expected time plus failure cost
+               (PlannerConfig(decision="cost"), planning.domain.SkillCosts)
 
-    .venv/bin/python benchmarks/assembly_grid.py --seeds 0 50 --variants scripted eq7 --workers 2 \
+    .venv/bin/python -m benchmarks.assembly_grid --seeds 0 50 --variants scripted eq7 --workers 2 \
         --out runs/assembly/rows.jsonl --json docs/results/assembly.json
 
 --camera-error MM DEG runs the same grid with the scene camera's true extrinsics off the calibrated
@@ -14,7 +16,7 @@ ones by N(0, MM) per axis and N(0, DEG) about each axis, drawn per seed; the pla
 std (PlannerSystemConfig.scene_extrinsic_std), the "map" baseline ignores it (it has no
 precondition), the scripted one never looks (it is left out of this condition):
 
-    .venv/bin/python benchmarks/assembly_grid.py --seeds 0 20 --variants map inspect eq6 eq7 --camera-error 1 0.1 \
+    .venv/bin/python -m benchmarks.assembly_grid --seeds 0 20 --variants map inspect eq6 eq7 --camera-error 1 0.1 \
         --workers 2 --out runs/assembly/camera_error.jsonl --json docs/results/assembly_camera_error.json
 
 Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
@@ -33,18 +35,16 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
+from benchmarks.provenance import command  # noqa: E402
 from goflow_common.files import check_output_file, write_json  # noqa: E402
 from goflow_common.pool import ProcessPool, WorkerError  # noqa: E402
 
-VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7")
+VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7", "eq7cost")
 
 
 def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0.0), eta: float = 0.9) -> dict:
@@ -74,6 +74,7 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
             "inspect": PlannerConfig(min_inspections=1, eta=eta),
             "eq6": PlannerConfig(eps=None, eta=eta),
             "eq7": PlannerConfig(eta=eta),
+            "eq7cost": PlannerConfig(decision="cost"),
         }[variant]
         s = run_planned_assembly(
             PlannedAssemblyConfig(
@@ -104,7 +105,10 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
     }
 
 
-def summarize(rows: list[dict]) -> list[dict]:
+def grid_summary(rows: list[dict]) -> list[dict]:
+    """One row per variant in `rows` (VARIANTS order): seeds, the fraction with all three gears
+    inserted (and its binomial standard error), mean gears inserted, inspections, replans and
+    failed inserts (None where no row lists outcomes), median and max wall seconds."""
     out = []
     for variant in VARIANTS:
         rs = [r for r in rows if r["variant"] == variant]
@@ -176,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         "--eta",
         type=float,
         default=0.9,
-        help="the precondition's bar (PlannerConfig.eta) for inspect, eq6, eq7; map has none",
+        help="the precondition's bar (PlannerConfig.eta) for inspect, eq6, eq7; map and eq7cost have none",
     )
     args = p.parse_args(argv)
     first, end = args.seeds
@@ -197,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
         r
         for r in rows
         if np.allclose(r.get("camera_error", (0.0, 0.0)), camera_error)
-        and (r["variant"] in ("scripted", "map") or np.isclose(r.get("eta", 0.9), args.eta))
+        and (r["variant"] in ("scripted", "map", "eq7cost") or np.isclose(r.get("eta", 0.9), args.eta))
     ]
     done = {(r["variant"], r["seed"]) for r in rows}
     todo = [(v, s) for s in range(first, end) for v in args.variants if (v, s) not in done]
@@ -232,13 +236,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"inspections {row['inspections']} replans {row['replans']} {row['wall_time_s']:.0f} s",
                 flush=True,
             )
-    summary = summarize([r for r in rows if first <= r["seed"] < end and r["variant"] in args.variants])
+    summary = grid_summary([r for r in rows if first <= r["seed"] < end and r["variant"] in args.variants])
     print(table(summary))
     if args.json:
         write_json(
             args.json,
             {
-                "command": " ".join(sys.argv),
+                "command": command("assembly_grid", argv),
                 "seeds": [first, end],
                 "camera_error": {"translation_m": camera_error[0], "rotation_rad": camera_error[1]},
                 "eta": args.eta,

@@ -25,12 +25,14 @@ class Step:
 @dataclass
 class Plan:
     """`steps` if `found`, else `reason` says why there is none; `expanded`: belief states
-    searched."""
+    searched; `cost`: the plan's expected cost where the search minimised one
+    (planning.cost_search), else None."""
 
     found: bool
     steps: list[Step] = field(default_factory=list)
     reason: str = ""
     expanded: int = 0
+    cost: float | None = None
 
     def pairs(self) -> list[list[str]]:
         """[[skill, gear], ...] (the demo's JSON)."""

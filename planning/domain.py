@@ -9,8 +9,13 @@ summary of the pose belief (mean, std; x, y [m], yaw [rad]). Its skills:
   inspected first, while inspections remain). Effect: g in the hand, grasped by a tool aimed so
   that the believed pose's grasp error is the skill's preferred one (`aim_xi`).
 * insert(g): g in the hand, every gear before it in `order` inserted, and the skill's precondition
-  (Eq. 6 or 7) above eta on grasp errors sampled from the belief pushed through the grasp
-  geometry. Effect: g inserted, hand empty.
+  (Eq. 6 or 7) on grasp errors sampled from the belief pushed through the grasp geometry above
+  eta (decision "threshold") or above 0 (decision "cost"). Effect: g inserted, hand empty.
+
+Decisions: "threshold" is the seed's Algorithm 2, a shortest plan of calls whose preconditions
+clear eta (planning.bfs); "cost" is the plan of least expected time plus failure cost
+(planning.cost_search, `SkillCosts`): an insert costs its time plus (1 - P) times what a failure
+costs, so a closer look is planned exactly when the probability it adds is worth its time.
 """
 
 from __future__ import annotations
@@ -23,10 +28,35 @@ import numpy as np
 from numpy.typing import NDArray
 
 from assembly.gearset import GEAR_NAMES, gear_spec
-from planning.bfs import Step
+from planning.bfs import Plan, Step, plan_bfs
+from planning.cost_search import plan_cheapest
 from planning.grasp import aim_tool, grasp_error, picked_grasp_errors
 
 LOCATIONS = ("table", "hand", "inserted")
+DECISIONS = ("threshold", "cost")
+
+
+@dataclass(frozen=True)
+class SkillCosts:
+    """Expected seconds of simulated (robot) time per skill call, and what a failed insert costs.
+
+    Defaults measured on the 525 finished assemblies logged in docs/results/assembly*.json (sim
+    time against the calls each made): a close look adds 1.5 s, a pick and an insert together
+    13.2 s (split evenly). `failed_insert`: the retry a failure forces (the gear put back, a close
+    look, a new pick and insert: ~15 s) plus the chance that the failure cannot be recovered (13 of
+    the 34 logged assemblies with a failed insert did not finish) times 120 s, the value given to
+    an unfinished gearbox (an assumption: an operator resetting the station)."""
+
+    inspect: float = 1.5
+    pick: float = 6.6
+    insert: float = 6.6
+    failed_insert: float = 60.0
+
+    def __post_init__(self) -> None:
+        for name in ("inspect", "pick", "insert", "failed_insert"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+                raise ValueError(f"SkillCosts.{name} = {value!r}; expected a finite number of seconds >= 0")
 
 
 @dataclass(frozen=True)
@@ -89,7 +119,8 @@ class AssemblyDomain:
     `goal` the gears to insert, in `order` if given; `real_fingers`: the pick centres the gear
     along the fingers' closing axis (planning.grasp.PICK_MODEL), else the grasp is exactly the
     aimed one; `min_inspections`: inspections a gear needs before it may be picked (1: the
-    "always inspect" baseline)."""
+    "always inspect" baseline); `decision`: "threshold" (P > eta, shortest plan) or "cost" (P > 0,
+    the plan of least expected `costs`; eta unused)."""
 
     preconditions: dict[str, PreconditionFn]
     eta: float
@@ -102,9 +133,13 @@ class AssemblyDomain:
     seed: int = 0
     real_fingers: bool = True
     min_inspections: int = 0
+    decision: str = "threshold"
+    costs: SkillCosts = SkillCosts()
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
+        if self.decision not in DECISIONS:
+            raise ValueError(f"decision {self.decision!r}; expected one of {DECISIONS}")
         unknown = [g for g in self.goal if g not in GEAR_NAMES]
         if unknown or not self.goal:
             raise ValueError(f"goal {list(self.goal)}: unknown gear(s) {unknown}; expected some of {list(GEAR_NAMES)}")
@@ -118,6 +153,22 @@ class AssemblyDomain:
 
     def is_goal(self, state: BeliefState) -> bool:
         return all(state.gear(g).location == "inserted" for g in self.goal)
+
+    def step_cost(self, step: Step) -> float:
+        """A call's expected cost in seconds (`costs`): an insert adds (1 - P) x failed_insert."""
+        if step.skill == "insert":
+            return self.costs.insert + (1.0 - step.probability) * self.costs.failed_insert
+        return float(getattr(self.costs, step.skill))
+
+    def plan(self, start: BeliefState, max_depth: int = 12) -> Plan:
+        """The plan from `start` the decision asks for: threshold, planning.bfs.plan_bfs (a
+        shortest plan); cost, planning.cost_search.plan_cheapest (least expected cost)."""
+        if self.decision == "cost":
+            return plan_cheapest(start, self, max_depth)
+        return plan_bfs(start, self, max_depth)
+
+    def _insert_bar(self) -> float:
+        return self.eta if self.decision == "threshold" else 0.0
 
     def insert_probability(self, gear: str, belief: GearBelief) -> float:
         """Eq. 6/7 on grasp errors sampled from the belief (Gaussian in x, y, yaw), pushed
@@ -161,7 +212,7 @@ class AssemblyDomain:
                 )
             elif g.location == "hand" and state.holding == name and self._ready(state, name):
                 p = self.insert_probability(name, g)
-                if p > self.eta:
+                if p > self._insert_bar():
                     out.append(
                         (
                             Step("insert", name, p),
@@ -182,9 +233,10 @@ class AssemblyDomain:
                 std = tuple(float(s) for s in self.inspect_std(name, std))
             tool = g.tool if g.location == "hand" else tuple(aim_tool(g.mean, self.aim_xi.get(name, (0.0, 0.0, 0.0))))
             p = self.insert_probability(name, replace(g, std=std, tool=tool))
-            if p <= self.eta:
+            if p <= self._insert_bar():
+                bar = f"eta = {self.eta:.2f}" if self.decision == "threshold" else "0 (no chance at all)"
                 bad.append(
-                    f"{name} (P = {p:.2f} <= eta = {self.eta:.2f} after "
+                    f"{name} (P = {p:.2f} <= {bar} after "
                     f"{max(self.max_inspections - g.inspections, 0)} more inspection(s))"
                 )
         return ("insert's precondition fails for " + ", ".join(bad)) if bad else ""
@@ -199,7 +251,8 @@ class PlannerConfig:
     real_fingers: picks centre the gear along the fingers'
     closing axis (measured, planning.grasp.PICK_MODEL) and aim for the best grasp error on that
     slice (planning.precondition.best_aim), else the grasp is the aimed one and aims for the
-    flow's median."""
+    flow's median. decision: "threshold" (insert when P > eta; the seed's Algorithm 2) or "cost"
+    (the plan of least expected time plus failure cost, `costs`; eta unused)."""
 
     eta: float = 0.9
     eps: float | None = 1.0
@@ -210,8 +263,12 @@ class PlannerConfig:
     real_fingers: bool = True
     min_inspections: int = 0
     blind: bool = False
+    decision: str = "threshold"
+    costs: SkillCosts = SkillCosts()
 
     def __post_init__(self) -> None:
+        if self.decision not in DECISIONS:
+            raise ValueError(f"decision {self.decision!r}; expected one of {DECISIONS}")
         if self.max_inspections < 0 or self.min_inspections < 0 or self.min_inspections > self.max_inspections:
             raise ValueError(
                 f"min_inspections = {self.min_inspections}, max_inspections = "
@@ -264,6 +321,8 @@ def gearbox_domain(
         config.seed,
         config.real_fingers,
         config.min_inspections,
+        config.decision,
+        config.costs,
     )
 
 
@@ -280,6 +339,8 @@ def table_belief(
 __all__ = [
     "AssemblyDomain",
     "BeliefState",
+    "DECISIONS",
+    "SkillCosts",
     "GearBelief",
     "LOCATIONS",
     "PlannerConfig",

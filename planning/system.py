@@ -33,6 +33,7 @@ import copy
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import Enum, StrEnum
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -64,7 +65,7 @@ from assembly.station import COMMAND_PORTS, Station
 from assembly.world import nominal_grasp, planar_pose
 from perception.seat_check import SeatCheckConfig
 from planning.belief_drawing import BeliefDrawer
-from planning.bfs import Step, plan_bfs
+from planning.bfs import Step
 from planning.domain import AssemblyDomain, BeliefState, GearBelief
 from planning.grasp import aim_tool
 from planning.planner_perception import IMAGE_PORTS, Look, LookRequest, Percept, PlannerPerception
@@ -341,7 +342,7 @@ class PlannerStateMachine(LeafSystem):
         return self._replan(s, t, X_WT)
 
     def _replan(self, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
-        plan = plan_bfs(BeliefState.of(dict(s.beliefs), None), self.domain)
+        plan = self.domain.plan(BeliefState.of(dict(s.beliefs), None))
         if not plan.found:
             return self._fail(s, f"no plan: {plan.reason}")
         s = replace(s, plans=(*s.plans, plan.pairs()), steps=tuple(plan.steps))
@@ -585,6 +586,16 @@ class BeliefSpacePlanner(Diagram):
     def run(self, context: Context) -> PlannerState:
         """The planner's state in `context` (this Diagram's context; read only)."""
         return self.machine.state(self.GetSubsystemContext(self.machine, context))
+
+    @property
+    def domain(self) -> AssemblyDomain:
+        """The planning domain the planner plans in (its preconditions, eta, goal gears; as given)."""
+        return self.machine.domain
+
+    @property
+    def skills(self) -> Mapping[str, Any]:
+        """The insert Skill per gear the planner runs (a read-only view of the mapping given)."""
+        return MappingProxyType(self.machine.skills)
 
 
 def connect_planner(station: Station, planner: BeliefSpacePlanner) -> Diagram:

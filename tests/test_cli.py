@@ -617,6 +617,8 @@ def test_version(run_goflow):
 def test_scripted_demo_refuses_a_seed(run_goflow):
     line = _one_line_error(run_goflow("demo", "--scripted", "--seed", "3"), "demo")
     assert "--seed 3 with --scripted" in line
+    line = _one_line_error(run_goflow("demo", "--scripted", "--decision", "cost"), "demo")
+    assert "--decision cost with --scripted" in line
 
 
 def test_default_budgets_are_whole_rounds():
@@ -748,3 +750,59 @@ def test_train_draws_xi_from_an_estimate_file(tmp_path, run_goflow):
         "train",
     )
     assert "--sampler-file" in line and not (tmp_path / "no").exists()
+
+
+def _bad_estimate_files(tmp_path, space):
+    """Files --sampler-file refuses: garbage bytes, JSON that is no estimate, a missing file, an
+    estimate over another ParamSpace of the same dimension; each with a word its message holds."""
+    from assembly.params import Param, ParamSpace
+    from learning.estimation.distributions import TruncNormalProduct
+    from learning.estimation.estimate_file import save_estimate
+    from learning.samplers.estimated import EstimatedSampler
+
+    garbage = tmp_path / "garbage.json"
+    garbage.write_bytes(b"\x80\x04\x95 not json \x00\xff")
+    foreign = tmp_path / "foreign.json"
+    foreign.write_text(json.dumps({"format": "something-else", "sampler": {}}))
+    other = ParamSpace(tuple(Param(f"p{i}", 0.0, 1.0, "m") for i in range(space.dim)))
+    dist = TruncNormalProduct(np.full(space.dim, 0.5), np.full(space.dim, 0.1))
+    wrong = save_estimate(tmp_path / "wrong.json", EstimatedSampler.of(other, dist), "dropo", "x", {})
+    return [
+        (garbage, "invalid JSON"),
+        (foreign, "not a 'goflow-estimate' file"),
+        (tmp_path / "missing.json", "no goflow estimate file"),
+        (wrong, "another ParamSpace"),
+    ]
+
+
+def test_evaluate_draws_xi_from_an_estimate_file(tmp_path, run_goflow):
+    from learning.estimation.distributions import TruncNormalProduct
+    from learning.estimation.estimate_file import save_estimate
+    from learning.samplers.estimated import EstimatedSampler
+    from learning.skill_file import load_skill
+
+    space = load_skill("insert", "small").space
+    dist = TruncNormalProduct(np.full(space.dim, 0.5), np.full(space.dim, 0.05))
+    estimate = save_estimate(
+        tmp_path / "e.json", EstimatedSampler.of(space, dist), "dropo", "goflow/GearInsertion-v0", {}
+    )
+    out = tmp_path / "res" / "e.json"
+    args = ("evaluate", "--gear", "small", "--episodes", "2", "--seed", "3")
+    proc = run_goflow(*args, "--sampler-file", estimate, "--json", out)
+    assert proc.returncode == 0, proc.stderr
+    assert f"xi from {estimate}" in proc.stdout
+    result = json.loads(out.read_text())
+    assert result["xi"] == "estimate" and result["xi_sampler"]["dist"] == dist.to_dict()
+    assert result["sampler_file"]["file"] == str(estimate) and len(result["sampler_file"]["sha256"]) == 64
+    u = space.normalize(np.array(result["xi_mean"]))  # the draws are the estimate's (near the box centre)
+    assert np.all(np.abs(u - 0.5) < 0.2), u
+    # refused in one line, leaving no --json file or folder: both sources, or a bad estimate
+    no = tmp_path / "no" / "e.json"
+    line = _one_line_error(
+        run_goflow(*args, "--xi-from", "uniform", "--sampler-file", estimate, "--json", no), "evaluate"
+    )
+    assert "--xi-from uniform and --sampler-file" in line and "not both" in line
+    for path, words in _bad_estimate_files(tmp_path, space):
+        line = _one_line_error(run_goflow(*args, "--sampler-file", path, "--json", no), "evaluate")
+        assert words in line and "pickle" not in line and "unsafe" not in line, line
+    assert not (tmp_path / "no").exists()
