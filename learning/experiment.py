@@ -65,7 +65,7 @@ __all__ = [
     "fit_sampler",
     "ExperimentConfig",
     "run_experiment",
-    "summarize",
+    "experiment_summary",
     "format_summary",
     "plot_curves",
     "probe_env",
@@ -584,7 +584,7 @@ def _mean_se(runs: list[dict], column: int, n: int) -> tuple[np.ndarray, np.ndar
     return values.mean(axis=0), se
 
 
-def summarize(logs: list[dict], steps: int, env: str) -> dict:
+def experiment_summary(logs: list[dict], steps: int, env: str) -> dict:
     """The experiment file: {"env", "steps", "methods": {name: {"final_success_mean",
     "final_success_se", "seeds", "curve": [[step, mean, se], ...]}}} plus the uniform-box return
     ("final_return_mean", "final_return_se", "return_curve") and timing shares."""
@@ -684,7 +684,7 @@ def run_experiment(
 def write_experiment(config: ExperimentConfig, logs: list[dict], command: str = "") -> dict:
     """Summarize the logs of `config`'s runs (in `runs()` order) and write the results file and
     figures into `config.results` (an existing folder); return the summary."""
-    summary = summarize(logs, config.total_steps, config.env)
+    summary = experiment_summary(logs, config.total_steps, config.env)
     summary["command"] = command
     stem = config.results / config.stem()
     summary["figures"] = [str(stem) + ".png"]

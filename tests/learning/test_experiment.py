@@ -15,7 +15,7 @@ from learning.experiment import (
     format_summary,
     load_run,
     plot_curves,
-    summarize,
+    experiment_summary,
     train,
 )
 from learning.ppo import PPOConfig
@@ -180,7 +180,7 @@ def test_summary_format_and_plot(tmp_path):
         for m in ("goflow", "fulldr")
         for s in (0.1, 0.3)
     ]
-    summary = summarize(logs, 20, "goflow/Toy2D-v0")
+    summary = experiment_summary(logs, 20, "goflow/Toy2D-v0")
     assert set(summary) == {"env", "steps", "methods"}
     g = summary["methods"]["goflow"]
     assert g["seeds"] == 2 and g["final_success_mean"] == pytest.approx(0.3)
