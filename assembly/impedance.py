@@ -1,12 +1,15 @@
 """Cartesian impedance control of the Panda's hand frame, as a Drake LeafSystem.
 
 tau = J^T (Lambda (A_d - Jdot v) + K e + D (V_d - V)) + g(q) + C(q, v) v + b v
-      + N^T (k_n (q_n - q) - d_n v),
+      + N^T (k_n (q_n - q) - d_n v + tau_lim),
 clipped to the torque limits, where e stacks the rotation error (axis-angle of R_WTd R_WT^T, world
 frame) and the position error of the tool frame T, V is T's spatial velocity in the world, J its
 spatial-velocity Jacobian, Lambda = (J M^-1 J^T)^-1 the operational-space inertia and
 N^T = I - J^T Lambda J M^-1 the dynamically consistent null-space projector (Khatib 1987), and
-g, C v, b v the model's gravity, Coriolis/centripetal and viscous joint-friction torques. The
+g, C v, b v the model's gravity, Coriolis/centripetal and viscous joint-friction torques;
+tau_lim = k_l (max(m - (q - q_min), 0) - max(m - (q_max - q), 0)) pushes a joint that comes within
+m of a position limit back out (joint-limit avoidance: zero outside the band, so the law is the
+plain posture task there; "Reach" in docs/planning.md). The
 feedforward Lambda (A_d - Jdot v) makes a planned trajectory's accelerations happen on time and
 keeps null-space motion from pushing the tool; the static
 behaviour is the 6-D spring K, so a contact force equals K times the commanded offset.
@@ -40,6 +43,13 @@ class ImpedanceGains:
     damping: np.ndarray = field(default_factory=lambda: np.array([5.0, 5.0, 5.0, 100.0, 100.0, 100.0]))
     nullspace_stiffness: float = 10.0
     nullspace_damping: float = 3.0
+    # Joint-limit avoidance in the null space: within limit_margin [rad] of a position limit a
+    # joint is pushed back by limit_stiffness [N m/rad] times its depth in the band. Off (0) by
+    # default, so the law is the one the skills were trained and sim2real replays with: where
+    # joint 4 ran onto its limit near the base, the task itself needs it there at the hand's yaw
+    # and no null-space push frees it; the reachable inspect yaw does (docs/planning.md, "Reach").
+    limit_margin: float = 0.3
+    limit_stiffness: float = 0.0
 
     def __post_init__(self) -> None:
         self.stiffness = np.asarray(self.stiffness, dtype=float)
@@ -51,6 +61,18 @@ class ImpedanceGains:
                     f"ImpedanceGains.{name} = {value!r}; expected 6 finite non-negative values "
                     "ordered [rx, ry, rz, x, y, z]"
                 )
+        for name in ("nullspace_stiffness", "nullspace_damping", "limit_margin", "limit_stiffness"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+                raise ValueError(f"ImpedanceGains.{name} = {value!r}; expected a finite number >= 0")
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"ImpedanceGains.{name} = {value!r}; expected a finite number >= 0")
+            setattr(self, name, float(value))
+        if self.limit_margin > 1.0:
+            raise ValueError(
+                f"ImpedanceGains.limit_margin = {self.limit_margin!r} rad; expected 0..1 rad "
+                "(the band below each joint-position limit)"
+            )
 
 
 def rotation_error(R_desired: np.ndarray, R_actual: np.ndarray) -> np.ndarray:
@@ -107,6 +129,22 @@ class CartesianImpedanceController(LeafSystem):
         self._q_nominal = np.asarray(q_nominal, dtype=float)
         if self._tau_max.shape != (self._n,) or self._q_nominal.shape != (self._n,):
             raise ValueError(f"torque_limits and q_nominal must have {self._n} entries")
+        if not np.all(np.isfinite(self._q_nominal)):
+            raise ValueError(f"q_nominal = {self._q_nominal.tolist()}; expected {self._n} finite joint positions")
+        lower = plant.GetPositionLowerLimits()
+        upper = plant.GetPositionUpperLimits()
+        self._q_idx = np.array(
+            [
+                plant.get_joint(j).position_start() + k
+                for j in plant.GetJointIndices(arm)
+                for k in range(plant.get_joint(j).num_positions())
+            ]
+        )
+        self._q_min, self._q_max = lower[self._q_idx], upper[self._q_idx]
+        if gains.limit_stiffness > 0 and not (np.all(np.isfinite(self._q_min)) and np.all(np.isfinite(self._q_max))):
+            raise ValueError(
+                "joint-limit avoidance (limit_stiffness > 0) needs finite position limits on every arm joint"
+            )
         self._joint_damping = np.concatenate(
             [plant.get_joint(j).default_damping_vector() for j in plant.GetJointIndices(arm)]
         )
@@ -193,12 +231,31 @@ class CartesianImpedanceController(LeafSystem):
         # Null-space posture through Khatib's dynamically consistent projector
         # N^T = I - J^T Lambda J M^-1: it produces no acceleration of the tool frame.
         N_T = np.eye(n) - J.T @ Lambda @ M_inv_JT.T
-        tau += N_T @ (g.nullspace_stiffness * (self._q_nominal - q) - g.nullspace_damping * v)
+        tau_null = g.nullspace_stiffness * (self._q_nominal - q) - g.nullspace_damping * v
+        if g.limit_stiffness > 0:
+            tau_null = tau_null + self._limit_torque(q)
+        tau += N_T @ tau_null
         # Model compensation: gravity, Coriolis/centripetal terms and viscous joint friction.
         tau -= plant.CalcGravityGeneralizedForces(pc)[self._v_idx]
         tau += plant.CalcBiasTerm(pc)[self._v_idx] + self._joint_damping * v
         out.torque = np.clip(tau, -self._tau_max, self._tau_max)
         out.wrench = wrench
+
+    def _limit_torque(self, q: np.ndarray) -> np.ndarray:
+        return limit_avoidance_torque(q, self._q_min, self._q_max, self._gains)
+
+    def joint_limit_margin(self, q: np.ndarray) -> np.ndarray:
+        """Each arm joint's distance to its nearer position limit [rad] at positions q."""
+        q = np.asarray(q, dtype=float)
+        return np.minimum(q - self._q_min, self._q_max - q)
+
+
+def limit_avoidance_torque(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, gains: ImpedanceGains) -> np.ndarray:
+    """Joint-limit avoidance: gains.limit_stiffness times each joint's depth in the band of width
+    gains.limit_margin inside its limits [q_min, q_max], pushing it out; exactly zero outside the
+    bands (and everywhere when limit_stiffness is 0)."""
+    m = gains.limit_margin
+    return gains.limit_stiffness * (np.maximum(m - (q - q_min), 0.0) - np.maximum(m - (q_max - q), 0.0))
 
 
 class _Solution:

@@ -3,6 +3,13 @@ looking straight down at it, and holds still there so the camera can take a shar
 
 The motion is planned as tool-frame keyframes (`assembly.scripted_motion`) and played by
 `KeyframePlayer` through the impedance controller, like every scripted motion of the station.
+
+The camera's turn about the vertical is free (the view looks straight down either way), so the
+inspect pose is chosen reachable: `inspect_yaw` keeps the hand's current yaw where the controller
+gets there with every joint clear of its limits, and otherwise turns the view to the nearest yaw
+that does, as predicted by `assembly.reach.QuasiStaticTracker` (near the base, the hand's
+start yaw folds joint 4 onto its limit and the tool stopped up to 60 mm short; docs/planning.md,
+"Reach").
 """
 
 from __future__ import annotations
@@ -16,10 +23,19 @@ from pydrake.systems.analysis import Simulator
 from assembly.cameras import CameraConfig, default_wrist_camera
 from assembly.gearset import GEAR_THICKNESS, gear_spec
 from assembly.panda_model import HAND_TCP_OFFSET
+from assembly.reach import predicted_posture, shared_tracker
 from assembly.scripted_motion import KeyframePlan, KeyframePlayer, segment_time, start_keyframe_plan
 from assembly.station import Station, StationConfig, build_station, drive_station
 
-__all__ = ["InspectConfig", "InspectRun", "X_HT", "append_inspect", "inspect_tool_pose", "run_inspect"]
+__all__ = [
+    "InspectConfig",
+    "InspectRun",
+    "X_HT",
+    "append_inspect",
+    "inspect_tool_pose",
+    "inspect_yaw",
+    "run_inspect",
+]
 
 # Tool frame T (panda_hand_tcp) in the hand frame H: HAND_TCP_OFFSET along the hand's z.
 X_HT = RigidTransform([0.0, 0.0, HAND_TCP_OFFSET])
@@ -37,6 +53,11 @@ class InspectConfig:
     finger_clearance: float = 0.02  # fingertips (tool frame) above the gears' top faces [m]
     settle_tolerance: float = 0.002  # the picture waits until the tool is this close [m] ...
     max_wait: float = 4.0  # ... or this long after the planned picture time [s]
+    # The view's yaw: the hand's current one unless the controller would end with a joint within
+    # joint_clearance [rad] of its limit there; then the nearest of the yaws yaw_step apart that
+    # keeps that clearance (None: always the current yaw, as before).
+    joint_clearance: float | None = 0.15
+    yaw_step: float = np.pi / 12
 
     def __post_init__(self) -> None:
         if not 0.03 <= self.camera_height <= 0.6:
@@ -44,9 +65,14 @@ class InspectConfig:
                 f"camera_height = {self.camera_height}; expected 0.03..0.6 m above "
                 "the gear (closer than the camera's near plane makes no picture)"
             )
-        for name in ("speed", "min_segment", "settle", "finger_clearance", "settle_tolerance", "max_wait"):
+        for name in ("speed", "min_segment", "settle", "finger_clearance", "settle_tolerance", "max_wait", "yaw_step"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"InspectConfig.{name} = {getattr(self, name)}; expected > 0")
+        if self.yaw_step > np.pi:
+            raise ValueError(f"InspectConfig.yaw_step = {self.yaw_step}; expected 0 < yaw_step <= pi rad")
+        c = self.joint_clearance
+        if c is not None and not (np.isfinite(c) and 0 <= c <= 1.0):
+            raise ValueError(f"InspectConfig.joint_clearance = {c}; expected None or 0..1 rad")
 
 
 def inspect_tool_pose(
@@ -76,17 +102,18 @@ def append_inspect(
     gear_xy: tuple[float, float],
     camera: CameraConfig | None = None,
     config: InspectConfig | None = None,
+    q_start: np.ndarray | None = None,
 ) -> float:
     """Append inspect(gear) to `plan` (from its last keyframe): move to the inspection pose above
-    the believed gear position `gear_xy` and hold still. Returns the time of the picture."""
+    the believed gear position `gear_xy` (its yaw by `inspect_yaw`; `q_start` the arm's joint
+    positions at the last keyframe, if known) and hold still. Returns the time of the picture."""
     gear_spec(gear)
     config = config or InspectConfig()
     if not plan.keyframes:
         raise ValueError("plan has no start keyframe; begin it with start_keyframe_plan(X_WT_now, width)")
     last = plan.keyframes[-1]
-    R = last.X_WT.rotation().matrix()
-    current_yaw = float(np.arctan2(R[1, 0], R[0, 0]))
-    target = inspect_tool_pose(gear_xy, camera, config, yaw=_camera_yaw(current_yaw, camera))
+    yaw = inspect_yaw(last.X_WT, gear_xy, camera, config, q_start)
+    target = inspect_tool_pose(gear_xy, camera, config, yaw=yaw)
     low = GEAR_THICKNESS + config.finger_clearance
     if target.translation()[2] < low:
         raise ValueError(
@@ -99,6 +126,45 @@ def append_inspect(
     )
     plan.append(config.settle, target, last.width, f"{gear}: hold for the picture")
     return plan.end_time
+
+
+def inspect_yaw(
+    X_WT_from: RigidTransform,
+    gear_xy: tuple[float, float],
+    camera: CameraConfig | None = None,
+    config: InspectConfig | None = None,
+    q_start: np.ndarray | None = None,
+) -> float:
+    """The camera yaw of the inspect pose for a move from tool pose `X_WT_from`: the one that keeps
+    the hand's yaw, unless the controller (QuasiStaticTracker, from `q_start`, or where a move
+    from the start posture Q_HOME to X_WT_from leaves the arm) would end it with a joint within
+    `config.joint_clearance` of a limit or the tool short of the pose; then, of the yaws
+    `config.yaw_step` apart ordered by their turn from it, the first that ends clear, or failing
+    all, the one ending farthest from the limits."""
+    config = config or InspectConfig()
+    R = X_WT_from.rotation().matrix()
+    keep = _camera_yaw(float(np.arctan2(R[1, 0], R[0, 0])), camera)
+    if config.joint_clearance is None:
+        return keep
+    tracker = shared_tracker()
+    if q_start is None:
+        q_start = predicted_posture(X_WT_from)
+    else:
+        q_start = np.asarray(q_start, dtype=float)
+        if q_start.shape != (7,) or not np.all(np.isfinite(q_start)):
+            raise ValueError(f"q_start = {q_start!r}; expected 7 finite joint positions")
+    n = int(np.floor(np.pi / config.yaw_step + 1e-9))
+    turns = [0.0] + [sign * k * config.yaw_step for k in range(1, n + 1) for sign in (1.0, -1.0)]
+    best, best_margin = keep, -np.inf
+    for turn in turns:
+        yaw = float(np.angle(np.exp(1j * (keep + turn))))
+        q, error = tracker.track(q_start, inspect_tool_pose(gear_xy, camera, config, yaw=yaw))
+        margin = float(tracker.margin(q).min()) if error < 5e-4 else -np.inf
+        if margin >= config.joint_clearance:
+            return yaw
+        if margin > best_margin:
+            best, best_margin = yaw, margin
+    return best
 
 
 def _camera_yaw(tool_yaw: float, camera: CameraConfig | None) -> float:

@@ -160,12 +160,18 @@ def append_pick(
     yaw: float,
     carry_z: float,
     config: ScriptedInsertionConfig,
+    descend_speed: float | None = None,
 ) -> None:
     """Append a pick of `gear` believed at X_WG_believed with the tool heading `yaw`: approach
-    from above, descend, close the fingers, lift to tool height `carry_z`."""
+    from above, descend, close the fingers, lift to tool height `carry_z`. `descend_speed` [m/s]:
+    the mean tool speed of the descent and the lift (None: config.speed, as the approach)."""
     if not plan.keyframes:
         raise ValueError("plan has no start keyframe; begin it with start_keyframe_plan(X_WT_now, width)")
     c = config
+    if descend_speed is None:
+        descend_speed = c.speed
+    elif isinstance(descend_speed, bool) or not (np.isfinite(descend_speed) and descend_speed > 0):
+        raise ValueError(f"descend_speed = {descend_speed!r}; expected None or a speed > 0 m/s")
     open_w, closed_w = gripper_widths(gear, c)
     p_G = X_WG_believed.translation()
     above_gear = down_pose(p_G + [0, 0, GEAR_THICKNESS + c.approach_height], yaw)
@@ -173,11 +179,11 @@ def append_pick(
     lifted = down_pose(np.array([p_G[0], p_G[1], carry_z]), yaw)
     append_move(plan, above_gear, open_w, f"{gear}: approach", c.speed, c.min_segment)
     plan.append(c.pause, above_gear, open_w, f"{gear}: steady above gear")
-    append_move(plan, at_gear, open_w, f"{gear}: descend", c.speed, c.min_segment)
+    append_move(plan, at_gear, open_w, f"{gear}: descend", descend_speed, c.min_segment)
     plan.append(c.pause, at_gear, open_w, f"{gear}: steady at gear")
     plan.append(c.gripper_time, at_gear, closed_w, f"{gear}: grasp")
     plan.append(0.2, at_gear, closed_w, f"{gear}: hold")
-    append_move(plan, lifted, closed_w, f"{gear}: lift", c.speed, c.min_segment)
+    append_move(plan, lifted, closed_w, f"{gear}: lift", descend_speed, c.min_segment)
 
 
 def append_place(

@@ -68,6 +68,7 @@ from planning.belief_drawing import BeliefDrawer
 from planning.bfs import Step
 from planning.domain import AssemblyDomain, BeliefState, GearBelief
 from planning.grasp import aim_tool
+from planning.pick import PickReachConfig, plate_pose_from_shaft, reachable_pick
 from planning.planner_perception import IMAGE_PORTS, Look, LookRequest, Percept, PlannerPerception
 
 
@@ -153,7 +154,8 @@ class PlannerState:
 @dataclass
 class PlannerSystemConfig:
     """period: the state machine's and the insertion policy's period [s]; motion, inspect: the
-    skills' keyframe motions; max_replans: re-perceptions after a failed pick or insert; close_prior:
+    skills' keyframe motions; pick: how a pick's heading and descent are made reachable
+    (planning.pick.reachable_pick); max_replans: re-perceptions after a failed pick or insert; close_prior:
     the close view's prior box (multiple of the belief's std, min, max half-width [m]);
     seated_tolerance: the tool within this of its seated height means the gear is on its shaft;
     settle_tolerance, max_wait: a motion ends when the tool is this close to its last keyframe, or
@@ -167,6 +169,7 @@ class PlannerSystemConfig:
     period: float = 0.04
     motion: ScriptedInsertionConfig = field(default_factory=ScriptedInsertionConfig)
     inspect: InspectConfig = field(default_factory=InspectConfig)
+    pick: PickReachConfig = field(default_factory=PickReachConfig)
     max_replans: int = 2
     close_prior: tuple[float, float, float] = (4.0, 0.005, 0.03)
     seated_tolerance: float = 0.002
@@ -377,13 +380,33 @@ class PlannerStateMachine(LeafSystem):
             pitch = 2 * np.pi / gear_spec(gear).teeth
             k = np.round((np.pi / 2 - (belief.mean[2] - aim[2])) / pitch)
             tool = aim_tool(belief.mean, aim - [0.0, 0.0, k * pitch])
+            # ... unless the open fingers would touch the plate or another gear there: then the same
+            # grasp at the nearest heading a multiple of the pitch away that clears them; near the
+            # base the pick moves slowly (planning.pick.reachable_pick; off with c.pick.enabled False)
+            others = {
+                g: tuple(self.X_WS[g].translation()[:2]) if b.location == "inserted" else tuple(b.mean[:2])
+                for g, b in s.beliefs.items()
+                if g != gear and b.location != "hand" and (b.location != "inserted" or g in self.X_WS)
+            }
+            tool, descend_speed = reachable_pick(
+                gear,
+                belief.mean,
+                aim,
+                tool,
+                plate_pose=plate_pose_from_shaft(gear, self.X_WS[gear]),
+                others=others,
+                motion=c.motion,
+                config=c.pick,
+            )
             heading = float(tool[2])
             current = replace(current, tool=tuple(tool.tolist()))
             if plan.keyframes[-1].width < open_w:
                 plan.append(c.motion.gripper_time, plan.keyframes[-1].X_WT, open_w, f"{gear}: open")
             # aim the tool: the gear's believed centre shifted by the aimed grasp error
             X_WG_aim = planar_pose(tool[0], tool[1], belief.mean[2])
-            append_pick(plan, gear, X_WG_aim, heading, carry_height(gear, self.X_WS[gear], c.motion), c.motion)
+            append_pick(
+                plan, gear, X_WG_aim, heading, carry_height(gear, self.X_WS[gear], c.motion), c.motion, descend_speed
+            )
             then = Then.PICKED
         elif step.skill == "insert":
             law = self.laws[gear]
