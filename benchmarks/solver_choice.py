@@ -21,7 +21,8 @@ drawn by the default FullDR sampler) and stepped with the same random actions (s
 candidate, until every copy has ended its first episode. Metrics: `obs dev` = mean over copies,
 the first --obs-steps steps and the observation entries of |obs - obs_ref| / (the reference's
 std of that entry over those steps and copies); episode return and length, mean +- se over the
-copies' first episodes; `fail` = copies whose physics failed (sim_error); for the gear, the success
+copies' first episodes; `fail` = copies whose physics failed (sim_error; a vector step that fails as
+a whole counts every open copy, and a speed run that fails fails the `speed_runs` check); for the gear, the success
 outcome's agreement with the reference. `stress`: the same run with xi at the corners of the box
 (cycled over the copies) and bang-bang actions (the random actions' signs): its failed copies, and
 its mean return against the reference's stressed one over the copies that failed in neither
@@ -54,6 +55,7 @@ import numpy as np
 import assembly  # noqa: F401  (registers the ids)
 from assembly.samplers import NoDR
 from benchmarks.env_speed import actions_for
+from goflow_common.errors import SimulationError
 from goflow_common.files import check_output_file, write_json
 
 APPROXIMATIONS = ("lagged", "sap", "similar", "tamsi")
@@ -187,7 +189,9 @@ def make_vec(spec: EnvSpec, cand: Candidate, n: int):
 
 
 def speed(spec: EnvSpec, cand: Candidate, n: int, steps: int, seed: int = 0) -> float:
-    """Env steps/s of the batched env (nominal xi, env_speed's workload), build time excluded."""
+    """Env steps/s of the batched env (nominal xi, env_speed's workload), build time excluded;
+    NaN where a vector step failed as a whole (the batched env's SimulationError: no copy fails
+    alone, or the batch fails again with the failed copies held)."""
     vec = make_vec(spec, cand, n)
     vec.set_attr("sampler", NoDR(vec.space))
     vec.reset(seed=seed)
@@ -195,11 +199,15 @@ def speed(spec: EnvSpec, cand: Candidate, n: int, steps: int, seed: int = 0) -> 
     rounds = max(steps // n, 10)
     actions = np.stack([actions_for(spec.env_id, vec.single_action_space, n, rng) for _ in range(rounds)])
     t0 = time.perf_counter()
-    for a in actions:
-        vec.step(a)
-    wall = time.perf_counter() - t0
-    vec.close()
-    return rounds * n / wall
+    try:
+        for a in actions:
+            vec.step(a)
+    except SimulationError as exc:
+        print(f"# {spec.name} {cand.label} N={n}: speed run failed: {str(exc).splitlines()[0][:160]}", flush=True)
+        return float("nan")
+    finally:
+        vec.close()
+    return rounds * n / (time.perf_counter() - t0)
 
 
 @dataclass
@@ -241,7 +249,14 @@ def rollout(
         a = actions_for(spec.env_id, vec.single_action_space, copies, rng)
         if stress:
             a = np.where(a >= 0.0, 1.0, -1.0)
-        obs, _, terminated, truncated, info = vec.step(a)
+        try:
+            obs, _, terminated, truncated, info = vec.step(a)
+        except SimulationError as exc:  # the batch failed as a whole: every open copy counts as failed
+            print(
+                f"# {spec.name} {cand.label}: rollout failed at step {t}: {str(exc).splitlines()[0][:160]}", flush=True
+            )
+            failed[open_], lengths[open_] = True, t + 1
+            break
         done = terminated | truncated
         seen = obs.copy()
         for i in np.flatnonzero(done):
@@ -326,6 +341,7 @@ def run_env(spec: EnvSpec, args: argparse.Namespace) -> list[dict[str, Any]]:
             else float("nan")
         )
         checks["stress_failures"] = stressed[c].failed <= ref_stress.failed
+        checks["speed_runs"] = all(np.isfinite(rates[(c, n)]).all() for n in args.num_envs)
         if spec.name == "gear":
             checks["success_agreement"] = metrics["success_agreement"] >= SUCCESS_AGREEMENT
         rows.append(
