@@ -63,9 +63,8 @@ class ImpedanceGains:
                 )
         for name in ("nullspace_stiffness", "nullspace_damping", "limit_margin", "limit_stiffness"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
-                raise ValueError(f"ImpedanceGains.{name} = {value!r}; expected a finite number >= 0")
-            if not (np.isfinite(value) and value >= 0):
+            number = not isinstance(value, bool) and isinstance(value, (int, float, np.number))
+            if not (number and np.isfinite(value) and value >= 0):
                 raise ValueError(f"ImpedanceGains.{name} = {value!r}; expected a finite number >= 0")
             setattr(self, name, float(value))
         if self.limit_margin > 1.0:
@@ -131,16 +130,7 @@ class CartesianImpedanceController(LeafSystem):
             raise ValueError(f"torque_limits and q_nominal must have {self._n} entries")
         if not np.all(np.isfinite(self._q_nominal)):
             raise ValueError(f"q_nominal = {self._q_nominal.tolist()}; expected {self._n} finite joint positions")
-        lower = plant.GetPositionLowerLimits()
-        upper = plant.GetPositionUpperLimits()
-        self._q_idx = np.array(
-            [
-                plant.get_joint(j).position_start() + k
-                for j in plant.GetJointIndices(arm)
-                for k in range(plant.get_joint(j).num_positions())
-            ]
-        )
-        self._q_min, self._q_max = lower[self._q_idx], upper[self._q_idx]
+        self._q_idx, self._q_min, self._q_max = arm_position_limits(plant, arm)
         if gains.limit_stiffness > 0 and not (np.all(np.isfinite(self._q_min)) and np.all(np.isfinite(self._q_max))):
             raise ValueError(
                 "joint-limit avoidance (limit_stiffness > 0) needs finite position limits on every arm joint"
@@ -246,8 +236,27 @@ class CartesianImpedanceController(LeafSystem):
 
     def joint_limit_margin(self, q: np.ndarray) -> np.ndarray:
         """Each arm joint's distance to its nearer position limit [rad] at positions q."""
-        q = np.asarray(q, dtype=float)
-        return np.minimum(q - self._q_min, self._q_max - q)
+        return distance_to_limits(q, self._q_min, self._q_max)
+
+
+def arm_position_limits(plant: MultibodyPlant, arm: ModelInstanceIndex) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indices into the plant's positions, lower limits, upper limits) of the joints of model
+    instance `arm` that have positions, in joint order."""
+    idx = np.array(
+        [
+            plant.get_joint(j).position_start() + k
+            for j in plant.GetJointIndices(arm)
+            for k in range(plant.get_joint(j).num_positions())
+        ],
+        dtype=int,
+    )
+    return idx, plant.GetPositionLowerLimits()[idx], plant.GetPositionUpperLimits()[idx]
+
+
+def distance_to_limits(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray) -> np.ndarray:
+    """Each joint's distance to its nearer position limit [rad] at positions q (negative beyond)."""
+    q = np.asarray(q, dtype=float)
+    return np.minimum(q - q_min, q_max - q)
 
 
 def limit_avoidance_torque(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, gains: ImpedanceGains) -> np.ndarray:

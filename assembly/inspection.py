@@ -23,7 +23,7 @@ from pydrake.systems.analysis import Simulator
 from assembly.cameras import CameraConfig, default_wrist_camera
 from assembly.gearset import GEAR_THICKNESS, gear_spec
 from assembly.panda_model import HAND_TCP_OFFSET
-from assembly.reach import predicted_posture, shared_tracker
+from assembly.reach import predicted_posture, shared_tracker, turns_by_size
 from assembly.scripted_motion import KeyframePlan, KeyframePlayer, segment_time, start_keyframe_plan
 from assembly.station import Station, StationConfig, build_station, drive_station
 
@@ -153,10 +153,8 @@ def inspect_yaw(
         q_start = np.asarray(q_start, dtype=float)
         if q_start.shape != (7,) or not np.all(np.isfinite(q_start)):
             raise ValueError(f"q_start = {q_start!r}; expected 7 finite joint positions")
-    n = int(np.floor(np.pi / config.yaw_step + 1e-9))
-    turns = [0.0] + [sign * k * config.yaw_step for k in range(1, n + 1) for sign in (1.0, -1.0)]
     best, best_margin = keep, -np.inf
-    for turn in turns:
+    for turn in turns_by_size(config.yaw_step, np.pi):
         yaw = float(np.angle(np.exp(1j * (keep + turn))))
         q, error = tracker.track(q_start, inspect_tool_pose(gear_xy, camera, config, yaw=yaw))
         margin = float(tracker.margin(q).min()) if error < 5e-4 else -np.inf

@@ -7,6 +7,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.solvers import Solve
 
+from assembly.impedance import arm_position_limits
 from assembly.panda_model import Q_HOME
 
 
@@ -26,13 +27,7 @@ def solve_tool_ik(
     ik.AddOrientationConstraint(
         tool, X_WT.rotation().inverse() @ X_WT.rotation(), plant.world_frame(), X_WT.rotation(), angle_tol
     )
-    arm_idx = np.array(
-        [
-            plant.get_joint(j).position_start()
-            for j in plant.GetJointIndices(arm)
-            if plant.get_joint(j).num_positions() == 1
-        ]
-    )
+    arm_idx = arm_position_limits(plant, arm)[0]
     guess = plant.GetPositions(plant.CreateDefaultContext()).copy()
     guess[arm_idx] = q_nominal
     ik.prog().AddQuadraticErrorCost(np.eye(len(arm_idx)), q_nominal, q[arm_idx])

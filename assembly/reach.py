@@ -9,11 +9,17 @@ from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import JacobianWrtVariable
 
-from assembly.impedance import ImpedanceGains, limit_avoidance_torque, rotation_error
+from assembly.impedance import (
+    ImpedanceGains,
+    arm_position_limits,
+    distance_to_limits,
+    limit_avoidance_torque,
+    rotation_error,
+)
 from assembly.panda_model import Q_HOME
 from assembly.station import make_controller_plant
 
-__all__ = ["QuasiStaticTracker", "predicted_posture", "shared_tracker"]
+__all__ = ["QuasiStaticTracker", "predicted_posture", "shared_tracker", "turns_by_size"]
 
 
 class QuasiStaticTracker:
@@ -29,16 +35,11 @@ class QuasiStaticTracker:
         self._context = self._plant.CreateDefaultContext()
         self._gains = gains or ImpedanceGains()
         self._q_nominal = np.asarray(Q_HOME if q_nominal is None else q_nominal, dtype=float)
-        idx = [self._plant.get_joint(j).position_start() for j in self._plant.GetJointIndices(self._arm)]
-        self._idx = np.array(
-            [i for i, j in zip(idx, self._plant.GetJointIndices(self._arm)) if self._plant.get_joint(j).num_positions()]
-        )
-        self._q_min = self._plant.GetPositionLowerLimits()[self._idx]
-        self._q_max = self._plant.GetPositionUpperLimits()[self._idx]
+        self._idx, self._q_min, self._q_max = arm_position_limits(self._plant, self._arm)
 
     def margin(self, q: np.ndarray) -> np.ndarray:
         """Each joint's distance to its nearer position limit [rad]."""
-        return np.minimum(q - self._q_min, self._q_max - q)
+        return distance_to_limits(q, self._q_min, self._q_max)
 
     def tool_pose(self, q: np.ndarray) -> RigidTransform:
         self._plant.SetPositions(self._context, self._arm, q)
@@ -94,3 +95,17 @@ def predicted_posture(X_WT: RigidTransform) -> np.ndarray:
     """Where the arm's redundancy has left it with the tool at X_WT, as the planner guesses it
     without joint measurements: the shared tracker's joints after a move there from Q_HOME."""
     return shared_tracker().track(Q_HOME, X_WT)[0]
+
+
+def turns_by_size(step: float, max_turn: float) -> list[float]:
+    """Turns [rad] ordered by size: 0, +step, -step, +2 step, ... up to max_turn either way, a turn
+    of pi once (+pi and -pi are one heading). The candidates of a reachable choice, nearest first."""
+    n = int(np.floor(max_turn / step + 1e-9))
+    turns = [0.0]
+    for k in range(1, n + 1):
+        for sign in (1.0, -1.0):
+            turn = sign * k * step
+            if abs(abs(turn) - np.pi) < 1e-9 and any(abs(abs(t) - np.pi) < 1e-9 for t in turns):
+                continue
+            turns.append(turn)
+    return turns

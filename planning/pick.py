@@ -31,6 +31,7 @@ from pydrake.systems.analysis import Simulator
 
 from assembly.gearset import PLATE_SIZE, gear_spec, shaft_position_in_plate
 from assembly.panda_model import PAD_SIZE
+from assembly.reach import turns_by_size
 from assembly.scripted_motion import (
     KeyframePlayer,
     ScriptedInsertionConfig,
@@ -241,16 +242,7 @@ def pick_headings(gear: str, config: PickReachConfig | None = None) -> list[floa
     the tooth pitch about `config.turn_step` apart, up to `config.max_turn` (a turn of pi once)."""
     config = config or PickReachConfig()
     pitch = gear_spec(gear).tooth_pitch_angle
-    step = pitch * max(1, round(config.turn_step / pitch))
-    n = int(math.floor(config.max_turn / step + 1e-9))
-    turns = [0.0]
-    for k in range(1, n + 1):
-        for sign in (1.0, -1.0):
-            turn = sign * k * step
-            if abs(abs(turn) - math.pi) < 1e-9 and any(abs(abs(t) - math.pi) < 1e-9 for t in turns):
-                continue
-            turns.append(turn)
-    return turns
+    return turns_by_size(pitch * max(1, round(config.turn_step / pitch)), config.max_turn)
 
 
 def reachable_pick(
