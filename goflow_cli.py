@@ -315,6 +315,14 @@ def _demo_flags(p: argparse.ArgumentParser) -> None:
         help="how the planner decides: threshold (insert when Eq. 7 clears eta, the default) or cost "
         "(the plan of least expected time plus failure cost); the scripted run has no planner",
     )
+    p.add_argument(
+        "--cameras",
+        choices=["realsense", "ideal"],
+        default=None,
+        help="the station's cameras: ideal (perfect images and calibration; the default) or realsense (a D415 "
+        "scene and a D405 wrist camera with their depth noise, depth unit, scale error and calibration error); "
+        "the scripted run has no cameras",
+    )
     p.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
     p.add_argument("--record", metavar="FILE.html", type=Path, help="save a Meshcat recording")
     p.add_argument("--json", metavar="PATH", type=Path, help="write the summary as JSON")
@@ -332,6 +340,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if args.scripted and args.decision is not None:
         raise InputError(
             f"--decision {args.decision} with --scripted: the scripted run has no planner; drop one of them"
+        )
+    if args.scripted and args.cameras is not None:
+        raise InputError(
+            f"--cameras {args.cameras} with --scripted: the scripted run looks at nothing; drop one of them"
         )
     seed = 0 if args.seed is None else args.seed
     if seed < 0:
@@ -361,7 +373,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             from planning.assembly import PlannedAssemblyConfig, format_planned, run_planned_assembly
             from planning.domain import PlannerConfig
 
-            config = PlannedAssemblyConfig(seed=seed, planner=PlannerConfig(decision=args.decision or "threshold"))
+            config = PlannedAssemblyConfig(
+                seed=seed,
+                planner=PlannerConfig(decision=args.decision or "threshold"),
+                cameras=args.cameras or "ideal",
+            )
             summary = run_planned_assembly(config, meshcat=meshcat, record=scratch, progress=not args.quiet)
             print(format_planned(summary))
         if json_path:

@@ -20,7 +20,11 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.sensors import CameraInfo, RgbdSensor
 
+from assembly.gearset import GEAR_THICKNESS
+
 RENDERER = "vtk"
+# A gear's top face above the table [m], where an extrinsic error's shift is taken.
+GEAR_TOP = GEAR_THICKNESS
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> RigidTransform:
@@ -127,6 +131,20 @@ def extrinsic_error_on_table(
         s = (p[2] - c[2]) / ray_W[2]
         shifts.append((c + s * ray_W)[:2] - p[:2])
     return np.cov(np.asarray(shifts).T)
+
+
+def with_extrinsic_std(
+    X_WC: RigidTransform, mean: np.ndarray, std: np.ndarray, extrinsic_std: tuple[float, float]
+) -> np.ndarray:
+    """A table pose estimate's std (x, y, yaw) with the uncertainty of the camera's extrinsics
+    added: `extrinsic_std` (translation [m], rotation [rad]) std moves where the camera believed at
+    X_WC places a gear's top at `mean` (x, y, yaw; the top GEAR_TOP above the table) on the table
+    (extrinsic_error_on_table) and turns it in yaw by the rotation's std."""
+    t_std, r_std = extrinsic_std
+    if t_std == 0 and r_std == 0:
+        return np.asarray(std, float)
+    cov = extrinsic_error_on_table(X_WC, np.array([mean[0], mean[1], GEAR_TOP]), t_std, r_std)
+    return np.sqrt(np.asarray(std, float) ** 2 + np.array([cov[0, 0], cov[1, 1], r_std**2]))
 
 
 def add_renderer(scene_graph: SceneGraph) -> None:

@@ -39,6 +39,7 @@ from assembly.gearset import gear_spec
 from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
 from assembly.impedance import CartesianImpedanceController, ImpedanceGains
 from assembly.panda_model import Q_HOME, TAU_MAX
+from assembly.rgbd_sensor import CameraSensor, RgbdSensorNoise
 from assembly.world import (
     GraspHold,
     WorldConfig,
@@ -64,6 +65,7 @@ class StationConfig:
     gains: ImpedanceGains = field(default_factory=ImpedanceGains)
     gripper: GripperGains = field(default_factory=GripperGains)
     cameras: CamerasConfig = field(default_factory=CamerasConfig)
+    sensors: dict[str, CameraSensor] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.time_step) and 0 < self.time_step <= 0.02):
@@ -76,6 +78,10 @@ class StationConfig:
             raise ValueError(
                 f"discrete_contact_approximation = {self.discrete_contact_approximation!r}; expected one of {approx}"
             )
+        names = [c.name for c in (self.cameras.scene, self.cameras.wrist) if c is not None]
+        unknown = [n for n in self.sensors if n not in names]
+        if unknown or not all(isinstance(s, CameraSensor) for s in self.sensors.values()):
+            raise ValueError(f"sensors for {list(self.sensors)}; expected CameraSensors for cameras among {names}")
 
 
 @dataclass
@@ -239,8 +245,17 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
             continue
         sensor = add_camera(builder, scene_graph, parent, cam)
         cameras[cam.name] = sensor
-        builder.ExportOutput(sensor.color_image_output_port(), f"{cam.name}_rgb")
-        builder.ExportOutput(sensor.depth_image_32F_output_port(), f"{cam.name}_depth")
+        rgb, depth = sensor.color_image_output_port(), sensor.depth_image_32F_output_port()
+        real = config.sensors.get(cam.name)
+        if real is not None and not real.model.is_ideal:  # the images as the real camera reports them
+            noise = builder.AddSystem(
+                RgbdSensorNoise(cam.name, real.model, cam.info().focal_y(), real.scale, real.seed)
+            )
+            builder.Connect(rgb, noise.GetInputPort("rgb"))
+            builder.Connect(depth, noise.GetInputPort("depth"))
+            rgb, depth = noise.GetOutputPort("rgb"), noise.GetOutputPort("depth")
+        builder.ExportOutput(rgb, f"{cam.name}_rgb")
+        builder.ExportOutput(depth, f"{cam.name}_depth")
         builder.ExportOutput(sensor.label_image_output_port(), f"{cam.name}_label")
 
     visualizer = None

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from assembly.cameras import with_extrinsic_std
 from assembly.gearset import GEAR_NAMES
 from goflow_common.checks import check_int
 from goflow_common.errors import FileFormatError, InputError
@@ -29,7 +30,7 @@ from goflow_common.pool import ProcessPool
 from perception.detection import detect_gears
 from perception.gear_model import gear_model
 from perception.posterior import PosePosterior, wrap
-from perception.scenes import PERTURBATIONS, SceneRenderer, random_scenes
+from perception.scenes import PERTURBATIONS, SceneRenderer, View, random_scenes
 from perception.search import Prior, SearchConfig, estimate_pose
 
 LEVELS = (0.5, 0.68, 0.8, 0.9, 0.95)
@@ -134,6 +135,7 @@ def _row(
     seconds: float,
     factors: tuple[float, ...] = (),
     shapes: tuple[float, ...] = (),
+    view_info: View | None = None,
 ) -> dict:
     period = post.period
     extra = {}
@@ -158,6 +160,7 @@ def _row(
         "informative": post.informative,
         "reason": post.reason,
         "level": post.credible_level(truth),
+        **_belief_level(post, truth, view_info),
         "xy_error_m": d,
         "yaw_error_rad": e,
         "map_error": err.tolist(),
@@ -171,14 +174,46 @@ def _row(
     }
 
 
-def _close_prior(far: PosePosterior, fallback: Prior, config: CalibrationConfig) -> Prior:
-    """The inspect view's prior: the far posterior's box (its mean, k std) when it was informative,
-    else the detection's."""
+def belief_std(post: PosePosterior, view: View | None) -> np.ndarray:
+    """The std (x, y, yaw) of the belief a robot holds from `post` seen in `view`: the posterior's,
+    with the uncertainty of the view's camera mounting added (assembly.cameras.with_extrinsic_std;
+    the posterior's own where the camera's pose is exact)."""
+    if view is None or not any(view.extrinsic_std):
+        return post.std()
+    return with_extrinsic_std(view.obs.X_WC, post.mean(), post.std(), view.extrinsic_std)
+
+
+def gaussian_level(mean: np.ndarray, std: np.ndarray, truth: np.ndarray, period: float) -> float:
+    """The credible level of `truth` under independent Gaussians (x, y, yaw; yaw modulo `period`)
+    of `mean` and `std`: the chi-square(3) probability of its squared Mahalanobis distance."""
+    from scipy.stats import chi2
+
+    err = np.asarray(truth, float) - np.asarray(mean, float)
+    err[2] = wrap(err[2], period)
+    return float(chi2.cdf(float(np.sum((err / np.asarray(std, float)) ** 2)), 3))
+
+
+def _belief_level(post: PosePosterior, truth: np.ndarray, view: View | None) -> dict:
+    """Where the view's camera mounting is uncertain: "level" is the truth's under the robot's
+    belief (belief_std; the posterior alone is sure of a pose the mounting error has moved), and
+    "posterior_level" the posterior's own."""
+    if view is None or not any(view.extrinsic_std) or not post.informative:
+        return {}
+    return {
+        "level": gaussian_level(post.mean(), belief_std(post, view), truth, post.period),
+        "posterior_level": post.credible_level(truth),
+        "belief_std": belief_std(post, view).tolist(),
+    }
+
+
+def _close_prior(far: PosePosterior, fallback: Prior, config: CalibrationConfig, view: View | None = None) -> Prior:
+    """The inspect view's prior: the far belief's box (its mean, k std; belief_std) when the far
+    posterior was informative, else the detection's."""
     if not far.informative:
         return fallback
     k, lo, hi = config.close_prior
     mean = far.mean()
-    return Prior(mean[0], mean[1], float(np.clip(k * far.std()[:2].max(), lo, hi)))
+    return Prior(mean[0], mean[1], float(np.clip(k * belief_std(far, view)[:2].max(), lo, hi)))
 
 
 def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
@@ -220,11 +255,12 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
                     time.perf_counter() - t0,
                     config.tempering_factors,
                     config.shape_exponents,
+                    view,
                 )
             )
             rows[-1]["detect_seconds"] = t_detect
             rows[-1]["hidden_fraction"] = view.hidden_fraction if view.gear == gear else None
-            prior = _close_prior(far, det.prior, config)
+            prior = _close_prior(far, det.prior, config, view)
             close = renderer.render_view(
                 scene, "inspect", gear, group, scene.rng("inspect", gear, group), believed_xy=(prior.x, prior.y)
             )
@@ -242,6 +278,7 @@ def group_rows(group: str, config: CalibrationConfig) -> list[dict]:
                     time.perf_counter() - t0,
                     config.tempering_factors,
                     config.shape_exponents,
+                    close,
                 )
             )
             rows[-1]["far_std"] = far.std().tolist()

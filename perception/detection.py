@@ -43,6 +43,7 @@ from assembly.world import PLACEMENT_X, PLACEMENT_Y
 from perception.likelihood import table_albedo
 from perception.observation import Intrinsics, Observation
 from perception.search import Prior
+from perception.table_plane import aligned_to_table
 
 __all__ = ["Detection", "DetectionConfig", "detect_gears"]
 
@@ -161,7 +162,7 @@ def detect_gears(
     if not isinstance(config, DetectionConfig):
         raise ValueError(f"config is {type(config).__name__}; expected a DetectionConfig")
     _check_sees_region(obs, config)
-    image = _prepare(obs, config)
+    image = _prepare(aligned_to_table(obs), config)
     return {g: _detect(image, g, config) for g in gears}
 
 

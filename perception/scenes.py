@@ -35,6 +35,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from assembly.cameras import CameraConfig, default_scene_camera, default_wrist_camera
 from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS
 from assembly.inspection import X_HT, inspect_tool_pose
+from assembly.rgbd_sensor import IDEAL, RgbdSensorModel, sensor_model
 from assembly.world import WorldConfig, random_gear_poses
 from perception.drake_scene import DEFAULT_LIGHTING, HAND_OCCLUDER, DrakeScene, SceneConfig
 from perception.observation import Observation
@@ -115,7 +116,11 @@ class Perturbation:
     lighting: how Drake lights the scene; depth_noise: Gaussian depth noise sigma [m] at
     DEPTH_NOISE_REFERENCE, growing with depth squared (nothing clipped); dropout: fraction of depth
     pixels set to NaN, each pixel independently; occluder: None, "hand" or "gear", hovering between
-    the camera and the target gear so that it hides a fraction in `hidden` of the gear's pixels."""
+    the camera and the target gear so that it hides a fraction in `hidden` of the gear's pixels;
+    sensors: the real camera of the scene view and of the inspect view (names of
+    assembly.rgbd_sensor.SENSOR_MODELS, None: ideal): its noise on the render, its depth scale and
+    its true mounting off the calibrated one drawn once per scene and view (`RandomScene.rng("mount",
+    view)`), the observation keeping the calibrated pose."""
 
     name: str
     description: str = ""
@@ -124,6 +129,7 @@ class Perturbation:
     dropout: float = 0.0
     occluder: str | None = None
     hidden: tuple[float, float] = (0.15, 0.40)
+    sensors: tuple[str | None, str | None] = (None, None)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.depth_noise) and self.depth_noise >= 0):
@@ -134,6 +140,16 @@ class Perturbation:
             raise ValueError(f"{self.name}: occluder = {self.occluder!r}; expected None or one of {OCCLUDER_KINDS}")
         if not 0 < self.hidden[0] < self.hidden[1] < 1:
             raise ValueError(f"{self.name}: hidden = {self.hidden}; expected 0 < low < high < 1")
+        if len(self.sensors) != 2:
+            raise ValueError(f"{self.name}: sensors = {self.sensors}; expected (scene view's, inspect view's) models")
+        for name in self.sensors:
+            if name is not None:
+                sensor_model(name)
+
+    def sensor(self, view: str) -> RgbdSensorModel:
+        """The real camera of `view` ("scene" or "inspect")."""
+        name = self.sensors[VIEWS.index(view)]
+        return IDEAL if name is None else sensor_model(name)
 
 
 # The scene camera looks from azimuth -52 deg (from the table centre towards (0.78, -0.42)); the
@@ -159,6 +175,13 @@ PERTURBATIONS: dict[str, Perturbation] = {
         Perturbation("occluded_hand", "a Panda hand between camera and gear hides 15-40 % of it", occluder="hand"),
         Perturbation(
             "occluded_gear", "another gear, as if carried, between camera and gear hides 15-40 % of it", occluder="gear"
+        ),
+        Perturbation(
+            "realsense",
+            "a RealSense D415 scene and D405 wrist camera (depth noise, unit, scale and shadows; colour noise; "
+            "extrinsics off by their calibration std) under a lamp from 60 deg elevation",
+            lighting=Lighting(elevation_deg=60.0, azimuth_deg=_SIDE_AZIMUTH + 90.0),
+            sensors=("d415", "d405"),
         ),
     )
 }
@@ -228,7 +251,8 @@ class View:
     pixels the occluder hides (None without an occluder); occluder: the occluder body's kind and
     world pose; visible: per gear, the fraction of its pixels (in this view without the occluder)
     that the occluder leaves visible (1 for every gear without an occluder; a gear out of the
-    view is absent)."""
+    view is absent); extrinsic_std: the std (translation [m], rotation [rad]) of the camera's true
+    mounting about the calibrated pose `obs.X_WC` (0: the true pose)."""
 
     obs: Observation
     view: str
@@ -240,6 +264,7 @@ class View:
     hidden_fraction: float | None = None
     occluder: tuple[str, RigidTransform] | None = None
     visible: dict[str, float] = field(default_factory=dict)
+    extrinsic_std: tuple[float, float] = (0.0, 0.0)
 
 
 class SceneRenderer:
@@ -310,6 +335,11 @@ class SceneRenderer:
             believed, camera, X_WC = self._inspect_camera(scene.poses[gear], rng, believed_xy)
         else:
             camera, X_WC = self.scene_camera, self.scene_camera.X_PC
+        sensor = p.sensor(view)
+        X_WC_believed, scale = X_WC, 1.0
+        if not sensor.is_ideal:  # the camera as it really is; the observation keeps the calibrated pose
+            mount = scene.rng("mount", view)
+            X_WC, scale = X_WC @ sensor.draw_extrinsic_error(mount), sensor.draw_scale(mount)
         hidden = occluder = None
         info = camera.info()
         labels = self.scene.render_labels(info, camera.near, camera.far, X_WC)
@@ -323,13 +353,27 @@ class SceneRenderer:
             labels = self.scene.render_labels(info, camera.near, camera.far, X_WC)
             visible = {g: int(np.count_nonzero(labels == self.scene.label(g))) / counts[g] for g in visible}
         obs = self.scene.render(camera, X_WC, self._lighting_names[p.lighting])
-        depth = obs.depth
+        rgb, depth = obs.rgb, obs.depth
+        if not sensor.is_ideal:
+            rgb, depth = sensor.corrupt(rgb, depth, obs.intrinsics.fy, rng, scale)
         if p.depth_noise > 0:
             depth = apply_depth_noise(depth, p.depth_noise, rng)
         if p.dropout > 0:
             depth = apply_dropout(depth, p.dropout, rng)
-        obs = Observation(obs.rgb, depth, obs.intrinsics, obs.X_WC)
-        return View(obs, view, gear, p.name, dict(scene.poses), camera, believed, hidden, occluder, visible)
+        obs = Observation(rgb, depth, obs.intrinsics, X_WC_believed)
+        return View(
+            obs,
+            view,
+            gear,
+            p.name,
+            dict(scene.poses),
+            camera,
+            believed,
+            hidden,
+            occluder,
+            visible,
+            sensor.extrinsic_std,
+        )
 
     def _set_scene(self, scene: RandomScene) -> None:
         """Gears of `scene` at their poses, the others and every occluder parked."""

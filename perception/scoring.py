@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from perception.gear_model import GearModel
+from perception.table_plane import deepest_peak
 from perception.likelihood import LikelihoodConfig, pixel_terms, table_colour, table_depth, table_prediction
 from perception.observation import VTK_PIXEL_OFFSET, Observation
 from perception.renderer import RayCaster, RayCasterConfig
@@ -288,7 +289,7 @@ def _read_table(
     differences along rows over the pixels within 1 cm of the region's own depth offset, so that a
     bias or a ramp (a camera off its pose) does not count as noise."""
     resid = obs.depth[v, u] - table_depth(origin, dirs)
-    offset = _table_offset(resid, min_pixels)
+    offset = deepest_peak(resid, min_pixels, 0.06, 0.001)
     pixel_noise = 0.0
     if offset is not None:
         level = np.abs(resid - offset) < 0.01
@@ -303,25 +304,6 @@ def _read_table(
         return _TableReading(None, spread, 0, pixel_noise)
     colour = np.median(obs.rgb[v[table], u[table]], axis=0)
     return _TableReading(colour, spread, int(np.count_nonzero(table)), pixel_noise)
-
-
-def _table_offset(resid: np.ndarray, min_pixels: int, reach: float = 0.06) -> float | None:
-    """The table's depth offset [m] among depth residuals about the table plane `resid`: the
-    deepest strong peak of their histogram (1 mm bins, within +-`reach`), since everything else
-    in view (gears, plate, hand) lies above the table and so nearer the camera; None when fewer
-    than `min_pixels` residuals are within reach."""
-    r = resid[np.abs(resid) < reach]
-    if len(r) < min_pixels:
-        return None
-    counts, edges = np.histogram(r, np.linspace(-reach, reach, int(round(2 * reach / 0.001)) + 1))
-    smooth = np.convolve(counts, np.ones(5), "same")
-    strong = np.flatnonzero(smooth >= 0.2 * smooth.max())
-    start = strong[-1]  # the deepest run of strong bins
-    while start - 1 in strong:
-        start -= 1
-    peak = start + int(np.argmax(smooth[start : strong[-1] + 1]))
-    centre = 0.5 * (edges[peak] + edges[peak + 1])
-    return float(np.median(r[np.abs(r - centre) < 0.003]))
 
 
 def _row_noise(depth: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:

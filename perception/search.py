@@ -28,6 +28,7 @@ from perception.observation import Observation
 from perception.posterior import PosePosterior, cell_overlap, uniform_posterior, wrap
 from perception.renderer import RayCasterConfig
 from perception.scoring import ImageScorer
+from perception.table_plane import aligned_to_table
 
 
 @dataclass
@@ -176,6 +177,7 @@ def estimate_pose(
     config = config or SearchConfig()
     t0 = time.perf_counter()
     model = _model(gear)
+    obs = aligned_to_table(obs)
     scorer = ImageScorer(
         obs, model, (prior.x, prior.y), prior.half_width * np.sqrt(2), config.likelihood, config.raycaster
     )

@@ -15,7 +15,15 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.math import RigidTransform
 
-from assembly.gearset import GEAR_BORE_CHAMFER, GEAR_BORE_RADIUS, GEAR_THICKNESS, gear_spec
+from assembly.gearset import (
+    GEAR_BORE_CHAMFER,
+    GEAR_BORE_RADIUS,
+    GEAR_THICKNESS,
+    SHAFT_CHAMFER,
+    SHAFT_HEIGHT,
+    SHAFT_RADIUS,
+    gear_spec,
+)
 from perception.observation import Observation
 
 VERDICTS = ("seated", "unseated", "unseen")
@@ -27,13 +35,18 @@ class SeatCheckConfig:
     `inliers` of its points within twice that (a flat face: a gear tilted by a degree or two on
     its shaft still passes, one cocked beside it does not). margin: the ring keeps this far from
     the bore's chamfer and the tooth root [m]; occluder_height: points this far above the face
-    are something in front of it [m]; min_points: fewer ring points than this gives "unseen"."""
+    are something in front of it [m]; min_points: fewer ring points than this gives "unseen";
+    reference_offset: the shaft's top (flush with a seated face) seen within this of its nominal
+    height [m] is the reference the face is measured from, so that a real camera's depth scale
+    and mounting error cancel (a view that does not see the shaft's top, or sees it farther off,
+    measures from the nominal height)."""
 
     tolerance: float = 0.0005
     inliers: float = 0.8
     margin: float = 0.001
     occluder_height: float = 0.010
     min_points: int = 60
+    reference_offset: float = 0.003
 
     def __post_init__(self) -> None:
         if not (
@@ -42,10 +55,11 @@ class SeatCheckConfig:
             and self.margin >= 0
             and self.occluder_height > 2 * self.tolerance
             and self.min_points >= 10
+            and self.reference_offset >= 0
         ):
             raise ValueError(
                 f"{self}: expected tolerance > 0, 0 < inliers <= 1, margin >= 0, "
-                "occluder_height > 2 tolerance and min_points >= 10"
+                "occluder_height > 2 tolerance, min_points >= 10 and reference_offset >= 0"
             )
 
 
@@ -75,6 +89,10 @@ def check_seat(obs: Observation, gear: str, X_WS: RigidTransform, config: SeatCh
     ring = (r > GEAR_BORE_RADIUS + GEAR_BORE_CHAMFER + c.margin) & (r < spec.root_radius - c.margin)
     dz = p_S[ring, 2] - GEAR_THICKNESS
     dz = dz[dz < c.occluder_height]  # the fingers and the hand are in front of the face
+    top = p_S[r < SHAFT_RADIUS - SHAFT_CHAMFER - c.margin, 2] - SHAFT_HEIGHT
+    top = top[np.abs(top) < c.reference_offset]
+    reference = float(np.median(top)) if top.size >= c.min_points // 4 else 0.0
+    dz = dz - reference
     if dz.size < c.min_points:
         return SeatCheck(
             "unseen",

@@ -18,11 +18,16 @@ from tqdm import tqdm
 
 from assembly.cameras import CamerasConfig, extrinsic_error, with_extrinsic_error
 from assembly.gearset import GEAR_NAMES
+from assembly.rgbd_sensor import D405, D415, CameraSensor
 from assembly.station import StationConfig, build_station
 from assembly.world import WorldConfig, random_gear_poses
-from goflow_common.checks import check_int
+from goflow_common.checks import check_choice, check_int
 from planning.domain import PlannerConfig, gearbox_domain
 from planning.system import BeliefSpacePlanner, PlannerSystemConfig, connect_planner
+
+
+#: The station's cameras a planned assembly can carry: name -> the (scene, wrist) sensor models.
+CAMERA_CHOICES = {"ideal": (None, None), "realsense": (D415, D405)}
 
 
 @dataclass
@@ -32,16 +37,23 @@ class PlannedAssemblyConfig:
     seconds before giving up; camera_error: (translation [m], rotation [rad]) std of the scene
     camera's true extrinsics around the calibrated ones the robot is given, drawn per seed
     (assembly.cameras.extrinsic_error; (0, 0): perfectly calibrated). Whether the planner knows
-    that uncertainty is `system.scene_extrinsic_std`."""
+    that uncertainty is `system.scene_extrinsic_std`. cameras: "ideal" (perfect images and
+    calibration) or "realsense": the scene camera a RealSense D415 and the wrist camera a D405
+    (assembly.rgbd_sensor: their depth noise, depth unit, depth scale error, occlusion shadows,
+    colour noise, and extrinsics off the calibrated ones by their calibration std, all drawn per
+    seed; `camera_error`, when set, replaces the scene camera's); the planner is told each
+    camera's calibration std unless `system` states a larger one."""
 
     seed: int = 0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     system: PlannerSystemConfig = field(default_factory=PlannerSystemConfig)
     max_time: float = 150.0
     camera_error: tuple[float, float] = (0.0, 0.0)
+    cameras: str = "ideal"
 
     def __post_init__(self) -> None:
         check_int(self.seed, "seed", minimum=0)
+        check_choice(self.cameras, CAMERA_CHOICES, "cameras")
         if len(self.camera_error) != 2 or not all(np.isfinite(v) and v >= 0 for v in self.camera_error):
             raise ValueError(f"camera_error = {self.camera_error}; expected (translation [m], rotation [rad]) std >= 0")
         if not (np.isfinite(self.max_time) and self.max_time > 0):
@@ -67,6 +79,33 @@ class PlannedAssembly:
         return self.planner.run(self.planner.GetMyContextFromRoot(self.root_context))
 
 
+def real_cameras(
+    config: PlannedAssemblyConfig, calibrated: CamerasConfig
+) -> tuple[CamerasConfig, dict[str, CameraSensor], PlannerSystemConfig]:
+    """The cameras as they really are for `config.seed` (their true mountings, the robot being
+    given `calibrated`), their sensors, and the planner's settings told the cameras' calibration
+    std (see PlannedAssemblyConfig)."""
+    cameras, sensors, system = calibrated, {}, config.system
+    extrinsic = {}
+    for k, (name, model) in enumerate(zip(("scene", "wrist"), CAMERA_CHOICES[config.cameras])):
+        if model is None:
+            continue
+        sensors[name] = CameraSensor(model, model.draw_scale(np.random.default_rng([config.seed, 19, k])), config.seed)
+        extrinsic[name] = model.extrinsic_std
+    if any(config.camera_error):
+        extrinsic["scene"] = config.camera_error
+    for name, std in extrinsic.items():
+        X_CE = extrinsic_error(*std, np.random.default_rng([config.seed, 17 + (name == "wrist")]))
+        cameras = replace(cameras, **{name: with_extrinsic_error(getattr(calibrated, name), X_CE)})
+    if config.cameras != "ideal":
+        told = {
+            f"{name}_extrinsic_std": tuple(np.maximum(getattr(system, f"{name}_extrinsic_std"), extrinsic[name]))
+            for name in ("scene", "wrist")
+        }
+        system = replace(system, **told)
+    return cameras, sensors, system
+
+
 def build_planned_assembly(
     config: PlannedAssemblyConfig | None = None, skills: dict | None = None, meshcat: Meshcat | None = None
 ) -> PlannedAssembly:
@@ -77,11 +116,8 @@ def build_planned_assembly(
     poses = random_gear_poses(np.random.default_rng(config.seed))
     world = WorldConfig(gear_start_poses=poses)
     calibrated = CamerasConfig()
-    cameras = calibrated
-    if any(config.camera_error):  # the scene camera as it really is; the robot is given `calibrated`
-        X_CE = extrinsic_error(*config.camera_error, np.random.default_rng([config.seed, 17]))
-        cameras = replace(calibrated, scene=with_extrinsic_error(calibrated.scene, X_CE))
-    station = build_station(StationConfig(world=world, cameras=cameras), meshcat)
+    cameras, sensors, system = real_cameras(config, calibrated)
+    station = build_station(StationConfig(world=world, cameras=cameras, sensors=sensors), meshcat)
     skills = skills or {g: load_skill("insert", g) for g in GEAR_NAMES}
     domain = gearbox_domain(config.planner, skills=skills)
     X_WT0 = station.controller.tool_pose(np.asarray(world.q_arm_start, dtype=float))
@@ -94,7 +130,7 @@ def build_planned_assembly(
         calibrated,
         X_WT0,
         world.finger_width_start,
-        config.system,
+        system,
         meshcat,
     )
     simulator = Simulator(connect_planner(station, planner))

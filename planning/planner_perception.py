@@ -27,8 +27,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Context, LeafSystem
 
-from assembly.cameras import CamerasConfig, extrinsic_error_on_table
-from assembly.gearset import GEAR_NAMES, GEAR_THICKNESS
+from assembly.cameras import CamerasConfig, with_extrinsic_std
+from assembly.gearset import GEAR_NAMES
 from assembly.inspection import X_HT
 from perception.detection import detect_gears
 from perception.observation import Observation
@@ -94,7 +94,7 @@ class PlannerPerception(LeafSystem):
     """The planner's perception (see the module docstring). `cameras`: the station's
     CamerasConfig as calibrated (what the robot is given); `gears`: the gears the scene camera
     searches for; `X_WS`: each shaft's pose (the seat check's reference); `close_prior`,
-    `scene_extrinsic_std`, `seat_check`: as in planning.system.PlannerSystemConfig (a SEAT look
+    `scene_extrinsic_std`, `seat_check`, `wrist_extrinsic_std`: as in planning.system.PlannerSystemConfig (a SEAT look
     with `seat_check` None checks with SeatCheckConfig's defaults).
 
     Inputs: scene_rgb, scene_depth, wrist_rgb, wrist_depth (the cameras' images), X_WT (the
@@ -108,6 +108,7 @@ class PlannerPerception(LeafSystem):
         close_prior: tuple[float, float, float] = (4.0, 0.005, 0.03),
         scene_extrinsic_std: tuple[float, float] = (0.0, 0.0),
         seat_check: SeatCheckConfig | None = None,
+        wrist_extrinsic_std: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         super().__init__()
         self.set_name("planner_perception")
@@ -117,6 +118,7 @@ class PlannerPerception(LeafSystem):
         self.cameras, self.X_WS = cameras, dict(X_WS)
         self.search = tuple(g for g in GEAR_NAMES if g in gears)
         self.close_prior, self.scene_extrinsic_std = close_prior, scene_extrinsic_std
+        self.wrist_extrinsic_std = wrist_extrinsic_std
         self.seat_check = seat_check
         for name, (_, kind) in IMAGE_PORTS.items():
             self.DeclareAbstractInputPort(name, AbstractValue.Make(image_value(kind)))
@@ -175,20 +177,18 @@ class PlannerPerception(LeafSystem):
     def far_std(self, obs: Observation, mean: NDArray[np.float64], std: NDArray[np.float64]) -> NDArray[np.float64]:
         """A far posterior's std (x, y, yaw) with the scene camera's extrinsic uncertainty added
         (its x-y shift on the table at the gear's `mean`, its rotation in yaw)."""
-        t_std, r_std = self.scene_extrinsic_std
-        if t_std == 0 and r_std == 0:
-            return std
-        cov = extrinsic_error_on_table(obs.X_WC, np.array([mean[0], mean[1], GEAR_THICKNESS]), t_std, r_std)
-        return np.sqrt(np.asarray(std) ** 2 + np.array([cov[0, 0], cov[1, 1], r_std**2]))
+        return with_extrinsic_std(obs.X_WC, mean, std, self.scene_extrinsic_std)
 
     def _close(self, context: Context, request: LookRequest) -> Percept:
         b = request.belief
         k, lo, hi = self.close_prior
         prior = Prior(b.mean[0], b.mean[1], float(np.clip(k * max(b.std[:2]), lo, hi)))
-        post = estimate_pose(self.observe(context, "wrist"), request.gear, prior)
+        obs = self.observe(context, "wrist")
+        post = estimate_pose(obs, request.gear, prior)
         if not post.informative:
             return Percept(request, reason=post.reason)
-        return Percept(request, {request.gear: GearBelief("table", tuple(post.mean()), tuple(post.std()))})
+        std = with_extrinsic_std(obs.X_WC, post.mean(), post.std(), self.wrist_extrinsic_std)
+        return Percept(request, {request.gear: GearBelief("table", tuple(post.mean()), tuple(std))})
 
 
 def image_value(kind: str):

@@ -161,8 +161,9 @@ class PlannerSystemConfig:
     settle_tolerance, max_wait: a motion ends when the tool is this close to its last keyframe, or
     this long after it; scene_extrinsic_std: how well the scene camera's extrinsics are known,
     (translation [m], rotation [rad]) std: the x-y shift it causes on the table (assembly.cameras.
-    extrinsic_error_on_table) and the rotation in yaw are added to each far belief's std (the
-    wrist camera rides on the hand: its close views do not inherit it); seat_check: after an insert
+    extrinsic_error_on_table) and the rotation in yaw are added to each far belief's std;
+    wrist_extrinsic_std: the same of the wrist camera's hand-eye calibration, added to each close
+    belief's std (at the close view's camera pose); seat_check: after an insert
     the tool says seated, the wrist camera's view from the retreat checks the gear's face
     (perception.seat_check; None: trust the tool's height alone)."""
 
@@ -176,6 +177,7 @@ class PlannerSystemConfig:
     settle_tolerance: float = 0.002
     max_wait: float = 3.0
     scene_extrinsic_std: tuple[float, float] = (0.0, 0.0)
+    wrist_extrinsic_std: tuple[float, float] = (0.0, 0.0)
     seat_check: SeatCheckConfig | None = field(default_factory=SeatCheckConfig)
 
 
@@ -588,7 +590,13 @@ class BeliefSpacePlanner(Diagram):
         machine = builder.AddSystem(PlannerStateMachine(skills, domain, X_WS, cameras, X_WT_start, width_start, config))
         perception = builder.AddSystem(
             PlannerPerception(
-                cameras, tuple(domain.goal), X_WS, config.close_prior, config.scene_extrinsic_std, config.seat_check
+                cameras,
+                tuple(domain.goal),
+                X_WS,
+                config.close_prior,
+                config.scene_extrinsic_std,
+                config.seat_check,
+                config.wrist_extrinsic_std,
             )
         )
         for name in IMAGE_PORTS:
