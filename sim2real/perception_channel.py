@@ -40,9 +40,10 @@ and leave-one-scene-out folds (blocks = folds = scenes) below 20 scenes, the def
 5 folds from 20 scenes on.
 
 The option `depth_bias` of `make_perception_log` (a constant added to the rendered depth [m]) is
-OUTSIDE the catalogue and only for tests. The pipeline's estimates follow the colour silhouette,
-so a depth bias moves them little (a 1 cm bias: 0.05-1 mm, growing with how much of the gear the
-depth test rejects), and not as a camera translation would: the diagnosis calls it unexplained.
+OUTSIDE the catalogue and only for tests. The pipeline reads the depth's scale off the table and
+divides it out (perception.table_plane) before detection and search, so a constant bias is mostly
+removed there: a 1 cm bias leaves no gap beyond the floor's uncertainty, and nothing of its size is
+named (before that alignment the diagnosis called it unexplained).
 """
 
 from __future__ import annotations
