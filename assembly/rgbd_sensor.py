@@ -105,14 +105,21 @@ class RgbdSensorModel:
     ) -> tuple[np.ndarray, np.ndarray]:
         """The (rgb (H, W, 3) uint8 or floats in [0, 1], as given; depth float32 (H, W) [m]) the camera reports for the ideal
         render (`rgb`, `depth`) of a pinhole of focal length `render_focal_px` [px] (for the
-        occlusion shadow's width in the render's pixels), with the camera's depth `scale`. New
-        arrays; non-finite depth stays missing."""
+        occlusion shadow's width in the render's pixels), with the camera's depth `scale`: `colour`
+        then `depth`, drawn from `rng` in that order. New arrays; non-finite depth stays missing."""
         rgb, depth = np.asarray(rgb), np.asarray(depth, np.float32)
         if rgb.ndim != 3 or rgb.shape[:2] != depth.shape:
             raise ValueError(f"rgb {rgb.shape} and depth {depth.shape}; expected (H, W, 3) and (H, W)")
-        out_rgb = self._colour(rgb, rng)
+        return self.colour(rgb, rng), self.depth(depth, render_focal_px, rng, scale)
+
+    def depth(
+        self, depth: np.ndarray, render_focal_px: float, rng: np.random.Generator, scale: float = 1.0
+    ) -> np.ndarray:
+        """The depth image (float32 (H, W) [m]) the camera reports for the ideal render `depth`, as
+        in `corrupt`. A new array; non-finite depth stays missing."""
+        depth = np.asarray(depth, np.float32)
         if self.baseline == 0:
-            return out_rgb, depth.copy()
+            return depth.copy()
         z = depth.astype(np.float64)
         finite = np.isfinite(z)
         z_safe = np.where(finite, z, 0.0)
@@ -122,11 +129,11 @@ class RgbdSensorModel:
             noisy = np.round(noisy / self.depth_unit) * self.depth_unit
         lo, hi = self.depth_range
         valid = finite & ~shadow & (noisy >= lo) & (noisy <= hi)
-        return out_rgb, np.where(valid, noisy, np.nan).astype(np.float32)
+        return np.where(valid, noisy, np.nan).astype(np.float32)
 
-    def _colour(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """`rgb` (uint8 counts, or floats in [0, 1]) with the colour noise, in 8-bit counts, in its
-        own dtype."""
+    def colour(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The colour image the camera reports for the ideal render `rgb` (uint8 counts, or floats
+        in [0, 1]): the colour noise in 8-bit counts, in `rgb`'s own dtype. A new array."""
         if self.colour_read_noise == 0 and self.colour_shot_noise == 0:
             return rgb.copy()
         counts = rgb.astype(np.float64) * (1.0 if rgb.dtype == np.uint8 else 255.0)
@@ -214,9 +221,10 @@ class CameraSensor:
 
 class RgbdSensorNoise(LeafSystem):
     """A camera's images as the real camera reports them: inputs `rgb` (ImageRgba8U) and `depth`
-    (ImageDepth32F) from an ideal RgbdSensor, outputs the same kinds through `model.corrupt` with
-    the camera's depth `scale`. The noise of an image is drawn from (seed, the camera's name, the
-    context's time in microseconds): the same time gives the same image, as a frame would."""
+    (ImageDepth32F) from an ideal RgbdSensor, outputs the same kinds through `model.colour` and `model.depth` with
+    the camera's depth `scale`, each port computing only its own image. The noise of an image is
+    drawn from (seed, the camera's name, the context's time in microseconds, the port): the same
+    time gives the same image, as a frame would."""
 
     def __init__(self, name: str, model: RgbdSensorModel, render_focal_px: float, scale: float, seed: int) -> None:
         super().__init__()
@@ -228,22 +236,19 @@ class RgbdSensorNoise(LeafSystem):
         self.DeclareAbstractOutputPort("rgb", lambda: AbstractValue.Make(ImageRgba8U()), self._calc_rgb)
         self.DeclareAbstractOutputPort("depth", lambda: AbstractValue.Make(ImageDepth32F()), self._calc_depth)
 
-    def _frame(self, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        rgba = self.get_input_port(0).Eval(context)
-        depth = self.get_input_port(1).Eval(context)
-        rng = np.random.default_rng([*self._key, int(round(context.get_time() * 1e6))])
-        rgb, d = self.model.corrupt(rgba.data[:, :, :3], depth.data[:, :, 0], self.render_focal_px, rng, self.scale)
-        return rgba.data, rgb, d
+    def _rng(self, context: Context, port: int) -> np.random.Generator:
+        return np.random.default_rng([*self._key, int(round(context.get_time() * 1e6)), port])
 
     def _calc_rgb(self, context: Context, output: AbstractValue) -> None:
-        rgba, rgb, _ = self._frame(context)
+        rgba = self.get_input_port(0).Eval(context).data
         image = ImageRgba8U(rgba.shape[1], rgba.shape[0])
-        image.mutable_data[:, :, :3] = rgb
+        image.mutable_data[:, :, :3] = self.model.colour(rgba[:, :, :3], self._rng(context, 0))
         image.mutable_data[:, :, 3] = rgba[:, :, 3]
         output.set_value(image)
 
     def _calc_depth(self, context: Context, output: AbstractValue) -> None:
-        _, _, d = self._frame(context)
+        depth = self.get_input_port(1).Eval(context).data[:, :, 0]
+        d = self.model.depth(depth, self.render_focal_px, self._rng(context, 1), self.scale)
         image = ImageDepth32F(d.shape[1], d.shape[0])
         image.mutable_data[:, :, 0] = d
         output.set_value(image)

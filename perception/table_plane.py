@@ -5,7 +5,7 @@ The table fills most of every view and lies below everything else on it, so the 
 of the depths' ratio to the plane's is the camera's depth scale there; dividing it out puts the
 table back on its plane (what a robot's "tare" against a known surface does, per image).
 
-    obs = aligned_to_table(obs)          # detect_gears, estimate_pose and check_seat call it
+    obs = aligned_to_table(obs)          # detect_gears and estimate_pose call it
 """
 
 from __future__ import annotations

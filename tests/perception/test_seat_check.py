@@ -1,6 +1,7 @@
 """The seat check from the wrist camera's view after the release: a seated gear passes at any
-heading; one left 1 mm high, cocked beside its shaft, or missing fails; a view that does not see
-the shaft says "unseen"."""
+heading, also through a real wrist camera's noise, depth scale and calibration error; one left
+1 mm high, cocked beside its shaft, or missing fails; a view that does not see the shaft says
+"unseen"."""
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from assembly.cameras import default_wrist_camera
 from assembly.gearset import GEAR_NAMES, shaft_position_in_plate
 from assembly.inspection import X_HT
+from assembly.rgbd_sensor import D405
 from assembly.scripted_motion import ScriptedInsertionConfig, down_pose
 from assembly.world import WorldConfig, nominal_grasp, planar_pose
 from perception.drake_scene import DrakeScene, SceneConfig
@@ -34,8 +36,10 @@ def scene():
     )
 
 
-def look(scene, gear, X_SG, heading=np.pi / 2, X_WT=None):
-    """The others seated, `gear` at X_SG on its shaft, the open hand retreated above it."""
+def look(scene, gear, X_SG, heading=np.pi / 2, X_WT=None, X_CE=None, scale=None):
+    """The others seated, `gear` at X_SG on its shaft, the open hand retreated above it; with X_CE
+    the camera really sits at X_CE from where the robot believes it, and its depth comes through
+    the D405 with that depth `scale`."""
     for g in GEAR_NAMES:
         X = X_WS(g) if g != gear else PARKED if X_SG is None else X_WS(g) @ X_SG
         scene.plant.SetFreeBodyPose(scene._plant_context, scene.bodies[g], X)
@@ -43,7 +47,13 @@ def look(scene, gear, X_SG, heading=np.pi / 2, X_WT=None):
         up = nominal_grasp(gear).translation()[2] + ScriptedInsertionConfig().retreat_height
         X_WT = down_pose(X_WS(gear).translation() + [0.0, 0.0, up], heading)
     scene.set_occluder_pose("hand", X_WT @ X_HT.inverse())
-    return check_seat(scene.render(CAMERA, X_WT @ X_HT.inverse() @ CAMERA.X_PC), gear, X_WS(gear))
+    X_WC = X_WT @ X_HT.inverse() @ CAMERA.X_PC
+    if X_CE is None:
+        return check_seat(scene.render(CAMERA, X_WC), gear, X_WS(gear))
+    obs = scene.render(CAMERA, X_WC @ X_CE)
+    obs.depth = D405.depth(obs.depth, obs.intrinsics.fy, np.random.default_rng(0), scale)
+    obs.X_WC = X_WC
+    return check_seat(obs, gear, X_WS(gear))
 
 
 @pytest.mark.parametrize("gear", GEAR_NAMES)
@@ -54,6 +64,22 @@ def test_a_seated_gear_passes_at_any_heading_and_yaw(scene, gear):
         assert abs(check.height_m) < 1e-4 and check.inliers > 0.99
     # seated but tilted by 2 degrees within the bore's clearance still passes
     assert look(scene, gear, RigidTransform(RollPitchYaw(np.radians(2), 0, 0), [0, 0, 0])).verdict == "seated"
+
+
+@pytest.mark.parametrize("gear", GEAR_NAMES)
+def test_a_real_wrist_cameras_noise_scale_and_calibration_error_do_not_unseat_a_seated_gear(scene, gear):
+    # errors of twice the D405's std: 1 mm of mounting shift along each axis, 0.2 deg, 2 % scale
+    for shift, angle, scale in (
+        ((1e-3, 0, 0), (0.2, 0, 0), 1.02),
+        ((-1e-3, 1e-3, 0), (0, -0.2, 0.2), 0.98),
+        ((0, -1e-3, 1e-3), (0, 0, 0), 1.02),
+    ):
+        X_CE = RigidTransform(RollPitchYaw(np.radians(angle)), shift)
+        for heading in (np.pi / 2, 0.3):
+            seated = look(scene, gear, RigidTransform(), heading, X_CE=X_CE, scale=scale)
+            assert seated.verdict == "seated", seated.reason
+            high = look(scene, gear, RigidTransform([0.0, 0.0, 0.001]), heading, X_CE=X_CE, scale=scale)
+            assert high.verdict == "unseated", high.reason
 
 
 @pytest.mark.parametrize("gear", GEAR_NAMES)
