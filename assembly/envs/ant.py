@@ -14,8 +14,8 @@ not depend on the control rate.
 - Termination (a fall) when the torso is below 0.31 m; success: return >= J_T = 705.9, the
   seed's 700 re-derived for our reward.
 
-Derivation (the seed's task as read from the authors' code, our choices, J_T, measured speed):
-docs/envs.md#ant.
+Derivation (the seed's task as read from the authors' code, our choices, J_T): docs/env_models.md#ant;
+measured speed: docs/envs.md#ant.
 
 References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
 Skills", ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at 294d0ee3
@@ -58,7 +58,7 @@ __all__ = [
     "step_reward",
 ]
 
-# -- the seed's task (docs/envs.md#ant names the files these come from) ---------------------------
+# -- the seed's task (docs/env_models.md#ant names the files these come from) --------------------
 SEED_J_T = 700.0  # paper appendix A.1 (the code's yaml says 650)
 SEED_CONTROL_DT = 1.0 / 60.0  # [s] Isaac Lab sim dt 1/120 s x decimation 2
 SEED_EPISODE_STEPS = 119  # rewarded steps before Isaac Lab's time-out (max_episode_length - 1)
@@ -182,7 +182,7 @@ class AntConfig:
         return self.control_dt / SEED_CONTROL_DT
 
     def j_t(self) -> float:
-        """J_T for this config: the seed's 700 scaled to our episode length (docs/envs.md#ant)."""
+        """J_T for this config: the seed's 700 scaled to our episode length (docs/env_models.md#ant)."""
         if self.success_threshold is not None:
             return float(self.success_threshold)
         return SEED_J_T * self.t_max / (SEED_EPISODE_STEPS * SEED_CONTROL_DT)

@@ -22,8 +22,8 @@ description: discrete plant, point contact, `lagged`, 1/200 s steps, 4 per actio
   seed disables it, see docs); success: return >= J_T = 1.506, the paper's 1.5 re-derived for
   250 rewarded steps instead of 249.
 
-Model, task derivation, differences from the seed, speed and the standing robot's return:
-docs/envs.md#anymal.
+Model and the seed's task: docs/env_models.md#anymal; differences from the seed, speed and the
+standing robot's return: docs/envs.md#anymal.
 
 References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
 Skills", ICML 2025, appendix A.1 (box, J_T, t_max); github.com/aidan-curtis/goflow at 294d0ee3
@@ -141,7 +141,7 @@ class AnymalConfig:
     command: tuple[float, float, float] = (1.0, 0.0, 0.0)  # (v_x [m/s], v_y [m/s], yaw rate [rad/s]), base frame
     initial_height: float = 0.6  # [m] base origin at reset (seed: 0.6)
     reset_noise_scale: float = 0.0  # joint angles [rad] (uniform), base velocity [m/s, rad/s] (normal); seed: 0
-    friction_speed: float = 0.05  # [rad/s] hip friction regularization v_s (docs/envs.md#anymal)
+    friction_speed: float = 0.05  # [rad/s] hip friction regularization v_s (docs/env_models.md#anymal)
     contact_force_threshold: float = 1.0  # [N] a body is "in contact" above this (Isaac Lab's ContactSensor)
     terminate_on_base_contact: bool = True  # Isaac Lab's base_contact termination (the seed disables it)
     # reward weights (seed's), each times control_dt

@@ -15,7 +15,7 @@ Context. Task, reward and box are the GoFlow seed's (its Isaac Lab cartpole bala
 - render_mode "rgb_array": a fixed side view of the rail (480 x 480, 60 fps).
 
 Derivation (the seed's task as read from the authors' code, our model of friction and masses,
-J_T = 54 from the seed's 50): docs/envs.md#cartpole.
+J_T = 54 from the seed's 50): docs/env_models.md#cartpole.
 
 References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
 Skills", ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at 294d0ee
@@ -54,7 +54,7 @@ CARTPOLE_SPACE = ParamSpace(
 
 @dataclass(frozen=True)
 class CartpoleConfig:
-    """Task, model and reward settings (SI units); defaults follow the seed (docs/envs.md#cartpole)."""
+    """Task, model and reward settings (SI units); defaults follow the seed (docs/env_models.md#cartpole)."""
 
     t_max: float = 2.0  # [s] episode length
     control_dt: float = 1.0 / 60.0  # [s] policy period (seed: sim dt 1/120, decimation 2)
@@ -73,7 +73,7 @@ class CartpoleConfig:
     rew_pole_angle: float = -1.0  # times theta^2 [rad^2]
     rew_cart_vel: float = -0.01  # times |cart velocity| [m/s]
     rew_pole_vel: float = -0.005  # times |pole angular velocity| [rad/s]
-    success_threshold: float = 54.0  # J_T from the seed's 50 (docs/envs.md#horizon-and-j_t)
+    success_threshold: float = 54.0  # J_T from the seed's 50 (docs/env_models.md#horizon-and-j_t)
 
     def __post_init__(self) -> None:
         for name in (

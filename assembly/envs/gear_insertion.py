@@ -28,8 +28,8 @@ Variants:
 render_mode "rgb_array": a fixed close view of the shaft from the front right (480 x 480, 25 fps);
 variant "fast" draws the plate and shafts from their collision shapes (they have no visuals).
 
-Why the reward has these terms and what J_T = 50 means: docs/envs.md#reward-design; how far the
-two variants' outcomes differ for the same xi and actions: docs/envs.md#how-far-the-variants-differ.
+Why the reward has these terms and what J_T = 50 means: docs/env_models.md#reward-design; how far the
+two variants' outcomes differ for the same xi and actions: docs/env_models.md#how-far-the-variants-differ.
 
 References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
 Skills", ICML 2025, appendix A.1 (box, J_T); Tang et al., "IndustReal", RSS 2023 (actions relative

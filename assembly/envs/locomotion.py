@@ -8,7 +8,7 @@ arguments; actions are MuJoCo's `ctrl` (clamped to `ctrlrange` for the dynamics,
 control cost, as there). The plant comes from `assembly.envs.mjcf`, which rebuilds what Drake's
 parser drops. Observations are float32 (gymnasium's are float64), like every goflow env.
 
-xi (docs/envs.md#locomotion gives the boxes' reasons):
+xi (docs/env_models.md#why-these-boxes gives the boxes' reasons):
 - Hopper (6): torso, thigh, leg and foot masses [kg]; thigh and leg joint damping [N m s/rad].
 - Walker2d (7): torso, thigh, leg and foot masses (each pair of legs' links together); hip and
   knee damping (both legs); floor friction (the foot-floor coefficient; other robot-floor pairs

@@ -190,7 +190,7 @@ GRAVITY = 9.81
 class ContactSettings:
     """Drake's contact model for a converted MJCF model. None: MuJoCo's contact time constant
     tc (0.02 s): the stiffness puts half the robot's mass M on a spring of period ~2 pi tc,
-    k = (M / 2) / tc^2, critically damped at rest, d = 2 / (tc g) (docs/envs.md#locomotion)."""
+    k = (M / 2) / tc^2, critically damped at rest, d = 2 / (tc g) (docs/env_models.md#contact-stiffness)."""
 
     time_step: float  # [s] plant discrete step
     approximation: str = "lagged"  # lagged | similar | sap | tamsi

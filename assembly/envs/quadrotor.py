@@ -17,7 +17,7 @@ quadcopter env); the airframe is Drake's quadrotor example's.
 - render_mode "rgb_array": a fixed view of the goal box, the goal a green ball (480 x 480, 50 fps).
 
 Derivation (the seed's task as read from the authors' code, our airframe and thrust model, the
-rotational damping, why J_T stays 15): docs/envs.md#quadrotor.
+rotational damping, why J_T stays 15): docs/env_models.md#quadrotor.
 
 References: Curtis et al., ICML 2025, appendix A.1 (box, J_T); github.com/aidan-curtis/goflow at
 294d0ee (goflow/environments/quadcopter/quadcopter_env.py); pydrake.examples.QuadrotorPlant.
@@ -51,7 +51,7 @@ GRAVITY = 9.81  # [m/s^2] Drake's default gravity magnitude
 
 @dataclass(frozen=True)
 class QuadrotorConfig:
-    """Task, airframe and reward settings (SI units); defaults: the seed (docs/envs.md#quadrotor)."""
+    """Task, airframe and reward settings (SI units); defaults: the seed (docs/env_models.md#quadrotor)."""
 
     t_max: float = 2.0  # [s] episode length
     control_dt: float = 0.02  # [s] policy period (seed: sim dt 1/100, decimation 2)

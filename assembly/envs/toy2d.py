@@ -21,7 +21,7 @@ with the defaults, 8 disks on a circle (9.2 % of the box) or 4 on a line (4.5 %)
 It does not render (a single decision with nothing moving): render_mode must be None, and any other
 value is refused with a ValueError.
 
-Derivation of the feasible set: docs/envs.md#feasible-set.
+Derivation of the feasible set: docs/env_models.md#feasible-set.
 
 References: Curtis et al., "Flow-based Domain Randomization for Learning and Sequencing Robotic
 Skills", ICML 2025 (arXiv:2502.01800), the 2-D illustrative example.
