@@ -726,6 +726,13 @@ def _skill_flags(p: argparse.ArgumentParser) -> None:
     t = action("train", "train a skill with its recipe (GoFlow, refinement, flow fit, refit), then export it")
     _skill_gear_flags(t, several=True)
     _add_field(t, SkillRecipe, "seed", doc="seed of the training run")
+    _add_field(
+        t,
+        SkillRecipe,
+        "sensing",
+        choices=["pose", "wrench"],
+        doc="what the policy observes: tool poses (pose) or also the estimated external wrench (wrench)",
+    )
     _add_field(t, SkillRecipe, "total_steps", "--steps", doc="stage 1 (GoFlow) training environment steps")
     _add_field(t, SkillRecipe, "refine_steps", doc="stage 2 (refinement) training environment steps; 0: none")
     _add_field(t, SkillRecipe, "fit_rounds", doc="stage 3 (flow fit, policy frozen) rounds; 0: none")
@@ -831,6 +838,7 @@ def _skill_recipe(args: argparse.Namespace, gears: list[str]) -> Any:
 
     recipe = SkillRecipe(
         seed=args.seed,
+        sensing=args.sensing,
         total_steps=args.total_steps,
         refine_steps=args.refine_steps,
         fit_rounds=args.fit_rounds,

@@ -138,14 +138,7 @@ class CartesianImpedanceController(LeafSystem):
         self._joint_damping = np.concatenate(
             [plant.get_joint(j).default_damping_vector() for j in plant.GetJointIndices(arm)]
         )
-        # Columns of the full-plant Jacobian that belong to the arm.
-        self._v_idx = np.array(
-            [
-                plant.get_joint(j).velocity_start() + k
-                for j in plant.GetJointIndices(arm)
-                for k in range(plant.get_joint(j).num_velocities())
-            ]
-        )
+        self._v_idx = arm_velocity_columns(plant, arm)  # the arm's columns of the full-plant Jacobian
 
         self._state_port = self.DeclareVectorInputPort("arm_state", 2 * self._n)
         self._pose_port = self.DeclareAbstractInputPort("X_WT_desired", AbstractValue.Make(RigidTransform()))
@@ -251,6 +244,19 @@ def arm_position_limits(plant: MultibodyPlant, arm: ModelInstanceIndex) -> tuple
         dtype=int,
     )
     return idx, plant.GetPositionLowerLimits()[idx], plant.GetPositionUpperLimits()[idx]
+
+
+def arm_velocity_columns(plant: MultibodyPlant, arm: ModelInstanceIndex) -> np.ndarray:
+    """Indices into the plant's velocities (the columns of its Jacobians) of the joints of model
+    instance `arm`, in joint order."""
+    return np.array(
+        [
+            plant.get_joint(j).velocity_start() + k
+            for j in plant.GetJointIndices(arm)
+            for k in range(plant.get_joint(j).num_velocities())
+        ],
+        dtype=int,
+    )
 
 
 def distance_to_limits(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray) -> np.ndarray:

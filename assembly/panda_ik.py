@@ -9,6 +9,7 @@ from pydrake.solvers import Solve
 
 from assembly.impedance import arm_position_limits
 from assembly.panda_model import Q_HOME
+from assembly.wrench_sensor import tool_jacobian
 
 
 def solve_tool_ik(
@@ -37,3 +38,15 @@ def solve_tool_ik(
             f"tool pose {np.round(p, 4).tolist()} has no inverse-kinematics solution within the Panda's joint limits"
         )
     return result.GetSolution(q)[arm_idx]
+
+
+def panda_jacobian_at(X_WT: RigidTransform) -> np.ndarray:
+    """The Panda tool's spatial-velocity Jacobian (6, 7) [w; v] in the world frame at the
+    inverse-kinematics solution for tool pose X_WT (`solve_tool_ik`); ValueError if X_WT is out
+    of reach."""
+    from assembly.station import make_controller_plant
+
+    plant, arm, tool = make_controller_plant()
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, arm, solve_tool_ik(X_WT))
+    return tool_jacobian(plant, context, tool, arm)

@@ -6,8 +6,11 @@ Exported ports of `Station.diagram`:
           "A_WT_desired" (6 each, optional) its velocity and acceleration feedforward [w; v],
           [alpha; a]; "gripper_width" (1) [m].
   outputs "arm_state" (14), "hand_state" (4), "X_WT" (abstract RigidTransform), "wrench" (6),
-          "torque" (7), "body_poses", "contact_results", and per camera "<name>_rgb",
-          "<name>_depth" (32-bit float metres), "<name>_label".
+          "torque" (7), "body_poses", "contact_results", "tau_contact" (7: the joint torques contact
+          puts on the arm), "tool_jacobian" (42: the tool's (6, 7) Jacobian, row-major),
+          "external_wrench" (4: libfranka's estimate of the external wrench at the tool, Fx, Fy,
+          Fz [N], Mz [N m], with StationConfig.wrench_sensor's errors; assembly.wrench_sensor),
+          and per camera "<name>_rgb", "<name>_depth" (32-bit float metres), "<name>_label".
 With WorldConfig.grasp_hold, a GraspAnchor moves the hold's spring rest points as the gear slips.
 """
 
@@ -40,6 +43,8 @@ from assembly.gripper import GripperCommand, GripperGains, set_gripper_gains
 from assembly.impedance import CartesianImpedanceController, ImpedanceGains
 from assembly.panda_model import Q_HOME, TAU_MAX
 from assembly.rgbd_sensor import CameraSensor, RgbdSensorNoise
+from assembly.wrench_sensor import WRENCH_MODELS, ExternalWrenchEstimate, ToolJacobian
+from goflow_common.checks import check_choice, check_number
 from assembly.world import (
     GraspHold,
     WorldConfig,
@@ -56,7 +61,9 @@ from assembly.world import (
 @dataclass
 class StationConfig:
     """Everything that shapes the station. Time step and contact approximation were chosen by the
-    measurement in docs/station.md (benchmarks/sim_speed.py)."""
+    measurement in docs/station.md (benchmarks/sim_speed.py). wrench_sensor: the errors of the
+    "external_wrench" estimate (assembly.wrench_sensor.WRENCH_MODELS: "panda" or "ideal"), its
+    noise sized for samples every `wrench_period` [s], drawn from `wrench_seed`."""
 
     world: WorldConfig = field(default_factory=WorldConfig)
     time_step: float = 0.008
@@ -66,8 +73,13 @@ class StationConfig:
     gripper: GripperGains = field(default_factory=GripperGains)
     cameras: CamerasConfig = field(default_factory=CamerasConfig)
     sensors: dict[str, CameraSensor] = field(default_factory=dict)
+    wrench_sensor: str = "panda"
+    wrench_period: float = 0.04
+    wrench_seed: int = 0
 
     def __post_init__(self) -> None:
+        check_choice(self.wrench_sensor, WRENCH_MODELS, "StationConfig.wrench_sensor")
+        check_number(self.wrench_period, "StationConfig.wrench_period", 0.0, low_open=True)
         if not (np.isfinite(self.time_step) and 0 < self.time_step <= 0.02):
             raise ValueError(f"time_step = {self.time_step}; expected a discrete step in (0, 0.02] s")
         allowed = ("hydroelastic_with_fallback", "hydroelastic", "point")
@@ -234,6 +246,17 @@ def build_station(config: StationConfig | None = None, meshcat: Meshcat | None =
     builder.ExportOutput(controller.GetOutputPort("torque"), "torque")
     builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
     builder.ExportOutput(plant.get_contact_results_output_port(), "contact_results")
+    # what libfranka's external-wrench estimate is made of (assembly.wrench_sensor)
+    builder.ExportOutput(plant.get_generalized_contact_forces_output_port(models.arm), "tau_contact")
+    jacobian = builder.AddSystem(ToolJacobian(*make_controller_plant()))
+    builder.Connect(plant.get_state_output_port(models.arm), jacobian.get_input_port(0))
+    builder.ExportOutput(jacobian.get_output_port(0), "tool_jacobian")
+    estimate = builder.AddSystem(
+        ExternalWrenchEstimate(WRENCH_MODELS[config.wrench_sensor], config.wrench_period, config.wrench_seed)
+    )
+    builder.Connect(plant.get_generalized_contact_forces_output_port(models.arm), estimate.get_input_port(0))
+    builder.Connect(jacobian.get_output_port(0), estimate.get_input_port(1))
+    builder.ExportOutput(estimate.get_output_port(0), "external_wrench")
 
     cameras: dict[str, RgbdSensor] = {}
     hand_body = plant.GetBodyByName("panda_hand", models.hand)

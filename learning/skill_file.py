@@ -84,9 +84,15 @@ class Skill:
 
     def __repr__(self) -> str:
         return (
-            f"Skill({self.name!r}, gear={self.gear!r}, method={self.method!r}, "
+            f"Skill({self.name!r}, gear={self.gear!r}, method={self.method!r}, sensing={self.sensing!r}, "
             f"params={self.space.names}, trained {self.provenance.get('steps', '?')} steps)"
         )
+
+    @property
+    def sensing(self) -> str:
+        """What the policy observes (assembly.insertion_law.SENSING): "pose" (tool poses only, as
+        every file written before the force channel) or "wrench" (poses and the external wrench)."""
+        return str(self.env_kwargs.get("sensing", "pose"))
 
     def act(self, obs: ArrayLike, deterministic: bool = True) -> NDArray[np.float32]:
         """Actions for raw observations (obs_dim,) or (n, obs_dim); the policy mean by default."""
@@ -181,8 +187,12 @@ class Skill:
         )
 
 
-def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLike[str] | None = None) -> Skill:
-    """The shipped skill `name` for `gear` (or the file at `path`)."""
+def load_skill(
+    name: str = "insert", gear: str = "medium", path: str | os.PathLike[str] | None = None, sensing: str | None = None
+) -> Skill:
+    """The shipped skill `name` for `gear` (or the file at `path`). With `sensing` ("pose" or
+    "wrench"), FileFormatError naming the file and what it lacks unless its policy observes that
+    (a file from before the force channel observes tool poses only)."""
     if path is None:
         path = skill_path(name, gear)
         if not path.is_file():
@@ -193,4 +203,10 @@ def load_skill(name: str = "insert", gear: str = "medium", path: str | os.PathLi
     skill = Skill.load(path)
     if (skill.name, skill.gear) != (name, gear):
         raise ValueError(f"{path} holds the {skill.name!r} skill for the {skill.gear} gear, not {name!r} for {gear}")
+    if sensing is not None and skill.sensing != sensing:
+        lacks = "has no force channel (its policy observes tool poses only)" if sensing == "wrench" else ""
+        raise FileFormatError(
+            f"{path}: the {gear} {name} skill observes {skill.sensing!r}, expected {sensing!r}"
+            + (f": it {lacks}; train one with `goflow skill train --gear {gear} --sensing wrench`" if lacks else "")
+        )
     return skill

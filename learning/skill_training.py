@@ -37,6 +37,9 @@ class SkillRecipe:
 
     method: str = "goflow"
     variant: str = "fast"
+    # What the policy observes (assembly.insertion_law.SENSING): "pose" (the shipped blind skills)
+    # or "wrench" (also the Panda's estimated external wrench, assembly.wrench_sensor).
+    sensing: str = "pose"
     seed: int = 0
     total_steps: int = 120_000
     iterations_per_round: int = 2
@@ -67,7 +70,8 @@ class SkillRecipe:
         check_skill_name(name, gear)
         return TrainConfig(
             env=SKILL_ENVS[name],
-            env_kwargs={"gear": gear, "variant": self.variant},
+            env_kwargs={"gear": gear, "variant": self.variant}
+            | ({"sensing": self.sensing} if self.sensing != "pose" else {}),
             method=self.method,
             sampler_kwargs=dict(self.sampler_kwargs),
             seed=self.seed,

@@ -117,7 +117,9 @@ def build_planned_assembly(
     world = WorldConfig(gear_start_poses=poses)
     calibrated = CamerasConfig()
     cameras, sensors, system = real_cameras(config, calibrated)
-    station = build_station(StationConfig(world=world, cameras=cameras, sensors=sensors), meshcat)
+    station = build_station(
+        StationConfig(world=world, cameras=cameras, sensors=sensors, wrench_seed=config.seed), meshcat
+    )
     skills = skills or {g: load_skill("insert", g) for g in GEAR_NAMES}
     domain = gearbox_domain(config.planner, skills=skills)
     X_WT0 = station.controller.tool_pose(np.asarray(world.q_arm_start, dtype=float))

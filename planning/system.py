@@ -194,7 +194,8 @@ class PlannerStateMachine(LeafSystem):
     skill or shaft pose.
 
     Inputs: percept (PlannerPerception's answer to `request`), X_WT (the measured tool pose),
-    hand_state (finger positions and velocities). Outputs: the command ports (COMMAND_PORTS),
+    hand_state (finger positions and velocities), external_wrench (the station's estimate, read
+    only while a skill that senses it runs). Outputs: the command ports (COMMAND_PORTS),
     request (the LookRequest of the state now), beliefs (the state's), status (a dict: phase,
     executed, plans, replans, reason). Every output is a function of the state and the time
     alone, so the loop through the perception has no direct feedthrough."""
@@ -221,11 +222,13 @@ class PlannerStateMachine(LeafSystem):
         for gear in domain.goal:
             c = GearInsertionConfig(gear=gear)
             seated = _pose4(X_WS[gear] @ nominal_grasp(gear).inverse())
-            self.laws[gear] = InsertionLaw(tuple(seated), c.action_scale, c.workspace, c.history, c.control_dt)
+            sensing = getattr(skills[gear], "sensing", "pose")  # the skill's observation law
+            self.laws[gear] = InsertionLaw(tuple(seated), c.action_scale, c.workspace, c.history, c.control_dt, sensing)
             self.t_max = c.t_max
         self.DeclareAbstractInputPort("percept", AbstractValue.Make(Percept(LookRequest())))
         self.DeclareAbstractInputPort("X_WT", AbstractValue.Make(RigidTransform()))
         self.DeclareVectorInputPort("hand_state", 4)
+        self.DeclareVectorInputPort("external_wrench", 4)  # read only by skills that sense it
         start = start_keyframe_plan(X_WT_start, width_start)
         start.append(0.5, X_WT_start, width_start, "start: hold")
         self._state = self.DeclareAbstractState(AbstractValue.Make(PlannerState(keyframes=start, width=width_start)))
@@ -458,7 +461,7 @@ class PlannerStateMachine(LeafSystem):
             return self._next_step(self._record(s, t, "holding"), t, X_WT)
         if s.then is Then.POLICY:
             history = PoseHistory(self.laws[gear])
-            history.reset(_pose4(X_WT))
+            history.reset(_pose4(X_WT), self._wrench(context, gear))  # tared in the air, holding the gear
             s = replace(
                 s, history=history, policy_end=t + self.t_max, width=s.keyframes.keyframes[-1].width, phase=Phase.POLICY
             )
@@ -493,7 +496,7 @@ class PlannerStateMachine(LeafSystem):
     def _policy_step(self, context: Context, s: PlannerState, t: float, X_WT: RigidTransform) -> PlannerState:
         gear = s.current.gear
         history = copy.deepcopy(s.history)  # the stored state is never changed in place
-        history.push(_pose4(X_WT))
+        history.push(_pose4(X_WT), self._wrench(context, gear))
         s = replace(s, history=history)
         if t + 1e-9 < s.policy_end:
             return replace(s, target=self._policy_target(s, gear, X_WT))
@@ -520,6 +523,12 @@ class PlannerStateMachine(LeafSystem):
                 plan, gear, X_WT_place, carry_height(gear, self.X_WS[gear], self.config.motion), self.config.motion
             )
         return replace(s, keyframes=plan, then=Then.RELEASED, phase=Phase.MOTION, target=None)
+
+    def _wrench(self, context: Context, gear: str) -> np.ndarray | None:
+        """The station's external-wrench estimate now if `gear`'s skill senses it, else None."""
+        if self.laws[gear].sensing != "wrench":
+            return None
+        return self.GetInputPort("external_wrench").Eval(context)
 
     def _holding(self, context: Context, gear: str) -> tuple[bool, float]:
         """Whether the fingers hold `gear` (they stopped on it rather than closing past its
@@ -570,8 +579,8 @@ class BeliefSpacePlanner(Diagram):
     belief is drawn there (planning.belief_drawing) whenever it changes. ValueError when a goal
     gear has no skill or shaft pose.
 
-    Inputs: scene_rgb, scene_depth, wrist_rgb, wrist_depth, X_WT, hand_state. Outputs: the
-    command ports (COMMAND_PORTS), beliefs and status."""
+    Inputs: scene_rgb, scene_depth, wrist_rgb, wrist_depth, X_WT, hand_state, external_wrench.
+    Outputs: the command ports (COMMAND_PORTS), beliefs and status."""
 
     def __init__(
         self,
@@ -603,6 +612,7 @@ class BeliefSpacePlanner(Diagram):
             builder.ExportInput(perception.GetInputPort(name), name)
         builder.ConnectInput(builder.ExportInput(perception.GetInputPort("X_WT"), "X_WT"), machine.GetInputPort("X_WT"))
         builder.ExportInput(machine.GetInputPort("hand_state"), "hand_state")
+        builder.ExportInput(machine.GetInputPort("external_wrench"), "external_wrench")
         builder.Connect(machine.GetOutputPort("request"), perception.GetInputPort("request"))
         builder.Connect(perception.GetOutputPort("percept"), machine.GetInputPort("percept"))
         for name in (*COMMAND_PORTS, "beliefs", "status"):
@@ -630,12 +640,13 @@ class BeliefSpacePlanner(Diagram):
 
 
 def connect_planner(station: Station, planner: BeliefSpacePlanner) -> Diagram:
-    """The station driven by `planner`: its cameras, measured tool pose and hand state into the
-    planner, the planner's commands into the station (the ports the scripted source drives)."""
+    """The station driven by `planner`: its cameras, measured tool pose, hand state and external
+    wrench estimate into the planner, the planner's commands into the station (the ports the
+    scripted source drives)."""
     builder = DiagramBuilder()
     builder.AddSystem(station.diagram)
     builder.AddSystem(planner)
-    for name in ("scene_rgb", "scene_depth", "wrist_rgb", "wrist_depth", "X_WT", "hand_state"):
+    for name in ("scene_rgb", "scene_depth", "wrist_rgb", "wrist_depth", "X_WT", "hand_state", "external_wrench"):
         builder.Connect(station.diagram.GetOutputPort(name), planner.GetInputPort(name))
     for name in COMMAND_PORTS:
         builder.Connect(planner.GetOutputPort(name), station.diagram.GetInputPort(name))

@@ -10,7 +10,10 @@ yaw in +-0.393 rad (the GoFlow paper's, appendix A.1), much of it infeasible. Th
   the *measured* tool pose to make the impedance target, at `control_dt` (25 Hz by default). The
   target is kept within `workspace` of the seated tool pose.
 - observation (80,): the last `history` (10) tool poses (x, y, z, yaw) relative to the seated
-  tool pose and their finite-difference velocities, newest first (zeros before the first step).
+  tool pose and their finite-difference velocities, newest first (zeros before the first step);
+  with `sensing="wrench"` (120,): each row also holds the Panda's estimated external wrench at
+  the tool (Fx, Fy, Fz / 10 N, Mz / 1 N m; assembly.wrench_sensor, its errors `wrench_sensor`:
+  "panda", from the real log, or "ideal"), the same law as the planner's insert skill.
 - reward per step: 1 while the gear is seated (the assembly.station criterion: lateral < 2.5 mm,
   |height| < 1 mm), plus 0.1 (1 - tanh(d / 1 cm)) + 0.1 (1 - tanh(d / 5 cm)), plus the
   potential-based progress `progress_weight` (d_prev - d) (100 /m); d is the gear's distance to
@@ -47,6 +50,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.tree import default_model_instance
 from pydrake.systems.analysis import Simulator
 
 from assembly.envs.base import ParamEnv, SimulationError
@@ -55,9 +59,11 @@ from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
 from assembly.envs.drake_sim import SceneRendering, advance
 from assembly.gearset import SHAFT_HEIGHT, gear_spec
-from assembly.insertion_law import InsertionLaw, PoseHistory
+from assembly.insertion_law import SENSING, InsertionLaw, PoseHistory
 from assembly.params import Param, ParamSpace
 from assembly.samplers import Sampler
+from assembly.panda_ik import panda_jacobian_at
+from assembly.wrench_sensor import WRENCH_MODELS, WrenchSensor, joint_torque_of
 from assembly.world import (
     ContactOverrides,
     GraspHold,
@@ -100,10 +106,16 @@ class GearInsertionConfig:
     # and gear/plate contact properties other than the model files' (assembly.world). None: nominal.
     grasp_hold: GraspHold | None = None
     contact: ContactOverrides | None = None
+    # What the policy observes: "pose" (the tool poses; the blind skills) or "wrench" (also the
+    # estimated external wrench, with the errors of assembly.wrench_sensor.WRENCH_MODELS[wrench_sensor]).
+    sensing: str = "pose"
+    wrench_sensor: str = "panda"
 
     def __post_init__(self) -> None:
         gear_spec(self.gear)
         check_choice(self.variant, VARIANTS, "GearInsertionConfig.variant")
+        check_choice(self.sensing, SENSING, "GearInsertionConfig.sensing")
+        check_choice(self.wrench_sensor, WRENCH_MODELS, "GearInsertionConfig.wrench_sensor")
         for name in ("grasp_hold", "contact"):
             if getattr(self, name) is not None and self.variant != "panda":
                 raise InputError(
@@ -164,9 +176,11 @@ def grasp_error_space(c: GearInsertionConfig) -> ParamSpace:
 
 
 def observation_space(c: GearInsertionConfig) -> spaces.Box:
-    """The pose history's bounds: poses within 1 m / pi of the seated pose, velocities within
-    10 m/s / 100 rad/s (far beyond what the impedance allows; a simulation that leaves them has failed)."""
-    bound = np.tile(np.r_[1.0, 1.0, 1.0, np.pi, 10.0, 10.0, 10.0, 100.0], c.history).astype(np.float32)
+    """The history's bounds: poses within 1 m / pi of the seated pose, velocities within 10 m/s /
+    100 rad/s, wrenches within 1 kN / 100 N m (far beyond what the impedance allows; a simulation
+    that leaves them has failed)."""
+    row = [1.0, 1.0, 1.0, np.pi, 10.0, 10.0, 10.0, 100.0] + ([100.0] * 4 if c.sensing == "wrench" else [])
+    bound = np.tile(row, c.history).astype(np.float32)
     return spaces.Box(-bound, bound, dtype=np.float32)
 
 
@@ -210,8 +224,9 @@ class GearInsertionEnv(SceneRendering, ParamEnv):
         self._X_SW = self._sim.X_WS.inverse()
         self._seated, self._start = seated_and_start(c, self._sim.X_WS)
         self._sim.prepare(tool_down_pose(self._start[:3], self._start[3]))
-        self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt)
+        self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt, c.sensing)
         self._history = PoseHistory(self.law)
+        self._wrench = WrenchSensor(WRENCH_MODELS[c.wrench_sensor], c.control_dt) if c.sensing == "wrench" else None
 
     @property
     def sim(self) -> _FastSim | _PandaSim:
@@ -229,6 +244,13 @@ class GearInsertionEnv(SceneRendering, ParamEnv):
     def tool_pose(self) -> np.ndarray:
         """Measured tool pose (x, y, z, yaw) in the world."""
         return self._sim.tool_pose()
+
+    def wrench(self) -> NDArray[np.float64] | None:
+        """The estimated external wrench at the tool now (Fx, Fy, Fz [N], Mz [N m]; a fresh noise
+        draw), or None without wrench sensing."""
+        if self._wrench is None:
+            return None
+        return self._wrench.measure(*self._sim.wrench_inputs(), self.np_random)
 
     def _observation(self) -> NDArray[np.float32]:
         """The policy's observation (assembly.insertion_law.PoseHistory), checked against its
@@ -276,7 +298,9 @@ class GearInsertionEnv(SceneRendering, ParamEnv):
 
     def _reset_model(self, xi: NDArray[np.float64]) -> NDArray[np.float32]:
         self._sim.reset(grasp_with_error(self.config.gear, *xi))
-        self._history.reset(self._sim.tool_pose())
+        if self._wrench is not None:
+            self._wrench.reset(self.np_random)
+        self._history.reset(self._sim.tool_pose(), self.wrench())
         self._d = math.hypot(*self.insertion_error())
         return self._observation()
 
@@ -285,7 +309,7 @@ class GearInsertionEnv(SceneRendering, ParamEnv):
         pose = self._sim.tool_pose()
         if not np.all(np.isfinite(pose)):
             raise SimulationError(f"non-finite tool pose {pose} after the step")
-        self._history.push(pose)
+        self._history.push(pose, self.wrench())
         lateral, height = self.insertion_error()
         seated = is_seated(lateral, height)
         d = math.hypot(lateral, height)
@@ -313,9 +337,19 @@ class _FastSim:
         self.model.diagram.GetInputPort("feedforward").FixValue(self.context, gravity_feedforward(self.model))
         self.simulator = Simulator(self.model.diagram, self.context)
         self._body = self.model.plant.get_body(self.model.plant.GetBodyIndices(self.model.held.instance)[0])
+        self._contact = self.model.plant.get_generalized_contact_forces_output_port(default_model_instance())
 
     def prepare(self, X_WT_start: RigidTransform) -> None:
         self._q_start = self.model.joint_positions_for(X_WT_start)
+        self._J = None  # the Panda's Jacobian at the start pose, made when first needed
+
+    def wrench_inputs(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(tau_ext (7,), J (6, 7)): the joint torques a Panda at the episode's start pose would
+        feel from the contact wrench on this tool (its x, y, z forces and yaw torque), and its
+        Jacobian there."""
+        if self._J is None:
+            self._J = panda_jacobian_at(self.model.tool_pose_of(self._q_start))
+        return joint_torque_of(self._J, self._contact.Eval(self._pc)), self._J
 
     def reset(self, X_TG: RigidTransform) -> None:
         self.context.SetTime(0.0)
@@ -394,6 +428,13 @@ class _PandaSim:
     def tool_pose(self) -> np.ndarray:
         X = self.station.tool_pose(self.context)
         return np.array([*X.translation(), _yaw(X.rotation())])
+
+    def wrench_inputs(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(tau_ext (7,), J (6, 7)): the joint torques contact puts on the arm and the tool's Jacobian."""
+        d = self.station.diagram
+        return d.GetOutputPort("tau_contact").Eval(self.context), d.GetOutputPort("tool_jacobian").Eval(
+            self.context
+        ).reshape(6, 7)
 
     def gear_pose(self) -> RigidTransform:
         return self.station.gear_pose(self.context, self._gear)

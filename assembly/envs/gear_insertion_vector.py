@@ -38,6 +38,8 @@ from assembly.insertion_model import (
 )
 from assembly.samplers import Sampler
 from assembly.world import grasp_with_error, insertion_error, is_seated
+from assembly.panda_ik import panda_jacobian_at
+from assembly.wrench_sensor import WRENCH_MODELS, WrenchSensor, joint_torque_of
 from goflow_common.config import config_with_overrides
 from goflow_common.errors import InputError
 
@@ -128,8 +130,13 @@ class GearInsertionVectorEnv(BatchedEnv):
         self._X_SW = X_WS.inverse()
         self._seated, self._start_pose = seated_and_start(c, X_WS)
         self._q_start = self._model.joint_positions_for(tool_down_pose(self._start_pose[:3], self._start_pose[3]))
-        self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt)
+        self.law = InsertionLaw(tuple(self._seated), c.action_scale, c.workspace, c.history, c.control_dt, c.sensing)
         self._histories = [PoseHistory(self.law) for _ in range(n)]
+        self._sensors = None  # with wrench sensing: each copy's WrenchSensor, the contact ports, J
+        if c.sensing == "wrench":
+            self._sensors = [WrenchSensor(WRENCH_MODELS[c.wrench_sensor], c.control_dt) for _ in range(n)]
+            self._contact = [plant.get_generalized_contact_forces_output_port(t.model_instance()) for t, _ in copies]
+            self._J = panda_jacobian_at(self._model.tool_pose_of(self._q_start))
         self._d = np.zeros(n)
         self._simulator.Initialize()
 
@@ -138,6 +145,14 @@ class GearInsertionVectorEnv(BatchedEnv):
     def _apply_xi(self, idx: NDArray[np.int64], xi: NDArray[np.float64]) -> None:
         for i, (x, y, yaw) in zip(idx, xi):
             self._held[i].grasp_frame.SetPoseInParentFrame(self._pc, grasp_with_error(self.config.gear, x, y, yaw))
+
+    def _wrench(self, i: int) -> NDArray[np.float64] | None:
+        """Copy i's estimated external wrench now (a fresh noise draw from its generator), or None
+        without wrench sensing: the single env's `wrench`."""
+        if self._sensors is None:
+            return None
+        tau = joint_torque_of(self._J, self._contact[i].Eval(self._pc))
+        return self._sensors[i].measure(tau, self._J, self._rngs[i])
 
     def _gear_error(self, i: int) -> tuple[float, float]:
         return insertion_error(self._X_SW, self._gears[i].EvalPoseInWorld(self._pc))
@@ -160,27 +175,44 @@ class GearInsertionVectorEnv(BatchedEnv):
         if len(idx) == self.num_envs:
             self._simulator.Initialize()
         obs = []
-        for i in idx:
-            self._histories[i].reset(full[self._columns[i, :4]])
+        for k, i in enumerate(idx):
+            if self._sensors is not None:
+                self._sensors[i].reset(rngs[k])
+            self._histories[i].reset(full[self._columns[i, :4]], self._wrench(i))
             self._d[i] = math.hypot(*self._gear_error(i))
             obs.append(self._histories[i].observation())
         return np.array(obs)
 
     def _get_state(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         full = self._plant.GetPositionsAndVelocities(self._pc)
-        history = np.array([self._histories[i].poses.ravel() for i in idx]).reshape(len(idx), -1)
+        history = np.array([self._history_state(i) for i in idx]).reshape(len(idx), -1)
         return np.concatenate((full[self._columns[idx]], history, self._d[idx, None]), axis=1)
+
+    def _history_state(self, i: int) -> NDArray[np.float64]:
+        """Copy i's history (poses, and with wrench sensing its wrenches, its tare and the sensor's
+        bias), flat."""
+        h = self._histories[i]
+        if self._sensors is None:
+            return h.poses.ravel()
+        return np.concatenate((h.poses.ravel(), h.wrenches.ravel(), h.tare, self._sensors[i].bias))
 
     def _set_state(self, idx: NDArray[np.int64], state: NDArray[np.float64]) -> None:
         full = self._plant.GetPositionsAndVelocities(self._pc).copy()
         full[self._columns[idx]] = state[:, :8]
         self._plant.SetPositionsAndVelocities(self._pc, full)
+        rows = self.law.history * 4
         for k, i in enumerate(idx):
-            self._histories[i].poses[:] = state[k, 8:-1].reshape(-1, 4)
+            self._histories[i].poses[:] = state[k, 8 : 8 + rows].reshape(-1, 4)
+            if self._sensors is not None:
+                self._histories[i].wrenches[:] = state[k, 8 + rows : 8 + 2 * rows].reshape(-1, 4)
+                self._histories[i].tare[:] = state[k, 8 + 2 * rows : 12 + 2 * rows]
+                self._sensors[i].bias = state[k, 12 + 2 * rows : -1].copy()
             self._d[i] = state[k, -1]
 
     def _make_twin(self) -> GearInsertionVectorEnv:
-        return GearInsertionVectorEnv(1, self.config)
+        twin = GearInsertionVectorEnv(1, self.config)
+        twin._rngs[0] = np.random.default_rng(0)  # its sensor noise while it replays a copy's step
+        return twin
 
     def _step_copies(self, actions: NDArray[np.float64]):
         n, c = self.num_envs, self.config
@@ -206,7 +238,7 @@ class GearInsertionVectorEnv(BatchedEnv):
                 self._step_failures[i] = f"non-finite tool pose {pose} after the step"
                 reward[i] = np.nan
                 continue
-            self._histories[i].push(pose)
+            self._histories[i].push(pose, self._wrench(i))
             lateral, height = self._gear_error(i)
             seated = is_seated(lateral, height)
             d = math.hypot(lateral, height)

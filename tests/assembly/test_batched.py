@@ -29,8 +29,8 @@ KWARGS = {"goflow/Ant-v0": {"t_max": 0.5, "termination_height": 0.47}, "goflow/A
 IDS = sorted(VECTOR_ENVS)
 
 
-def _pair(env_id: str, n: int):
-    kwargs = KWARGS.get(env_id, {})
+def _pair(env_id: str, n: int, kwargs: dict | None = None):
+    kwargs = KWARGS.get(env_id, {}) if kwargs is None else kwargs
     batched = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
     sync = gymnasium.vector.SyncVectorEnv(
         [lambda: gymnasium.make(env_id, **kwargs) for _ in range(n)], autoreset_mode=AutoresetMode.SAME_STEP
@@ -38,8 +38,8 @@ def _pair(env_id: str, n: int):
     return batched, sync
 
 
-def _compare(env_id: str, n: int, tolerance: float) -> None:
-    batched, sync = _pair(env_id, n)
+def _compare(env_id: str, n: int, tolerance: float, kwargs: dict | None = None) -> None:
+    batched, sync = _pair(env_id, n, kwargs)
     assert batched.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     o1, i1 = batched.reset(seed=11)
     o2, i2 = sync.reset(seed=11)
@@ -74,6 +74,12 @@ def _compare(env_id: str, n: int, tolerance: float) -> None:
 @pytest.mark.parametrize("env_id", IDS)
 def test_one_copy_is_the_single_env_exactly(env_id):
     _compare(env_id, 1, 0.0)
+
+
+@pytest.mark.parametrize("copies, tolerance", [(1, 0.0), (3, 1e-3)])
+def test_gear_copies_sensing_the_wrench_see_their_single_envs_noise_and_bias(copies, tolerance):
+    # the same per-copy generator draws xi, the sensor's bias and its noise in the single env's order
+    _compare("goflow/GearInsertion-v0", copies, tolerance, {"sensing": "wrench"})
 
 
 @pytest.mark.parametrize("env_id", IDS)

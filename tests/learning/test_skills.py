@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from goflow_common.errors import FileFormatError
 from learning.feasible_grid import FeasibleGridConfig, FlowRefitConfig
 from learning.ppo import PPOConfig
 from learning.skill_evaluation import describe, evaluate_skill, flow_width
@@ -18,10 +19,11 @@ from learning.skill_training import SkillRecipe, train_skill
 @pytest.fixture(scope="module")
 def tiny_skill(tmp_path_factory):
     """A tiny recipe on the small gear (one GoFlow round, one refinement round, two frozen-policy
-    rounds, a 2 x 2 x 1 + 2 x 2 x 1 grid and one refit update from the flow's draws), exported as a
-    skill file by train_skill."""
+    rounds, a 2 x 2 x 1 + 2 x 2 x 1 grid and one refit update from the flow's draws), its policy
+    sensing the wrench, exported as a skill file by train_skill."""
     tmp = tmp_path_factory.mktemp("skill")
     recipe = SkillRecipe(
+        sensing="wrench",
         total_steps=20,
         eval_episodes=2,
         iterations_per_round=1,
@@ -59,6 +61,18 @@ def test_the_recipe_runs_both_stages(tiny_skill):
     updates = skill.provenance["refit"]["updates"]
     assert [u["update"] for u in updates] == [0, 1] and [u["episodes"] for u in updates] == [8, 4]
     assert set(skill.provenance["refit"]["before"]) == {"share", "mass_on", "mass_outside", "coverage10", "coverage1"}
+
+
+def test_a_skill_file_says_what_its_policy_senses_and_one_without_the_force_channel_is_named(tiny_skill):
+    _, skill, path = tiny_skill
+    assert skill.sensing == "wrench" and skill.agent.obs_dim == 120  # 10 rows of pose, velocity, wrench
+    assert load_skill("insert", "small", path=path, sensing="wrench").sensing == "wrench"
+    shipped = load_skill("insert", "medium")
+    assert shipped.sensing == "pose" and shipped.agent.obs_dim == 80
+    with pytest.raises(
+        FileFormatError, match="has no force channel.*goflow skill train --gear medium --sensing wrench"
+    ):
+        load_skill("insert", "medium", sensing="wrench")
 
 
 def test_export_and_load_round_trip(tiny_skill):

@@ -39,7 +39,9 @@ def test_ports_are_sensors_in_and_commands_out():
     )
     inputs = [planner.get_input_port(i).get_name() for i in range(planner.num_input_ports())]
     outputs = [planner.get_output_port(i).get_name() for i in range(planner.num_output_ports())]
-    assert sorted(inputs) == sorted(["scene_rgb", "scene_depth", "wrist_rgb", "wrist_depth", "X_WT", "hand_state"])
+    assert sorted(inputs) == sorted(
+        ["scene_rgb", "scene_depth", "wrist_rgb", "wrist_depth", "X_WT", "hand_state", "external_wrench"]
+    )
     assert set(COMMAND_PORTS) <= set(outputs)
 
 
@@ -167,3 +169,60 @@ def test_a_gear_left_unseated_on_its_shaft_is_reported_not_counted(skills, monke
     assert "unseated" in summary["reason"] and "shaft" in summary["reason"], summary["reason"]
     last = summary["executed"][-1]
     assert (last["skill"], last["gear"]) == ("insert", gear) and last["outcome"].startswith("unseated")
+
+
+class _WrenchSeeing:
+    """A shipped skill as if it sensed the wrench: it records each observation and acts on its pose part."""
+
+    sensing = "wrench"
+
+    def __init__(self, skill):
+        self.skill, self.seen = skill, []
+
+    def act(self, obs):
+        self.seen.append(np.asarray(obs).reshape(10, 12))
+        return self.skill.act(self.seen[-1][:, :8].reshape(-1))
+
+    def __getattr__(self, name):
+        return getattr(self.skill, name)
+
+
+def test_a_skill_that_senses_the_wrench_reads_the_stations_estimate_tared_at_its_start(skills):
+    """The insert policy's history in the planner holds the external_wrench input, tared at the
+    policy's start (the held gear's weight and the estimate's bias drop out), as in its env."""
+    from dataclasses import replace
+
+    from pydrake.systems.analysis import Simulator
+
+    from assembly.scripted_motion import start_keyframe_plan
+    from planning.domain import GearBelief
+    from planning.system import Phase, PlannerStateMachine, SkillRun, Then
+
+    seeing = _WrenchSeeing(skills["medium"])
+    domain = AssemblyDomain({"medium": (lambda xi: 1.0)}, 0.9, lambda g, s: s, goal=("medium",))
+    X_WT = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.45, 0.05, 0.1])
+    machine = PlannerStateMachine({"medium": seeing}, domain, {"medium": RigidTransform()}, CamerasConfig(), X_WT, 0.04)
+    assert machine.laws["medium"].sensing == "wrench"
+    simulator = Simulator(machine)
+    context = simulator.get_mutable_context()
+    state = machine.state(context)
+    start = replace(
+        state,
+        phase=Phase.MOTION,
+        then=Then.POLICY,
+        current=SkillRun("insert", "medium", 0.0, 1.0),
+        keyframes=start_keyframe_plan(X_WT, 0.04),
+        beliefs={"medium": GearBelief("hand", (0.0, 0.0, 0.0), (1e-3, 1e-3, 0.01))},
+    )
+    context.get_mutable_abstract_state(0).set_value(start)
+    machine.GetInputPort("X_WT").FixValue(context, X_WT)
+    machine.GetInputPort("hand_state").FixValue(context, np.zeros(4))
+    weight_and_bias = np.array([0.3, -0.2, -1.5, 0.01])
+    machine.GetInputPort("external_wrench").FixValue(context, weight_and_bias)
+    simulator.AdvanceTo(0.05)  # the policy starts: the history is tared on this reading
+    machine.GetInputPort("external_wrench").FixValue(context, weight_and_bias + [0.0, 0.0, 6.0, 0.0])
+    simulator.AdvanceTo(0.09)  # one policy step: it pushes the new reading
+    first, second = seeing.seen[0], seeing.seen[-1]
+    np.testing.assert_allclose(first[:, 8:], 0.0)
+    np.testing.assert_allclose(second[0, 8:], [0.0, 0.0, 0.6, 0.0], atol=1e-6)  # 6 N / 10 N
+    np.testing.assert_allclose(second[1, 8:], 0.0)
