@@ -319,8 +319,8 @@ def _demo_flags(p: argparse.ArgumentParser) -> None:
         "--cameras",
         choices=["realsense", "ideal"],
         default=None,
-        help="the station's cameras: ideal (perfect images and calibration; the default) or realsense (a D415 "
-        "scene and a D405 wrist camera with their depth noise, depth unit, scale error and calibration error); "
+        help="the station's cameras: realsense (the default: a D415 scene and a D405 wrist camera with their "
+        "depth noise, depth unit, scale error and calibration error) or ideal (perfect images and calibration); "
         "the scripted run has no cameras",
     )
     p.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
@@ -376,7 +376,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             config = PlannedAssemblyConfig(
                 seed=seed,
                 planner=PlannerConfig(decision=args.decision or "threshold"),
-                cameras=args.cameras or "ideal",
+                cameras=args.cameras or PlannedAssemblyConfig.cameras,
             )
             summary = run_planned_assembly(config, meshcat=meshcat, record=scratch, progress=not args.quiet)
             print(format_planned(summary))
@@ -886,11 +886,13 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--xi-from",
         default=None,
-        choices=["uniform", "flow"],
-        help=f"where the episodes' grasp errors are drawn from: the skill's flow or uniform over the box "
-        f"(default: {default('xi')}; or --sampler-file)",
+        type=_xi_source,
+        metavar="{uniform,flow,radius:R}",
+        help=f"where the episodes' grasp errors are drawn from: the skill's flow, uniform over the box, or "
+        f"radius:R, uniform over the disk of radius R metres around the skill's centre with the yaw uniform "
+        f"over the box (a capture range; default: {default('xi')}; or --sampler-file)",
     )
-    _renamed(p, "--xi", "--xi-from", "xi_from", choices=["uniform", "flow"])
+    _renamed(p, "--xi", "--xi-from", "xi_from", type=_xi_source)
     _sampler_file_flag(p, "the grasp errors are drawn from it (instead of --xi-from)")
     p.add_argument("--episodes", type=int, default=default("episodes"), help="episodes to run")
     p.add_argument("--seed", type=int, default=default("seed"), help="seed of the episodes")
@@ -906,6 +908,18 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--workers", type=int, default=1, help="jobs run at once, one process each")
     _ray_flag(p)
+
+
+def _xi_source(text: str) -> str:
+    """An evaluation's xi source: uniform, flow or radius:R (R > 0 metres)."""
+    from learning.skill_evaluation import capture_radius
+
+    try:
+        if text in ("uniform", "flow") or capture_radius(text) is not None:
+            return text
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    raise argparse.ArgumentTypeError(f"{text!r}; expected uniform, flow or radius:R (R > 0 metres, e.g. radius:0.005)")
 
 
 def _sampler_file_or(flag: str, value: Any, path: Path | None) -> None:

@@ -18,15 +18,18 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
-from assembly.samplers import Sampler
-from goflow_common.checks import check_int
+from assembly.params import ParamSpace
+from assembly.samplers import Sampler, check_sample_args
+from goflow_common.checks import check_int, check_number
 from learning.execution import Backend, InlineBackend, Job, run_grid
 from learning.feasible_grid import flow_report
 from learning.skill_file import Skill
 
 __all__ = [
+    "CaptureDisk",
     "SkillEvaluation",
     "XI_SOURCES",
+    "capture_radius",
     "describe",
     "evaluate_skill",
     "evaluate_skill_jobs",
@@ -37,8 +40,70 @@ __all__ = [
 
 
 #: Where an evaluation's xi are drawn from: the skill's flow, uniform over the box, or a given
-#: sampler (an estimate, `goflow evaluate --sampler-file`).
+#: sampler (an estimate, `goflow evaluate --sampler-file`); besides, "radius:R" (`CaptureDisk`).
 XI_SOURCES = ("flow", "uniform", "estimate")
+
+
+class CaptureDisk:
+    """Grasp errors uniform over the disk of `radius` [m] around `centre` in the first two
+    parameters (x, y), the others uniform over the box: where a skill's capture range is checked
+    (`evaluate_skill(xi="radius:R")`, around the skill's centre). The disk must lie inside the
+    box; a fixed sampler (`update` learns nothing)."""
+
+    def __init__(self, space: ParamSpace, centre: ArrayLike, radius: float) -> None:
+        self.space = space
+        self.centre = space.validate(np.asarray(centre, dtype=np.float64), what="CaptureDisk centre")
+        self.radius = check_number(radius, "CaptureDisk radius", 0.0, low_open=True)
+        lo, hi = space.low[:2], space.high[:2]
+        if np.any(self.centre[:2] - self.radius < lo) or np.any(self.centre[:2] + self.radius > hi):
+            raise ValueError(
+                f"a disk of radius {self.radius} m around {self.centre[:2].round(4).tolist()} leaves the "
+                f"box x in [{lo[0]}, {hi[0]}], y in [{lo[1]}, {hi[1]}]; expected a smaller radius"
+            )
+
+    def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        n = check_sample_args(n, rng)
+        xi = self.space.low + (self.space.high - self.space.low) * rng.random((n, self.space.dim))
+        r, phi = self.radius * np.sqrt(rng.random(n)), 2 * np.pi * rng.random(n)
+        xi[:, 0], xi[:, 1] = self.centre[0] + r * np.cos(phi), self.centre[1] + r * np.sin(phi)
+        return xi
+
+    def log_prob(self, xi: ArrayLike) -> NDArray[np.float64]:
+        x = np.atleast_2d(np.asarray(xi, dtype=np.float64))
+        inside = np.hypot(x[:, 0] - self.centre[0], x[:, 1] - self.centre[1]) <= self.radius
+        inside &= np.all((x[:, 2:] >= self.space.low[2:]) & (x[:, 2:] <= self.space.high[2:]), axis=1)
+        return np.where(inside, -self.entropy(), -np.inf)
+
+    def entropy(self) -> float:
+        return math.log(math.pi * self.radius**2) + float(np.sum(np.log(self.space.high[2:] - self.space.low[2:])))
+
+    def update(self, xi: ArrayLike, returns: ArrayLike) -> dict[str, Any]:
+        return {}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "type": "CaptureDisk",
+            "space": self.space.to_dict(),
+            "centre": self.centre.tolist(),
+            "radius": self.radius,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        raise ValueError("CaptureDisk is made from its skill, not loaded")
+
+
+def capture_radius(xi: str) -> float | None:
+    """R of an xi source "radius:R" (metres, > 0), None for another source; ValueError naming a
+    malformed one."""
+    if not isinstance(xi, str) or not xi.startswith("radius:"):
+        return None
+    try:
+        radius = float(xi.split(":", 1)[1])
+    except ValueError:
+        radius = float("nan")
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"xi source {xi!r}; expected radius:R with R > 0 metres (e.g. radius:0.005)")
+    return radius
 
 
 @dataclass(frozen=True)
@@ -67,10 +132,13 @@ class SkillEvaluation:
 
 
 def _check_xi_source(xi: str, sampler: Sampler | None, skill: Skill) -> None:
-    """`xi` is one of XI_SOURCES, and `sampler` is given (over the skill's ParamSpace) exactly
-    when it is "estimate"; ValueError otherwise."""
-    if xi not in XI_SOURCES:
-        raise ValueError(f"xi source {xi!r}; expected one of {list(XI_SOURCES)}")
+    """`xi` is one of XI_SOURCES or "radius:R" (its disk inside the skill's box), and `sampler`
+    is given (over the skill's ParamSpace) exactly when it is "estimate"; ValueError otherwise."""
+    radius = capture_radius(xi)
+    if radius is not None:
+        CaptureDisk(skill.space, skill.centre(), radius)  # the disk fits the box
+    elif xi not in XI_SOURCES:
+        raise ValueError(f"xi source {xi!r}; expected one of {list(XI_SOURCES)} or radius:R")
     if (xi == "estimate") != (sampler is not None):
         raise ValueError(f"xi source {xi!r} with sampler {sampler!r}: a sampler goes with xi 'estimate' only")
     if sampler is not None and sampler.space != skill.space:
@@ -91,7 +159,11 @@ def _episodes(
     progress: bool,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """`episodes` episodes of the skill's deterministic policy in `num_envs` envs, xi from `xi`
-    (`sampler` for "estimate"): (xi, returns, successes)."""
+    (`sampler` for "estimate", a CaptureDisk around the skill's centre for "radius:R"): (xi,
+    returns, successes)."""
+    radius = capture_radius(xi)
+    if radius is not None:
+        sampler = CaptureDisk(skill.space, skill.centre(), radius)
 
     def make() -> gymnasium.Env:
         env = skill.make_env(variant, "uniform" if sampler is not None else xi)
@@ -120,9 +192,10 @@ def evaluate_skill(
     sampler: Sampler | None = None,
 ) -> SkillEvaluation:
     """Run `episodes` episodes of the skill's deterministic policy in `num_envs` environments,
-    with xi from its flow (`xi="flow"`), uniform over the box ("uniform"), or from `sampler`
-    ("estimate": e.g. the EstimatedSampler of a `goflow estimate` file; required then, and over the
-    skill's ParamSpace); `progress` shows a bar of the episodes finished. ValueError on a bad
+    with xi from its flow (`xi="flow"`), uniform over the box ("uniform"), uniform over the disk
+    of radius R [m] around the skill's centre in x, y with the yaw uniform over the box
+    ("radius:R", `CaptureDisk`: a capture range), or from `sampler` ("estimate": e.g. the
+    EstimatedSampler of a `goflow estimate` file; required then, and over the skill's ParamSpace); `progress` shows a bar of the episodes finished. ValueError on a bad
     source, before any episode."""
     episodes = check_int(episodes, "episodes", 1)
     _check_xi_source(xi, sampler, skill)

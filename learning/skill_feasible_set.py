@@ -75,10 +75,6 @@ def _returns(
     return np.concatenate([done[k] for k in range(len(parts))]) if parts else np.zeros(0)
 
 
-def _flow_median(skill: Skill) -> NDArray[np.float64]:
-    return np.median(skill.sampler.sample(4096, np.random.default_rng(0)), axis=0)
-
-
 def _variants(skill: Skill, grid: FeasibleGridConfig) -> tuple[str, ...]:
     """The env variants a cell must succeed in: the grid's (default the skill's own), then the
     confirming one."""
@@ -145,7 +141,7 @@ def measure_feasible_set(
             raise InputError(f"a measurement in {known.variant!r} cannot start one in {'+'.join(variants)!r}")
         plan, returns = known.plan(), known.returns()
     else:
-        done, plan = 1, grid.plan(skill.space, _flow_median(skill))
+        done, plan = 1, grid.plan(skill.space, skill.centre())
         returns = _checkpointed_returns(
             path,
             variants[0],
@@ -269,7 +265,7 @@ def _refit_skill(
     known: FeasibleSet | None,
 ) -> Skill:
     variants = _variants(skill, grid)
-    plan = grid.plan(skill.space, _flow_median(skill))
+    plan = grid.plan(skill.space, skill.centre())
     # the file's own measurement first, then the one handed in: whichever covers more variants
     covered, feasible = max(((_usable(f, plan, variants), f) for f in (skill.feasible, known)), key=lambda c: c[0])
     if covered < len(variants):

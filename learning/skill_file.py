@@ -88,6 +88,10 @@ class Skill:
             f"params={self.space.names}, trained {self.provenance.get('steps', '?')} steps)"
         )
 
+    def centre(self) -> NDArray[np.float64]:
+        """The skill's centre: its flow's per-axis median (4096 draws, a fixed seed), shape (d,)."""
+        return np.median(self.sampler.sample(4096, np.random.default_rng(0)), axis=0)
+
     @property
     def sensing(self) -> str:
         """What the policy observes (assembly.insertion_law.SENSING): "pose" (tool poses only, as

@@ -37,19 +37,20 @@ class PlannedAssemblyConfig:
     seconds before giving up; camera_error: (translation [m], rotation [rad]) std of the scene
     camera's true extrinsics around the calibrated ones the robot is given, drawn per seed
     (assembly.cameras.extrinsic_error; (0, 0): perfectly calibrated). Whether the planner knows
-    that uncertainty is `system.scene_extrinsic_std`. cameras: "ideal" (perfect images and
-    calibration) or "realsense": the scene camera a RealSense D415 and the wrist camera a D405
+    that uncertainty is `system.scene_extrinsic_std`. cameras: "realsense" (the default): the
+    scene camera a RealSense D415 and the wrist camera a D405
     (assembly.rgbd_sensor: their depth noise, depth unit, depth scale error, occlusion shadows,
     colour noise, and extrinsics off the calibrated ones by their calibration std, all drawn per
-    seed; `camera_error`, when set, replaces the scene camera's); the planner is told each
-    camera's calibration std unless `system` states a larger one."""
+    seed; `camera_error`, when set, replaces the scene camera's), the planner told each camera's
+    calibration std unless `system` states a larger one; or "ideal" (perfect images and
+    calibration)."""
 
     seed: int = 0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     system: PlannerSystemConfig = field(default_factory=PlannerSystemConfig)
     max_time: float = 150.0
     camera_error: tuple[float, float] = (0.0, 0.0)
-    cameras: str = "ideal"
+    cameras: str = "realsense"
 
     def __post_init__(self) -> None:
         check_int(self.seed, "seed", minimum=0)
@@ -149,7 +150,7 @@ def run_planned_assembly(
     built: PlannedAssembly | None = None,
 ) -> dict:
     """Place the gears for `config.seed`, let the planner assemble them, and score the result:
-    {"seed", "plan": [[skill, gear], ...] (the first plan), "plans" (every plan made),
+    {"seed", "cameras", "plan": [[skill, gear], ...] (the first plan), "plans" (every plan made),
     "executed": [{"skill", "gear", "t_start", "t_end", "outcome", "precondition_prob"}],
     "replans", "status" (done | failed | timeout), "reason", "gears": {gear: {"inserted",
     "lateral_error_m", "height_error_m"}}, "placement", "sim_time_s", "wall_time_s"} and "sim_error"
@@ -192,6 +193,7 @@ def run_planned_assembly(
         }
     summary = {
         "seed": config.seed,
+        "cameras": config.cameras,
         "plan": run.plans[0] if run.plans else [],
         "plans": list(run.plans),
         "executed": list(run.executed),
@@ -211,7 +213,8 @@ def run_planned_assembly(
 def format_planned(summary: dict) -> str:
     """The plan, each executed skill with its outcome and precondition probability, and the
     per-gear result."""
-    lines = [f"seed {summary['seed']}: plan " + ", ".join(f"{s}({g})" for s, g in summary["plan"])]
+    cameras = f" ({summary['cameras']} cameras)" if "cameras" in summary else ""
+    lines = [f"seed {summary['seed']}{cameras}: plan " + ", ".join(f"{s}({g})" for s, g in summary["plan"])]
     for e in summary["executed"]:
         lines.append(
             f"  {e['t_start']:6.2f}-{e['t_end']:6.2f} s  {e['skill']:<8} {e['gear']:<7} "

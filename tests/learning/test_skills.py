@@ -314,3 +314,29 @@ def test_a_refit_takes_a_measurement_only_from_the_same_policy(tiny_skill, tmp_p
     with pytest.raises(ValueError, match="holds no measured feasible set"):
         refit_skill(tiny, tmp_path / "out.pt", feasible_from=tmp_path / "bare.pt")
     assert not (tmp_path / "out.pt").exists()
+
+
+def test_a_capture_range_is_evaluated_on_the_disk_around_the_skills_centre(tiny_skill):
+    from learning.skill_evaluation import CaptureDisk
+
+    _, skill, _ = tiny_skill
+    centre = skill.centre()
+    disk = CaptureDisk(skill.space, centre, 0.004)
+    xi = disk.sample(20000, np.random.default_rng(0))
+    r = np.hypot(xi[:, 0] - centre[0], xi[:, 1] - centre[1])
+    assert r.max() <= 0.004 and np.mean(r**2) == pytest.approx(0.004**2 / 2, rel=0.03)  # uniform over the disk
+    assert xi[:, 2].min() < skill.space.low[2] + 0.01 and xi[:, 2].max() > skill.space.high[2] - 0.01
+    np.testing.assert_allclose(
+        np.exp(disk.log_prob(xi[:5])), 1 / (np.pi * 0.004**2 * (skill.space.high[2] - skill.space.low[2]))
+    )
+    assert disk.log_prob(centre + [0.005, 0.0, 0.0])[0] == -np.inf
+    result = evaluate_skill(skill, xi="radius:0.002", episodes=2)
+    assert result.xi == "radius:0.002" and result.episodes == 2
+    for bad, match in (
+        ("radius:0", "R > 0"),
+        ("radius:x", "R > 0"),
+        ("radius:0.2", "leaves the box"),
+        ("disk", "radius:R"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            evaluate_skill(skill, xi=bad, episodes=1)
