@@ -876,7 +876,7 @@ def _skill_train(args: argparse.Namespace) -> int:
 
 def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     from assembly.gearset import GEARS
-    from learning.skill_evaluation import evaluate_skill, evaluate_skill_jobs
+    from learning.skill_evaluation import evaluate_skill, evaluate_skill_jobs, xi_source
     from learning.skill_file import SKILLS
 
     p.add_argument("--skill", default=SKILLS[0], choices=SKILLS, help="the skill")
@@ -886,13 +886,13 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--xi-from",
         default=None,
-        type=_xi_source,
+        type=xi_source,
         metavar="{uniform,flow,radius:R}",
         help=f"where the episodes' grasp errors are drawn from: the skill's flow, uniform over the box, or "
         f"radius:R, uniform over the disk of radius R metres around the skill's centre with the yaw uniform "
         f"over the box (a capture range; default: {default('xi')}; or --sampler-file)",
     )
-    _renamed(p, "--xi", "--xi-from", "xi_from", type=_xi_source)
+    _renamed(p, "--xi", "--xi-from", "xi_from", type=xi_source)
     _sampler_file_flag(p, "the grasp errors are drawn from it (instead of --xi-from)")
     p.add_argument("--episodes", type=int, default=default("episodes"), help="episodes to run")
     p.add_argument("--seed", type=int, default=default("seed"), help="seed of the episodes")
@@ -908,18 +908,6 @@ def _evaluate_flags(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--workers", type=int, default=1, help="jobs run at once, one process each")
     _ray_flag(p)
-
-
-def _xi_source(text: str) -> str:
-    """An evaluation's xi source: uniform, flow or radius:R (R > 0 metres)."""
-    from learning.skill_evaluation import capture_radius
-
-    try:
-        if text in ("uniform", "flow") or capture_radius(text) is not None:
-            return text
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    raise argparse.ArgumentTypeError(f"{text!r}; expected uniform, flow or radius:R (R > 0 metres, e.g. radius:0.005)")
 
 
 def _sampler_file_or(flag: str, value: Any, path: Path | None) -> None:

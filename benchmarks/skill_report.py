@@ -4,6 +4,7 @@ and, for a file that holds a measured feasible set, the flow's mass on it and co
 
     .venv/bin/python -m benchmarks.skill_report [--gears small medium large] [--episodes 100]
         [--panda-episodes 100] [--xi flow uniform] [--json docs/results/skills.json]
+    .venv/bin/python -m benchmarks.skill_report --xi radius:0.002 radius:0.005 --panda-episodes 0   # capture ranges
 
 Prints one table; the JSON holds every row (the `goflow evaluate` schema plus the flow's width and
 its report against the feasible set, learning.feasible_grid.flow_report).
@@ -15,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from learning.skill_evaluation import evaluate_skill, feasible_report, flow_width
+from learning.skill_evaluation import evaluate_skill, feasible_report, flow_width, xi_source
 from learning.skill_file import load_skill, skill_path
 from goflow_common.files import write_json
 
@@ -36,8 +37,9 @@ def main() -> None:
         "--xi",
         nargs="+",
         default=["flow", "uniform"],
-        choices=["flow", "uniform"],
-        help="where the episodes' grasp errors come from",
+        type=xi_source,
+        help="where the episodes' grasp errors come from: flow, uniform or radius:R (the disk of radius R "
+        "metres around the skill's centre, `goflow evaluate --xi-from radius:R`)",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path)
@@ -48,7 +50,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     rows = []
-    print(f"{'gear':<7} {'variant':<6} {'xi':<8} {'success':>8} {'+-':>6} {'return':>7} {'seconds':>8}")
+    print(f"{'gear':<7} {'variant':<6} {'xi':<14} {'success':>8} {'+-':>6} {'return':>7} {'seconds':>8}")
     for gear in args.gears:
         path = args.skill_dir / f"insert-{gear}.pt" if args.skill_dir else skill_path("insert", gear)
         if not path.is_file():
@@ -59,7 +61,7 @@ def main() -> None:
         widths = [flow_width(skill, eps=ratio / volume) for ratio in args.eps_ratio]
         feasible = feasible_report(skill)
         for variant, episodes in (("fast", args.episodes), ("panda", args.panda_episodes)):
-            for xi in args.xi:
+            for xi in args.xi if episodes > 0 else ():
                 result = evaluate_skill(skill, variant=variant, xi=xi, episodes=episodes, seed=args.seed).to_json()
                 result["flow"] = widths
                 result["feasible_set"] = feasible
@@ -68,7 +70,7 @@ def main() -> None:
                 }
                 rows.append(result)
                 print(
-                    f"{gear:<7} {variant:<6} {xi:<8} {result['success_rate']:8.3f} {result['success_se']:6.3f} "
+                    f"{gear:<7} {variant:<6} {xi:<14} {result['success_rate']:8.3f} {result['success_se']:6.3f} "
                     f"{result['mean_return']:7.2f} {result['seconds']:8.0f}",
                     flush=True,
                 )

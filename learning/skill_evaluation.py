@@ -30,6 +30,7 @@ __all__ = [
     "SkillEvaluation",
     "XI_SOURCES",
     "capture_radius",
+    "xi_source",
     "describe",
     "evaluate_skill",
     "evaluate_skill_jobs",
@@ -129,6 +130,19 @@ class SkillEvaluation:
     def to_json(self) -> dict[str, Any]:
         """Plain JSON data (the `goflow evaluate --json` file)."""
         return dataclasses.asdict(self)
+
+
+def xi_source(text: str) -> str:
+    """`text` if it names an evaluation's xi source on the command line (uniform, flow or
+    radius:R, R > 0 metres); argparse.ArgumentTypeError otherwise (a `type=` for argparse)."""
+    import argparse
+
+    try:
+        if text in ("uniform", "flow") or capture_radius(text) is not None:
+            return text
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    raise argparse.ArgumentTypeError(f"{text!r}; expected uniform, flow or radius:R (R > 0 metres, e.g. radius:0.005)")
 
 
 def _check_xi_source(xi: str, sampler: Sampler | None, skill: Skill) -> None:
