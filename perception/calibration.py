@@ -85,10 +85,13 @@ def pose_error(estimate: np.ndarray, truth: np.ndarray, period: float) -> tuple[
 
 def confidently_wrong(row: dict) -> bool:
     """The truth outside the 90 % region and the MAP off by more than 2 mm or 3 standard
-    deviations along some axis: the failure a planner cannot recover from."""
+    deviations along some axis: the failure a planner cannot recover from. The region and the
+    standard deviations are the belief's the planner bets on: the posterior's, widened by the
+    camera's mounting uncertainty where the row has one (`belief_std`)."""
     if not row.get("informative") or row["level"] < 0.9:
         return False
-    sigmas = np.abs(np.asarray(row["map_error"])) / np.maximum(np.asarray(row["std"]), 1e-12)
+    std = np.asarray(row.get("belief_std", row["std"]))
+    sigmas = np.abs(np.asarray(row["map_error"])) / np.maximum(std, 1e-12)
     return row["xy_error_m"] > 0.002 or bool(sigmas.max() > 3.0)
 
 

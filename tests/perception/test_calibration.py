@@ -223,3 +223,17 @@ def test_pooled_sets_report_each_set_and_the_resampled_mean():
     assert all(s["cells"] == 4 and 0 <= s["within_band"] <= 4 for s in sets["each"])
     assert 0 <= sets["resampled_within_band"] <= 4
     assert sets_text(sets).startswith("Each set alone, within +-5") and "7: " in sets_text(sets)
+
+
+def test_a_row_is_confidently_wrong_against_the_belief_the_planner_bets_on():
+    # 1.5 mm off: 30 posterior std, but 1 std of a belief widened by a 1.5 mm mounting uncertainty
+    row = {
+        "informative": True,
+        "level": 0.95,
+        "map_error": [0.0015, 0.0, 0.0],
+        "xy_error_m": 0.0015,
+        "std": [5e-5, 5e-5, 1e-3],
+    }
+    assert confidently_wrong(row)
+    assert not confidently_wrong({**row, "belief_std": [1.5e-3, 1.5e-3, 1e-3]})
+    assert confidently_wrong({**row, "belief_std": [1.5e-3, 1.5e-3, 1e-3], "xy_error_m": 0.0025})
