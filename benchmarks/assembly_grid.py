@@ -19,8 +19,9 @@ precondition), the scripted one never looks (it is left out of this condition):
     .venv/bin/python -m benchmarks.assembly_grid --seeds 0 20 --variants map inspect eq6 eq7 --camera-error 1 0.1 \
         --workers 2 --out runs/assembly/camera_error.jsonl --json docs/results/assembly_camera_error.json
 
+--cameras realsense (the default, as `goflow demo`'s) or ideal chooses the station's cameras.
 Each (variant, seed) is one row appended to --out as it finishes; a rerun skips the rows already
-there (resumable; rows of another --camera-error or --eta are kept and skipped). --eta sets the
+there (resumable; rows of another --camera-error, --cameras or --eta are kept and skipped). --eta sets the
 precondition's bar of the planner variants (0.9 by default; docs/planning.md's sweep). Prints,
 per variant: seeds with all three gears inserted (with the binomial standard error), gears
 inserted, inspections, failed inserts (over the rows that list outcomes) and replans per
@@ -47,7 +48,13 @@ from goflow_common.pool import ProcessPool, WorkerError  # noqa: E402
 VARIANTS = ("scripted", "map", "inspect", "eq6", "eq7", "eq7cost")
 
 
-def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0.0), eta: float = 0.9) -> dict:
+def run_one(
+    variant: str,
+    seed: int,
+    camera_error: tuple[float, float] = (0.0, 0.0),
+    eta: float = 0.9,
+    cameras: str = "realsense",
+) -> dict:
     import torch
 
     from assembly.world import random_gear_poses
@@ -82,6 +89,7 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
                 planner=planner,
                 camera_error=camera_error,
                 system=PlannerSystemConfig(scene_extrinsic_std=camera_error),
+                cameras=cameras,
             )
         )
         executed, replans, status = s["executed"], s["replans"], s["status"]
@@ -90,6 +98,7 @@ def run_one(variant: str, seed: int, camera_error: tuple[float, float] = (0.0, 0
         "variant": variant,
         "seed": seed,
         "camera_error": list(camera_error),
+        "cameras": "none" if variant == "scripted" else cameras,
         "eta": eta,
         "status": status,
         "inserted": sum(g["inserted"] for g in gears.values()),
@@ -177,6 +186,13 @@ def main(argv: list[str] | None = None) -> int:
         help="std of the scene camera's extrinsic error: translation [mm], rotation [deg]",
     )
     p.add_argument(
+        "--cameras",
+        choices=["realsense", "ideal"],
+        default="realsense",
+        help="the station's cameras (goflow demo --cameras; the scripted variant looks at nothing); rows "
+        "written before the option had the ideal ones",
+    )
+    p.add_argument(
         "--eta",
         type=float,
         default=0.9,
@@ -202,12 +218,13 @@ def main(argv: list[str] | None = None) -> int:
         for r in rows
         if np.allclose(r.get("camera_error", (0.0, 0.0)), camera_error)
         and (r["variant"] in ("scripted", "map", "eq7cost") or np.isclose(r.get("eta", 0.9), args.eta))
+        and (r["variant"] == "scripted" or r.get("cameras", "ideal") == args.cameras)
     ]
     done = {(r["variant"], r["seed"]) for r in rows}
     todo = [(v, s) for s in range(first, end) for v in args.variants if (v, s) not in done]
     print(f"{len(todo)} runs to do ({len(done)} already in {args.out})", flush=True)
     with ProcessPool(args.workers) as pool:
-        calls = [(v, s, camera_error, args.eta) for v, s in todo]
+        calls = [(v, s, camera_error, args.eta, args.cameras) for v, s in todo]
         for k, row in pool.imap(run_one, calls, errors="return"):
             variant, seed = todo[k]
             if isinstance(row, WorkerError):  # a crashed run is a failed row, reported, and the grid goes on
@@ -216,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
                     "variant": variant,
                     "seed": seed,
                     "camera_error": list(camera_error),
+                    "cameras": args.cameras,
                     "eta": args.eta,
                     "status": "error",
                     "inserted": 0,
