@@ -189,9 +189,7 @@ class CartesianImpedanceController(LeafSystem):
         plant.SetPositions(pc, self._arm, q)
         plant.SetVelocities(pc, self._arm, v)
         X_WT = self._tool.CalcPoseInWorld(pc)
-        J = plant.CalcJacobianSpatialVelocity(
-            pc, JacobianWrtVariable.kV, self._tool, np.zeros(3), plant.world_frame(), plant.world_frame()
-        )[:, self._v_idx]
+        J = tool_jacobian(plant, pc, self._tool, self._v_idx)
         V = J @ v
         error = np.concatenate(
             [
@@ -257,6 +255,15 @@ def arm_velocity_columns(plant: MultibodyPlant, arm: ModelInstanceIndex) -> np.n
         ],
         dtype=int,
     )
+
+
+def tool_jacobian(plant: MultibodyPlant, context: Context, tool: Frame, columns: np.ndarray) -> np.ndarray:
+    """The `tool` frame's spatial-velocity Jacobian [w; v] in the world frame at the state in
+    `context`, restricted to the velocity `columns` (an arm's: `arm_velocity_columns`), (6, n)."""
+    J = plant.CalcJacobianSpatialVelocity(
+        context, JacobianWrtVariable.kV, tool, np.zeros(3), plant.world_frame(), plant.world_frame()
+    )
+    return J[:, columns]
 
 
 def distance_to_limits(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray) -> np.ndarray:

@@ -80,28 +80,28 @@ class PoseHistory:
         self.wrenches = np.zeros((law.history, 4))
         self.tare = np.zeros(4)
 
-    def _wrench(self, wrench: ArrayLike | None) -> NDArray[np.float64]:
+    def _checked(self, wrench: ArrayLike | None) -> NDArray[np.float64]:
+        """`wrench` (4,) as given, zeros for a pose-only history; InputError if it is missing or
+        not wanted."""
         if self.law.sensing == "pose":
             if wrench is not None:
                 raise InputError("a wrench was given to a pose-only history; expected wrench=None")
             return np.zeros(4)
         if wrench is None:
             raise InputError("a wrench-sensing history needs the wrench (Fx, Fy, Fz [N], Mz [N m]) at every push")
-        return (check_finite_array(wrench, "wrench", (4,)) - self.tare) / np.asarray(self.law.wrench_scale)
+        return check_finite_array(wrench, "wrench", (4,))
 
     def reset(self, tool_pose: ArrayLike, wrench: ArrayLike | None = None) -> None:
         self.poses[:] = 0.0
         self.wrenches[:] = 0.0
-        self.tare[:] = 0.0
         self.poses[0] = self.law.relative(tool_pose)
-        self.tare[:] = self._wrench(wrench) * np.asarray(self.law.wrench_scale)
-        self.wrenches[0] = 0.0
+        self.tare[:] = self._checked(wrench)
 
     def push(self, tool_pose: ArrayLike, wrench: ArrayLike | None = None) -> None:
         self.poses[1:] = self.poses[:-1]
         self.wrenches[1:] = self.wrenches[:-1]
         self.poses[0] = self.law.relative(tool_pose)
-        self.wrenches[0] = self._wrench(wrench)
+        self.wrenches[0] = (self._checked(wrench) - self.tare) / np.asarray(self.law.wrench_scale)
 
     def observation(self) -> NDArray[np.float32]:
         velocities = np.zeros_like(self.poses)

@@ -7,9 +7,8 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.solvers import Solve
 
-from assembly.impedance import arm_position_limits
+from assembly.impedance import arm_position_limits, arm_velocity_columns, tool_jacobian
 from assembly.panda_model import Q_HOME
-from assembly.wrench_sensor import tool_jacobian
 
 
 def solve_tool_ik(
@@ -49,4 +48,4 @@ def panda_jacobian_at(X_WT: RigidTransform) -> np.ndarray:
     plant, arm, tool = make_controller_plant()
     context = plant.CreateDefaultContext()
     plant.SetPositions(context, arm, solve_tool_ik(X_WT))
-    return tool_jacobian(plant, context, tool, arm)
+    return tool_jacobian(plant, context, tool, arm_velocity_columns(plant, arm))

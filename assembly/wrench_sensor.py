@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import Frame, JacobianWrtVariable, ModelInstanceIndex
+from pydrake.multibody.tree import Frame, ModelInstanceIndex
 from pydrake.systems.framework import Context, LeafSystem
 
-from assembly.impedance import arm_velocity_columns
+from assembly.impedance import arm_velocity_columns, tool_jacobian
 from goflow_common.checks import check_finite_array, check_number
 
 __all__ = [
@@ -42,17 +42,14 @@ __all__ = [
     "PANDA_WRENCH",
     "ToolJacobian",
     "WRENCH_MODELS",
-    "WRENCH_AXES",
     "WrenchSensor",
     "WrenchSensorModel",
     "joint_torque_of",
     "observed_wrench",
-    "tool_jacobian",
 ]
 
 N_JOINTS = 7
-#: Rows of the spatial force [torque; force] the policy sees: Mz, then Fx, Fy, Fz, reordered below.
-WRENCH_AXES = ("fx", "fy", "fz", "mz")
+#: Rows of the spatial force [torque; force] the policy sees, in its order: Fx, Fy, Fz, Mz.
 _ROWS = (3, 4, 5, 2)
 
 
@@ -124,24 +121,16 @@ class WrenchSensor:
         return observed_wrench(np.linalg.lstsq(J.T, tau, rcond=None)[0])
 
 
-def tool_jacobian(plant: MultibodyPlant, context: Context, tool: Frame, arm: ModelInstanceIndex) -> NDArray[np.float64]:
-    """The tool frame's spatial-velocity Jacobian (6, 7) [w; v] in the world frame, with respect to
-    the arm's joint velocities, at the state in `context`."""
-    J = plant.CalcJacobianSpatialVelocity(
-        context, JacobianWrtVariable.kV, tool, np.zeros(3), plant.world_frame(), plant.world_frame()
-    )
-    return J[:, arm_velocity_columns(plant, arm)]
-
-
 class ToolJacobian(LeafSystem):
     """The tool's Jacobian as a port: input "arm_state" (2 n: q, v), output "J" (6 n, row-major
-    (6, n): `tool_jacobian` of `plant`'s `tool` frame with respect to `arm`'s velocities). `plant`
+    (6, n): `assembly.impedance.tool_jacobian` of `plant`'s `tool` frame with respect to `arm`'s velocities). `plant`
     is a model of the arm alone (the controller's), owned by this system."""
 
     def __init__(self, plant: MultibodyPlant, arm: ModelInstanceIndex, tool: Frame) -> None:
         super().__init__()
         self.set_name("tool_jacobian")
         self._plant, self._arm, self._tool = plant, arm, tool
+        self._columns = arm_velocity_columns(plant, arm)
         self._context = plant.CreateDefaultContext()
         self._n = plant.num_positions(arm)
         self.DeclareVectorInputPort("arm_state", 2 * self._n)
@@ -150,7 +139,7 @@ class ToolJacobian(LeafSystem):
     def _calc(self, context: Context, output) -> None:
         x = self.get_input_port(0).Eval(context)
         self._plant.SetPositions(self._context, self._arm, x[: self._n])
-        output.SetFromVector(tool_jacobian(self._plant, self._context, self._tool, self._arm).reshape(-1))
+        output.SetFromVector(tool_jacobian(self._plant, self._context, self._tool, self._columns).reshape(-1))
 
 
 class ExternalWrenchEstimate(LeafSystem):

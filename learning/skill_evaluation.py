@@ -145,13 +145,17 @@ def xi_source(text: str) -> str:
     raise argparse.ArgumentTypeError(f"{text!r}; expected uniform, flow or radius:R (R > 0 metres, e.g. radius:0.005)")
 
 
-def _check_xi_source(xi: str, sampler: Sampler | None, skill: Skill) -> None:
+def _check_xi_source(xi: str, sampler: Sampler | None, skill: Skill) -> Sampler | None:
     """`xi` is one of XI_SOURCES or "radius:R" (its disk inside the skill's box), and `sampler`
-    is given (over the skill's ParamSpace) exactly when it is "estimate"; ValueError otherwise."""
+    is given (over the skill's ParamSpace) exactly when it is "estimate"; ValueError otherwise.
+    Returns the sampler the episodes draw from, None for the skill's flow or the uniform box: the
+    given one, or the CaptureDisk of "radius:R"."""
     radius = capture_radius(xi)
     if radius is not None:
-        CaptureDisk(skill.space, skill.centre(), radius)  # the disk fits the box
-    elif xi not in XI_SOURCES:
+        if sampler is not None:
+            raise ValueError(f"xi source {xi!r} with sampler {sampler!r}: a sampler goes with xi 'estimate' only")
+        return CaptureDisk(skill.space, skill.centre(), radius)
+    if xi not in XI_SOURCES:
         raise ValueError(f"xi source {xi!r}; expected one of {list(XI_SOURCES)} or radius:R")
     if (xi == "estimate") != (sampler is not None):
         raise ValueError(f"xi source {xi!r} with sampler {sampler!r}: a sampler goes with xi 'estimate' only")
@@ -160,6 +164,7 @@ def _check_xi_source(xi: str, sampler: Sampler | None, skill: Skill) -> None:
             f"the sampler's ParamSpace differs from skill {skill.name}-{skill.gear}'s (skill vs sampler): "
             + "; ".join(skill.space.diff(sampler.space))
         )
+    return sampler
 
 
 def _episodes(
@@ -172,12 +177,9 @@ def _episodes(
     num_envs: int,
     progress: bool,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-    """`episodes` episodes of the skill's deterministic policy in `num_envs` envs, xi from `xi`
-    (`sampler` for "estimate", a CaptureDisk around the skill's centre for "radius:R"): (xi,
+    """`episodes` episodes of the skill's deterministic policy in `num_envs` envs, xi from
+    `sampler` when given (an estimate, a CaptureDisk), else from `xi` ("flow" or "uniform"): (xi,
     returns, successes)."""
-    radius = capture_radius(xi)
-    if radius is not None:
-        sampler = CaptureDisk(skill.space, skill.centre(), radius)
 
     def make() -> gymnasium.Env:
         env = skill.make_env(variant, "uniform" if sampler is not None else xi)
@@ -212,9 +214,9 @@ def evaluate_skill(
     EstimatedSampler of a `goflow estimate` file; required then, and over the skill's ParamSpace); `progress` shows a bar of the episodes finished. ValueError on a bad
     source, before any episode."""
     episodes = check_int(episodes, "episodes", 1)
-    _check_xi_source(xi, sampler, skill)
+    draws = _check_xi_source(xi, sampler, skill)
     t0 = time.perf_counter()
-    xis, returns, successes = _episodes(skill, variant, xi, sampler, episodes, seed, num_envs, progress)
+    xis, returns, successes = _episodes(skill, variant, xi, draws, episodes, seed, num_envs, progress)
     return _evaluation(
         skill.gear, variant, xi, seed, time.perf_counter() - t0, xis, returns, successes, sampler=sampler
     )
@@ -283,7 +285,7 @@ def evaluate_skill_jobs(
         raise ValueError(f"jobs = {jobs}; expected at most episodes = {episodes}")
     path = Path(path).resolve()
     skill = Skill.load(path)  # a bad file fails here, before any job
-    _check_xi_source(xi, sampler, skill)
+    draws = _check_xi_source(xi, sampler, skill)
     t0 = time.perf_counter()
     sizes = [episodes // jobs + (1 if j < episodes % jobs else 0) for j in range(jobs)]
     seeds = (
@@ -296,7 +298,7 @@ def evaluate_skill_jobs(
             Job(
                 f"episodes {sum(sizes[:j])}-{sum(sizes[: j + 1]) - 1}",
                 _evaluate_part,
-                (str(path), variant, xi, sampler, sizes[j], seeds[j], num_envs),
+                (str(path), variant, xi, draws, sizes[j], seeds[j], num_envs),
             )
             for j in range(jobs)
         ],
